@@ -1,0 +1,1 @@
+"""Harness, metrics, cell-selection policies, reports and the command line."""

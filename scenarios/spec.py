@@ -1,0 +1,283 @@
+"""Scenario specifications: TOML files validated on load, dumped back losslessly.
+
+A scenario is a :class:`~scenarios.model.TrackingModel` (what a tracker may know)
+plus what only the simulator knows: the initial targets, the number of steps,
+a name and a one-line description. Presets live in ``scenarios/presets/*.toml``.
+
+File layout (every key is checked; unknown keys are refused)::
+
+    name = "default"              # optional in the file: defaults to the file stem
+    description = "one line"
+    n_steps = 100
+
+    [grid]      nx, ny (int >= 1), cell_size (> 0, default 1.0)
+    [dynamics]  tau (> 0), and exactly one of
+                q_matrix (4x4 symmetric PSD) or wna_intensity (>= 0)
+    [targets]   initial_states ([[px, vx, py, vy], ...]), n_random_initial,
+                survival_probability, birth_rate, birth_velocity_std,
+                boundary ("reflect" | "die")
+    [sensor]    kind = "rayleigh": p_d, snr (linear) or snr_db, looks_per_step
+                kind = "superposition": h_matrix (m x 4), r_matrix (m x m)
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import asdict, dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomli_w
+
+from scenarios.model import (
+    BirthDeath,
+    Dynamics,
+    Grid,
+    RayleighGridSensor,
+    SuperpositionSensor,
+    TrackingModel,
+)
+
+
+class ScenarioError(ValueError):
+    """A scenario file or dictionary that cannot be accepted; the message says why."""
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A named, fully specified scenario (model plus initial truth and length)."""
+
+    name: str
+    description: str
+    n_steps: int
+    model: TrackingModel
+
+    @property
+    def grid(self) -> Grid:
+        return self.model.grid
+
+
+# ------------------------------------------------------------------ validation kit
+def _fail(where: str, value: Any, allowed: str) -> ScenarioError:
+    return ScenarioError(f"{where} = {value!r} is not allowed: expected {allowed}")
+
+
+def _number(where: str, v: Any, *, lo: float | None = None, hi: float | None = None,
+            lo_open: bool = False, hi_open: bool = False, integer: bool = False) -> float:
+    kind = "an integer" if integer else "a number"
+    ok_type = isinstance(v, int) if integer else isinstance(v, int | float)
+    lo_txt = "" if lo is None else (f" > {lo}" if lo_open else f" >= {lo}")
+    hi_txt = "" if hi is None else (f" < {hi}" if hi_open else f" <= {hi}")
+    allowed = kind + (lo_txt + (" and" if lo_txt and hi_txt else "") + hi_txt)
+    if isinstance(v, bool) or not ok_type or not math.isfinite(v):
+        raise _fail(where, v, allowed)
+    if lo is not None and (v <= lo if lo_open else v < lo):
+        raise _fail(where, v, allowed)
+    if hi is not None and (v >= hi if hi_open else v > hi):
+        raise _fail(where, v, allowed)
+    return int(v) if integer else float(v)
+
+
+def _matrix(where: str, v: Any, rows: int | None, cols: int) -> tuple[tuple[float, ...], ...]:
+    shape = f"a {rows or 'm'} x {cols} array of numbers"
+    if not isinstance(v, list) or not v or (rows is not None and len(v) != rows):
+        raise _fail(where, v, shape)
+    out = []
+    for r in v:
+        if not isinstance(r, list) or len(r) != cols:
+            raise _fail(where, v, shape)
+        out.append(tuple(_number(where, x) for x in r))
+    return tuple(out)
+
+
+def _section(data: dict, name: str, allowed: set[str], required: set[str]) -> dict:
+    if name not in data:
+        raise ScenarioError(f"missing section [{name}]")
+    sec = data[name]
+    if not isinstance(sec, dict):
+        raise ScenarioError(f"[{name}] must be a table, got {sec!r}")
+    unknown = set(sec) - allowed
+    if unknown:
+        raise ScenarioError(
+            f"unknown key(s) {sorted(unknown)} in [{name}]: allowed keys are {sorted(allowed)}"
+        )
+    missing = required - set(sec)
+    if missing:
+        raise ScenarioError(f"missing field(s) {sorted(missing)} in [{name}]")
+    return sec
+
+
+def _psd(where: str, m: tuple[tuple[float, ...], ...]) -> None:
+    a = np.array(m)
+    if not np.allclose(a, a.T) or np.linalg.eigvalsh(a).min() < -1e-12:
+        raise _fail(where, [list(r) for r in m], "a symmetric positive semi-definite matrix")
+
+
+# ------------------------------------------------------------------------ parsing
+_TOP = {"name", "description", "n_steps", "grid", "dynamics", "targets", "sensor"}
+
+
+def from_dict(data: dict, *, default_name: str | None = None) -> Scenario:
+    """Validate a parsed TOML document and build the :class:`Scenario`.
+
+    Raises :class:`ScenarioError` naming the field, the value and what is allowed.
+    """
+    unknown = set(data) - _TOP
+    if unknown:
+        raise ScenarioError(f"unknown top-level key(s) {sorted(unknown)}: allowed {sorted(_TOP)}")
+    name = data.get("name", default_name)
+    if not isinstance(name, str) or not name:
+        raise _fail("name", name, "a non-empty string")
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise _fail("description", description, "a string")
+    if "n_steps" not in data:
+        raise ScenarioError("missing field n_steps")
+    n_steps = _number("n_steps", data["n_steps"], lo=1, integer=True)
+
+    g = _section(data, "grid", {"nx", "ny", "cell_size"}, {"nx", "ny"})
+    grid = Grid(
+        nx=_number("[grid].nx", g["nx"], lo=1, integer=True),
+        ny=_number("[grid].ny", g["ny"], lo=1, integer=True),
+        cell_size=_number("[grid].cell_size", g.get("cell_size", 1.0), lo=0, lo_open=True),
+    )
+
+    d = _section(data, "dynamics", {"tau", "q_matrix", "wna_intensity"}, set())
+    tau = _number("[dynamics].tau", d.get("tau", 1.0), lo=0, lo_open=True)
+    if ("q_matrix" in d) == ("wna_intensity" in d):
+        raise ScenarioError("[dynamics] needs exactly one of q_matrix and wna_intensity")
+    if "q_matrix" in d:
+        q = _matrix("[dynamics].q_matrix", d["q_matrix"], 4, 4)
+        _psd("[dynamics].q_matrix", q)
+        dynamics = Dynamics(tau=tau, q_matrix=q)
+    else:
+        dynamics = Dynamics(tau=tau, wna_intensity=_number("[dynamics].wna_intensity",
+                                                           d["wna_intensity"], lo=0))
+
+    t = _section(
+        data,
+        "targets",
+        {"initial_states", "n_random_initial", "survival_probability", "birth_rate",
+         "birth_velocity_std", "boundary"},
+        set(),
+    )
+    states = t.get("initial_states", [])
+    initial = _matrix("[targets].initial_states", states, None, 4) if states else ()
+    width, height = grid.extent
+    for s in initial:
+        if not (0 <= s[0] < width and 0 <= s[2] < height):
+            raise _fail("[targets].initial_states", list(s),
+                        f"positions inside the workspace [0, {width}) x [0, {height})")
+    boundary = t.get("boundary", "reflect")
+    if boundary not in ("reflect", "die"):
+        raise _fail("[targets].boundary", boundary, 'one of "reflect", "die"')
+    birth = BirthDeath(
+        initial_states=initial,  # type: ignore[arg-type]
+        n_random_initial=_number("[targets].n_random_initial", t.get("n_random_initial", 0),
+                                 lo=0, integer=True),
+        survival_probability=_number("[targets].survival_probability",
+                                     t.get("survival_probability", 1.0), lo=0, hi=1),
+        birth_rate=_number("[targets].birth_rate", t.get("birth_rate", 0.0), lo=0),
+        birth_velocity_std=_number("[targets].birth_velocity_std",
+                                   t.get("birth_velocity_std", 0.1), lo=0),
+        boundary=boundary,
+    )
+
+    s = _section(data, "sensor", {"kind", "p_d", "snr", "snr_db", "looks_per_step",
+                                  "h_matrix", "r_matrix"}, {"kind"})
+    kind = s["kind"]
+    if kind == "rayleigh":
+        extra = set(s) - {"kind", "p_d", "snr", "snr_db", "looks_per_step"}
+        if extra:
+            raise ScenarioError(f"key(s) {sorted(extra)} do not apply to a rayleigh [sensor]")
+        if ("snr" in s) == ("snr_db" in s):
+            raise ScenarioError("[sensor] needs exactly one of snr (linear) and snr_db")
+        snr = (_number("[sensor].snr", s["snr"], lo=0, lo_open=True) if "snr" in s
+               else 10.0 ** (_number("[sensor].snr_db", s["snr_db"]) / 10.0))  # dB -> linear
+        sensor: RayleighGridSensor | SuperpositionSensor = RayleighGridSensor(
+            p_d=_number("[sensor].p_d", s.get("p_d", 0.5), lo=0, hi=1, lo_open=True,
+                        hi_open=True),
+            snr=snr,
+            looks_per_step=_number("[sensor].looks_per_step",
+                                   s.get("looks_per_step", grid.n_cells), lo=0, integer=True),
+        )
+    elif kind == "superposition":
+        extra = set(s) - {"kind", "h_matrix", "r_matrix"}
+        if extra:
+            raise ScenarioError(f"key(s) {sorted(extra)} do not apply to a superposition [sensor]")
+        for key in ("h_matrix", "r_matrix"):
+            if key not in s:
+                raise ScenarioError(f"missing field {key} in superposition [sensor]")
+        h = _matrix("[sensor].h_matrix", s["h_matrix"], None, 4)
+        r = _matrix("[sensor].r_matrix", s["r_matrix"], len(h), len(h))
+        _psd("[sensor].r_matrix", r)
+        if np.linalg.eigvalsh(np.array(r)).min() <= 0:
+            raise _fail("[sensor].r_matrix", [list(x) for x in r], "a positive definite matrix")
+        sensor = SuperpositionSensor(h_matrix=h, r_matrix=r)
+    else:
+        raise _fail("[sensor].kind", kind, 'one of "rayleigh", "superposition"')
+
+    model = TrackingModel(grid=grid, dynamics=dynamics, birth_death=birth, sensor=sensor)
+    return Scenario(name=name, description=description, n_steps=n_steps, model=model)
+
+
+def to_dict(sc: Scenario) -> dict:
+    """The TOML document of a scenario; ``from_dict(to_dict(s)) == s``."""
+    m = sc.model
+    dyn = {"tau": m.dynamics.tau}
+    if m.dynamics.q_matrix is not None:
+        dyn["q_matrix"] = [list(r) for r in m.dynamics.q_matrix]
+    else:
+        dyn["wna_intensity"] = m.dynamics.wna_intensity
+    targets = asdict(m.birth_death)
+    targets["initial_states"] = [list(r) for r in m.birth_death.initial_states]
+    if isinstance(m.sensor, RayleighGridSensor):
+        sensor = {"kind": "rayleigh", **asdict(m.sensor)}
+    else:
+        sensor = {"kind": "superposition", "h_matrix": [list(r) for r in m.sensor.h_matrix],
+                  "r_matrix": [list(r) for r in m.sensor.r_matrix]}
+    return {"name": sc.name, "description": sc.description, "n_steps": sc.n_steps,
+            "grid": asdict(m.grid), "dynamics": dyn, "targets": targets, "sensor": sensor}
+
+
+def loads(text: str, *, default_name: str | None = None) -> Scenario:
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"not valid TOML: {exc}") from exc
+    return from_dict(data, default_name=default_name)
+
+
+def dumps(sc: Scenario) -> str:
+    return tomli_w.dumps(to_dict(sc))
+
+
+def load(path: str | Path) -> Scenario:
+    """Load and validate a scenario file; errors name the file and the field."""
+    path = Path(path)
+    try:
+        return loads(path.read_text(), default_name=path.stem)
+    except ScenarioError as exc:
+        raise ScenarioError(f"{path}: {exc}") from None
+
+
+# ------------------------------------------------------------------------ presets
+def preset_names() -> list[str]:
+    """Names of the shipped presets, sorted."""
+    folder = resources.files("scenarios.presets")
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def get(name_or_path: str) -> Scenario:
+    """A shipped preset by name, or a scenario file by path (anything ending .toml)."""
+    if name_or_path.endswith(".toml"):
+        return load(name_or_path)
+    names = preset_names()
+    if name_or_path not in names:
+        raise ScenarioError(f"unknown scenario {name_or_path!r}: presets are {names}, "
+                            "or give a path to a .toml file")
+    text = resources.files("scenarios.presets").joinpath(f"{name_or_path}.toml").read_text()
+    return loads(text, default_name=name_or_path)

@@ -1,0 +1,10 @@
+"""Trackers behind one interface (:class:`trackers.base.Tracker`), registered by name.
+
+Importing this package registers every shipped tracker; add a new module's import
+below to register it (the conformance suite then tests it automatically).
+"""
+
+from trackers import null  # noqa: F401  (registers "null")
+from trackers.base import Estimate, Tracker, available, get_class, make, register
+
+__all__ = ["Estimate", "Tracker", "available", "get_class", "make", "register"]

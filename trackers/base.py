@@ -1,0 +1,147 @@
+"""The interface every tracker implements, and the registry of trackers by name.
+
+Life cycle, as the harness drives it (STYLE.md pattern 1)::
+
+    tracker = make("gpf", epsilon=1e-3)     # constructor: store parameters only
+    reason = tracker.unsupported_reason(model)   # None, or why it cannot run this model
+    tracker.reset(model, rng)               # untimed: build the run state
+    for k in range(n_steps):
+        tracker.predict()                   # timed
+        P = tracker.cell_count_distribution()   # (n_cells, n_counts), when a policy asks
+        tracker.update(looks)               # timed; looks of step k
+        est = tracker.estimate()            # timed
+
+``reset`` gives the prior *before* step 0, so ``predict`` is called before every
+update, including the first.
+"""
+
+from __future__ import annotations
+
+import inspect
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from scenarios.model import Looks, TrackingModel
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A tracker's output at one step.
+
+    ``count`` is the estimated number of targets (float or int, as the tracker
+    defines it; never negative). ``states`` is ``(n, 4)`` float64 with rows
+    ``[px, vx, py, vy]``; ``n`` need not equal ``count`` (for example the GPF's
+    count is ``sum w`` while it reports the ``round(sum w)`` heaviest components).
+    ``covariances`` is ``(n, 4, 4)`` or None, used only for plots.
+    """
+
+    count: float
+    states: np.ndarray
+    covariances: np.ndarray | None = None
+
+    @staticmethod
+    def empty() -> Estimate:
+        return Estimate(0.0, np.zeros((0, 4)))
+
+
+class Tracker(ABC):
+    """Base class of all trackers.
+
+    Subclasses declare their parameters as keyword arguments of ``__init__`` with
+    defaults and store each one, unchanged, under the same attribute name
+    (scikit-learn's rule); :meth:`get_params` reads them back for the results table.
+    """
+
+    name: ClassVar[str] = ""
+    #: one line for ``mttbench trackers``
+    summary: ClassVar[str] = ""
+
+    # ------------------------------------------------------------------ params
+    @classmethod
+    def param_names(cls) -> list[str]:
+        sig = inspect.signature(cls.__init__)
+        kinds = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+        return [p.name for p in sig.parameters.values() if p.name != "self" and p.kind in kinds]
+
+    @classmethod
+    def param_defaults(cls) -> dict[str, Any]:
+        sig = inspect.signature(cls.__init__)
+        return {n: sig.parameters[n].default for n in cls.param_names()}
+
+    def get_params(self) -> dict[str, Any]:
+        """The constructor parameters, as stored."""
+        return {n: getattr(self, n) for n in self.param_names()}
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
+        return f"{type(self).__name__}({args})"
+
+    # --------------------------------------------------------------- life cycle
+    def unsupported_reason(self, model: TrackingModel) -> str | None:
+        """None if the tracker can run ``model``, otherwise a one-line reason."""
+        return None
+
+    @abstractmethod
+    def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
+        """Build the run state (the prior before step 0). All randomness from ``rng``."""
+
+    @abstractmethod
+    def predict(self) -> None:
+        """Propagate the state one step with the dynamics and the birth/death prior."""
+
+    @abstractmethod
+    def cell_count_distribution(self) -> np.ndarray:
+        """Predicted per-cell count distribution ``P_c(t)``.
+
+        Returns ``(n_cells, n_counts)`` with non-negative rows summing to 1; column
+        ``t`` is the probability of ``t`` targets in the cell, and the last column
+        holds "``n_counts - 1`` or more". ``n_counts >= 2``. Valid between
+        :meth:`predict` and :meth:`update`.
+        """
+
+    @abstractmethod
+    def update(self, looks: Looks) -> None:
+        """Condition on the measurements of one step."""
+
+    @abstractmethod
+    def estimate(self) -> Estimate:
+        """The current estimate (count and states)."""
+
+
+# ----------------------------------------------------------------------- registry
+_REGISTRY: dict[str, type[Tracker]] = {}
+
+
+def register(cls: type[Tracker]) -> type[Tracker]:
+    """Class decorator: register a tracker under ``cls.name``."""
+    if not cls.name:
+        raise ValueError(f"{cls.__name__} needs a non-empty `name`")
+    if cls.name in _REGISTRY and _REGISTRY[cls.name] is not cls:
+        raise ValueError(f"tracker name {cls.name!r} is already registered")
+    _REGISTRY[cls.name] = cls
+    return cls
+
+
+def available() -> list[str]:
+    """Registered tracker names, sorted."""
+    return sorted(_REGISTRY)
+
+
+def get_class(name: str) -> type[Tracker]:
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise KeyError(f"unknown tracker {name!r}: registered trackers are {available()}") from None
+
+
+def make(name: str, **params: Any) -> Tracker:
+    """Build a registered tracker; unknown parameters are refused, not ignored."""
+    cls = get_class(name)
+    unknown = set(params) - set(cls.param_names())
+    if unknown:
+        raise TypeError(f"tracker {name!r} has no parameter(s) {sorted(unknown)}; "
+                        f"its parameters are {cls.param_defaults()}")
+    return cls(**params)

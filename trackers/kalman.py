@@ -1,0 +1,42 @@
+"""Kalman filter steps batched over a leading axis of components.
+
+Means ``m (K, d)``, covariances ``P (K, d, d)``. Used by KF-NN and the GPF; the
+equations are the textbook ones (paper Section III-B), written once here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def predict(m: np.ndarray, P: np.ndarray, F: np.ndarray, Q: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """``m <- F m``, ``P <- F P F^T + Q`` for every component. Shapes kept."""
+    return m @ F.T, F @ P @ F.T + Q
+
+
+def update(m: np.ndarray, P: np.ndarray, z: np.ndarray, H: np.ndarray, R: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Kalman update of each component with its own measurement.
+
+    ``z (K, r)`` (one measurement per component), ``H (r, d)``, ``R (r, r)`` or
+    ``(K, r, r)``. Returns the posterior ``m (K, d)``, ``P (K, d, d)`` (Joseph form,
+    so it stays symmetric positive definite), the innovation ``y (K, r)`` and its
+    covariance ``S (K, r, r)``.
+    """
+    # y = z - H m ; S = H P H^T + R ; K = P H^T S^-1
+    y = z - m @ H.T
+    PHt = P @ H.T
+    S = H @ PHt + R
+    gain = np.linalg.solve(S, np.swapaxes(PHt, -1, -2)).swapaxes(-1, -2)
+    m_post = m + (gain @ y[..., None])[..., 0]
+    # Joseph form: (I - K H) P (I - K H)^T + K R K^T
+    A = np.eye(P.shape[-1]) - gain @ H
+    P_post = A @ P @ np.swapaxes(A, -1, -2) + gain @ R @ np.swapaxes(gain, -1, -2)
+    P_post = 0.5 * (P_post + np.swapaxes(P_post, -1, -2))
+    return m_post, P_post, y, S
+
+
+def mahalanobis_sq(y: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """``y^T S^-1 y`` over broadcast leading axes; ``y (..., r)``, ``S (..., r, r)``."""
+    return np.einsum("...i,...i->...", y, np.linalg.solve(S, y[..., None])[..., 0])
