@@ -1,0 +1,111 @@
+"""Per-cell helpers shared by trackers that hold Gaussian targets (KF-NN, GPF).
+
+Two kernels build a tracker's predicted per-cell count distribution ``P_c(t)``:
+
+* :func:`gaussian_cell_mass` -- the probability mass of each of ``K`` Gaussian
+  position densities in every grid cell, ``(K, n_cells)``;
+* :func:`poisson_binomial` -- per cell, the distribution of a sum of independent
+  Bernoulli variables (one per target hypothesis), ``(n_cells, n_counts)`` with the
+  last column holding "``n_counts - 1`` or more".
+
+A tracker multiplies the cell masses by each target's existence probability and
+passes the product to :func:`poisson_binomial`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import ndtr
+
+from scenarios.model import Grid
+
+#: smallest standard deviation (in cells) used for a position axis; keeps the
+#: standardised edges finite for a degenerate (zero-variance) Gaussian
+_MIN_STD_CELLS = 1e-12
+
+
+def gaussian_cell_mass(grid: Grid, means_xy: np.ndarray, cov_xy: np.ndarray) -> np.ndarray:
+    """Mass of each Gaussian position density in every cell of ``grid``.
+
+    For component ``k`` with mean ``(mx, my)`` and marginal standard deviations
+    ``sx = sqrt(cov_xy[k, 0, 0])``, ``sy = sqrt(cov_xy[k, 1, 1])``, the mass in cell
+    ``c = iy * nx + ix`` with edges ``[x0, x1) x [y0, y1)`` is::
+
+        mass[k, c] = (Phi((x1 - mx)/sx) - Phi((x0 - mx)/sx))
+                   * (Phi((y1 - my)/sy) - Phi((y0 - my)/sy))
+
+    with ``Phi`` the standard normal CDF (``scipy.special.ndtr``).
+
+    Approximation: the x-y correlation ``cov_xy[k, 0, 1]`` is ignored (the density
+    is replaced by the product of its marginals). This is exact for a diagonal
+    position covariance; for a correlated one the per-column and per-row sums are
+    still exact when the other axis lies inside the grid, only the split between
+    cells of a column (row) is approximate.
+
+    Mass outside the workspace is not returned, so a row sums to at most 1 (less
+    for a Gaussian near or beyond an edge); callers decide whether to renormalise.
+
+    Parameters
+    ----------
+    grid : the grid (``nx``, ``ny``, ``cell_size``).
+    means_xy : ``(K, 2)`` position means ``(px, py)`` in workspace units.
+    cov_xy : ``(K, 2, 2)`` position covariances in workspace units squared.
+
+    Returns
+    -------
+    ``(K, n_cells)`` float64, non-negative.
+    """
+    means_xy = np.asarray(means_xy, dtype=float).reshape(-1, 2)
+    cov_xy = np.asarray(cov_xy, dtype=float).reshape(-1, 2, 2)
+    s = grid.cell_size
+    floor = _MIN_STD_CELLS * s
+    sx = np.maximum(np.sqrt(np.maximum(cov_xy[:, 0, 0], 0.0)), floor)
+    sy = np.maximum(np.sqrt(np.maximum(cov_xy[:, 1, 1], 0.0)), floor)
+    x_edges = np.arange(grid.nx + 1) * s  # (nx+1,)
+    y_edges = np.arange(grid.ny + 1) * s  # (ny+1,)
+    # CDF at every edge, then differences: (K, nx) and (K, ny)
+    cdf_x = ndtr((x_edges[None, :] - means_xy[:, 0:1]) / sx[:, None])
+    cdf_y = ndtr((y_edges[None, :] - means_xy[:, 1:2]) / sy[:, None])
+    mass_x = np.diff(cdf_x, axis=1)
+    mass_y = np.diff(cdf_y, axis=1)
+    # product of marginals, laid out row-major in y: c = iy * nx + ix
+    mass = mass_y[:, :, None] * mass_x[:, None, :]  # (K, ny, nx)
+    return np.clip(mass.reshape(len(means_xy), grid.n_cells), 0.0, 1.0)
+
+
+def poisson_binomial(probs: np.ndarray, n_counts: int) -> np.ndarray:
+    """Per cell, the distribution of a sum of independent Bernoullis, truncated.
+
+    ``probs[k, c]`` is the probability that target hypothesis ``k`` is present in
+    cell ``c``; hypotheses are independent, and within a row the cells are mutually
+    exclusive events of one hypothesis (only the per-cell marginals matter here).
+    With ``D_0 = (1, 0, ..., 0)`` and one hypothesis ``p`` at a time the recurrence is::
+
+        D_new[t] = (1 - p) D[t] + p D[t-1]          for 0 <= t < n_counts - 1
+        D_new[n_counts-1] = D[n_counts-1] + p D[n_counts-2]   ("that many or more")
+
+    Parameters
+    ----------
+    probs : ``(K, n_cells)`` probabilities in ``[0, 1]`` (``K`` may be 0).
+    n_counts : number of count columns, ``>= 2``.
+
+    Returns
+    -------
+    ``(n_cells, n_counts)`` float64; rows sum to 1.
+    """
+    if n_counts < 2:
+        raise ValueError(f"n_counts must be >= 2, got {n_counts}")
+    probs = np.clip(np.asarray(probs, dtype=float), 0.0, 1.0)
+    if probs.ndim != 2:
+        raise ValueError(f"probs must be (K, n_cells), got shape {probs.shape}")
+    dist = np.zeros((probs.shape[1], n_counts))
+    dist[:, 0] = 1.0
+    for p in probs:  # K is small (tracks or components); each step is vectorised over cells
+        p = p[:, None]
+        shifted = np.zeros_like(dist)
+        shifted[:, 1:] = dist[:, :-1] * p
+        # the last column keeps its mass whatever the new Bernoulli does
+        stay = dist * (1.0 - p)
+        stay[:, -1] = dist[:, -1]
+        dist = stay + shifted
+    return dist
