@@ -175,7 +175,7 @@ class Run:
         return Looks(cells=cells, returns=u < p)
 
     def measure(self, k: int) -> Looks:
-        """Superposition measurement of step ``k``: ``z = mean_i H x_i + w`` (``z = w`` if empty)."""
+        """Superposition measurement of step ``k``: ``z = mean_i H x_i + w`` (``w`` if empty)."""
         sensor = self.scenario.model.sensor
         if not isinstance(sensor, SuperpositionSensor):
             raise TypeError(f"scenario {self.scenario.name!r} has no superposition sensor")
