@@ -100,3 +100,37 @@ class Raster(Policy):
     def select(self, k, counts=None, truth_cells=None):
         m = min(self._n_looks, self._n_cells)
         return ((k * m + np.arange(m)) % self._n_cells).astype(np.int64)
+
+
+@register_policy
+class Oracle(Policy):
+    """REFERENCE ONLY -- USES THE TRUTH. Looks at the cells holding true targets first.
+
+    Each step: the distinct cells of the true targets (``truth_cells``, flat indices;
+    ``-1`` = outside the grid, ignored), in random order if there are more than ``M``,
+    then distinct other cells drawn uniformly to fill the ``M`` looks. The harness
+    passes ``truth_cells`` only to policies with ``uses_truth = True`` and marks
+    their results; a tracker never sees the truth, only the looks this policy made.
+    """
+
+    name = "oracle"
+    summary = "REFERENCE, USES THE TRUTH: cells of the true targets, then random cells"
+    uses_truth = True
+
+    def select(self, k, counts=None, truth_cells=None):
+        if truth_cells is None:
+            raise ValueError("the oracle policy needs the true targets' cells")
+        m = min(self._n_looks, self._n_cells)
+        truth = np.unique(np.asarray(truth_cells, dtype=np.int64))
+        truth = truth[(truth >= 0) & (truth < self._n_cells)]
+        if truth.size >= m:
+            return np.sort(self._rng.choice(truth, size=m, replace=False)).astype(np.int64)
+        others = np.setdiff1d(np.arange(self._n_cells), truth, assume_unique=True)
+        fill = self._rng.choice(others, size=m - truth.size, replace=False)
+        return np.sort(np.concatenate([truth, fill])).astype(np.int64)
+
+
+# The information-driven policy lives in its own module, which imports this one for
+# the registry; importing it here (after the registry exists) registers "renyi"
+# whenever the policies are imported, without a circular-import failure.
+from benchmarks import information  # noqa: E402, F401

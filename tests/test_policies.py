@@ -1,0 +1,149 @@
+"""Cell-selection policies: registry, oracle, renyi, and renyi closed loop on every tracker."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import scenarios
+import trackers
+from benchmarks.information import expected_gain, greedy_looks
+from benchmarks.policies import available_policies, make_policy
+from scenarios.simulator import simulate, tracker_seed
+
+DEFAULT = scenarios.get("default")
+MODEL = DEFAULT.model
+
+
+def test_registry_lists_information_and_oracle_policies():
+    names = available_policies()
+    assert {"all", "random", "raster", "renyi", "oracle"} <= set(names)
+    assert make_policy("oracle").uses_truth
+    assert not make_policy("renyi").uses_truth
+    assert make_policy("renyi").uses_prediction
+    for name in names:
+        if name != "oracle":
+            assert not make_policy(name).uses_truth, name
+    assert make_policy("renyi", alpha=0.7, repeats=False).get_params() == {
+        "alpha": 0.7, "repeats": False}
+    with pytest.raises(TypeError):
+        make_policy("renyi", beta=1.0)
+
+
+# ------------------------------------------------------------------------- oracle
+def _oracle(n_looks, seed=0):
+    pol = make_policy("oracle")
+    pol.reset(MODEL, n_looks, np.random.default_rng(seed))
+    return pol
+
+
+def test_oracle_looks_at_every_target_cell_then_distinct_random_cells():
+    pol = _oracle(24)
+    truth = np.array([5, 5, 17, -1, 143])  # duplicates and an outside target
+    cells = pol.select(0, truth_cells=truth)
+    assert cells.dtype == np.int64 and cells.shape == (24,)
+    assert len(np.unique(cells)) == 24
+    assert {5, 17, 143} <= set(cells.tolist())
+    assert cells.min() >= 0 and cells.max() < MODEL.grid.n_cells
+    # the filling cells are random: two steps differ
+    assert pol.select(1, truth_cells=truth).tolist() != cells.tolist()
+
+
+def test_oracle_with_more_target_cells_than_looks_takes_a_subset_of_them():
+    pol = _oracle(3)
+    truth = np.arange(10, 20)
+    cells = pol.select(0, truth_cells=truth)
+    assert len(np.unique(cells)) == 3 and set(cells.tolist()) <= set(truth.tolist())
+
+
+def test_oracle_with_no_targets_and_without_truth():
+    pol = _oracle(4)
+    assert len(np.unique(pol.select(0, truth_cells=np.zeros(0, dtype=np.int64)))) == 4
+    with pytest.raises(ValueError):
+        pol.select(0)
+
+
+def test_oracle_finds_the_targets_of_a_run():
+    run = simulate(DEFAULT, 0)
+    pol = _oracle(24)
+    for k in (0, 50):
+        counts = run.cell_counts(k)
+        cells = pol.select(k, truth_cells=np.nonzero(counts)[0])
+        assert set(np.nonzero(counts)[0].tolist()) <= set(cells.tolist())
+
+
+# -------------------------------------------------------------------------- renyi
+def test_renyi_policy_matches_the_kernel_and_is_reproducible():
+    rng = np.random.default_rng(3)
+    P = rng.dirichlet(np.full(3, 0.4), size=MODEL.grid.n_cells)
+    pd = MODEL.sensor.detection_probability(np.arange(3))
+    out = []
+    for _ in range(2):
+        pol = make_policy("renyi", alpha=0.5, repeats=False)
+        pol.reset(MODEL, 24, np.random.default_rng(11))
+        out.append(pol.select(0, counts=P))
+    assert out[0].tolist() == out[1].tolist()
+    best = np.argsort(-expected_gain(P, pd, 0.5))[:24]
+    assert set(out[0].tolist()) == set(best.tolist())
+    pol = make_policy("renyi")
+    pol.reset(MODEL, 24, np.random.default_rng(11))
+    want = greedy_looks(P, pd, 24, 0.5, repeats=True, rng=np.random.default_rng(11))
+    assert pol.select(0, counts=P).tolist() == want.tolist()
+
+
+def test_renyi_needs_the_prediction_and_a_grid_sensor():
+    pol = make_policy("renyi")
+    pol.reset(MODEL, 24, np.random.default_rng(0))
+    with pytest.raises(ValueError):
+        pol.select(0)
+    with pytest.raises(TypeError):
+        pol.reset(scenarios.get("superposition").model, 24, np.random.default_rng(0))
+
+
+def test_renyi_looks_at_uncertain_cells():
+    """Two cells with an even chance of a target, the rest certainly empty: without
+    repeats both are looked at once (plus two zero-gain cells); with repeats the four
+    looks split two and two between them (equal marginal gains)."""
+    P = np.zeros((MODEL.grid.n_cells, 2))
+    P[:, 0] = 1.0
+    P[[40, 77]] = [0.5, 0.5]
+    for repeats, want in ((False, None), (True, [40, 40, 77, 77])):
+        pol = make_policy("renyi", repeats=repeats)
+        pol.reset(MODEL, 4, np.random.default_rng(0))
+        cells = pol.select(0, counts=P)
+        if want is None:
+            assert len(np.unique(cells)) == 4 and {40, 77} <= set(cells.tolist())
+        else:
+            assert cells.tolist() == want
+
+
+# -------------------------------------------------------------------- closed loop
+CLOSED_LOOP_STEPS = 200
+
+
+@pytest.mark.parametrize("name", trackers.available())
+def test_every_tracker_runs_closed_loop_with_renyi(name):
+    """predict -> P_c -> renyi looks -> look (common random numbers) -> update -> estimate."""
+    sc = dataclasses.replace(DEFAULT, n_steps=CLOSED_LOOP_STEPS)
+    tracker = trackers.make(name)
+    reason = tracker.unsupported_reason(sc.model)
+    if reason is not None:
+        pytest.skip(reason)
+    run = simulate(sc, 0)
+    tracker.reset(sc.model, np.random.default_rng(tracker_seed(sc.name, 0, name)))
+    pol = make_policy("renyi")
+    pol.reset(sc.model, 24, np.random.default_rng(1))
+    n_cells = sc.model.grid.n_cells
+    for k in range(CLOSED_LOOP_STEPS):
+        tracker.predict()
+        P = tracker.cell_count_distribution()
+        assert P.shape[0] == n_cells and np.all(np.isfinite(P))
+        cells = pol.select(k, counts=P)
+        assert cells.dtype == np.int64 and cells.shape == (24,)
+        assert cells.min() >= 0 and cells.max() < n_cells
+        tracker.update(run.look(k, cells))
+        est = tracker.estimate()
+        assert np.isfinite(est.count) and est.count >= 0
+        assert np.all(np.isfinite(est.states))
