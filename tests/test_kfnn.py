@@ -1,0 +1,321 @@
+"""Tests of the KF-NN tracker: reduction to filterpy, association, hit/miss rules, accuracy."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from filterpy.kalman import KalmanFilter
+from scipy import stats
+
+import scenarios
+from benchmarks.metrics import ospa
+from scenarios.model import (
+    BirthDeath,
+    Dynamics,
+    Grid,
+    Looks,
+    RayleighGridSensor,
+    TrackingModel,
+)
+from scenarios.simulator import simulate
+from scenarios.spec import Scenario
+from trackers.cells import poisson_binomial
+from trackers.kfnn import KFNNTracker, associate
+
+#: one tolerance for "equal to the reference Kalman filter"
+KF_TOL = 1e-10
+
+GRID = Grid(nx=12, ny=12, cell_size=1.0)
+H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+
+
+def _model(wna: float = 1e-6, p_d: float = 0.5, snr: float = 10.0, **bd) -> TrackingModel:
+    return TrackingModel(grid=GRID, dynamics=Dynamics(tau=1.0, wna_intensity=wna),
+                         birth_death=BirthDeath(**bd), sensor=RayleighGridSensor(p_d=p_d, snr=snr))
+
+
+def _looks(positive_cells: list[int] | np.ndarray, looked: np.ndarray | None = None) -> Looks:
+    """Looks at ``looked`` cells (all if None) with returns 1 exactly at ``positive_cells``."""
+    cells = np.arange(GRID.n_cells) if looked is None else np.asarray(looked, dtype=np.int64)
+    returns = np.isin(cells, np.asarray(positive_cells, dtype=np.int64))
+    return Looks(cells=cells, returns=returns)
+
+
+def _cell(px: float, py: float) -> int:
+    return int(GRID.cell_of(px, py))
+
+
+# -------------------------------------------------------------- reduction to filterpy
+def test_single_target_perfect_detection_equals_filterpy() -> None:
+    """p_d ~ 1, p_f ~ 0, all cells looked at: the confirmed track IS a Kalman filter.
+
+    Note p_f = p_d**(1+snr): with p_d = 1 - 1e-9 the snr must be huge (1e13) for p_f ~ 0.
+    """
+    sensor = RayleighGridSensor(p_d=1.0 - 1e-9, snr=1e13, looks_per_step=GRID.n_cells)
+    assert sensor.p_f < 1e-300 and sensor.p_d > 1.0 - 1e-8
+    model = TrackingModel(grid=GRID, dynamics=Dynamics(tau=1.0, wna_intensity=2e-3),
+                          birth_death=BirthDeath(initial_states=((3.3, 0.12, 8.6, -0.09),),
+                                                 birth_velocity_std=0.1),
+                          sensor=sensor)
+    n_steps = 50
+    run = simulate(Scenario("kf-reduction", "one target", n_steps, model), seed=7)
+    tracker = KFNNTracker(gate_probability=1.0 - 1e-12, birth_velocity_std=0.2)
+    tracker.reset(model, np.random.default_rng(0))
+    kf = KalmanFilter(dim_x=4, dim_z=2)
+    kf.F, kf.Q, kf.H = model.dynamics.F, model.dynamics.Q, H
+    kf.R = np.eye(2) / 12.0
+    all_cells = np.arange(GRID.n_cells)
+    for k in range(n_steps):
+        tracker.predict()
+        looks = run.look(k, all_cells)
+        target_cell = GRID.cell_of(run.states[k][:, 0], run.states[k][:, 2])
+        np.testing.assert_array_equal(np.flatnonzero(looks.returns), target_cell)  # no FA, no miss
+        z = GRID.cell_centers(target_cell)[0]
+        tracker.update(looks)
+        est = tracker.estimate()
+        table = tracker.track_table()
+        np.testing.assert_array_equal(table["id"], [0])  # one track, never replaced
+        if k == 0:  # birth: tentative, same initialisation as the reference
+            kf.x = np.array([z[0], 0.0, z[1], 0.0])
+            kf.P = np.diag([1 / 12, 0.2**2, 1 / 12, 0.2**2])
+            assert est.count == 0.0
+            continue
+        kf.predict()
+        kf.update(z)
+        assert est.count == 1.0
+        np.testing.assert_allclose(est.states[0], kf.x.ravel(), rtol=0, atol=KF_TOL)
+        np.testing.assert_allclose(est.covariances[0], kf.P, rtol=0, atol=KF_TOL)
+
+
+# ------------------------------------------------------------------------ association
+def test_associate_global_and_greedy_differ_on_cardinality() -> None:
+    # track 0 gates both detections and is nearest detection 0; track 1 gates only detection 0
+    cost = np.array([[1.0, 2.0], [3.0, 50.0]])
+    r, c = associate(cost, gate=9.21, method="greedy")
+    assert list(zip(r, c, strict=True)) == [(0, 0)]  # smallest pair first, track 1 left out
+    r, c = associate(cost, gate=9.21, method="global")
+    assert list(zip(r, c, strict=True)) == [(0, 1), (1, 0)]  # most gated pairs
+
+
+def test_associate_global_and_greedy_differ_on_total_cost() -> None:
+    cost = np.array([[1.0, 2.0], [2.0, 8.0]])
+    r, c = associate(cost, gate=9.21, method="greedy")
+    assert list(zip(r, c, strict=True)) == [(0, 0), (1, 1)]  # total 9
+    r, c = associate(cost, gate=9.21, method="global")
+    assert list(zip(r, c, strict=True)) == [(0, 1), (1, 0)]  # total 4, the minimum
+
+
+def test_associate_gate_empty_and_unknown_method() -> None:
+    r, c = associate(np.array([[9.3, 12.0]]), gate=9.21, method="global")
+    assert len(r) == len(c) == 0
+    r, c = associate(np.zeros((0, 3)), gate=9.21)
+    assert len(r) == 0
+    with pytest.raises(ValueError):
+        associate(np.ones((1, 1)), gate=9.21, method="nearest")
+
+
+@pytest.mark.parametrize("method", ["greedy", "global"])
+def test_tracker_association_on_a_constructed_geometry(method: str) -> None:
+    """Tracks A (2.5, 5.5), B (4.5, 6.5); detections d1 (3.5, 5.5), d2 (1.5, 6.5).
+
+    d^2 (in units of the common S) is [[1, 2], [2, 9]]: A is nearest d1, B gates only d1.
+    Greedy gives A-d1 (B unassigned, d2 starts a track); global gives A-d2, B-d1.
+    """
+    model = _model()
+    tracker = KFNNTracker(association=method, birth_velocity_std=0.5)
+    tracker.reset(model, np.random.default_rng(0))
+    a, b, d1, d2 = _cell(2.5, 5.5), _cell(4.5, 6.5), _cell(3.5, 5.5), _cell(1.5, 6.5)
+    tracker.predict()
+    tracker.update(_looks([a, b]))
+    tracker.predict()
+    before = tracker.track_table()
+    # precondition, computed independently: the admissibility pattern described above
+    s = before["cov"][:, [0, 2]][:, :, [0, 2]] + np.eye(2) / 12.0
+    z = GRID.cell_centers(np.array([d1, d2]))
+    d2sq = np.array([[(z[j] - m[[0, 2]]) @ np.linalg.solve(s[i], z[j] - m[[0, 2]])
+                      for j in range(2)] for i, m in enumerate(before["mean"])])
+    gate = stats.chi2.ppf(0.99, 2)
+    np.testing.assert_array_equal(d2sq < gate, [[True, True], [True, False]])
+    assert d2sq[0, 0] < min(d2sq[0, 1], d2sq[1, 0])
+
+    tracker.update(_looks([d1, d2]))
+    after = tracker.track_table()
+    pos = after["mean"][:, [0, 2]]
+    if method == "greedy":
+        assert list(after["id"]) == [0, 1, 2]  # d2 became track 2
+        assert pos[0, 0] > 2.5 and pos[0, 1] == pytest.approx(5.5)  # A pulled towards d1
+        np.testing.assert_array_equal(after["mean"][1], before["mean"][1])  # B coasted
+        np.testing.assert_allclose(pos[2], [1.5, 6.5])
+    else:
+        assert list(after["id"]) == [0, 1]
+        assert pos[0, 0] < 2.5 and pos[0, 1] > 5.5  # A pulled towards d2
+        assert pos[1, 0] < 4.5 and pos[1, 1] < 6.5  # B pulled towards d1
+        assert after["confirmed"].all()  # both scored their second hit
+
+
+def test_gate_rejects_a_far_detection() -> None:
+    model = _model()
+    tracker = KFNNTracker()
+    tracker.reset(model, np.random.default_rng(0))
+    home, far = _cell(5.5, 5.5), _cell(9.5, 5.5)
+    for _ in range(3):
+        tracker.predict()
+        tracker.update(_looks([home]))
+    assert tracker.estimate().count == 1.0
+    tracker.predict()
+    predicted = tracker.track_table()["mean"][0]
+    tracker.update(_looks([far]))
+    table = tracker.track_table()
+    np.testing.assert_array_equal(table["mean"][0], predicted)  # no update from the far cell
+    assert table["misses"][0] == 1  # home cell looked at and empty: a miss
+    assert list(table["id"]) == [0, 1] and not table["confirmed"][1]  # far cell: new tentative
+    np.testing.assert_allclose(table["mean"][1], [9.5, 0.0, 5.5, 0.0])
+
+
+# --------------------------------------------------------------------- hits and misses
+def _confirmed_track(tracker: KFNNTracker, cell: int) -> None:
+    for _ in range(2):
+        tracker.predict()
+        tracker.update(_looks([cell]))
+    assert tracker.estimate().count == 1.0
+
+
+def test_unlooked_track_coasts_without_misses() -> None:
+    tracker = KFNNTracker(max_misses=3)
+    tracker.reset(_model(), np.random.default_rng(0))
+    _confirmed_track(tracker, _cell(6.5, 6.5))
+    for _ in range(40):
+        tracker.predict()
+        mean = tracker.track_table()["mean"][0]
+        own = _cell(mean[0], mean[2])  # the cell of the predicted mean
+        others = np.setdiff1d(np.arange(GRID.n_cells), [own])
+        tracker.update(_looks([], looked=others))  # every other cell, all empty
+        table = tracker.track_table()
+        assert table["misses"][0] == 0
+    assert tracker.estimate().count == 1.0
+
+
+@pytest.mark.parametrize("max_misses", [1, 3, 5])
+def test_looked_and_empty_track_deleted_after_max_misses(max_misses: int) -> None:
+    tracker = KFNNTracker(max_misses=max_misses)
+    tracker.reset(_model(), np.random.default_rng(0))
+    _confirmed_track(tracker, _cell(6.5, 6.5))
+    for k in range(1, max_misses + 1):
+        tracker.predict()
+        tracker.update(_looks([]))  # every cell looked at, all returned 0
+        assert tracker.estimate().count == (1.0 if k < max_misses else 0.0)
+
+
+def test_a_hit_resets_the_miss_counter() -> None:
+    tracker = KFNNTracker(max_misses=3)
+    tracker.reset(_model(), np.random.default_rng(0))
+    cell = _cell(6.5, 6.5)
+    _confirmed_track(tracker, cell)
+    for positives in ([], [], [cell], [], []):  # never 3 misses in a row
+        tracker.predict()
+        tracker.update(_looks(positives))
+    assert tracker.estimate().count == 1.0
+    assert tracker.track_table()["misses"][0] == 2
+
+
+def test_tentative_track_dies_when_m_of_n_is_out_of_reach() -> None:
+    tracker = KFNNTracker(confirm_m=2, confirm_n=3)
+    tracker.reset(_model(), np.random.default_rng(0))
+    tracker.predict()
+    tracker.update(_looks([_cell(3.5, 3.5)]))  # birth: 1 hit of 1
+    tracker.predict()
+    tracker.update(_looks([], looked=np.array([0])))  # not looked at: no chance used
+    tracker.predict()
+    tracker.update(_looks([]))  # miss: 1 of 2, still reachable
+    assert len(tracker.track_table()["id"]) == 1
+    tracker.predict()
+    tracker.update(_looks([]))  # miss: 1 of 3, out of reach
+    assert len(tracker.track_table()["id"]) == 0
+
+
+def test_several_positive_looks_at_one_cell_are_one_detection() -> None:
+    tracker = KFNNTracker()
+    tracker.reset(_model(), np.random.default_rng(0))
+    c = _cell(4.5, 7.5)
+    tracker.predict()
+    tracker.update(Looks(cells=np.array([c, c, c, 0]), returns=np.array([True, True, False,
+                                                                          False])))
+    assert len(tracker.track_table()["id"]) == 1
+
+
+# -------------------------------------------------------------------- count distribution
+def test_cell_count_distribution_matches_its_ingredients() -> None:
+    """One confirmed track + the untracked intensity: no truncation, so E[count] is exact."""
+    model = _model(initial_states=((1.0, 0, 1.0, 0), (2.0, 0, 2.0, 0)))  # prior mean 2 targets
+    tracker = KFNNTracker(existence_confirmed=0.9)
+    tracker.reset(model, np.random.default_rng(0))
+    lam = np.full(GRID.n_cells, 2.0 / GRID.n_cells)
+    looked = np.arange(0, GRID.n_cells, 2)
+    cell = int(looked[40])
+    for _ in range(2):
+        tracker.predict()
+        tracker.update(_looks([cell], looked=looked))
+        lam[looked] *= 0.5  # (1 - p_d) per look
+    tracker.predict()
+    P = tracker.cell_count_distribution()
+    assert P.shape == (GRID.n_cells, 4)
+    np.testing.assert_allclose(P.sum(axis=1), 1.0, atol=1e-12)
+    m, C = tracker.track_table()["mean"][0], tracker.track_table()["cov"][0]
+    x0, x1, y0, y1 = GRID.cell_bounds(np.arange(GRID.n_cells))
+    gx, gy = stats.norm(m[0], np.sqrt(C[0, 0])), stats.norm(m[2], np.sqrt(C[2, 2]))
+    mass = (gx.cdf(x1) - gx.cdf(x0)) * (gy.cdf(y1) - gy.cdf(y0))
+    expected_count = 0.9 * mass + (1.0 - np.exp(-lam))
+    np.testing.assert_allclose(P @ np.arange(4), expected_count, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(P[:, 3], 0.0, atol=1e-300)  # two Bernoullis: never 3
+
+
+def test_no_tracks_count_distribution_is_the_untracked_prior() -> None:
+    tracker = KFNNTracker()
+    tracker.reset(_model(initial_states=((1.0, 0, 1.0, 0),) * 3), np.random.default_rng(0))
+    tracker.predict()
+    p = 1.0 - np.exp(-3.0 / GRID.n_cells)
+    want = poisson_binomial(np.full((1, GRID.n_cells), p), 4)
+    np.testing.assert_allclose(tracker.cell_count_distribution(), want, rtol=1e-14)
+
+
+# ------------------------------------------------------------------------ interface
+def test_superposition_is_unsupported_with_a_reason() -> None:
+    model = scenarios.get("superposition").model
+    reason = KFNNTracker().unsupported_reason(model)
+    assert reason and "mean" in reason
+    with pytest.raises(ValueError):
+        KFNNTracker().reset(model, np.random.default_rng(0))
+    assert KFNNTracker().unsupported_reason(scenarios.get("default").model) is None
+
+
+@pytest.mark.parametrize("bad", [dict(association="nearest"), dict(confirm_m=4, confirm_n=3),
+                                 dict(max_misses=0), dict(gate_probability=1.0)])
+def test_bad_parameters_refused_at_reset(bad: dict) -> None:
+    with pytest.raises(ValueError):
+        KFNNTracker(**bad).reset(_model(), np.random.default_rng(0))
+
+
+# --------------------------------------------------------------------------- accuracy
+def test_default_preset_ospa_far_below_report_nothing() -> None:
+    """All cells looked at each step on `default`: mean OSPA (c=2, p=2) over 3 seeds.
+
+    Report-nothing scores exactly c = 2 whenever a target exists (always, here).
+    """
+    sc = scenarios.get("default")
+    sc = dataclasses.replace(sc, n_steps=100)
+    all_cells = np.arange(sc.grid.n_cells)
+    ours, null = [], []
+    for seed in range(3):
+        run = simulate(sc, seed)
+        tracker = KFNNTracker()
+        tracker.reset(sc.model, np.random.default_rng(seed))
+        for k in range(sc.n_steps):
+            tracker.predict()
+            tracker.update(run.look(k, all_cells))
+            truth = run.positions(k)
+            ours.append(ospa(truth, tracker.estimate().states[:, [0, 2]]).total)
+            null.append(ospa(truth, np.zeros((0, 2))).total)
+    assert np.mean(null) == 2.0
+    assert np.mean(ours) < 1.3  # observed ~1.04 for seeds 0-2

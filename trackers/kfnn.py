@@ -1,0 +1,329 @@
+"""KF-NN: one Kalman filter per track, gated nearest-neighbour association.
+
+The classical baseline tracker (DESIGN.md, "Trackers"). Tracks are held as arrays
+with a leading track axis ``K`` (no object per track): means ``(K, 4)``,
+covariances ``(K, 4, 4)``, ids, hit/opportunity counters for the M-of-N rule,
+consecutive misses, a confirmed flag and the age in steps.
+
+Measurements (Rayleigh grid sensor only)
+    Every cell with at least one positive look during the step gives ONE point
+    detection ``z = (cx, cy)`` at the cell centre -- several positive looks at the
+    same cell in one step are one detection (they cannot be told apart: they see
+    the same targets), and a cell with one positive and some negative looks counts
+    as positive. The detection model is ``z = H x + w``, ``H`` picking
+    ``(px, py)``, ``w ~ N(0, R)``, ``R = cell_size**2 / 12 * I`` (the variance of a
+    position uniform over the cell). This treats the quantisation error as white
+    noise, which it is not for a slow target: the filter grows over-confident
+    inside one cell, and a crossing into the next cell may fall outside the gate
+    (the track is then replaced by a new one).
+
+Prediction
+    ``m <- F m``, ``P <- F P F^T + Q`` with ``F``, ``Q`` of the model
+    (:mod:`trackers.kalman`). With boundary ``"die"`` a track whose predicted mean
+    leaves the workspace is deleted; with ``"reflect"`` the filter does not model
+    the bounce (the cell of a mean outside the workspace is the nearest edge cell).
+
+Gating and association
+    Innovation ``y = z - H m``, ``S = H P H^T + R``, ``d^2 = y^T S^-1 y``; a pair is
+    admissible when ``d^2 < chi2.ppf(gate_probability, 2)``.
+    ``association="global"`` (default) solves one assignment problem
+    (``scipy.optimize.linear_sum_assignment``) on the gated ``d^2`` with forbidden
+    pairs priced above any sum of admissible ones: the result has the largest
+    possible number of admissible pairs and, among those, the least total ``d^2``.
+    ``association="greedy"`` repeatedly takes the admissible pair of smallest
+    ``d^2`` whose track and detection are both still free. Associated tracks get a
+    Kalman update (Joseph form).
+
+Hits, misses and the track's cell
+    The track's cell is the cell of its *predicted* mean. A track with an associated
+    detection scores a hit. It scores a miss only when its cell was looked at
+    during the step and every look there returned 0; a track whose cell was not
+    looked at (or whose cell was positive but whose detection went to another
+    track) just coasts: no hit, no miss.
+
+Track management
+    * Birth: every unassociated detection starts a tentative track at the cell
+      centre with zero velocity, ``P = diag(R_x, sv^2, R_y, sv^2)`` where
+      ``sv = birth_velocity_std`` (None: the model's ``birth_velocity_std``). The
+      birth detection counts as the first of the ``confirm_n`` opportunities, and a hit.
+    * Confirmation (M of N): a tentative track is confirmed as soon as it has
+      ``confirm_m`` hits among its first ``confirm_n`` opportunities (hits or
+      misses as defined above), and deleted as soon as it can no longer reach
+      ``confirm_m`` hits within them.
+    * Deletion: a confirmed track is deleted after ``max_misses`` consecutive misses.
+
+Estimate
+    The confirmed tracks: count = their number, states ``(n, 4)``, covariances
+    ``(n, 4, 4)``.
+
+Predicted count distribution ``P_c(t)`` (for sensor management)
+    Each track is a Bernoulli target: present with probability
+    ``existence_confirmed`` (confirmed) or ``existence_tentative`` (tentative), and
+    then in cell ``c`` with the mass of its predicted position Gaussian there
+    (:func:`trackers.cells.gaussian_cell_mass`, x-y correlation ignored). Targets
+    not yet tracked are an undetected Poisson intensity ``lambda_c`` per cell:
+    ``initial_count_mean / n_cells`` at reset, ``lambda <- p_s lambda + birth_rate /
+    n_cells`` at each predict (no spatial diffusion), and ``lambda_c <- (1 - p_d)
+    lambda_c`` for each look at ``c`` (a look detects an untracked target with
+    probability ``p_d``; detected ones become tracks). The intensity enters as one
+    more Bernoulli per cell with probability ``1 - exp(-lambda_c)`` (at least one
+    untracked target). Per cell, the count of these independent Bernoullis is
+    Poisson-binomial (:func:`trackers.cells.poisson_binomial`), truncated to 0..3
+    with the last column "3 or more".
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.stats import chi2
+
+from scenarios.model import Looks, RayleighGridSensor, TrackingModel
+from trackers import kalman
+from trackers.base import Estimate, Tracker, register
+from trackers.cells import gaussian_cell_mass, poisson_binomial
+
+#: count columns of P_c: 0, 1, 2 and "3 or more"
+N_COUNTS = 4
+#: H picks (px, py) out of [px, vx, py, vy]
+_H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+_POS = np.array([0, 2])
+
+
+def associate(cost: np.ndarray, gate: float, method: str = "global"
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest-neighbour association of tracks (rows) to detections (columns).
+
+    ``cost (K, D)`` holds squared Mahalanobis distances; pairs with ``cost >= gate``
+    (or non-finite) are not admissible.
+
+    * ``"global"``: maximise the number of admissible pairs, then minimise their
+      total cost (one ``linear_sum_assignment`` with inadmissible pairs priced at
+      ``gate * (min(K, D) + 1)``, more than any sum of admissible costs).
+    * ``"greedy"``: repeatedly take the admissible pair with the smallest cost
+      among free tracks and detections (ties broken by row-major order).
+
+    Returns ``(rows, cols)``, int64 arrays of equal length, sorted by row.
+    """
+    cost = np.asarray(cost, dtype=float)
+    empty = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+    if cost.ndim != 2:
+        raise ValueError(f"cost must be (K, D), got shape {cost.shape}")
+    admissible = np.isfinite(cost) & (cost < gate)
+    if not admissible.any():
+        return empty
+    if method == "global":
+        big = gate * (min(cost.shape) + 1.0)
+        priced = np.where(admissible, cost, big)
+        rows, cols = linear_sum_assignment(priced)
+        keep = admissible[rows, cols]
+        rows, cols = rows[keep], cols[keep]
+    elif method == "greedy":
+        cand_r, cand_c = np.nonzero(admissible)  # row-major order
+        order = np.argsort(cost[cand_r, cand_c], kind="stable")
+        row_free = np.ones(cost.shape[0], dtype=bool)
+        col_free = np.ones(cost.shape[1], dtype=bool)
+        rows_l, cols_l = [], []
+        for i in order:  # at most K*D admissible pairs; K and D are small
+            r, c = cand_r[i], cand_c[i]
+            if row_free[r] and col_free[c]:
+                row_free[r] = col_free[c] = False
+                rows_l.append(r)
+                cols_l.append(c)
+        rows, cols = np.array(rows_l, dtype=np.int64), np.array(cols_l, dtype=np.int64)
+    else:
+        raise ValueError(f"association must be 'global' or 'greedy', got {method!r}")
+    by_row = np.argsort(rows, kind="stable")
+    return rows[by_row].astype(np.int64), cols[by_row].astype(np.int64)
+
+
+@register
+class KFNNTracker(Tracker):
+    """Kalman filter per track with gated nearest-neighbour association (module docstring)."""
+
+    name = "kfnn"
+    summary = ("Kalman filter per track, gated nearest-neighbour association of cell "
+               "detections, M-of-N confirmation")
+
+    def __init__(
+        self,
+        gate_probability: float = 0.99,
+        association: str = "global",
+        confirm_m: int = 2,
+        confirm_n: int = 3,
+        max_misses: int = 3,
+        birth_velocity_std: float | None = None,
+        existence_confirmed: float = 0.99,
+        existence_tentative: float = 0.5,
+    ) -> None:
+        self.gate_probability = gate_probability
+        self.association = association
+        self.confirm_m = confirm_m
+        self.confirm_n = confirm_n
+        self.max_misses = max_misses
+        self.birth_velocity_std = birth_velocity_std
+        self.existence_confirmed = existence_confirmed
+        self.existence_tentative = existence_tentative
+
+    # ----------------------------------------------------------------- checks
+    def unsupported_reason(self, model: TrackingModel) -> str | None:
+        if not isinstance(model.sensor, RayleighGridSensor):
+            return ("KF-NN associates per-target detections; the superposition sensor "
+                    "reports only the mean of all targets, so there is nothing to associate")
+        return None
+
+    def _check_params(self) -> None:
+        if not 0.0 < self.gate_probability < 1.0:
+            raise ValueError(f"gate_probability must be in (0, 1), got {self.gate_probability}")
+        if self.association not in ("global", "greedy"):
+            raise ValueError(f"association must be 'global' or 'greedy', got {self.association!r}")
+        if not 1 <= self.confirm_m <= self.confirm_n:
+            raise ValueError(f"need 1 <= confirm_m <= confirm_n, got {self.confirm_m}, "
+                             f"{self.confirm_n}")
+        if self.max_misses < 1:
+            raise ValueError(f"max_misses must be >= 1, got {self.max_misses}")
+        if self.birth_velocity_std is not None and self.birth_velocity_std < 0:
+            raise ValueError(f"birth_velocity_std must be >= 0, got {self.birth_velocity_std}")
+        for n in ("existence_confirmed", "existence_tentative"):
+            if not 0.0 <= getattr(self, n) <= 1.0:
+                raise ValueError(f"{n} must be in [0, 1], got {getattr(self, n)}")
+
+    # ------------------------------------------------------------- life cycle
+    def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
+        """Empty track arrays; the undetected intensity gets the initial count prior."""
+        reason = self.unsupported_reason(model)
+        if reason:
+            raise ValueError(reason)
+        self._check_params()
+        self._model = model
+        self._rng = rng  # unused: the tracker is deterministic
+        self._grid = model.grid
+        self._F, self._Q = model.dynamics.F, model.dynamics.Q
+        s = model.grid.cell_size
+        self._r_var = s * s / 12.0
+        self._R = self._r_var * np.eye(2)
+        self._gate = float(chi2.ppf(self.gate_probability, 2))
+        bd = model.birth_death
+        sv = bd.birth_velocity_std if self.birth_velocity_std is None else self.birth_velocity_std
+        self._birth_P = np.diag([self._r_var, sv * sv, self._r_var, sv * sv])
+        self._p_s, self._boundary = bd.survival_probability, bd.boundary
+        n = model.grid.n_cells
+        self._birth_per_cell = bd.birth_rate / n
+        self._p_d = model.sensor.p_d
+        self._undetected = np.full(n, bd.initial_count_mean / n)  # (n_cells,) lambda_c
+        # the tracks: leading axis K
+        self._m = np.zeros((0, 4))
+        self._P = np.zeros((0, 4, 4))
+        self._id = np.zeros(0, dtype=np.int64)
+        self._hits = np.zeros(0, dtype=np.int64)  # hits among the M-of-N opportunities
+        self._chances = np.zeros(0, dtype=np.int64)  # opportunities so far (capped use: N)
+        self._misses = np.zeros(0, dtype=np.int64)  # consecutive misses
+        self._confirmed = np.zeros(0, dtype=bool)
+        self._age = np.zeros(0, dtype=np.int64)  # steps since birth
+        self._cell = np.zeros(0, dtype=np.int64)  # cell of the predicted mean
+        self._next_id = 0
+
+    def _keep(self, keep: np.ndarray) -> None:
+        """Drop the tracks where ``keep (K,)`` is False."""
+        self._m, self._P, self._id = self._m[keep], self._P[keep], self._id[keep]
+        self._hits, self._chances = self._hits[keep], self._chances[keep]
+        self._misses, self._confirmed = self._misses[keep], self._confirmed[keep]
+        self._age, self._cell = self._age[keep], self._cell[keep]
+
+    def predict(self) -> None:
+        """Kalman predict of every track; undetected intensity ``p_s lambda + b / n``."""
+        self._m, self._P = kalman.predict(self._m, self._P, self._F, self._Q)
+        self._age += 1
+        grid = self._grid
+        width, height = grid.extent
+        if self._boundary == "die" and len(self._m):
+            px, py = self._m[:, 0], self._m[:, 2]
+            self._keep((px >= 0) & (px < width) & (py >= 0) & (py < height))
+        s = grid.cell_size
+        ix = np.clip(np.floor(self._m[:, 0] / s), 0, grid.nx - 1).astype(np.int64)
+        iy = np.clip(np.floor(self._m[:, 2] / s), 0, grid.ny - 1).astype(np.int64)
+        self._cell = iy * grid.nx + ix
+        self._undetected = self._p_s * self._undetected + self._birth_per_cell
+
+    def cell_count_distribution(self) -> np.ndarray:
+        """``(n_cells, 4)``: Poisson-binomial of track Bernoullis and untracked targets."""
+        mass = gaussian_cell_mass(self._grid, self._m[:, _POS],
+                                  self._P[:, _POS[:, None], _POS[None, :]])
+        exist = np.where(self._confirmed, self.existence_confirmed, self.existence_tentative)
+        untracked = -np.expm1(-self._undetected)  # P(at least one untracked target in c)
+        probs = np.concatenate([mass * exist[:, None], untracked[None, :]])
+        return poisson_binomial(probs, N_COUNTS)
+
+    def update(self, looks: Looks) -> None:
+        """Associate, update, score hits/misses, confirm/delete, and start new tracks."""
+        grid = self._grid
+        n_cells = grid.n_cells
+        cells = np.asarray(looks.cells, dtype=np.int64)
+        returns = np.asarray(looks.returns, dtype=bool)
+        n_looks = np.bincount(cells, minlength=n_cells)  # (n_cells,)
+        positive = np.bincount(cells[returns], minlength=n_cells) > 0
+        det_cells = np.flatnonzero(positive)  # one detection per positive cell
+        z = grid.cell_centers(det_cells)  # (D, 2)
+        K, D = len(self._m), len(det_cells)
+
+        hit = np.zeros(K, dtype=bool)
+        det_used = np.zeros(D, dtype=bool)
+        if K and D:
+            # d2[k, j] = y^T S_k^-1 y, y = z_j - H m_k, S_k = H P_k H^T + R
+            pred_z = self._m[:, _POS]
+            S = self._P[:, _POS[:, None], _POS[None, :]] + self._R  # (K, 2, 2)
+            y = z[None, :, :] - pred_z[:, None, :]  # (K, D, 2)
+            d2 = kalman.mahalanobis_sq(y, S[:, None, :, :])
+            rows, cols = associate(d2, self._gate, self.association)
+            if len(rows):
+                m_new, P_new, _, _ = kalman.update(self._m[rows], self._P[rows], z[cols],
+                                                   _H, self._R)
+                self._m[rows], self._P[rows] = m_new, P_new
+                hit[rows] = True
+                det_used[cols] = True
+
+        # miss: the track's cell was looked at and every look there returned 0
+        miss = ~hit & (n_looks[self._cell] > 0) & ~positive[self._cell]
+        self._misses = np.where(hit, 0, self._misses + miss)
+        tentative = ~self._confirmed
+        scored = tentative & (hit | miss)
+        self._chances = self._chances + scored
+        self._hits = self._hits + (tentative & hit)
+        hopeless = tentative & (self._hits + (self.confirm_n - self._chances) < self.confirm_m)
+        lost = self._confirmed & (self._misses >= self.max_misses)
+        self._keep(~(hopeless | lost))
+
+        # a look detects an untracked target with probability p_d (which then becomes a track)
+        self._undetected = self._undetected * (1.0 - self._p_d) ** n_looks
+
+        new_cells = det_cells[~det_used]
+        n_new = len(new_cells)
+        if n_new:
+            centres = grid.cell_centers(new_cells)
+            m_new = np.zeros((n_new, 4))
+            m_new[:, 0], m_new[:, 2] = centres[:, 0], centres[:, 1]
+            ones = np.ones(n_new, dtype=np.int64)
+            self._m = np.concatenate([self._m, m_new])
+            self._P = np.concatenate([self._P, np.broadcast_to(self._birth_P, (n_new, 4, 4))])
+            self._id = np.concatenate([self._id, self._next_id + np.arange(n_new)])
+            self._next_id += n_new
+            self._hits = np.concatenate([self._hits, ones])
+            self._chances = np.concatenate([self._chances, ones])
+            self._misses = np.concatenate([self._misses, 0 * ones])
+            self._confirmed = np.concatenate([self._confirmed, np.zeros(n_new, dtype=bool)])
+            self._age = np.concatenate([self._age, 0 * ones])
+            self._cell = np.concatenate([self._cell, new_cells])
+        self._confirmed = self._confirmed | (self._hits >= self.confirm_m)
+
+    def estimate(self) -> Estimate:
+        """The confirmed tracks: count, states ``(n, 4)``, covariances ``(n, 4, 4)``."""
+        c = self._confirmed
+        return Estimate(float(c.sum()), self._m[c].copy(), self._P[c].copy())
+
+    # ---------------------------------------------------------- for tests/plots
+    def track_table(self) -> dict[str, np.ndarray]:
+        """Copies of the track arrays (ids, means, covariances, flags, counters)."""
+        return {"id": self._id.copy(), "mean": self._m.copy(), "cov": self._P.copy(),
+                "confirmed": self._confirmed.copy(), "hits": self._hits.copy(),
+                "chances": self._chances.copy(), "misses": self._misses.copy(),
+                "age": self._age.copy()}
