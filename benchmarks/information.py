@@ -110,6 +110,10 @@ def gain_of_looks(counts: np.ndarray, p_detect: np.ndarray, n_looks: int,
     return expected_gain(counts, binomial_likelihood(p_detect, n_looks), alpha)
 
 
+#: looks per cell whose gains :func:`greedy_looks` computes for all cells at once
+_PRECOMPUTED_LOOKS = 3
+
+
 def greedy_looks(counts: np.ndarray, p_detect: np.ndarray, n_looks: int, alpha: float = 0.5,
                  repeats: bool = True, rng: np.random.Generator | None = None,
                  tables: dict[int, np.ndarray] | None = None) -> np.ndarray:
@@ -118,10 +122,10 @@ def greedy_looks(counts: np.ndarray, p_detect: np.ndarray, n_looks: int, alpha: 
     ``repeats=False``: the ``min(n_looks, n_cells)`` distinct cells of largest ``G_c(1)``.
 
     ``repeats=True``: greedy over marginal gains. With ``n_c`` looks already given to
-    cell ``c``, the next look goes to ``argmax_c G_c(n_c + 1) - G_c(n_c)``. Only the
-    chosen cell's next marginal gain is recomputed, so a step costs
-    ``O(n_looks * n_cells)`` for the argmaxes plus ``O(n_looks^2 * n_counts)`` for the
-    binomial tables.
+    cell ``c``, the next look goes to ``argmax_c G_c(n_c + 1) - G_c(n_c)``. ``G_c(n)`` is
+    computed for all cells up to a few looks at once, beyond that only for the chosen
+    cell, so a step costs ``O(n_looks * n_cells)`` for the argmaxes plus
+    ``O(n_looks^2 * n_counts)`` for the binomial tables.
 
     Exact ties (for example a flat prior) go to the cell with the fewest looks so far,
     then uniformly at random with ``rng`` (lowest index first if ``rng`` is None), so a
@@ -147,6 +151,13 @@ def greedy_looks(counts: np.ndarray, p_detect: np.ndarray, n_looks: int, alpha: 
         m = min(int(n_looks), n_cells)
         order = np.argsort(-first, kind="stable")[:m]
         return np.sort(perm[order]).astype(np.int64)
+    # G_c(n) for every cell and n = 0..n_pre in a few vectorised calls; a cell that
+    # gets more than n_pre looks has its later gains computed one at a time
+    n_pre = min(int(n_looks), _PRECOMPUTED_LOOKS) + 1
+    curve = np.zeros((n_cells, n_pre + 1))
+    curve[:, 1] = first
+    for n in range(2, n_pre + 1):
+        curve[:, n] = expected_gain(P, table(n), alpha)
     n_given = np.zeros(n_cells, dtype=np.int64)
     gain_now = np.zeros(n_cells)  # G_c(n_c)
     marginal = first.copy()  # G_c(n_c + 1) - G_c(n_c)
@@ -157,9 +168,11 @@ def greedy_looks(counts: np.ndarray, p_detect: np.ndarray, n_looks: int, alpha: 
         best = marginal == marginal.max()
         c = int(np.argmin(np.where(best, n_given, np.iinfo(np.int64).max)))
         chosen[j] = c
-        n_given[c] += 1
-        gain_now[c] += marginal[c]
-        nxt = expected_gain(P[c:c + 1], table(int(n_given[c]) + 1), alpha)[0]
+        n = int(n_given[c]) + 1
+        n_given[c] = n
+        gain_now[c] = curve[c, n] if n <= n_pre else gain_now[c] + marginal[c]
+        nxt = (curve[c, n + 1] if n + 1 <= n_pre
+               else expected_gain(P[c:c + 1], table(n + 1), alpha)[0])
         marginal[c] = nxt - gain_now[c]
     return np.sort(perm[chosen]).astype(np.int64)
 

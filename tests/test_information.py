@@ -302,3 +302,21 @@ def test_all_zero_gain_spreads_looks_over_distinct_random_cells():
     b = greedy_looks(P, pd, 24, 0.5, repeats=True, rng=np.random.default_rng(1))
     assert len(np.unique(a)) == 24 and len(np.unique(b)) == 24
     assert a.tolist() != b.tolist()
+
+
+@pytest.mark.parametrize("alpha", [0.5, 2.0])
+def test_greedy_bookkeeping_matches_a_naive_greedy(alpha):
+    """Many looks on few cells (past the precomputed gains): same allocation as a greedy
+    that recomputes ``G_c(n_c + 1) - G_c(n_c)`` from scratch for every cell each look."""
+    rng = np.random.default_rng(9)
+    P = rng.dirichlet(np.ones(3), size=4)
+    pd = SENSOR.detection_probability(np.arange(3))
+    m = 30
+    n = np.zeros(len(P), dtype=np.int64)
+    for _ in range(m):
+        gains = [gain_of_looks(P[c:c + 1], pd, n[c] + 1, alpha)[0]
+                 - gain_of_looks(P[c:c + 1], pd, n[c], alpha)[0] for c in range(len(P))]
+        n[int(np.argmax(gains))] += 1
+    got = greedy_looks(P, pd, m, alpha, repeats=True)
+    assert n.max() > 5
+    np.testing.assert_array_equal(np.bincount(got, minlength=len(P)), n)
