@@ -1,0 +1,353 @@
+"""The ``mttbench`` command line: list scenarios and trackers, run sweeps, compare.
+
+::
+
+    mttbench scenarios                      # the shipped presets
+    mttbench trackers                       # registered trackers (+ parameters) and policies
+    mttbench run --scenarios default crossing --trackers kfnn jmpd:n_particles=1000 \\
+                 --seeds 20 --policy raster,renyi --looks 12,24 --workers 2
+    mttbench compare                        # every tracker on the standard scenarios
+
+Bad input (an unknown tracker, parameter, scenario or policy, a bad scenario
+file) ends with exit status 2 and a one-line message, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import inspect
+import os
+import sys
+import textwrap
+from collections.abc import Sequence
+from datetime import UTC, datetime
+from pathlib import Path
+
+import pandas as pd
+
+import scenarios
+import trackers
+from benchmarks import policies
+from benchmarks.harness import PolicySpec, TrackerSpec, build_jobs, run_sweep, split_specs
+from benchmarks.summary import summarize, to_markdown
+
+#: scenarios of ``mttbench compare`` (the superposition and large presets are left out:
+#: not every tracker supports the former, the latter is a scale test)
+COMPARE_SCENARIOS = ("default", "crossing", "births", "paper")
+COMPARE_SEEDS = 10
+
+
+class UsageError(Exception):
+    """Bad command-line input; reported in one line with exit status 2."""
+
+
+# ------------------------------------------------------------------ validation
+def _first_line(exc: BaseException) -> str:
+    msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
+    return str(msg).strip().splitlines()[0] if str(msg).strip() else type(exc).__name__
+
+
+def resolve_scenarios(names: Sequence[str], steps: int | None = None
+                      ) -> list[scenarios.Scenario]:
+    """Presets or ``.toml`` paths -> scenarios, with ``n_steps`` overridden if given."""
+    out = []
+    for name in names:
+        try:
+            sc = scenarios.get(name)
+        except (scenarios.ScenarioError, OSError, UnicodeDecodeError) as exc:
+            raise UsageError(f"scenario {name!r}: {_first_line(exc)}") from None
+        if steps is not None:
+            sc = dataclasses.replace(sc, n_steps=steps)
+        out.append(sc)
+    seen = [sc.name for sc in out]
+    dupes = sorted({n for n in seen if seen.count(n) > 1})
+    if dupes:
+        raise UsageError(f"scenario name(s) {dupes} given more than once")
+    return out
+
+
+def resolve_trackers(texts: Sequence[str]) -> list[TrackerSpec]:
+    """Tracker specs (``name`` or ``name:key=val,...``), checked against the registry."""
+    specs = []
+    for text in split_specs(list(texts)):
+        try:
+            spec = TrackerSpec.parse(text)
+            spec.make()  # refuses unknown names and parameters
+        except (ValueError, KeyError, TypeError) as exc:
+            raise UsageError(f"tracker {text!r}: {_first_line(exc)}") from None
+        specs.append(spec)
+    labels = [s.label for s in specs]
+    if len(set(labels)) != len(labels):
+        raise UsageError(f"a tracker is given more than once: {labels}")
+    return specs
+
+
+def resolve_policies(texts: Sequence[str]) -> list[PolicySpec]:
+    specs = []
+    for text in split_specs(list(texts)):
+        try:
+            spec = PolicySpec.parse(text)
+            spec.make()
+        except (ValueError, KeyError, TypeError) as exc:
+            raise UsageError(f"policy {text!r}: {_first_line(exc)}") from None
+        specs.append(spec)
+    labels = [s.label for s in specs]
+    if len(set(labels)) != len(labels):
+        raise UsageError(f"a policy is given more than once: {labels}")
+    return specs
+
+
+def _int_list(texts: Sequence[str] | None, what: str, lo: int) -> list[int] | None:
+    if not texts:
+        return None
+    out = []
+    for piece in split_specs(list(texts)):
+        try:
+            v = int(piece)
+        except ValueError:
+            raise UsageError(f"{what} {piece!r} is not an integer") from None
+        if v < lo:
+            raise UsageError(f"{what} {v} is not allowed: expected an integer >= {lo}")
+        out.append(v)
+    return sorted(set(out))
+
+
+def _seeds(args: argparse.Namespace, default: int) -> list[int]:
+    if args.seed_list:
+        return _int_list(args.seed_list, "seed", 0) or []
+    n = default if args.seeds is None else args.seeds
+    if n < 1:
+        raise UsageError(f"--seeds {n} is not allowed: expected at least 1")
+    return list(range(n))
+
+
+def _check_common(args: argparse.Namespace) -> None:
+    if args.steps is not None and args.steps < 1:
+        raise UsageError(f"--steps {args.steps} is not allowed: expected an integer >= 1")
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers {args.workers} is not allowed: expected an integer >= 1")
+    if not args.c > 0:
+        raise UsageError(f"--c {args.c} is not allowed: the OSPA cut-off must be > 0")
+    if not args.p >= 1:
+        raise UsageError(f"--p {args.p} is not allowed: the OSPA order must be >= 1")
+
+
+def _timestamp() -> str:
+    return datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+
+
+# ---------------------------------------------------------------------- outputs
+def write_outputs(results: pd.DataFrame, out_dir: Path, title: str) -> str:
+    """Write ``summary.csv`` and ``summary.md`` next to ``results.parquet``; return the
+    Markdown text."""
+    summary = summarize(results)
+    summary.to_csv(out_dir / "summary.csv", index=False)
+    text = f"# {title}\n\n" + to_markdown(summary)
+    (out_dir / "summary.md").write_text(text)
+    return text
+
+
+def _sweep(args: argparse.Namespace, scs, tracker_specs, policy_specs, looks, seeds,
+           out_dir: Path, workers: int, title: str) -> int:
+    jobs = build_jobs(scs, tracker_specs, policy_specs, looks, seeds)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    print(f"{len(jobs)} runs -> {out_dir}", file=sys.stderr)
+    results = run_sweep(jobs, out_dir, workers=workers, progress=not args.no_progress,
+                        resume=getattr(args, "resume", False), c=args.c, p=args.p)
+    text = write_outputs(results, out_dir, title)
+    print(text)
+    print(f"wrote {out_dir / 'results.parquet'}, summary.csv, summary.md")
+    return 0
+
+
+# --------------------------------------------------------------------- commands
+def cmd_scenarios(args: argparse.Namespace) -> int:
+    names = scenarios.preset_names()
+    width = max(len(n) for n in names)
+    for name in names:
+        sc = scenarios.get(name)
+        print(f"{name:<{width}}  {sc.n_steps:>4} steps  {sc.description}")
+    return 0
+
+
+def _policy_params(cls: type) -> dict:
+    if cls.__init__ is object.__init__:
+        return {}
+    sig = inspect.signature(cls.__init__)
+    return {n: p.default for n, p in sig.parameters.items()
+            if n != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+
+
+def _fmt_params(params: dict) -> str:
+    return ", ".join(f"{k}={v!r}" for k, v in params.items()) or "(no parameters)"
+
+
+def cmd_trackers(args: argparse.Namespace) -> int:
+    print("Trackers (use as NAME or NAME:key=value,key=value):")
+    for name in trackers.available():
+        cls = trackers.get_class(name)
+        print(f"  {name:<8} {cls.summary}")
+        print(textwrap.fill(_fmt_params(cls.param_defaults()), width=96,
+                            initial_indent=" " * 11, subsequent_indent=" " * 11))
+    print("\nCell-selection policies (--policy NAME or NAME:key=value,...):")
+    for name in policies.available_policies():
+        cls = type(policies.make_policy(name))
+        print(f"  {name:<8} {cls.summary}")
+        print(textwrap.fill(_fmt_params(_policy_params(cls)), width=96,
+                            initial_indent=" " * 11, subsequent_indent=" " * 11))
+    return 0
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    _check_common(args)
+    scs = resolve_scenarios(args.scenarios, args.steps)
+    tracker_specs = resolve_trackers(args.trackers)
+    policy_specs = resolve_policies(args.policy)
+    looks = _int_list(args.looks, "--looks value", 0)
+    seeds = _seeds(args, default=10)
+    out_dir = Path(args.out) if args.out else Path("reports") / f"run-{_timestamp()}"
+    return _sweep(args, scs, tracker_specs, policy_specs, looks, seeds, out_dir,
+                  args.workers or 1, "mttbench run")
+
+
+def compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
+            tracker_texts: Sequence[str] | None = None, seeds: Sequence[int] | None = None,
+            steps: int | None = None, workers: int | None = None,
+            out_dir: str | Path | None = None, progress: bool = True, resume: bool = False,
+            c: float = 2.0, p: float = 2.0) -> tuple[pd.DataFrame, Path]:
+    """Head-to-head: every registered tracker (default) on the ``compare`` scenarios,
+    raster policy at each scenario's own look budget, seeds ``0..9`` by default.
+
+    Writes ``results.parquet``, ``summary.csv`` and ``summary.md`` into ``out_dir``
+    (default ``reports/compare-<UTC timestamp>``) and returns the results and folder.
+    Raises :class:`UsageError` on bad names.
+    """
+    scs = resolve_scenarios(scenario_names, steps)
+    tracker_specs = resolve_trackers(tracker_texts or trackers.available())
+    seeds = list(range(COMPARE_SEEDS)) if seeds is None else list(seeds)
+    out = Path(out_dir) if out_dir else Path("reports") / f"compare-{_timestamp()}"
+    out.mkdir(parents=True, exist_ok=True)
+    jobs = build_jobs(scs, tracker_specs, [PolicySpec("raster")], None, seeds)
+    results = run_sweep(jobs, out, workers=workers or os.cpu_count() or 1, progress=progress,
+                        resume=resume, c=c, p=p)
+    return results, out
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    _check_common(args)
+    seeds = _seeds(args, default=COMPARE_SEEDS)
+    results, out = compare(args.scenarios, args.trackers, seeds, args.steps, args.workers,
+                           args.out, progress=not args.no_progress, resume=args.resume,
+                           c=args.c, p=args.p)
+    text = write_outputs(results, out, "mttbench compare")
+    print(text)
+    print(f"wrote {out / 'results.parquet'}, summary.csv, summary.md")
+    return 0
+
+
+# ----------------------------------------------------------------------- parser
+def _add_sweep_options(p: argparse.ArgumentParser, *, seeds_default: int,
+                       trackers_required: bool) -> None:
+    p.add_argument("--trackers", nargs="+", metavar="SPEC", required=trackers_required,
+                   help="trackers as NAME or NAME:key=value,key=value (values parsed as "
+                        "true/false, int, float, else string; see `mttbench trackers`)"
+                        + ("" if trackers_required else "; default: every registered tracker"))
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--seeds", type=int, metavar="N",
+                   help=f"run seeds 0..N-1 (default {seeds_default})")
+    g.add_argument("--seed-list", nargs="+", metavar="SEED",
+                   help="explicit seeds, space or comma separated")
+    p.add_argument("--steps", type=int, metavar="K",
+                   help="override every scenario's n_steps (default: the scenario's)")
+    p.add_argument("--out", metavar="DIR", help="output folder")
+    p.add_argument("--resume", action="store_true",
+                   help="skip runs already saved in DIR/parts (an interrupted sweep)")
+    p.add_argument("--c", type=float, default=2.0, help="OSPA/GOSPA cut-off c (default 2)")
+    p.add_argument("--p", type=float, default=2.0, help="OSPA/GOSPA order p (default 2)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    fmt = argparse.RawDescriptionHelpFormatter
+    parser = argparse.ArgumentParser(
+        prog="mttbench", formatter_class=fmt,
+        description="Benchmarks of multi-target trackers with an unknown number of targets.",
+        epilog="Run `mttbench COMMAND --help` for the options of a command.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("scenarios", help="list the scenario presets",
+                       description="List the shipped scenario presets with their descriptions. "
+                                   "Any command also accepts a path to a scenario .toml file.")
+    p.set_defaults(func=cmd_scenarios)
+
+    p = sub.add_parser("trackers", help="list trackers (with parameters) and policies",
+                       description="List the registered trackers with their parameters and "
+                                   "defaults, and the cell-selection policies.")
+    p.set_defaults(func=cmd_trackers)
+
+    p = sub.add_parser(
+        "run", help="run a sweep and summarise it", formatter_class=fmt,
+        description="Run every scenario x tracker x policy x looks x seed and write "
+                    "results.parquet (one row per step), summary.csv and summary.md into "
+                    "--out; print the summary (means over seeds ± 95% t half-widths).",
+        epilog=textwrap.dedent("""\
+            examples:
+              mttbench run --scenarios default --trackers null kfnn --seeds 20
+              mttbench run --scenarios default crossing my.toml \\
+                  --trackers kfnn jmpd:n_particles=1000 --policy raster,renyi \\
+                  --looks 12,24 --workers 2 --out reports/mine
+              mttbench run ... --out reports/mine --resume   # finish an interrupted sweep
+
+            The superposition scenario has no cells: --policy and --looks do not apply
+            to it (one run per tracker x seed)."""))
+    p.add_argument("--scenarios", nargs="+", required=True, metavar="SCENARIO",
+                   help="preset names (see `mttbench scenarios`) or paths to .toml files")
+    _add_sweep_options(p, seeds_default=10, trackers_required=True)
+    p.add_argument("--policy", nargs="+", default=["raster"], metavar="SPEC",
+                   help="cell-selection policies, comma or space separated "
+                        "(default raster; see `mttbench trackers`)")
+    p.add_argument("--looks", nargs="+", metavar="M",
+                   help="looks per step, comma or space separated "
+                        "(default: each scenario's looks_per_step)")
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="parallel worker processes (default 1)")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser(
+        "compare", help="head-to-head of every tracker on the standard scenarios",
+        formatter_class=fmt,
+        description="Every registered tracker (including the `null` baseline) on the "
+                    f"scenarios {', '.join(COMPARE_SCENARIOS)}, raster policy at each "
+                    f"scenario's look budget, {COMPARE_SEEDS} seeds. Writes results.parquet, "
+                    "summary.csv and summary.md into --out (default "
+                    "reports/compare-<UTC timestamp>) and prints the summary.",
+        epilog="example:\n  mttbench compare --trackers null kfnn --seeds 5 --workers 2")
+    p.add_argument("--scenarios", nargs="+", default=list(COMPARE_SCENARIOS),
+                   metavar="SCENARIO", help="override the scenarios")
+    _add_sweep_options(p, seeds_default=COMPARE_SEEDS, trackers_required=False)
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="parallel worker processes (default: the number of CPUs)")
+    p.set_defaults(func=cmd_compare)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit status (0 ok, 2 bad input)."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help (0) or an argparse error (2)
+        return exc.code if isinstance(exc.code, int) else 2
+    if args.command is None:
+        parser.print_help()
+        return 2
+    try:
+        return args.func(args)
+    except UsageError as exc:
+        print(f"mttbench {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

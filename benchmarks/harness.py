@@ -1,0 +1,519 @@
+"""The harness: run trackers on scenarios and record one tidy row per step.
+
+A **job** is one Monte Carlo run: ``(scenario, tracker spec, policy spec,
+looks_per_step, seed)``. :func:`run_job` plays it step by step::
+
+    run = simulate(scenario, seed)          # the world: depends on (scenario, seed) only
+    tracker.reset(model, rng_tracker)       # rng from (scenario, seed, tracker label)
+    policy.reset(model, looks, rng_policy)  # rng from (scenario, seed, "policy:" + label)
+    for k in range(n_steps):
+        tracker.predict()                                   # timed (tracker)
+        P = tracker.cell_count_distribution()               # timed (selection), if needed
+        cells = policy.select(k, counts=P, truth_cells=...) # timed (selection)
+        looks = run.look(k, cells)      # or run.measure(k) for the superposition sensor
+        tracker.update(looks)                               # timed (tracker)
+        est = tracker.estimate()                            # timed (tracker)
+        metrics(truth positions, est.states[:, [0, 2]])     # untimed
+
+The policy's generator does not depend on the tracker, so a random policy looks
+at the same cells for every tracker of a run (common random numbers). The
+policy gets ``counts`` only if it ``uses_prediction`` and ``truth_cells`` only
+if it ``uses_truth`` (the oracle); such rows carry ``uses_truth = True``.
+
+Results table (one row per scenario x tracker x policy x looks x seed x step):
+
+=================  ==========================================================
+column             meaning
+=================  ==========================================================
+scenario           scenario name
+tracker            registered tracker name
+tracker_label      ``name`` or ``name(k=v,...)`` with the parameters given
+tracker_params     JSON of all constructor parameters (defaults included), sorted keys
+policy             policy name; ``"none"`` for the superposition sensor (no cells)
+policy_label       like ``tracker_label``; ``"none"`` for the superposition sensor
+policy_params      JSON of the policy's parameters
+uses_truth         True if the policy was given the true target cells (oracle)
+looks_per_step     look budget ``M`` given to the policy; 0 for superposition
+seed               the run's seed
+step               step ``k`` (0-based); -1 on the single row of an unsupported
+                   job or of a job that failed before its first step
+true_count         true number of targets (float; NaN when unknown)
+est_count          tracker's estimated count (float)
+count_error        ``|est_count - true_count|``
+ospa, ospa_loc,    OSPA with cut-off ``c`` and order ``p`` and its localisation
+ospa_card          and cardinality parts (positions only)
+gospa, gospa_loc,  GOSPA (alpha = 2) and its localisation, missed and false parts
+gospa_missed,
+gospa_false
+rmse               RMSE of the optimally assigned pairs (NaN if none)
+n_looks            looks made this step (``len(looks.cells)``)
+n_positive         positive returns this step
+tracker_wall_s     wall time of predict + update + estimate (``time.perf_counter``)
+tracker_cpu_s      CPU time of the same (``time.process_time``)
+select_wall_s      wall time of the cell selection (``cell_count_distribution`` when
+                   the policy uses it, plus ``policy.select``)
+select_cpu_s       CPU time of the same
+status             ``"ok"``, ``"error"`` (the tracker or policy raised) or ``"unsupported"``
+error              ``"ExceptionType: message"``, or the unsupported reason; ``""`` if ok
+ospa_c, ospa_p     the metric parameters ``c`` and ``p``
+peak_rss_mb        peak resident memory of the worker process at the end of the job
+                   (``getrusage`` high-water mark: it never goes down, so it bounds
+                   this job's peak from above and includes earlier jobs of the worker)
+param_<name>       one column per tracker parameter (all of them, defaults included)
+=================  ==========================================================
+
+A job whose tracker raises at step ``k`` keeps its rows ``0..k-1`` (status
+``"ok"``) and gets one row at step ``k`` with ``status = "error"`` and NaN metrics;
+the other jobs of the sweep are unaffected.
+
+Tracker and policy specifications on the command line are ``name`` or
+``name:key=val,key=val``; each value is parsed as ``true``/``false`` (bool,
+case-insensitive), then ``int``, then ``float``, otherwise kept as a string.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import resource
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+import trackers
+from benchmarks import policies
+from benchmarks.metrics import step_metrics
+from scenarios.model import RayleighGridSensor
+from scenarios.simulator import simulate, tracker_seed
+from scenarios.spec import Scenario, dumps
+
+METRIC_COLUMNS = [
+    "count_error", "ospa", "ospa_loc", "ospa_card", "gospa", "gospa_loc", "gospa_missed",
+    "gospa_false", "rmse",
+]
+TIMING_COLUMNS = ["tracker_wall_s", "tracker_cpu_s", "select_wall_s", "select_cpu_s"]
+#: the fixed columns, in order; ``param_<name>`` columns follow, sorted
+COLUMNS = [
+    "scenario", "tracker", "tracker_label", "tracker_params", "policy", "policy_label",
+    "policy_params", "uses_truth", "looks_per_step", "seed", "step", "true_count", "est_count",
+    *METRIC_COLUMNS, "n_looks", "n_positive", *TIMING_COLUMNS, "status", "error", "ospa_c",
+    "ospa_p", "peak_rss_mb",
+]
+#: columns that identify a run (one Monte Carlo replicate)
+RUN_KEYS = ["scenario", "tracker_label", "policy_label", "looks_per_step", "seed"]
+_INT_COLUMNS = ["looks_per_step", "seed", "step", "n_looks", "n_positive"]
+_FLOAT_COLUMNS = ["true_count", "est_count", *METRIC_COLUMNS, *TIMING_COLUMNS, "ospa_c", "ospa_p",
+                  "peak_rss_mb"]
+NO_POLICY = "none"
+
+
+# ------------------------------------------------------------------------ specs
+def parse_value(text: str) -> bool | int | float | str:
+    """``"true"``/``"false"`` -> bool, then int, then float, else the string itself."""
+    low = text.strip().lower()
+    if low in ("true", "false"):
+        return low == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def _label(name: str, params: dict[str, Any]) -> str:
+    if not params:
+        return name
+    return f"{name}(" + ",".join(f"{k}={params[k]}" for k in sorted(params)) + ")"
+
+
+def _parse(text: str, what: str) -> tuple[str, dict[str, Any]]:
+    name, sep, rest = text.strip().partition(":")
+    if not name:
+        raise ValueError(f"empty {what} name in {text!r}")
+    params: dict[str, Any] = {}
+    if sep:
+        for item in rest.split(","):
+            key, eq, value = item.partition("=")
+            key = key.strip()
+            if not eq or not key:
+                raise ValueError(f"bad {what} parameter {item!r} in {text!r}: expected key=value")
+            if key in params:
+                raise ValueError(f"{what} parameter {key!r} given twice in {text!r}")
+            params[key] = parse_value(value.strip())
+    return name, params
+
+
+@dataclass(frozen=True)
+class TrackerSpec:
+    """A registered tracker name and the parameters given to its constructor."""
+
+    name: str
+    params: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        """``name`` without parameters, else ``name(k=v,...)`` with sorted keys."""
+        return _label(self.name, self.params)
+
+    def __hash__(self) -> int:
+        return hash(("tracker", self.label))
+
+    @classmethod
+    def parse(cls, text: str) -> TrackerSpec:
+        """From ``name`` or ``name:key=val,key=val`` (values as :func:`parse_value`)."""
+        return cls(*_parse(text, "tracker"))
+
+    def make(self) -> trackers.Tracker:
+        return trackers.make(self.name, **self.params)
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """A registered cell-selection policy name and its parameters."""
+
+    name: str
+    params: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        return _label(self.name, self.params)
+
+    def __hash__(self) -> int:
+        return hash(("policy", self.label))
+
+    @classmethod
+    def parse(cls, text: str) -> PolicySpec:
+        return cls(*_parse(text, "policy"))
+
+    def make(self) -> policies.Policy:
+        return policies.make_policy(self.name, **self.params)
+
+
+def split_specs(items: list[str] | str) -> list[str]:
+    """Split comma-separated spec lists, keeping ``key=val`` pieces with their spec.
+
+    ``["raster,renyi:alpha=0.5,max_count=3", "all"]`` ->
+    ``["raster", "renyi:alpha=0.5,max_count=3", "all"]``: a piece with ``=`` but no
+    ``:`` continues the parameter list of the spec before it.
+    """
+    out: list[str] = []
+    for item in [items] if isinstance(items, str) else items:
+        for piece in item.split(","):
+            piece = piece.strip()
+            if not piece:
+                continue
+            if "=" in piece and ":" not in piece and out and ":" in out[-1]:
+                out[-1] += "," + piece
+            else:
+                out.append(piece)
+    return out
+
+
+@dataclass(frozen=True)
+class Job:
+    """One Monte Carlo run. Normalised on construction.
+
+    On a grid-sensor scenario ``policy`` defaults to raster and ``looks_per_step``
+    to the scenario's ``sensor.looks_per_step``; on the superposition sensor both
+    are set to None (there are no cells to choose).
+    """
+
+    scenario: Scenario
+    tracker: TrackerSpec
+    policy: PolicySpec | None = None
+    looks_per_step: int | None = None
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        sensor = self.scenario.model.sensor
+        if isinstance(sensor, RayleighGridSensor):
+            if self.policy is None:
+                object.__setattr__(self, "policy", PolicySpec("raster"))
+            if self.looks_per_step is None:
+                object.__setattr__(self, "looks_per_step", int(sensor.looks_per_step))
+        else:
+            object.__setattr__(self, "policy", None)
+            object.__setattr__(self, "looks_per_step", None)
+
+    @property
+    def policy_label(self) -> str:
+        return self.policy.label if self.policy is not None else NO_POLICY
+
+    def key(self, c: float, p: float) -> str:
+        """A stable hash of everything that determines the job's results."""
+        ident = {
+            "scenario": dumps(self.scenario),
+            "tracker": [self.tracker.name, self.tracker.params],
+            "policy": None if self.policy is None else [self.policy.name, self.policy.params],
+            "looks": self.looks_per_step,
+            "seed": int(self.seed),
+            "c": float(c),
+            "p": float(p),
+        }
+        text = json.dumps(ident, sort_keys=True, default=str)
+        return hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+def build_jobs(scenarios: list[Scenario], tracker_specs: list[TrackerSpec],
+               policy_specs: list[PolicySpec] | None, looks: list[int] | None,
+               seeds: list[int]) -> list[Job]:
+    """The sweep scenarios x trackers x policies x looks x seeds.
+
+    ``policy_specs`` None means raster; ``looks`` None means each scenario's own
+    ``looks_per_step``. A superposition scenario gets one job per tracker x seed.
+    """
+    jobs: list[Job] = []
+    for sc in scenarios:
+        if isinstance(sc.model.sensor, RayleighGridSensor):
+            pols: list[PolicySpec | None] = list(policy_specs or [PolicySpec("raster")])
+            lks: list[int | None] = list(looks) if looks else [None]
+        else:
+            pols, lks = [None], [None]
+        for tr in tracker_specs:
+            for pol in pols:
+                for m in lks:
+                    for seed in seeds:
+                        jobs.append(Job(sc, tr, pol, m, int(seed)))
+    return jobs
+
+
+# ------------------------------------------------------------------------ one job
+def _peak_rss_mb() -> float:
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    # kilobytes on Linux, bytes on macOS
+    return rss / (1024.0 * 1024.0) if sys.platform == "darwin" else rss / 1024.0
+
+
+def _param_value(v: Any) -> Any:
+    """Scalars as they are; anything else as JSON text (Parquet needs one type per column)."""
+    if v is None or isinstance(v, bool | int | float | str):
+        return v
+    if isinstance(v, np.generic):
+        return v.item()
+    return json.dumps(v, default=str)
+
+
+def _params_json(params: dict[str, Any]) -> str:
+    return json.dumps(params, sort_keys=True, default=str)
+
+
+def _nan_metrics() -> dict[str, float]:
+    return dict.fromkeys(METRIC_COLUMNS, math.nan)
+
+
+def _frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    """Rows -> DataFrame with the fixed columns in order and stable dtypes."""
+    df = pd.DataFrame(rows)
+    params = sorted(c for c in df.columns if c.startswith("param_"))
+    extra = [c for c in df.columns if c not in COLUMNS and c not in params]
+    df = df[COLUMNS + params + extra]
+    df[_INT_COLUMNS] = df[_INT_COLUMNS].astype("int64")
+    df[_FLOAT_COLUMNS] = df[_FLOAT_COLUMNS].astype("float64")
+    df["uses_truth"] = df["uses_truth"].astype(bool)
+    return df
+
+
+def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
+    """Play one job; returns its rows (see the module docstring for the columns).
+
+    Never raises for a failing tracker or policy: the failure becomes a row with
+    ``status = "error"``. An unsupported scenario gives one row with ``step = -1``.
+    """
+    sc, model = job.scenario, job.scenario.model
+    base: dict[str, Any] = {
+        "scenario": sc.name,
+        "tracker": job.tracker.name,
+        "tracker_label": job.tracker.label,
+        "tracker_params": _params_json(job.tracker.params),
+        "policy": job.policy.name if job.policy is not None else NO_POLICY,
+        "policy_label": job.policy_label,
+        "policy_params": "{}",
+        "uses_truth": False,
+        "looks_per_step": job.looks_per_step or 0,
+        "seed": int(job.seed),
+        "ospa_c": float(c),
+        "ospa_p": float(p),
+    }
+    rows: list[dict[str, Any]] = []
+
+    def special_row(step: int, status: str, message: str, true_count: float) -> dict[str, Any]:
+        return {**base, "step": step, "true_count": true_count, "est_count": math.nan,
+                **_nan_metrics(), "n_looks": 0, "n_positive": 0,
+                **dict.fromkeys(TIMING_COLUMNS, math.nan), "status": status, "error": message}
+
+    def finish() -> pd.DataFrame:
+        rss = _peak_rss_mb()
+        for r in rows:
+            r["peak_rss_mb"] = rss
+        return _frame(rows)
+
+    k = -1
+    run = None
+    try:
+        tracker = job.tracker.make()
+        params = tracker.get_params()
+        base["tracker_params"] = _params_json(params)
+        base.update({f"param_{n}": _param_value(v) for n, v in params.items()})
+        policy = job.policy.make() if job.policy is not None else None
+        if policy is not None:
+            base["policy_params"] = _params_json(policy.get_params())
+            base["uses_truth"] = bool(policy.uses_truth)
+
+        reason = tracker.unsupported_reason(model)
+        if reason:
+            rows.append(special_row(-1, "unsupported", str(reason), math.nan))
+            return finish()
+
+        run = simulate(sc, job.seed)
+        tracker_rng = np.random.default_rng(tracker_seed(sc.name, job.seed, job.tracker.label))
+        tracker.reset(model, tracker_rng)
+        if policy is not None:
+            # the policy's stream ignores the tracker: every tracker sees the same random cells
+            policy_rng = np.random.default_rng(
+                tracker_seed(sc.name, job.seed, "policy:" + job.policy_label))
+            policy.reset(model, int(job.looks_per_step), policy_rng)
+        grid = model.grid
+        for k in range(run.n_steps):
+            truth = run.states[k]
+            w0, c0 = time.perf_counter(), time.process_time()
+            tracker.predict()
+            w1, c1 = time.perf_counter(), time.process_time()
+            if policy is not None:
+                counts = tracker.cell_count_distribution() if policy.uses_prediction else None
+                truth_cells = None
+                if policy.uses_truth:
+                    flat = grid.cell_of(truth[:, 0], truth[:, 2])
+                    truth_cells = flat[flat >= 0]
+                cells = policy.select(k, counts=counts, truth_cells=truth_cells)
+                w2, c2 = time.perf_counter(), time.process_time()
+                looks = run.look(k, cells)
+            else:
+                w2, c2 = w1, c1
+                looks = run.measure(k)
+            w3, c3 = time.perf_counter(), time.process_time()
+            tracker.update(looks)
+            est = tracker.estimate()
+            w4, c4 = time.perf_counter(), time.process_time()
+
+            states = np.asarray(est.states, dtype=float).reshape(-1, 4)
+            m = step_metrics(truth[:, [0, 2]], states[:, [0, 2]], float(est.count), c=c, p=p)
+            rows.append({
+                **base, "step": k, "true_count": float(len(truth)), "est_count": float(est.count),
+                **{name: float(m[name]) for name in METRIC_COLUMNS},
+                "n_looks": len(looks.cells), "n_positive": int(np.count_nonzero(looks.returns)),
+                "tracker_wall_s": (w1 - w0) + (w4 - w3),
+                "tracker_cpu_s": (c1 - c0) + (c4 - c3),
+                "select_wall_s": w2 - w1, "select_cpu_s": c2 - c1,
+                "status": "ok", "error": "",
+            })
+    except Exception as exc:  # noqa: BLE001 - any failure of a tracker is a result
+        message = f"{type(exc).__name__}: {exc}".replace("\n", " ")
+        true_count = float(len(run.states[k])) if run is not None and k >= 0 else math.nan
+        rows.append(special_row(k, "error", message, true_count))
+    return finish()
+
+
+# -------------------------------------------------------------------------- sweeps
+def _write_parquet(df: pd.DataFrame, path: Path) -> None:
+    """Write atomically: a temp file in the same folder, then ``os.replace``."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    df.to_parquet(tmp, index=False)
+    os.replace(tmp, path)
+
+
+def _run_and_save(job: Job, part: Path, c: float, p: float) -> Path:
+    _write_parquet(run_job(job, c, p), part)
+    return part
+
+
+def sort_results(df: pd.DataFrame) -> pd.DataFrame:
+    """Deterministic row order: by run keys, tracker parameters and step."""
+    keys = [*RUN_KEYS, "tracker_params", "policy_params", "step"]
+    return df.sort_values(keys, kind="stable").reset_index(drop=True)
+
+
+def _concat(frames: list[pd.DataFrame]) -> pd.DataFrame:
+    df = pd.concat(frames, ignore_index=True)
+    params = sorted(c for c in df.columns if c.startswith("param_"))
+    extra = [c for c in df.columns if c not in COLUMNS and c not in params]
+    df = df[COLUMNS + params + extra]
+    for col in params:
+        # two trackers may share a parameter name with different value types
+        values = df[col].dropna()
+        if df[col].dtype == object and values.map(type).nunique() > 1:
+            df[col] = df[col].map(lambda v: None if v is None else str(v))
+    return sort_results(df)
+
+
+def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1, progress: bool = True,
+              resume: bool = False, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
+    """Run ``jobs`` and write ``out_dir/results.parquet``; returns the table.
+
+    Every finished job is written at once to ``out_dir/parts/<job hash>.parquet``,
+    so an interrupted sweep keeps what it finished; with ``resume=True`` the jobs
+    whose part exists are not run again. ``workers > 1`` runs jobs in separate
+    processes; the results do not depend on ``workers`` (timings aside). If a worker
+    process dies, its jobs get an error row that is not saved as a part, so a
+    resumed sweep runs them again.
+    """
+    out_dir = Path(out_dir)
+    parts_dir = out_dir / "parts"
+    parts_dir.mkdir(parents=True, exist_ok=True)
+    paths = [parts_dir / f"{job.key(c, p)}.parquet" for job in jobs]
+    todo = [(job, path) for job, path in zip(jobs, paths, strict=True)
+            if not (resume and path.exists())]
+    lost: dict[Path, pd.DataFrame] = {}
+
+    from tqdm.auto import tqdm
+
+    # no monitor thread: worker processes are forked after the bar exists
+    tqdm.monitor_interval = 0
+    bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), file=sys.stderr,
+               disable=not progress, unit="run", desc="runs")
+    try:
+        if workers <= 1 or len(todo) <= 1:
+            for job, path in todo:
+                _run_and_save(job, path, c, p)
+                bar.update()
+        else:
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                futures = {pool.submit(_run_and_save, job, path, c, p): (job, path)
+                           for job, path in todo}
+                for fut in as_completed(futures):
+                    job, path = futures[fut]
+                    try:
+                        fut.result()
+                    except Exception as exc:  # noqa: BLE001 - e.g. a worker killed
+                        msg = f"worker failed: {type(exc).__name__}: {exc}".replace("\n", " ")
+                        lost[path] = _lost_job_frame(job, msg, c, p)
+                    bar.update()
+    finally:
+        bar.close()
+
+    frames = [lost[path] if path in lost else pd.read_parquet(path) for path in paths]
+    df = _concat(frames) if frames else pd.DataFrame(columns=COLUMNS)
+    _write_parquet(df, out_dir / "results.parquet")
+    return df
+
+
+def _lost_job_frame(job: Job, message: str, c: float, p: float) -> pd.DataFrame:
+    row = {
+        "scenario": job.scenario.name, "tracker": job.tracker.name,
+        "tracker_label": job.tracker.label, "tracker_params": _params_json(job.tracker.params),
+        "policy": job.policy.name if job.policy is not None else NO_POLICY,
+        "policy_label": job.policy_label, "policy_params": "{}", "uses_truth": False,
+        "looks_per_step": job.looks_per_step or 0, "seed": int(job.seed), "step": -1,
+        "true_count": math.nan, "est_count": math.nan, **_nan_metrics(), "n_looks": 0,
+        "n_positive": 0, **dict.fromkeys(TIMING_COLUMNS, math.nan), "status": "error",
+        "error": message, "ospa_c": float(c), "ospa_p": float(p), "peak_rss_mb": math.nan,
+    }
+    return _frame([row])

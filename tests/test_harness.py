@@ -1,0 +1,385 @@
+"""Harness (jobs, sweeps, parts, resume, parallel equality) and summary statistics."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats
+
+import scenarios
+from benchmarks import harness
+from benchmarks.harness import (
+    COLUMNS,
+    Job,
+    PolicySpec,
+    TrackerSpec,
+    build_jobs,
+    parse_value,
+    run_job,
+    run_sweep,
+    split_specs,
+)
+from benchmarks.metrics import step_metrics
+from benchmarks.summary import mean_ci95, paired_difference, per_run, summarize, to_markdown
+from scenarios.simulator import simulate
+from trackers.base import _REGISTRY, Estimate, Tracker, register
+
+#: one tolerance for float comparisons of recomputed statistics
+TOL = 1e-12
+TIMING = ["tracker_wall_s", "tracker_cpu_s", "select_wall_s", "select_cpu_s", "peak_rss_mb"]
+
+
+def short(name: str, n_steps: int) -> scenarios.Scenario:
+    return dataclasses.replace(scenarios.get(name), n_steps=n_steps)
+
+
+# ---------------------------------------------------------------- test trackers
+class Recorder(Tracker):
+    """Reports one target at the first positive return's cell centre; records its looks
+    and its first random draw, and counts resets (all class-level, for the tests)."""
+
+    name = "test_recorder"
+    summary = "test only"
+    looks_seen: dict = {}
+    draws: dict = {}
+    resets = 0
+
+    def __init__(self, tag: int = 0) -> None:
+        self.tag = tag
+
+    def reset(self, model, rng):
+        type(self).resets += 1
+        self._grid = model.grid
+        self._key = (self.tag, len(type(self).draws))
+        type(self).draws[self._key] = rng.random()
+        self._est = Estimate.empty()
+        self._k = 0
+
+    def predict(self):
+        pass
+
+    def cell_count_distribution(self):
+        P = np.zeros((self._grid.n_cells, 2))
+        P[:, 0] = 1.0
+        return P
+
+    def update(self, looks):
+        type(self).looks_seen.setdefault(self._key, []).append(looks.cells.copy())
+        pos = looks.cells[looks.returns]
+        if pos.size:
+            xy = self._grid.cell_centers(pos[:1])[0]
+            self._est = Estimate(1.0, np.array([[xy[0], 0.0, xy[1], 0.0]]))
+        self._k += 1
+
+    def estimate(self):
+        return self._est
+
+
+class CrashAt3(Recorder):
+    name = "test_crash"
+
+    def update(self, looks):
+        if self._k == 3:
+            raise RuntimeError("boom at step three")
+        super().update(looks)
+
+
+class Unsupported(Recorder):
+    name = "test_unsupported"
+
+    def unsupported_reason(self, model):
+        return "cannot do this"
+
+
+@pytest.fixture
+def test_trackers():
+    """Register the test trackers for one test, then remove them from the registry."""
+    classes = [Recorder, CrashAt3, Unsupported]
+    for cls in classes:
+        register(cls)
+    Recorder.looks_seen, Recorder.draws, Recorder.resets = {}, {}, 0
+    yield
+    for cls in classes:
+        _REGISTRY.pop(cls.name, None)
+
+
+def strip_timing(df: pd.DataFrame) -> pd.DataFrame:
+    return df.drop(columns=TIMING).reset_index(drop=True)
+
+
+# ------------------------------------------------------------------------ specs
+def test_parse_value_types():
+    assert parse_value("1000") == 1000 and type(parse_value("1000")) is int
+    assert parse_value("1e-3") == 1e-3 and type(parse_value("0.5")) is float
+    assert parse_value("True") is True and parse_value("false") is False
+    assert parse_value("global") == "global"
+
+
+def test_tracker_spec_parse_and_label():
+    spec = TrackerSpec.parse("jmpd:n_particles=1000,resample=true,alpha=0.5,mode=fast")
+    assert spec.name == "jmpd"
+    assert spec.params == {"n_particles": 1000, "resample": True, "alpha": 0.5, "mode": "fast"}
+    assert spec.label == "jmpd(alpha=0.5,mode=fast,n_particles=1000,resample=True)"
+    assert TrackerSpec.parse("kfnn").label == "kfnn"
+    assert TrackerSpec.parse("kfnn") == TrackerSpec("kfnn", {})
+    assert PolicySpec.parse("renyi:alpha=0.9").label == "renyi(alpha=0.9)"
+
+
+@pytest.mark.parametrize("bad", ["", ":a=1", "kfnn:a", "kfnn:=1", "kfnn:a=1,a=2"])
+def test_bad_spec_strings_refused(bad):
+    with pytest.raises(ValueError):
+        TrackerSpec.parse(bad)
+
+
+def test_split_specs_keeps_parameters_together():
+    assert split_specs(["raster,renyi:alpha=0.5,repeats=false", "all"]) == [
+        "raster", "renyi:alpha=0.5,repeats=false", "all"]
+    assert split_specs("kfnn") == ["kfnn"]
+
+
+def test_build_jobs_dimensions():
+    default, sup = short("default", 3), short("superposition", 3)
+    trs = [TrackerSpec("null"), TrackerSpec("kfnn")]
+    jobs = build_jobs([default, sup], trs, [PolicySpec("raster"), PolicySpec("renyi")],
+                      [12, 24], [0, 1, 2])
+    grid_jobs = [j for j in jobs if j.scenario.name == "default"]
+    sup_jobs = [j for j in jobs if j.scenario.name == "superposition"]
+    assert len(grid_jobs) == 2 * 2 * 2 * 3
+    assert len(sup_jobs) == 2 * 3  # policy and looks do not apply
+    assert all(j.policy is None and j.looks_per_step is None for j in sup_jobs)
+    # looks default to the scenario's budget
+    (job,) = build_jobs([default], trs[:1], None, None, [0])
+    assert job.looks_per_step == default.model.sensor.looks_per_step
+    assert job.policy == PolicySpec("raster")
+
+
+def test_job_key_depends_on_everything_that_matters():
+    sc = short("default", 5)
+    base = Job(sc, TrackerSpec("null"), PolicySpec("raster"), 12, 0)
+    assert base.key(2, 2) == Job(sc, TrackerSpec("null"), PolicySpec("raster"), 12, 0).key(2, 2)
+    others = [
+        Job(short("default", 6), TrackerSpec("null"), PolicySpec("raster"), 12, 0),
+        Job(sc, TrackerSpec("kfnn"), PolicySpec("raster"), 12, 0),
+        Job(sc, TrackerSpec("null"), PolicySpec("random"), 12, 0),
+        Job(sc, TrackerSpec("null"), PolicySpec("raster"), 24, 0),
+        Job(sc, TrackerSpec("null"), PolicySpec("raster"), 12, 1),
+    ]
+    keys = {base.key(2, 2), base.key(1, 2), base.key(2, 1), *(j.key(2, 2) for j in others)}
+    assert len(keys) == 3 + len(others)
+
+
+# ---------------------------------------------------------------------- run_job
+def test_run_job_rows_and_metrics_match_direct_computation(test_trackers):
+    sc = short("default", 12)
+    job = Job(sc, TrackerSpec("test_recorder", {"tag": 7}), PolicySpec("raster"), 30, 4)
+    df = run_job(job, c=3.0, p=1.0)
+    assert list(df.columns) == COLUMNS + ["param_tag"]
+    assert len(df) == sc.n_steps and list(df["step"]) == list(range(sc.n_steps))
+    assert (df["status"] == "ok").all() and (df["error"] == "").all()
+    assert (df["tracker_label"] == "test_recorder(tag=7)").all()
+    assert json.loads(df["tracker_params"].iloc[0]) == {"tag": 7}
+    assert (df["param_tag"] == 7).all()
+    assert (df["n_looks"] == 30).all() and (df["ospa_c"] == 3.0).all()
+    assert not df["uses_truth"].any()
+    # recompute every step independently: truth from the simulator, looks from the
+    # raster sweep, the estimate from the recorder's rule
+    run = simulate(sc, 4)
+    est = np.zeros((0, 2))
+    for k in range(sc.n_steps):
+        cells = (k * 30 + np.arange(30)) % sc.grid.n_cells
+        looks = run.look(k, cells)
+        pos = looks.cells[looks.returns]
+        if pos.size:
+            est = sc.grid.cell_centers(pos[:1])
+        m = step_metrics(run.positions(k), est, float(len(est)), c=3.0, p=1.0)
+        row = df.iloc[k]
+        assert row["true_count"] == len(run.states[k])
+        assert row["n_positive"] == looks.returns.sum()
+        for name in harness.METRIC_COLUMNS:
+            assert np.isclose(row[name], m[name], rtol=0, atol=TOL, equal_nan=True), (k, name)
+    t = df[TIMING].to_numpy()
+    assert np.isfinite(t).all() and (t >= 0).all()
+
+
+def test_policy_randomness_is_shared_by_trackers_and_tracker_randomness_is_not(test_trackers):
+    sc = short("default", 6)
+    for tag in (1, 2):
+        run_job(Job(sc, TrackerSpec("test_recorder", {"tag": tag}), PolicySpec("random"), 10, 3))
+    (k1, cells1), (k2, cells2) = sorted(Recorder.looks_seen.items())
+    assert k1[0] == 1 and k2[0] == 2
+    # the same random cells for both trackers, and not a fixed sweep
+    for a, b in zip(cells1, cells2, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert len({tuple(c) for c in cells1}) > 1
+    # the trackers' own streams differ (seeded from their labels)
+    assert Recorder.draws[k1] != Recorder.draws[k2]
+
+
+def test_oracle_policy_marks_rows_as_using_truth():
+    df = run_job(Job(short("default", 4), TrackerSpec("null"), PolicySpec("oracle"), 5, 0))
+    assert df["uses_truth"].all() and (df["status"] == "ok").all()
+
+
+def test_superposition_job_has_no_policy():
+    df = run_job(Job(short("superposition", 4), TrackerSpec("null"), PolicySpec("raster"), 12, 0))
+    assert (df["policy"] == "none").all() and (df["looks_per_step"] == 0).all()
+    assert (df["n_looks"] == 0).all() and (df["status"] == "ok").all()
+
+
+def test_unsupported_gives_one_marked_row(test_trackers):
+    df = run_job(Job(short("default", 4), TrackerSpec("test_unsupported"), None, None, 0))
+    assert len(df) == 1
+    row = df.iloc[0]
+    assert row["status"] == "unsupported" and row["error"] == "cannot do this"
+    assert row["step"] == -1 and math.isnan(row["ospa"])
+
+
+# ---------------------------------------------------------------------- sweeps
+def test_sweep_keeps_other_results_when_a_tracker_crashes(test_trackers, tmp_path):
+    sc = short("default", 6)
+    jobs = build_jobs([sc], [TrackerSpec("null"), TrackerSpec("test_crash")], None, None, [0, 1])
+    df = run_sweep(jobs, tmp_path, progress=False)
+    null = df[df["tracker"] == "null"]
+    assert len(null) == 2 * 6 and (null["status"] == "ok").all()
+    crash = df[df["tracker"] == "test_crash"]
+    for _, g in crash.groupby("seed"):
+        assert list(g["step"]) == [0, 1, 2, 3]
+        assert list(g["status"]) == ["ok", "ok", "ok", "error"]
+        err = g["error"].iloc[-1]
+        assert "RuntimeError" in err and "boom at step three" in err
+        assert math.isnan(g["ospa"].iloc[-1])
+    on_disk = pd.read_parquet(tmp_path / "results.parquet")
+    pd.testing.assert_frame_equal(on_disk, df)
+    assert len(list((tmp_path / "parts").glob("*.parquet"))) == len(jobs)
+    # summaries count the failures and keep them out of the means
+    summ = summarize(df)
+    row = summ[summ["tracker_label"] == "test_crash"].iloc[0]
+    assert row["n_seeds"] == 0 and row["n_errors"] == 2 and "boom" in row["note"]
+
+
+def test_resume_skips_finished_parts(test_trackers, tmp_path):
+    sc = short("default", 5)
+    spec = [TrackerSpec("test_recorder")]
+    first = run_sweep(build_jobs([sc], spec, None, None, [0, 1]), tmp_path, progress=False)
+    assert Recorder.resets == 2
+    again = run_sweep(build_jobs([sc], spec, None, None, [0, 1]), tmp_path, progress=False,
+                      resume=True)
+    assert Recorder.resets == 2
+    pd.testing.assert_frame_equal(first, again)
+    # a larger sweep only runs the new job
+    more = run_sweep(build_jobs([sc], spec, None, None, [0, 1, 2]), tmp_path, progress=False,
+                     resume=True)
+    assert Recorder.resets == 3 and sorted(more["seed"].unique()) == [0, 1, 2]
+    # without resume everything runs again
+    run_sweep(build_jobs([sc], spec, None, None, [0]), tmp_path, progress=False)
+    assert Recorder.resets == 4
+
+
+def test_results_do_not_depend_on_the_number_of_workers(tmp_path):
+    scs = [short("default", 8), short("superposition", 4)]
+    trs = [TrackerSpec("null"), TrackerSpec("kfnn")]
+    jobs = build_jobs(scs, trs, [PolicySpec("random"), PolicySpec("renyi")], [10], [0, 1])
+    serial = run_sweep(jobs, tmp_path / "one", workers=1, progress=False)
+    parallel = run_sweep(list(reversed(jobs)), tmp_path / "two", workers=2, progress=False)
+    pd.testing.assert_frame_equal(strip_timing(serial), strip_timing(parallel))
+    # grid: 2 trackers x 2 policies x 2 seeds x 8 steps; superposition: null 2 x 4 steps,
+    # kfnn one "unsupported" row per seed
+    assert len(serial) == 2 * 2 * 2 * 8 + 2 * 4 + 2
+
+
+# ---------------------------------------------------------------------- summary
+def hand_table() -> pd.DataFrame:
+    """A step-level table: trackers A, B, ref; 4 seeds; 3 steps; one failed B run."""
+    rng = np.random.default_rng(5)
+    rows = []
+    for tracker in ("A", "B", "ref"):
+        for seed in range(4):
+            for step in range(3):
+                failed = tracker == "B" and seed == 3 and step == 2
+                rows.append({
+                    "scenario": "s", "tracker": tracker, "tracker_label": tracker,
+                    "policy": "raster", "policy_label": "raster", "uses_truth": False,
+                    "looks_per_step": 24, "seed": seed, "step": step,
+                    **{m: (math.nan if failed else rng.random()) for m in
+                       ("ospa", "ospa_loc", "ospa_card", "gospa", "gospa_loc", "gospa_missed",
+                        "gospa_false", "count_error")},
+                    "rmse": math.nan if step == 0 else rng.random(),
+                    "tracker_wall_s": rng.random(), "tracker_cpu_s": rng.random(),
+                    "select_wall_s": rng.random(), "select_cpu_s": rng.random(),
+                    "peak_rss_mb": 100.0 + seed, "status": "error" if failed else "ok",
+                    "error": "ValueError: x" if failed else "",
+                })
+    return pd.DataFrame(rows)
+
+
+def t_half_width(v: np.ndarray) -> float:
+    """Independent reference: scipy's t interval around the mean."""
+    lo, hi = stats.t.interval(0.95, len(v) - 1, loc=np.mean(v), scale=stats.sem(v))
+    return (hi - lo) / 2
+
+
+def test_per_run_averages_over_steps():
+    df = hand_table()
+    runs = per_run(df)
+    assert len(runs) == 3 * 4
+    g = df[(df["tracker_label"] == "A") & (df["seed"] == 2)]
+    r = runs[(runs["tracker_label"] == "A") & (runs["seed"] == 2)].iloc[0]
+    assert r["ospa"] == pytest.approx(g["ospa"].mean(), abs=TOL)
+    assert r["rmse"] == pytest.approx(g["rmse"].iloc[1:].mean(), abs=TOL)  # NaN step skipped
+    assert r["tracker_wall_s"] == pytest.approx(np.median(g["tracker_wall_s"]), abs=TOL)
+    assert r["select_wall_s"] == pytest.approx(g["select_wall_s"].mean(), abs=TOL)
+    assert r["status"] == "ok" and r["n_steps"] == 3
+    bad = runs[(runs["tracker_label"] == "B") & (runs["seed"] == 3)].iloc[0]
+    assert bad["status"] == "error" and bad["error"] == "ValueError: x"
+
+
+def test_summarize_matches_scipy_t_interval():
+    df = hand_table()
+    summ = summarize(df)
+    runs = per_run(df)
+    for label, n in (("A", 4), ("B", 3)):
+        row = summ[summ["tracker_label"] == label].iloc[0]
+        v = runs[(runs["tracker_label"] == label) & (runs["status"] == "ok")]["ospa"].to_numpy()
+        assert row["n_seeds"] == n == len(v)
+        assert row["ospa_mean"] == pytest.approx(v.mean(), abs=TOL)
+        assert row["ospa_ci95"] == pytest.approx(t_half_width(v), rel=1e-9)
+    assert summ.loc[summ["tracker_label"] == "B", "n_errors"].iloc[0] == 1
+
+
+def test_single_seed_has_nan_half_width():
+    df = hand_table()
+    summ = summarize(df[df["seed"] == 0])
+    assert (summ["n_seeds"] == 1).all() and summ["ospa_ci95"].isna().all()
+    mean, half = mean_ci95(np.array([0.25]))
+    assert mean == 0.25 and math.isnan(half)
+
+
+def test_paired_difference_matches_direct_computation():
+    df = hand_table()
+    out = paired_difference(df, "ref", "ospa")
+    assert sorted(out["tracker_label"]) == ["A", "B"]
+    runs = per_run(df).set_index(["tracker_label", "seed"])
+    for label, seeds in (("A", [0, 1, 2, 3]), ("B", [0, 1, 2])):  # B's seed 3 failed
+        d = np.array([runs.loc[(label, s), "ospa"] - runs.loc[("ref", s), "ospa"]
+                      for s in seeds])
+        row = out[out["tracker_label"] == label].iloc[0]
+        assert row["n_seeds"] == len(seeds)
+        assert row["diff_mean"] == pytest.approx(d.mean(), abs=TOL)
+        assert row["diff_ci95"] == pytest.approx(t_half_width(d), rel=1e-9)
+    with pytest.raises(ValueError):
+        paired_difference(df, "nobody", "ospa")
+
+
+def test_to_markdown_shows_mean_plus_minus_half_width():
+    summ = summarize(hand_table())
+    text = to_markdown(summ)
+    lines = [ln for ln in text.splitlines() if ln.startswith("|")]
+    assert len(lines) == 2 + len(summ)
+    a = summ[summ["tracker_label"] == "A"].iloc[0]
+    assert f"{a['ospa_mean']:.3f} ± {a['ospa_ci95']:.3f}" in text
+    assert "failed in 1 of 4 runs" in text
