@@ -1,0 +1,236 @@
+"""Figures: one small function per figure; each reads tables and draws (STYLE.md pattern 12).
+
+Every function takes tidy data (the results table, a summary, or the frames of a
+:class:`benchmarks.snapshot.Trace`), writes one PNG to ``path`` and returns it. No
+function runs a tracker. Matplotlib runs with the non-interactive Agg backend.
+
+Confidence bands are 95% Student-t intervals over seeds at each step::
+
+    mean_k +- t_{0.975, n-1} * sd_k / sqrt(n)      (sd with ddof = 1, n seeds)
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+from matplotlib.patches import Ellipse, Rectangle  # noqa: E402
+from scipy import stats  # noqa: E402
+
+#: chi-square(2) 95% quantile: a 2-D Gaussian puts 95% of its mass inside this ellipse
+ELLIPSE_CHI2 = float(stats.chi2.ppf(0.95, 2))
+DPI = 110
+
+
+def tracker_colors(labels: list[str]) -> dict[str, tuple]:
+    """A fixed colour per tracker label (sorted order, tab10 cycle)."""
+    cmap = plt.get_cmap("tab10")
+    return {lab: cmap(i % 10) for i, lab in enumerate(sorted(labels))}
+
+
+def step_stats(results: pd.DataFrame, metric: str,
+               by: tuple[str, ...] = ("scenario", "tracker_label")) -> pd.DataFrame:
+    """Per ``by`` and step: ``mean``, ``ci95`` (t half-width over seeds) and ``n`` of ``metric``.
+
+    Only ``status == "ok"`` rows with a finite value count.
+    """
+    ok = results[(results["status"] == "ok") & np.isfinite(results[metric].astype(float))]
+    g = ok.groupby([*by, "step"], sort=True)[metric]
+    out = g.agg(mean="mean", sd=lambda v: v.std(ddof=1), n="count").reset_index()
+    t = stats.t.ppf(0.975, np.maximum(out["n"] - 1, 1))
+    out["ci95"] = np.where(out["n"] > 1, t * out["sd"] / np.sqrt(out["n"]), np.nan)
+    return out.drop(columns="sd")
+
+
+def _save(fig: plt.Figure, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=DPI, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def _grid_of_axes(n: int, width: float = 4.2, height: float = 3.2):
+    cols = min(n, 2) if n > 1 else 1
+    rows = math.ceil(n / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(width * cols, height * rows), squeeze=False)
+    for ax in axes.flat[n:]:
+        ax.set_visible(False)
+    return fig, list(axes.flat[:n])
+
+
+def metric_over_time(results: pd.DataFrame, metric: str, path: str | Path,
+                     ylabel: str | None = None) -> Path:
+    """``metric`` against step, one panel per scenario, one line per tracker:
+    mean over seeds with a shaded 95% band."""
+    st = step_stats(results, metric)
+    scen = sorted(st["scenario"].unique())
+    colors = tracker_colors(list(results["tracker_label"].unique()))
+    fig, axes = _grid_of_axes(max(len(scen), 1))
+    for ax, sc in zip(axes, scen, strict=False):
+        for lab, g in st[st["scenario"] == sc].groupby("tracker_label", sort=True):
+            c = colors[lab]
+            ax.plot(g["step"], g["mean"], color=c, lw=1.4, label=lab)
+            lo, hi = g["mean"] - g["ci95"].fillna(0), g["mean"] + g["ci95"].fillna(0)
+            ax.fill_between(g["step"], lo, hi, color=c, alpha=0.2, lw=0)
+        ax.set_title(sc)
+        ax.set_xlabel("step")
+        ax.set_ylabel(ylabel or metric)
+        ax.grid(alpha=0.3)
+    if scen:
+        axes[0].legend(fontsize=7, loc="best")
+    fig.suptitle(f"{ylabel or metric}: mean over seeds, shaded 95% interval", fontsize=10)
+    return _save(fig, path)
+
+
+def runtime_per_step(runs: pd.DataFrame, path: str | Path) -> Path:
+    """Per-run median tracker time per step (ms, log scale): one dot per run, grouped
+    by tracker, one panel per scenario; a bar marks the mean over runs."""
+    ok = runs[runs["status"] == "ok"]
+    scen = sorted(ok["scenario"].unique())
+    labels = sorted(runs["tracker_label"].unique())
+    colors = tracker_colors(labels)
+    fig, axes = _grid_of_axes(max(len(scen), 1))
+    for ax, sc in zip(axes, scen, strict=False):
+        g = ok[ok["scenario"] == sc]
+        for i, lab in enumerate(labels):
+            ms = g.loc[g["tracker_label"] == lab, "tracker_wall_s"].to_numpy(float) * 1e3
+            if ms.size == 0:
+                continue
+            jitter = np.linspace(-0.15, 0.15, ms.size) if ms.size > 1 else np.zeros(1)
+            ax.scatter(i + jitter, ms, s=10, color=colors[lab], alpha=0.7)
+            ax.hlines(ms.mean(), i - 0.3, i + 0.3, color="k", lw=1.5)
+        ax.set_xticks(range(len(labels)), labels, rotation=30, ha="right", fontsize=7)
+        ax.set_yscale("log")
+        ax.set_ylabel("ms per step")
+        ax.set_title(sc)
+        ax.grid(alpha=0.3, axis="y")
+    fig.suptitle("tracker time per step (median per run; bar = mean over runs)", fontsize=10)
+    return _save(fig, path)
+
+
+def accuracy_vs_runtime(summary: pd.DataFrame, path: str | Path,
+                        metric: str = "ospa") -> Path:
+    """Mean ``metric`` against mean ms/step, one point per tracker label (tracker and
+    parameter setting) with 95% error bars on both axes, one panel per scenario."""
+    ok = summary[summary["n_seeds"] > 0]
+    scen = sorted(ok["scenario"].unique())
+    colors = tracker_colors(list(summary["tracker_label"].unique()))
+    fig, axes = _grid_of_axes(max(len(scen), 1))
+    for ax, sc in zip(axes, scen, strict=False):
+        for _, r in ok[ok["scenario"] == sc].iterrows():
+            x, xe = r["tracker_wall_s_mean"] * 1e3, r["tracker_wall_s_ci95"] * 1e3
+            y, ye = r[f"{metric}_mean"], r[f"{metric}_ci95"]
+            ax.errorbar(x, y, xerr=None if np.isnan(xe) else xe,
+                        yerr=None if np.isnan(ye) else ye, fmt="o", ms=5, capsize=2,
+                        color=colors[r["tracker_label"]], label=r["tracker_label"])
+        ax.set_xscale("log")
+        ax.set_xlabel("ms per step")
+        ax.set_ylabel(f"mean {metric}")
+        ax.set_title(sc)
+        ax.grid(alpha=0.3)
+    if scen:
+        axes[0].legend(fontsize=7, loc="best")
+    fig.suptitle("accuracy against runtime (lower-left is better), 95% intervals", fontsize=10)
+    return _save(fig, path)
+
+
+def _cov_ellipse(px: float, py: float, cxx: float, cxy: float, cyy: float, **kw) -> Ellipse:
+    """The 95% ellipse of N([px, py], [[cxx, cxy], [cxy, cyy]])."""
+    vals, vecs = np.linalg.eigh(np.array([[cxx, cxy], [cxy, cyy]]))
+    vals = np.clip(vals, 0.0, None)
+    angle = math.degrees(math.atan2(vecs[1, 1], vecs[0, 1]))
+    w, h = 2 * np.sqrt(ELLIPSE_CHI2 * vals[1]), 2 * np.sqrt(ELLIPSE_CHI2 * vals[0])
+    return Ellipse((px, py), w, h, angle=angle, fill=False, **kw)
+
+
+def draw_snapshot(ax: plt.Axes, frames: dict[str, pd.DataFrame], step: int, nx: int, ny: int,
+                  cell_size: float = 1.0, title: str = "", show_estimates: bool = True) -> None:
+    """One step of a trace on ``ax``: grid, looked-at cells (light grey), positive
+    returns (magenta squares), true targets (blue dots), estimates (black crosses) with
+    95% covariance ellipses. ``frames`` as :meth:`Trace.frames`."""
+    looks = frames["looks"][frames["looks"]["step"] == step]
+    truth = frames["truth"][frames["truth"]["step"] == step]
+    est = frames["estimates"][frames["estimates"]["step"] == step]
+    for (ix, iy), g in looks.groupby(["ix", "iy"]):
+        pos = bool(g["positive"].any())
+        ax.add_patch(Rectangle((ix * cell_size, iy * cell_size), cell_size, cell_size,
+                               facecolor="magenta" if pos else "0.85",
+                               alpha=0.75 if pos else 0.6, lw=0))
+    for i in range(nx + 1):
+        ax.axvline(i * cell_size, color="0.7", lw=0.5)
+    for j in range(ny + 1):
+        ax.axhline(j * cell_size, color="0.7", lw=0.5)
+    ax.plot(truth["px"], truth["py"], "o", color="blue", ms=6, label="true target")
+    if show_estimates and len(est):
+        ax.plot(est["px"], est["py"], "x", color="black", ms=7, mew=1.5, label="estimate")
+        for _, r in est.iterrows():
+            if np.isfinite(r["cov_xx"]):
+                ax.add_patch(_cov_ellipse(r["px"], r["py"], r["cov_xx"], r["cov_xy"],
+                                          r["cov_yy"], color="black", lw=0.9))
+    ax.set_xlim(0, nx * cell_size)
+    ax.set_ylim(0, ny * cell_size)
+    ax.set_aspect("equal")
+    count = float(est["count"].iloc[0]) if len(est) else float("nan")
+    extra = f"  true {len(truth)}, est. count {count:.2f}" if show_estimates else ""
+    ax.set_title((title + f"  step {step}" + extra).strip(), fontsize=8)
+    ax.tick_params(labelsize=7)
+
+
+def snapshot(frames: dict[str, pd.DataFrame], path: str | Path, steps: list[int], nx: int,
+             ny: int, cell_size: float = 1.0, title: str = "") -> Path:
+    """Snapshot panels of a traced run at ``steps`` (see :func:`draw_snapshot`)."""
+    fig, axes = plt.subplots(1, len(steps), figsize=(3.6 * len(steps), 3.9), squeeze=False)
+    for ax, k in zip(axes.flat, steps, strict=True):
+        draw_snapshot(ax, frames, k, nx, ny, cell_size)
+    handles = [
+        Rectangle((0, 0), 1, 1, color="0.85", label="looked at, no return"),
+        Rectangle((0, 0), 1, 1, color="magenta", alpha=0.75, label="positive return"),
+        plt.Line2D([], [], ls="", marker="o", color="blue", label="true target"),
+        plt.Line2D([], [], ls="", marker="x", color="black", label="estimate, 95% ellipse"),
+    ]
+    fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=8,
+               bbox_to_anchor=(0.5, -0.02))
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    return _save(fig, path)
+
+
+def paper_error_curves(curves: pd.DataFrame, path: str | Path, highlight: str = "gpf") -> Path:
+    """The paper's "Simulation Result" figure: state error and count error against step.
+
+    ``curves`` has columns ``tracker_label, step, state_error, count_error`` (means over
+    seeds; optional ``state_error_ci95``/``count_error_ci95`` for bands). The
+    ``highlight`` tracker is drawn as in the paper (state error black, count error red);
+    the others are overlaid in thin coloured lines.
+    """
+    fig, axes = plt.subplots(1, 2, figsize=(9.5, 3.6))
+    labels = sorted(curves["tracker_label"].unique())
+    colors = tracker_colors(labels)
+    for ax, col, main in ((axes[0], "state_error", "black"), (axes[1], "count_error", "red")):
+        for lab in labels:
+            g = curves[curves["tracker_label"] == lab].sort_values("step")
+            hl = lab == highlight or lab.startswith(highlight + "(")
+            c = main if hl else colors[lab]
+            ax.plot(g["step"], g[col], color=c, lw=2.2 if hl else 1.0,
+                    alpha=1.0 if hl else 0.8, label=lab)
+            if f"{col}_ci95" in g:
+                half = g[f"{col}_ci95"].fillna(0)
+                ax.fill_between(g["step"], g[col] - half, g[col] + half, color=c,
+                                alpha=0.15 if hl else 0.08, lw=0)
+        ax.set_xlabel("time step k")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("state error (OSPA, c = 2, p = 2)")
+    axes[1].set_ylabel("target number error |N_est - N|")
+    axes[0].legend(fontsize=7)
+    fig.suptitle("estimation error over time (mean over seeds, 95% band)", fontsize=10)
+    fig.tight_layout()
+    return _save(fig, path)

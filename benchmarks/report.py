@@ -1,0 +1,387 @@
+"""Report builder: tables with 95% intervals, paired differences, figures, Markdown + HTML.
+
+:func:`build_report` turns a results table (one row per scenario x tracker x policy x
+looks x seed x step, see :mod:`benchmarks.harness`) into a report folder::
+
+    report.md       tables and links to figures/*.png
+    report.html     the same, self-contained (figures embedded as base64 PNG)
+    figures/*.png   OSPA and count error over time, runtime per step, accuracy
+                    against runtime, and (if a trace is given) a snapshot of one run
+
+Every number is a mean over seeds of per-run values (each run's steps averaged
+first; times are the run's median per-step time) with the half-width of the 95%
+Student-t interval, ``t_{0.975, n-1} * sd / sqrt(n)`` (:func:`benchmarks.summary.mean_ci95`).
+Paired differences subtract the reference tracker's per-run value from the same seed's
+run of each other tracker before averaging (common random numbers make the pairs
+strongly correlated, so paired intervals are much narrower than the difference of
+two unpaired ones).
+
+Check a report in a real browser (headless Debian chromium; writes ``screenshot.png``
+into the report folder)::
+
+    python -m benchmarks.report --screenshot reports/compare-<timestamp>
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import html
+import math
+import shutil
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from benchmarks import figures, summary
+
+#: (column stem, header, scale, format) of the accuracy table
+ACCURACY_COLUMNS = [
+    ("ospa", "OSPA", 1.0, ".3f"),
+    ("ospa_loc", "OSPA loc", 1.0, ".3f"),
+    ("ospa_card", "OSPA card", 1.0, ".3f"),
+    ("gospa", "GOSPA", 1.0, ".3f"),
+    ("gospa_loc", "GOSPA loc", 1.0, ".3f"),
+    ("gospa_missed", "GOSPA missed", 1.0, ".3f"),
+    ("gospa_false", "GOSPA false", 1.0, ".3f"),
+    ("count_error", "count error", 1.0, ".3f"),
+    ("rmse", "RMSE", 1.0, ".3f"),
+]
+#: (column stem, header, scale, format) of the runtime table
+RUNTIME_COLUMNS = [
+    ("tracker_wall_s", "tracker ms/step", 1e3, ".3g"),
+    ("tracker_cpu_s", "tracker CPU ms/step", 1e3, ".3g"),
+    ("select_wall_s", "selection ms/step", 1e3, ".3g"),
+    ("peak_rss_mb", "peak RSS MB", 1.0, ".0f"),
+]
+#: (metric, header, scale, format) of the paired-difference table
+PAIRED_COLUMNS = [
+    ("ospa", "Δ OSPA", 1.0, ".3f"),
+    ("gospa", "Δ GOSPA", 1.0, ".3f"),
+    ("count_error", "Δ count error", 1.0, ".3f"),
+    ("tracker_wall_s", "Δ ms/step", 1e3, ".3g"),
+]
+_KEY_HEADERS = {"scenario": "scenario", "tracker_label": "tracker", "policy_label": "policy",
+                "looks_per_step": "looks"}
+
+
+def fmt_pm(mean: float, half: float, scale: float = 1.0, fmt: str = ".3f") -> str:
+    """``mean ± half`` (scaled), ``–`` for a missing mean and ``± n/a`` for one seed."""
+    if mean is None or (isinstance(mean, float) and math.isnan(mean)):
+        return "–"
+    text = format(mean * scale, fmt)
+    if half is None or (isinstance(half, float) and math.isnan(half)):
+        return text + " ± n/a"
+    # rounding noise of a constant (e.g. 4.99e-16) reads better as 0
+    small = abs(half * scale) <= 1e-9 * max(abs(mean * scale), 1e-300)
+    return f"{text} ± {'0' if small else format(half * scale, fmt)}"
+
+
+# ----------------------------------------------------------------------- tables
+def _keys(df: pd.DataFrame) -> list[str]:
+    return [k for k in _KEY_HEADERS if k in df.columns]
+
+
+def summary_table(summ: pd.DataFrame, columns: list[tuple[str, str, float, str]]) -> pd.DataFrame:
+    """Display table of a :func:`benchmarks.summary.summarize` output: key columns,
+    ``seeds`` and one ``mean ± half-width`` text column per ``columns`` entry."""
+    keys = _keys(summ)
+    out = summ[keys].rename(columns=_KEY_HEADERS).copy()
+    out["seeds"] = summ["n_seeds"].astype(int)
+    for stem, head, scale, fmt in columns:
+        if f"{stem}_mean" in summ.columns:
+            out[head] = [fmt_pm(m, h, scale, fmt)
+                         for m, h in zip(summ[f"{stem}_mean"], summ[f"{stem}_ci95"], strict=True)]
+    if "note" in summ.columns and (summ["note"].astype(str) != "").any():
+        out["note"] = summ["note"].astype(str)
+    return out.reset_index(drop=True)
+
+
+def paired_differences(results: pd.DataFrame, reference: str,
+                       metrics: list[str] | None = None) -> pd.DataFrame:
+    """Long table of paired differences ``tracker - reference`` for each metric
+    (:func:`benchmarks.summary.paired_difference`); empty if the reference has no ok run."""
+    metrics = metrics or [m for m, *_ in PAIRED_COLUMNS]
+    parts = []
+    for m in metrics:
+        try:
+            parts.append(summary.paired_difference(results, reference, m))
+        except ValueError:
+            return pd.DataFrame()
+    return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
+
+
+def paired_table(paired: pd.DataFrame) -> pd.DataFrame:
+    """Wide display table of :func:`paired_differences`: one row per scenario x
+    policy x looks x tracker, one ``mean ± half-width`` column per metric."""
+    if paired.empty:
+        return pd.DataFrame()
+    keys = ["scenario", "policy_label", "looks_per_step", "tracker_label"]
+    rows = []
+    for key, g in paired.groupby(keys, sort=True):
+        row = {_KEY_HEADERS[k]: v for k, v in zip(keys, key, strict=True)}
+        row["pairs"] = int(g["n_seeds"].min())
+        by_metric = g.set_index("metric")
+        for m, head, scale, fmt in PAIRED_COLUMNS:
+            if m in by_metric.index:
+                r = by_metric.loc[m]
+                row[head] = fmt_pm(r["diff_mean"], r["diff_ci95"], scale, fmt)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+# ------------------------------------------------------------------ the document
+@dataclass
+class Document:
+    """A report as a list of blocks, rendered to Markdown and to self-contained HTML.
+
+    Blocks: ``("h1"|"h2"|"h3", text)``, ``("p", text)``, ``("list", [items])``,
+    ``("table", DataFrame)``, ``("figure", path, caption)``.
+    """
+
+    blocks: list[tuple[Any, ...]] = field(default_factory=list)
+
+    def add(self, *block: Any) -> None:
+        self.blocks.append(block)
+
+    def markdown(self, base: Path) -> str:
+        out = []
+        for b in self.blocks:
+            kind = b[0]
+            if kind in ("h1", "h2", "h3"):
+                out.append("#" * int(kind[1]) + " " + b[1])
+            elif kind == "p":
+                out.append(b[1])
+            elif kind == "list":
+                out.append("\n".join(f"- {item}" for item in b[1]))
+            elif kind == "table":
+                out.append(_md_table(b[1]))
+            elif kind == "figure":
+                rel = Path(b[1]).relative_to(base).as_posix()
+                out.append(f"![{b[2]}]({rel})\n\n*{b[2]}*")
+        return "\n\n".join(out) + "\n"
+
+    def html(self, title: str) -> str:
+        body = []
+        for b in self.blocks:
+            kind = b[0]
+            if kind in ("h1", "h2", "h3"):
+                body.append(f"<{kind}>{html.escape(b[1])}</{kind}>")
+            elif kind == "p":
+                body.append(f"<p>{_inline(b[1])}</p>")
+            elif kind == "list":
+                items = "".join(f"<li>{_inline(i)}</li>" for i in b[1])
+                body.append(f"<ul>{items}</ul>")
+            elif kind == "table":
+                table = b[1].to_html(index=False, escape=True, border=0, na_rep="–",
+                                     classes="results")
+                body.append(f'<div class="scroll">{table}</div>')
+            elif kind == "figure":
+                data = base64.b64encode(Path(b[1]).read_bytes()).decode("ascii")
+                body.append(f'<figure><img alt="{html.escape(b[2])}" '
+                            f'src="data:image/png;base64,{data}"/>'
+                            f"<figcaption>{html.escape(b[2])}</figcaption></figure>")
+        return (
+            "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"/>"
+            f"<title>{html.escape(title)}</title><style>{_CSS}</style></head>"
+            "<body>\n" + "\n".join(body) + "\n</body></html>\n"
+        )
+
+
+_CSS = """
+body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}
+table.results{border-collapse:collapse;font-size:13px;margin:0.5em 0 1.5em}
+table.results th,table.results td{padding:3px 8px;border-bottom:1px solid #ddd;text-align:right;
+white-space:nowrap}
+div.scroll{overflow-x:auto}
+table.results th:first-child,table.results td:first-child{text-align:left}
+table.results thead th{background:#f3f3f3}
+figure{margin:1em 0 2em}figure img{max-width:100%}figcaption{font-size:13px;color:#555}
+code{background:#f3f3f3;padding:0 3px}
+"""
+
+
+def _inline(text: str) -> str:
+    """Escape text, turning `code` spans into <code>."""
+    parts = html.escape(text).split("`")
+    return "".join(f"<code>{p}</code>" if i % 2 else p for i, p in enumerate(parts))
+
+
+def _md_table(df: pd.DataFrame) -> str:
+    if df.empty:
+        return "*(no rows)*"
+    head = [str(c) for c in df.columns]
+    lines = ["| " + " | ".join(head) + " |", "|" + "|".join("---" for _ in head) + "|"]
+    for _, r in df.iterrows():
+        lines.append("| " + " | ".join(str(v).replace("|", "/") for v in r) + " |")
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------- report
+@dataclass(frozen=True)
+class ReportFiles:
+    markdown: Path
+    html: Path
+    figures: dict[str, Path]
+
+
+def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str | None = "kfnn",
+                 title: str = "mttbench head-to-head comparison",
+                 intro: list[str] | None = None, settings: dict[str, Any] | None = None,
+                 trace: Any = None, notes: list[str] | None = None,
+                 draw: bool = True) -> ReportFiles:
+    """Write ``report.md``, ``report.html`` and ``figures/*.png`` into ``out_dir``.
+
+    ``reference`` is the tracker label that paired differences subtract (skipped
+    with a note when absent). ``settings`` is shown as a list (what was run);
+    ``trace`` a :class:`benchmarks.snapshot.Trace` for the snapshot figure;
+    ``notes`` extra paragraphs at the end; ``draw=False`` skips the figures (tables only).
+    """
+    out_dir = Path(out_dir)
+    fig_dir = out_dir / "figures"
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    runs = summary.per_run(results)
+    summ = summary.summarize(runs)
+
+    figs: dict[str, Path] = {}
+    if draw:
+        _draw_figures(results, runs, summ, fig_dir, trace, figs)
+
+    doc = Document()
+    doc.add("h1", title)
+    for para in intro or []:
+        doc.add("p", para)
+    if settings:
+        doc.add("h2", "Settings")
+        doc.add("list", [f"{k}: {v}" for k, v in settings.items()])
+    doc.add("h2", "Accuracy")
+    doc.add("p", "Mean over seeds of each run's mean over steps, ± half-width of the 95% "
+                 "Student-t interval over seeds. OSPA and its parts in workspace units; GOSPA "
+                 "(alpha = 2) localisation, missed and false parts are costs in the squared "
+                 "domain (they add up to GOSPA²). Count error is |N_est - N| per step.")
+    doc.add("table", summary_table(summ, ACCURACY_COLUMNS))
+    doc.add("h2", "Runtime")
+    doc.add("p", "Tracker time is predict + update + estimate per step (median over the steps "
+                 "of a run, then mean over seeds, ± 95% interval); selection time is the cell "
+                 "choice (with the tracker's predicted cell counts when the policy uses them). "
+                 "Peak RSS is the worker's high-water mark, an upper bound.")
+    doc.add("table", summary_table(summ, RUNTIME_COLUMNS))
+    doc.add("h2", f"Paired differences against {reference}")
+    paired = paired_differences(results, reference) if reference else pd.DataFrame()
+    if paired.empty:
+        doc.add("p", f"No ok runs of the reference tracker {reference!r}: no paired differences.")
+    else:
+        doc.add("p", f"Per seed, the tracker's run minus the {reference} run of the same world "
+                     "(same truth and sensor random numbers), then mean ± 95% t half-width over "
+                     "the pairs. Negative accuracy differences mean better than the reference; "
+                     "an interval that excludes 0 is a difference at the 5% level.")
+        doc.add("table", paired_table(paired))
+    doc.add("h2", "Figures")
+    captions = {
+        "ospa": "OSPA over time: mean over seeds with a shaded 95% band, per tracker.",
+        "count_error": "Count error over time: mean over seeds with a shaded 95% band.",
+        "runtime": "Tracker time per step: one dot per run (its median step), bar = mean.",
+        "accuracy_runtime": "Mean OSPA against mean time per step, one point per tracker "
+                            "and parameter setting, 95% error bars.",
+        "snapshot": "Snapshot of one run: looked-at cells (grey), positive returns (magenta), "
+                    "true targets (blue), estimates (black) with 95% covariance ellipses.",
+    }
+    for key, path in figs.items():
+        doc.add("figure", path, captions[key])
+    bad = summ[summ["note"].astype(str) != ""]
+    if len(bad):
+        doc.add("h2", "Failed or unsupported runs")
+        doc.add("list", [f"{r.scenario} / {r.tracker_label}: {r.note}" for r in bad.itertuples()])
+    for para in notes or []:
+        doc.add("p", para)
+
+    md_path = out_dir / "report.md"
+    md_path.write_text(doc.markdown(out_dir), encoding="utf-8")
+    html_path = out_dir / "report.html"
+    html_path.write_text(doc.html(title), encoding="utf-8")
+    return ReportFiles(md_path, html_path, figs)
+
+
+def _draw_figures(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame, fig_dir: Path,
+                  trace: Any, figs: dict[str, Path]) -> None:
+    figs["ospa"] = figures.metric_over_time(results, "ospa", fig_dir / "ospa_over_time.png",
+                                            "OSPA (c = {:g}, p = {:g})".format(*_cp(results)))
+    figs["count_error"] = figures.metric_over_time(results, "count_error",
+                                                   fig_dir / "count_error_over_time.png",
+                                                   "count error |N_est - N|")
+    figs["runtime"] = figures.runtime_per_step(runs, fig_dir / "runtime_per_step.png")
+    figs["accuracy_runtime"] = figures.accuracy_vs_runtime(summ,
+                                                           fig_dir / "accuracy_vs_runtime.png")
+    if trace is not None:
+        n = len(trace.steps)
+        steps = sorted({max(0, n // 4 - 1), max(0, n // 2 - 1), n - 1})
+        g = trace.scenario.grid
+        figs["snapshot"] = figures.snapshot(
+            trace.frames(), fig_dir / "snapshot.png", steps, g.nx, g.ny, g.cell_size,
+            title=f"{trace.tracker_label} on {trace.scenario.name}, seed {trace.seed}, "
+                  f"policy {trace.policy_label}")
+
+
+def _cp(results: pd.DataFrame) -> tuple[float, float]:
+    c = float(results["ospa_c"].dropna().iloc[0]) if results["ospa_c"].notna().any() else 2.0
+    p = float(results["ospa_p"].dropna().iloc[0]) if results["ospa_p"].notna().any() else 2.0
+    return c, p
+
+
+# -------------------------------------------------------------- browser check
+CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome")
+
+
+def find_chromium() -> str | None:
+    """Path of a chromium executable on PATH, or None."""
+    for name in CHROMIUM_NAMES:
+        exe = shutil.which(name)
+        if exe:
+            return exe
+    return None
+
+
+def screenshot(html_path: str | Path, png_path: str | Path, *, width: int = 1400,
+               height: int = 3000, timeout: float = 120.0) -> Path:
+    """Open ``html_path`` in headless chromium and save a screenshot to ``png_path``.
+
+    A fresh profile directory is used and everything networked is switched off, so the
+    page can only show what it embeds. Raises if chromium is missing or writes nothing.
+    """
+    exe = find_chromium()
+    if exe is None:
+        raise FileNotFoundError("no chromium on PATH (Debian: apt-get install chromium)")
+    html_path, png_path = Path(html_path).resolve(), Path(png_path).resolve()
+    png_path.unlink(missing_ok=True)
+    with tempfile.TemporaryDirectory(prefix="mttbench-chromium-") as profile:
+        cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+               "--no-first-run", "--disable-background-networking",
+               "--disable-component-update", "--disable-sync", f"--user-data-dir={profile}",
+               f"--screenshot={png_path}", f"--window-size={width},{height}",
+               "--hide-scrollbars", html_path.as_uri()]
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=False)
+    if not png_path.exists() or png_path.stat().st_size == 0:
+        raise RuntimeError(f"chromium wrote no screenshot (exit {proc.returncode}): "
+                           f"{proc.stderr[-2000:]}")
+    return png_path
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.report",
+                                 description="Check a report folder in headless chromium.")
+    ap.add_argument("--screenshot", metavar="REPORT_DIR", required=True,
+                    help="folder holding report.html; writes REPORT_DIR/screenshot.png")
+    args = ap.parse_args(argv)
+    folder = Path(args.screenshot)
+    png = screenshot(folder / "report.html", folder / "screenshot.png")
+    print(png)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

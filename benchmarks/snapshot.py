@@ -1,0 +1,132 @@
+"""A traced single run: what the sensor looked at, what it saw, the truth and the estimates.
+
+The harness keeps only per-step numbers; a snapshot figure (paper Fig. "Snapshot of
+simulations") needs the looks, the returns, the true states and the estimates with
+their covariances. :func:`trace_run` drives one tracker and one policy directly with
+:mod:`scenarios.simulator`, seeded exactly as :func:`benchmarks.harness.run_job`
+seeds them, so the traced run is the same run as the harness's row for
+``(scenario, tracker label, policy label, looks, seed)`` and its metrics agree.
+
+:meth:`Trace.frames` flattens the trace into three tidy tables (looks, truth,
+estimates) that the figure functions read and the reproduction writes as CSV.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from benchmarks.harness import Job, PolicySpec, TrackerSpec
+from scenarios.model import RayleighGridSensor
+from scenarios.simulator import simulate, tracker_seed
+from scenarios.spec import Scenario
+
+
+@dataclass(frozen=True)
+class StepTrace:
+    """One step of a traced run.
+
+    ``cells (L,)`` int64 looked-at cells (repeats allowed), ``returns (L,)`` bool,
+    ``truth (n, 4)`` true states, ``est_states (m, 4)``, ``est_covs (m, 4, 4)`` or
+    None, ``est_count`` the tracker's count estimate.
+    """
+
+    step: int
+    cells: np.ndarray
+    returns: np.ndarray
+    truth: np.ndarray
+    truth_ids: np.ndarray
+    est_states: np.ndarray
+    est_covs: np.ndarray | None
+    est_count: float
+
+
+@dataclass(frozen=True)
+class Trace:
+    """A whole traced run (see the module docstring)."""
+
+    scenario: Scenario
+    tracker_label: str
+    policy_label: str
+    seed: int
+    steps: list[StepTrace]
+
+    def frames(self) -> dict[str, pd.DataFrame]:
+        """Three tidy tables of the trace.
+
+        ``looks``: step, look (index within the step), cell, ix, iy, positive.
+        ``truth``: step, target id, px, vx, py, vy.
+        ``estimates``: step, index, count (the step's count estimate), px, vx, py, vy,
+        and the position covariance ``cov_xx, cov_xy, cov_yy`` (NaN when the tracker
+        gives none). Positions in workspace units.
+        """
+        nx = self.scenario.grid.nx
+        looks, truth, est = [], [], []
+        for s in self.steps:
+            looks.append(pd.DataFrame({
+                "step": s.step, "look": np.arange(len(s.cells)), "cell": s.cells,
+                "ix": s.cells % nx, "iy": s.cells // nx, "positive": s.returns.astype(bool)}))
+            truth.append(pd.DataFrame({
+                "step": s.step, "id": s.truth_ids, "px": s.truth[:, 0], "vx": s.truth[:, 1],
+                "py": s.truth[:, 2], "vy": s.truth[:, 3]}))
+            m = len(s.est_states)
+            covs = s.est_covs if s.est_covs is not None else np.full((m, 4, 4), np.nan)
+            est.append(pd.DataFrame({
+                "step": s.step, "index": np.arange(m), "count": float(s.est_count),
+                "px": s.est_states[:, 0], "vx": s.est_states[:, 1], "py": s.est_states[:, 2],
+                "vy": s.est_states[:, 3], "cov_xx": covs[:, 0, 0], "cov_xy": covs[:, 0, 2],
+                "cov_yy": covs[:, 2, 2]}))
+        return {name: pd.concat(parts, ignore_index=True).astype({"step": "int64"})
+                for name, parts in (("looks", looks), ("truth", truth), ("estimates", est))}
+
+
+def trace_run(scenario: Scenario, tracker: TrackerSpec, seed: int,
+              policy: PolicySpec | None = None, looks_per_step: int | None = None,
+              n_steps: int | None = None) -> Trace:
+    """Run one ``(scenario, tracker, policy, looks, seed)`` and record every step.
+
+    Seeds as the harness: the tracker's generator from
+    ``tracker_seed(scenario, seed, tracker.label)`` and the policy's from
+    ``tracker_seed(scenario, seed, "policy:" + policy.label)``. ``n_steps`` shortens
+    the run (the truth of the first steps does not depend on the run length).
+    Raises if the tracker cannot run the scenario.
+    """
+    if n_steps is not None:
+        scenario = dataclasses.replace(scenario, n_steps=int(n_steps))
+    job = Job(scenario, tracker, policy, looks_per_step, int(seed))
+    model = scenario.model
+    trk = tracker.make()
+    reason = trk.unsupported_reason(model)
+    if reason:
+        raise ValueError(f"tracker {tracker.label!r} cannot run {scenario.name!r}: {reason}")
+    run = simulate(scenario, int(seed))
+    trk.reset(model, np.random.default_rng(tracker_seed(scenario.name, seed, tracker.label)))
+    pol = job.policy.make() if job.policy is not None else None
+    if pol is not None:
+        pol.reset(model, int(job.looks_per_step),
+                  np.random.default_rng(tracker_seed(scenario.name, seed,
+                                                     "policy:" + job.policy_label)))
+    steps = []
+    for k in range(run.n_steps):
+        truth = run.states[k]
+        trk.predict()
+        if pol is not None and isinstance(model.sensor, RayleighGridSensor):
+            counts = trk.cell_count_distribution() if pol.uses_prediction else None
+            truth_cells = None
+            if pol.uses_truth:
+                flat = model.grid.cell_of(truth[:, 0], truth[:, 2])
+                truth_cells = flat[flat >= 0]
+            looks = run.look(k, pol.select(k, counts=counts, truth_cells=truth_cells))
+        else:
+            looks = run.measure(k)
+        trk.update(looks)
+        est = trk.estimate()
+        states = np.asarray(est.states, dtype=float).reshape(-1, 4)
+        covs = None if est.covariances is None else np.asarray(est.covariances, dtype=float)
+        steps.append(StepTrace(k, np.asarray(looks.cells, dtype=np.int64).copy(),
+                               np.asarray(looks.returns, dtype=bool).copy(), truth.copy(),
+                               run.ids[k].copy(), states.copy(), covs, float(est.count)))
+    return Trace(scenario, tracker.label, job.policy_label, int(seed), steps)

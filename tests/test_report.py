@@ -1,0 +1,195 @@
+"""Report builder: tables, intervals against scipy, paired differences, figures, HTML.
+
+Intervals are checked against independent scipy computations
+(``scipy.stats.t.interval`` on the per-run means, ``ttest_rel(...).confidence_interval``
+for paired differences). Display cells are rounded to 3 decimals, so the text
+comparison tolerance is half a unit of the last digit.
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import re
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats
+
+import scenarios
+from benchmarks import figures, report
+from benchmarks.harness import COLUMNS, Job, PolicySpec, TrackerSpec, run_job
+from benchmarks.metrics import step_metrics
+from benchmarks.snapshot import trace_run
+
+DISPLAY_TOL = 5e-4 + 1e-12  # half a unit in the 3rd decimal of a ".3f" cell
+NUM_TOL = 1e-10
+
+SCENARIOS = ["alpha", "beta"]
+TRACKERS = ["kfnn", "other", "third"]
+SEEDS = range(6)
+STEPS = range(8)
+
+
+def synthetic_results(seed: int = 1) -> pd.DataFrame:
+    """A results table with the harness schema and random metric values."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for sc in SCENARIOS:
+        for ti, tr in enumerate(TRACKERS):
+            for s in SEEDS:
+                shared = rng.normal(0, 0.3)  # a per-seed effect shared by the trackers
+                for k in STEPS:
+                    ospa = abs(0.5 + 0.2 * ti + shared + rng.normal(0, 0.2))
+                    rows.append({
+                        "scenario": sc, "tracker": tr, "tracker_label": tr,
+                        "tracker_params": "{}", "policy": "raster", "policy_label": "raster",
+                        "policy_params": "{}", "uses_truth": False, "looks_per_step": 24,
+                        "seed": s, "step": k, "true_count": 3.0,
+                        "est_count": 3.0 + rng.normal(0, 1),
+                        "count_error": abs(rng.normal(0, 1)), "ospa": ospa,
+                        "ospa_loc": ospa / 2, "ospa_card": ospa / 3, "gospa": 2 * ospa,
+                        "gospa_loc": ospa, "gospa_missed": 0.1 * ti, "gospa_false": 0.2,
+                        "rmse": ospa / 4, "n_looks": 24, "n_positive": 3,
+                        "tracker_wall_s": 1e-3 * (1 + ti) * rng.uniform(0.9, 1.1),
+                        "tracker_cpu_s": 1e-3 * (1 + ti), "select_wall_s": 1e-5,
+                        "select_cpu_s": 1e-5, "status": "ok", "error": "", "ospa_c": 2.0,
+                        "ospa_p": 2.0, "peak_rss_mb": 100.0})
+    df = pd.DataFrame(rows)
+    assert set(COLUMNS) <= set(df.columns)
+    return df
+
+
+def _parse_pm(text: str) -> tuple[float, float]:
+    m = re.fullmatch(r"(-?[\d.e+-]+) ± (-?[\d.e+-]+)", text)
+    assert m, text
+    return float(m.group(1)), float(m.group(2))
+
+
+def _scipy_interval(values: np.ndarray) -> tuple[float, float]:
+    lo, hi = stats.t.interval(0.95, len(values) - 1, loc=values.mean(), scale=stats.sem(values))
+    return values.mean(), (hi - lo) / 2
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    results = synthetic_results()
+    out = tmp_path_factory.mktemp("report")
+    files = report.build_report(results, out, reference="kfnn", settings={"seeds": "0-5"})
+    return results, out, files
+
+
+def test_accuracy_table_rows_and_intervals_match_scipy(built):
+    results, _, _ = built
+    from benchmarks import summary
+    table = report.summary_table(summary.summarize(results), report.ACCURACY_COLUMNS)
+    assert len(table) == len(SCENARIOS) * len(TRACKERS)
+    assert sorted(zip(table["scenario"], table["tracker"], strict=True)) == sorted(
+        (s, t) for s in SCENARIOS for t in TRACKERS)
+    assert (table["seeds"] == len(SEEDS)).all()
+    for _, row in table.iterrows():
+        g = results[(results["scenario"] == row["scenario"])
+                    & (results["tracker_label"] == row["tracker"])]
+        for stem, head in (("ospa", "OSPA"), ("count_error", "count error"),
+                           ("gospa_loc", "GOSPA loc")):
+            per_run = g.groupby("seed")[stem].mean().to_numpy()
+            mean, half = _scipy_interval(per_run)
+            shown_mean, shown_half = _parse_pm(row[head])
+            assert abs(shown_mean - mean) <= DISPLAY_TOL
+            assert abs(shown_half - half) <= DISPLAY_TOL
+
+
+def test_paired_differences_match_scipy_ttest_rel(built):
+    results, _, _ = built
+    paired = report.paired_differences(results, "kfnn")
+    # one row per scenario x non-reference tracker x metric
+    assert len(paired) == len(SCENARIOS) * (len(TRACKERS) - 1) * len(report.PAIRED_COLUMNS)
+    assert "kfnn" not in set(paired["tracker_label"])
+    for _, r in paired[paired["metric"] == "ospa"].iterrows():
+        sel = results[results["scenario"] == r["scenario"]]
+        a = sel[sel["tracker_label"] == r["tracker_label"]].groupby("seed")["ospa"].mean()
+        b = sel[sel["tracker_label"] == "kfnn"].groupby("seed")["ospa"].mean()
+        ci = stats.ttest_rel(a.to_numpy(), b.to_numpy()).confidence_interval(0.95)
+        assert r["diff_mean"] == pytest.approx((a - b).mean(), abs=NUM_TOL)
+        assert r["diff_ci95"] == pytest.approx((ci.high - ci.low) / 2, abs=NUM_TOL)
+    wide = report.paired_table(paired)
+    assert len(wide) == len(SCENARIOS) * (len(TRACKERS) - 1)
+
+
+def test_step_band_matches_scipy(built):
+    results, _, _ = built
+    st = figures.step_stats(results, "ospa")
+    assert len(st) == len(SCENARIOS) * len(TRACKERS) * len(STEPS)
+    r = st[(st["scenario"] == "beta") & (st["tracker_label"] == "other") & (st["step"] == 5)]
+    v = results[(results["scenario"] == "beta") & (results["tracker_label"] == "other")
+                & (results["step"] == 5)]["ospa"].to_numpy()
+    mean, half = _scipy_interval(v)
+    assert r["mean"].item() == pytest.approx(mean, abs=NUM_TOL)
+    assert r["ci95"].item() == pytest.approx(half, abs=NUM_TOL)
+
+
+def test_figures_written_and_html_self_contained(built):
+    _, out, files = built
+    assert set(files.figures) == {"ospa", "count_error", "runtime", "accuracy_runtime"}
+    for path in files.figures.values():
+        data = path.read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000, path
+    md = files.markdown.read_text()
+    for path in files.figures.values():
+        assert f"(figures/{path.name})" in md
+    assert "Paired differences against kfnn" in md
+    page = files.html.read_text()
+    imgs = re.findall(r'<img [^>]*src="([^"]+)"', page)
+    assert len(imgs) == len(files.figures)
+    for src in imgs:  # every image embedded, decodable PNG
+        assert src.startswith("data:image/png;base64,")
+        assert base64.b64decode(src.split(",", 1)[1])[:4] == b"\x89PNG"
+    assert "http://" not in page and "https://" not in page
+
+
+def test_missing_reference_gives_note(tmp_path):
+    results = synthetic_results()
+    files = report.build_report(results, tmp_path, reference="nosuch", draw=False)
+    assert "No ok runs of the reference tracker 'nosuch'" in files.markdown.read_text()
+
+
+def test_failed_runs_listed_and_excluded(tmp_path):
+    results = synthetic_results()
+    bad = (results["tracker_label"] == "third") & (results["seed"] == 0) & (results["step"] == 7)
+    results.loc[bad, "status"] = "error"
+    results.loc[bad, "error"] = "RuntimeError: boom"
+    files = report.build_report(results, tmp_path, reference="kfnn", draw=False)
+    md = files.markdown.read_text()
+    assert "Failed or unsupported runs" in md and "RuntimeError: boom" in md
+    from benchmarks import summary
+    summ = summary.summarize(results)
+    assert set(summ.loc[summ["tracker_label"] == "third", "n_seeds"]) == {len(SEEDS) - 1}
+
+
+def test_trace_is_the_harness_run_and_snapshot_draws(tmp_path):
+    """The traced run reproduces the harness's per-step metrics exactly (same seeds)."""
+    sc = dataclasses.replace(scenarios.get("default"), n_steps=12)
+    spec, pol = TrackerSpec("kfnn"), PolicySpec("random")
+    trace = trace_run(sc, spec, seed=3, policy=pol)
+    rows = run_job(Job(sc, spec, pol, None, 3))
+    assert len(trace.steps) == len(rows) == 12
+    for s, (_, r) in zip(trace.steps, rows.iterrows(), strict=True):
+        m = step_metrics(s.truth[:, [0, 2]], s.est_states[:, [0, 2]], s.est_count)
+        assert m["ospa"] == r["ospa"] and m["count_error"] == r["count_error"]
+        assert len(s.cells) == r["n_looks"] and int(s.returns.sum()) == r["n_positive"]
+    frames = trace.frames()
+    assert len(frames["looks"]) == rows["n_looks"].sum()
+    assert len(frames["truth"]) == rows["true_count"].sum()
+    path = figures.snapshot(frames, tmp_path / "snap.png", [0, 11], sc.grid.nx, sc.grid.ny)
+    assert path.read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.skipif(report.find_chromium() is None,
+                    reason="no chromium on PATH (Debian: apt-get install chromium); "
+                           "the browser check needs a real headless browser")
+def test_html_report_renders_in_headless_chromium(built):
+    _, out, files = built
+    png = report.screenshot(files.html, out / "screenshot.png", height=1500)
+    data = png.read_bytes()
+    assert data[:4] == b"\x89PNG" and len(data) > 20000
