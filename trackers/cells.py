@@ -69,8 +69,9 @@ def gaussian_cell_mass(grid: Grid, means_xy: np.ndarray, cov_xy: np.ndarray) -> 
     mass_x = np.diff(cdf_x, axis=1)
     mass_y = np.diff(cdf_y, axis=1)
     # product of marginals, laid out row-major in y: c = iy * nx + ix
+    # ndtr is monotone, so both factors already lie in [0, 1]
     mass = mass_y[:, :, None] * mass_x[:, None, :]  # (K, ny, nx)
-    return np.clip(mass.reshape(len(means_xy), grid.n_cells), 0.0, 1.0)
+    return mass.reshape(len(means_xy), grid.n_cells)
 
 
 def poisson_binomial(probs: np.ndarray, n_counts: int) -> np.ndarray:
@@ -98,14 +99,18 @@ def poisson_binomial(probs: np.ndarray, n_counts: int) -> np.ndarray:
     probs = np.clip(np.asarray(probs, dtype=float), 0.0, 1.0)
     if probs.ndim != 2:
         raise ValueError(f"probs must be (K, n_cells), got shape {probs.shape}")
-    dist = np.zeros((probs.shape[1], n_counts))
-    dist[:, 0] = 1.0
+    # count-major layout (n_counts, n_cells): each recurrence row is contiguous
+    dist = np.zeros((n_counts, probs.shape[1]))
+    dist[0] = 1.0
     for p in probs:  # K is small (tracks or components); each step is vectorised over cells
-        p = p[:, None]
-        shifted = np.zeros_like(dist)
-        shifted[:, 1:] = dist[:, :-1] * p
-        # the last column keeps its mass whatever the new Bernoulli does
-        stay = dist * (1.0 - p)
-        stay[:, -1] = dist[:, -1]
-        dist = stay + shifted
-    return dist
+        _add_bernoulli(dist, p)
+    return dist.T.copy()
+
+
+def _add_bernoulli(dist: np.ndarray, p: np.ndarray) -> None:
+    """One recurrence step in place: ``dist (n_counts, m)``, Bernoulli probabilities ``p (m,)``."""
+    into_last = dist[-2] * p  # the last column keeps its mass whatever p does
+    # rows 1..n-2: the right-hand side uses the old rows, evaluated before assignment
+    dist[1:-1] = dist[1:-1] * (1.0 - p) + dist[:-2] * p
+    dist[0] *= 1.0 - p
+    dist[-1] += into_last
