@@ -52,6 +52,14 @@ Track management
       ``confirm_m`` hits within them.
     * Deletion: a confirmed track is deleted after ``max_misses`` consecutive misses.
 
+Defaults
+    ``max_misses = 6`` and ``gate_probability = 0.9999`` were chosen by measurement: with
+    ``p_d = 0.5`` three misses in a row happen with probability 1/8 per look, so the first
+    draft's (3, 0.99) replaced tracks constantly; on ``crossing`` (10 seeds, raster 24)
+    OSPA fell from 1.25 to 1.06 and count error from 1.45 to 0.87 with the new defaults
+    (``mttbench run --scenarios default crossing --trackers kfnn
+    kfnn:max_misses=6,gate_probability=0.9999 --seeds 10``).
+
 Estimate
     The confirmed tracks: count = their number, states ``(n, 4)``, covariances
     ``(n, 4, 4)``.
@@ -147,11 +155,11 @@ class KFNNTracker(Tracker):
 
     def __init__(
         self,
-        gate_probability: float = 0.99,
+        gate_probability: float = 0.9999,
         association: str = "global",
         confirm_m: int = 2,
         confirm_n: int = 3,
-        max_misses: int = 3,
+        max_misses: int = 6,
         birth_velocity_std: float | None = None,
         existence_confirmed: float = 0.99,
         existence_tentative: float = 0.5,
