@@ -5,6 +5,7 @@ below to register it (the conformance suite then tests it automatically).
 """
 
 from trackers import (
+    gpf,  # noqa: F401  (registers "gpf")
     kfnn,  # noqa: F401  (registers "kfnn")
     null,  # noqa: F401  (registers "null")
 )

@@ -1,0 +1,306 @@
+"""The paper's Gaussian particle filter (GPF), on the superposition and the grid sensor.
+
+Each particle is ``{w_i, N(mu_i, Sigma_i)}``: ``w_i`` is the probability that a target
+with that Gaussian exists, and the estimated count is ``sum_i w_i`` (paper Section IV).
+Arrays: ``w (K,)``, ``means (K, 4)``, ``covs (K, 4, 4)``; states ``[px, vx, py, vy]``.
+
+Step (the harness calls predict, then update, then estimate):
+
+* **Predict**: ``mu <- F mu``, ``Sigma <- F Sigma F^T + Q``, ``w <- p_s w``. Boundary
+  "reflect": a mean that left the workspace is mirrored back (its velocity and the
+  covariance's sign pattern flipped with it). Boundary "die": ``w`` is also multiplied by
+  the probability that the position stays in the workspace (product of the marginal
+  masses; the Gaussian itself is not truncated).
+* **Update**: superposition sensor -- :mod:`trackers.gpf_linear` (the paper's combinations
+  ``E``, the appendix's gain, groups folded back by moment matching); grid sensor --
+  :mod:`trackers.gpf_grid` (Gaussians truncated to the looked cells, exact Bernoulli
+  weight update, combinations enumerated per cluster of particles sharing a cell).
+* **Merge** (the paper's Mahalanobis rule): greedily from the heaviest particle ``i``,
+  every particle ``j`` with ``(mu_i - mu_j)^T (Sigma_i + Sigma_j)^-1 (mu_i - mu_j) <
+  merge_threshold`` joins its group; the group becomes one moment-matched Gaussian (the
+  paper sums the covariances, which ignores the spread of the means and inflates them; we
+  moment-match instead). Merged weight (``merge_weight``): ``"capped_sum"`` =
+  ``min(1, sum w)`` (default): close particles describe the same target, so their
+  existence events are (nearly) disjoint and their probabilities add, as in the paper; the
+  cap keeps a probability when they were not disjoint (duplicates of one target), losing
+  the excess count. ``"union"`` = ``1 - prod(1 - w)``, the probability that at least one
+  exists if they were independent (never exceeds 1, but undercounts split hypotheses).
+* **Prune**: drop ``w < prune_threshold``; keep at most ``max_particles`` (the heaviest).
+
+Births and the initial prior (``births=True``):
+
+* Grid sensor: an *undetected-target field* ``u (n_cells,)`` holds, per cell, the
+  probability that an as yet unseen target is there (start: ``initial_count_mean /
+  n_cells``; each predict: ``u <- 1 - (1 - p_s u)(1 - birth_rate / n_cells)``, floored at
+  ``birth_floor`` so a filter whose prior is wrong can still recover). At an update every
+  looked cell with ``u_c > 0`` contributes a *candidate*: a particle with weight ``u_c``,
+  uniform on the cell, that goes through the same update as the other particles (so a
+  return that an existing particle explains gives it little weight). A candidate whose
+  cell returned a detection becomes a Gaussian particle (cell centre, position variance
+  ``cell^2/12``, velocity ``N(0, birth_velocity_std^2)``); the others give their posterior
+  weight back to the field (``u_c <- w'``, which drops after negative looks). The field does
+  not move with the targets (slow targets; documented approximation).
+* Superposition sensor: the initial prior is ``ceil(n0)`` broad particles (uniform-matched
+  position covariance over the workspace, means drawn uniformly with the run's
+  generator), each with weight ``n0 / ceil(n0)``; each step with ``birth_rate > 0`` adds
+  one such particle with weight ``min(birth_rate, 0.5)``.
+
+``births=False`` turns all of that off (empty prior, no births), for reduction tests.
+
+Estimate (``extraction``): ``"round_sum"`` reports the ``round(sum w)`` heaviest
+particles; ``"threshold"`` those with ``w > extraction_threshold``. The count is ``sum w``.
+
+``P_c(t)``: independent Bernoullis per cell -- particle ``i`` in cell ``c`` with probability
+``w_i m_ic`` (product-of-marginals cell mass, :func:`trackers.cells.gaussian_cell_mass`) and
+the field's ``u_c`` -- summed by :func:`trackers.cells.poisson_binomial`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.special import ndtr
+
+from scenarios.model import Looks, RayleighGridSensor, TrackingModel
+from trackers import kalman
+from trackers.base import Estimate, Tracker, register
+from trackers.cells import gaussian_cell_mass, poisson_binomial
+from trackers.gpf_grid import grid_update
+from trackers.gpf_linear import superposition_update
+
+_POS = np.array([0, 2])
+
+
+def merge_particles(w: np.ndarray, m: np.ndarray, P: np.ndarray, threshold: float,
+                    rule: str = "capped_sum") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Greedy Mahalanobis merging (module docstring). Shapes ``(K,)``, ``(K, 4)``, ``(K, 4, 4)``.
+
+    Returns the merged ``w``, ``m``, ``P``; a group's Gaussian is the ``w``-weighted moment
+    match ``m = sum w_j m_j / sum w_j``, ``P = sum w_j (P_j + (m_j - m)(m_j - m)^T) / sum w_j``.
+    """
+    K = len(w)
+    if K <= 1 or threshold <= 0:
+        return w, m, P
+    order = np.argsort(-w, kind="stable")
+    w, m, P = w[order], m[order], P[order]
+    left = np.ones(K, dtype=bool)
+    out_w, out_m, out_P = [], [], []
+    for i in range(K):
+        if not left[i]:
+            continue
+        idx = np.nonzero(left)[0]
+        diff = m[idx] - m[i]
+        d2 = np.einsum("ka,ka->k", diff, np.linalg.solve(P[idx] + P[i], diff[..., None])[..., 0])
+        grp = idx[d2 < threshold]
+        grp = np.union1d(grp, [i])
+        left[grp] = False
+        wg = w[grp]
+        tot = wg.sum()
+        if rule == "capped_sum":
+            out_w.append(min(1.0, tot))
+        elif rule == "union":
+            out_w.append(1.0 - np.prod(1.0 - wg))
+        else:
+            raise ValueError(f"merge_weight must be 'capped_sum' or 'union', got {rule!r}")
+        if len(grp) == 1 or tot <= 0:
+            out_m.append(m[i])
+            out_P.append(P[i])
+            continue
+        mean = wg @ m[grp] / tot
+        dev = m[grp] - mean
+        out_m.append(mean)
+        out_P.append((np.einsum("k,kab->ab", wg, P[grp])
+                      + np.einsum("k,ka,kb->ab", wg, dev, dev)) / tot)
+    return np.array(out_w), np.array(out_m).reshape(-1, 4), np.array(out_P).reshape(-1, 4, 4)
+
+
+@register
+class GaussianParticleFilter(Tracker):
+    """The paper's GPF; see the module docstring for the equations and every choice."""
+
+    name = "gpf"
+    summary = "Gaussian particle filter (paper): existence-weighted Gaussians, combinations E"
+
+    def __init__(self, epsilon: float = 1e-3, max_combinations: int = 512,
+                 interaction_threshold: float = 1e-3, merge_threshold: float = 4.0,
+                 merge_weight: str = "capped_sum", prune_threshold: float = 1e-3,
+                 max_particles: int = 100, births: bool = True, birth_floor: float = 1e-4,
+                 extraction: str = "round_sum", extraction_threshold: float = 0.5,
+                 n_counts: int = 4) -> None:
+        self.epsilon = epsilon
+        self.max_combinations = max_combinations
+        self.interaction_threshold = interaction_threshold
+        self.merge_threshold = merge_threshold
+        self.merge_weight = merge_weight
+        self.prune_threshold = prune_threshold
+        self.max_particles = max_particles
+        self.births = births
+        self.birth_floor = birth_floor
+        self.extraction = extraction
+        self.extraction_threshold = extraction_threshold
+        self.n_counts = n_counts
+
+    # ------------------------------------------------------------------ state
+    def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
+        if self.extraction not in ("round_sum", "threshold"):
+            raise ValueError(f"extraction must be 'round_sum' or 'threshold', "
+                             f"got {self.extraction!r}")
+        self._model = model
+        self._rng = rng
+        self._F, self._Q = model.dynamics.F, model.dynamics.Q
+        self._grid = model.grid
+        self._w = np.zeros(0)
+        self._m = np.zeros((0, 4))
+        self._P = np.zeros((0, 4, 4))
+        bd = model.birth_death
+        n0 = bd.initial_count_mean
+        n_cells = model.grid.n_cells
+        self._u = np.zeros(n_cells)
+        self.last_dropped = 0.0
+        if not self.births:
+            return
+        if model.is_grid:
+            self._u[:] = max(min(n0 / n_cells, 0.5), self.birth_floor)
+        elif n0 > 0:
+            n = math.ceil(n0)
+            self._add_broad(n, n0 / n)
+
+    def set_particles(self, w: np.ndarray, m: np.ndarray, P: np.ndarray) -> None:
+        """Replace the particle set (tests, warm starts): ``(K,)``, ``(K,4)``, ``(K,4,4)``."""
+        self._w = np.array(w, dtype=float).reshape(-1)
+        self._m = np.array(m, dtype=float).reshape(-1, 4)
+        self._P = np.array(P, dtype=float).reshape(-1, 4, 4)
+
+    @property
+    def particles(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Copies of ``w (K,)``, ``means (K, 4)``, ``covs (K, 4, 4)``."""
+        return self._w.copy(), self._m.copy(), self._P.copy()
+
+    def _broad_cov(self) -> np.ndarray:
+        width, height = self._grid.extent
+        vs = self._model.birth_death.birth_velocity_std ** 2
+        return np.diag([width**2 / 12.0, vs, height**2 / 12.0, vs])
+
+    def _add_broad(self, n: int, weight: float) -> None:
+        width, height = self._grid.extent
+        m = np.zeros((n, 4))
+        m[:, 0] = self._rng.uniform(0.0, width, n)
+        m[:, 2] = self._rng.uniform(0.0, height, n)
+        self._append(np.full(n, weight), m, np.repeat(self._broad_cov()[None], n, axis=0))
+
+    def _append(self, w: np.ndarray, m: np.ndarray, P: np.ndarray) -> None:
+        self._w = np.concatenate([self._w, w])
+        self._m = np.concatenate([self._m, m])
+        self._P = np.concatenate([self._P, P])
+
+    # ---------------------------------------------------------------- predict
+    def predict(self) -> None:
+        bd = self._model.birth_death
+        self._m, self._P = kalman.predict(self._m, self._P, self._F, self._Q)
+        self._w = self._w * bd.survival_probability
+        width, height = self._grid.extent
+        if bd.boundary == "reflect":
+            for axis, length in ((0, width), (2, height)):
+                self._reflect_axis(axis, length)
+        elif len(self._w):
+            sx = np.sqrt(self._P[:, 0, 0])
+            sy = np.sqrt(self._P[:, 2, 2])
+            inside = ((ndtr((width - self._m[:, 0]) / sx) - ndtr(-self._m[:, 0] / sx))
+                      * (ndtr((height - self._m[:, 2]) / sy) - ndtr(-self._m[:, 2] / sy)))
+            self._w = self._w * inside
+        if not self.births:
+            return
+        n_cells = self._grid.n_cells
+        if self._model.is_grid:
+            b = bd.birth_rate / n_cells
+            self._u = 1.0 - (1.0 - bd.survival_probability * self._u) * (1.0 - b)
+            np.maximum(self._u, self.birth_floor, out=self._u)
+        elif bd.birth_rate > 0:
+            self._add_broad(1, min(bd.birth_rate, 0.5))
+
+    def _reflect_axis(self, axis: int, length: float) -> None:
+        """Mirror means outside ``[0, length)`` on one axis: ``p -> -p`` or ``2L - p``,
+        ``v -> -v``; the covariance becomes ``J P J`` with ``J`` negating that axis."""
+        p = self._m[:, axis]
+        low, high = p < 0.0, p >= length
+        flip = low | high
+        if not np.any(flip):
+            return
+        self._m[low, axis] = -p[low]
+        self._m[high, axis] = 2.0 * length - p[high]
+        self._m[flip, axis + 1] *= -1.0
+        sign = np.ones(4)
+        sign[axis:axis + 2] = -1.0
+        self._P[flip] = self._P[flip] * sign[:, None] * sign[None, :]
+
+    # ------------------------------------------------------- count distribution
+    def cell_count_distribution(self) -> np.ndarray:
+        probs = np.zeros((0, self._grid.n_cells))
+        if len(self._w):
+            mass = gaussian_cell_mass(self._grid, self._m[:, _POS],
+                                      self._P[:, _POS][:, :, _POS])
+            probs = self._w[:, None] * mass
+        if np.any(self._u > 0):
+            probs = np.concatenate([probs, self._u[None]])
+        return poisson_binomial(probs, self.n_counts)
+
+    # ----------------------------------------------------------------- update
+    def update(self, looks: Looks) -> None:
+        sensor = self._model.sensor
+        if isinstance(sensor, RayleighGridSensor):
+            if len(looks):
+                self._update_grid(looks, sensor)
+        elif looks.z is not None:
+            res = superposition_update(self._w, self._m, self._P, np.asarray(looks.z, float),
+                                       sensor.H, sensor.R, self.epsilon, self.max_combinations)
+            self._w, self._m, self._P = res.weights, res.means, res.covs
+            self.last_dropped = res.dropped
+        self._merge_and_prune()
+
+    def _update_grid(self, looks: Looks, sensor: RayleighGridSensor) -> None:
+        K = len(self._w)
+        looked = np.unique(looks.cells)
+        cand = looked[self._u[looked] > 0.0] if self.births else looked[:0]
+        n_c = len(cand)
+        s = self._grid.cell_size
+        centres = self._grid.cell_centers(cand)
+        vs = self._model.birth_death.birth_velocity_std ** 2
+        cm = np.zeros((n_c, 4))
+        cm[:, 0], cm[:, 2] = centres[:, 0], centres[:, 1]
+        cP = np.repeat(np.diag([s * s / 12.0, vs, s * s / 12.0, vs])[None], n_c, axis=0)
+        w = np.concatenate([self._w, self._u[cand]])
+        m = np.concatenate([self._m, cm])
+        P = np.concatenate([self._P, cP])
+        ucell = np.concatenate([np.full(K, -1, dtype=np.int64), cand])
+        res = grid_update(w, m, P, ucell, looks.cells, looks.returns, self._grid, sensor,
+                          self.epsilon, self.max_combinations, self.interaction_threshold)
+        self.last_dropped = res.dropped
+        wc = res.weights[K:]
+        detected = np.zeros(self._grid.n_cells, dtype=bool)
+        detected[looks.cells[looks.returns]] = True
+        promote = detected[cand] & (wc > self.prune_threshold)
+        self._u[cand] = np.where(promote, 0.0, wc)
+        if self.births:
+            np.maximum(self._u, self.birth_floor, out=self._u)
+        keep = np.concatenate([np.ones(K, dtype=bool), promote])
+        self._w, self._m, self._P = res.weights[keep], res.means[keep], res.covs[keep]
+
+    def _merge_and_prune(self) -> None:
+        alive = self._w >= self.prune_threshold
+        w, m, P = self._w[alive], self._m[alive], self._P[alive]
+        w, m, P = merge_particles(w, m, P, self.merge_threshold, self.merge_weight)
+        if len(w) > self.max_particles:
+            top = np.argsort(-w, kind="stable")[: self.max_particles]
+            w, m, P = w[top], m[top], P[top]
+        self._w, self._m, self._P = w, m, P
+
+    # --------------------------------------------------------------- estimate
+    def estimate(self) -> Estimate:
+        count = float(self._w.sum())
+        if self.extraction == "round_sum":
+            n = min(int(round(count)), len(self._w))
+            sel = np.argsort(-self._w, kind="stable")[:n]
+        else:
+            sel = np.nonzero(self._w > self.extraction_threshold)[0]
+        return Estimate(count, self._m[sel].copy(), self._P[sel].copy())
