@@ -6,6 +6,7 @@ below to register it (the conformance suite then tests it automatically).
 
 from trackers import (
     gpf,  # noqa: F401  (registers "gpf")
+    jmpd,  # noqa: F401  (registers "jmpd", "jmpd-ip")
     kfnn,  # noqa: F401  (registers "kfnn")
     null,  # noqa: F401  (registers "null")
 )

@@ -1,0 +1,601 @@
+"""JMPD: the joint multitarget probability density particle filter.
+
+Kreucher, Kastella and Hero, "Multitarget tracking using the joint multitarget
+probability density", IEEE TAES 41(4), 2005. Each particle ``i`` holds a target
+count ``T_i <= t_max`` and ``T_i`` target states ``[px, vx, py, vy]``, so the
+count is part of the state and no measurement-to-target association is needed.
+
+Storage (never one Python object per particle, never an ``(N, n_cells)`` array):
+
+* states ``X`` of shape ``(N, t_max, 4)``. It is kept internally as a
+  component-major buffer ``(4, t_max, N)`` so that every per-step operation runs
+  over contiguous memory; :attr:`JMPDTracker.states` is the ``(N, t_max, 4)`` view.
+* a validity mask ``(N, t_max)`` (slot ``s`` of particle ``i`` holds a target iff
+  the mask is set; valid slots need not be packed first, which lets the
+  independent-partition proposal keep slot ``s`` aligned with estimated target
+  ``s``), counts ``T_i`` ``(N,)`` and normalised log-weights ``(N,)``.
+
+Bootstrap step (the kinematic prior as proposal), in the simulator's order:
+
+1. death: every target dies with ``death_probability`` (default ``1 - p_s`` of the
+   model, at least ``DEFAULT_DEATH_PROBABILITY``);
+2. dynamics ``x <- F x + L e``, ``e ~ N(0, I)``, ``L L^T = Q`` (one draw of
+   ``N * t_max * 4`` normal variates), then the model's boundary rule (reflect, or
+   die when leaving the workspace);
+3. birth: with probability ``1 - exp(-birth_rate)`` a particle with ``T_i < t_max``
+   gains one target, uniform in the workspace with velocity
+   ``N(0, birth_velocity_std^2)`` per axis (at most one birth per particle per
+   step; ``birth_rate`` defaults to the model's rate, at least
+   ``DEFAULT_BIRTH_RATE``). The floors keep the filter able to find targets and
+   drop ghosts when the model says the count never changes; pass 0 to switch
+   them off.
+4. weight: ``log w_i += log p(z | X_i)``. Grid sensor (DESIGN.md): only looked-at
+   cells that the particle occupies contribute, ``sum_looks log l_c(T_ic)`` with
+   ``T_ic`` the particle's number of targets in cell ``c`` and
+   ``l_c(T) = p(z | T) / p(z | 0)``; repeated looks at a cell add their logs.
+   Superposition sensor: ``z ~ N(mean_i H x_i, R)``, and ``z ~ N(0, R)`` for a
+   particle with no target (the simulator's convention).
+5. normalise with ``logsumexp``; systematic resampling when the effective sample
+   size ``1 / sum w_i^2`` drops below ``resample_threshold * N``.
+
+Independent-partition proposal (``proposal="ip"``, Kreucher et al. Table III):
+after the kinematic proposal the slots of every particle are aligned to the last
+estimate (greedy nearest assignment); then for every slot ``p`` separately, the
+particles that hold slot ``p`` (the pool) exchange their slot-``p`` targets by
+systematic resampling with probabilities ``b_j ∝ w_j l_p(x_{p,j})``, where
+``l_p`` is the likelihood of that target alone (``prod_looks l_c(1)`` over looks at
+its cell). The bias of this proposal is corrected in the weight::
+
+    w_i <- w_i * p(z | X_i) * prod_{valid p} c_p / l_p(x_{p,i}),
+    c_p = sum_pool w_j l_p(x_{p,j}) / sum_pool w_j.
+
+This is exact importance sampling for the factorised prior ``prod_p pi_p`` that
+the method assumes (the pools' weighted marginals). The receivers of each slot
+are a random permutation of the pool so that slots are drawn independently.
+Deviations: only the slots aligned to an estimated target are partitions; new or
+unmatched targets keep the kinematic proposal, because a free slot would otherwise
+be pulled onto the strongest detection of another target (Kreucher's coupled
+partitions case), which inflates the count. On the superposition sensor the
+measurement couples all targets, so there is no single-target partition
+likelihood; ``ip`` then weighs like the bootstrap. The IP proposal is exact only
+for the factorised prior: coupled targets get approximate joint statistics.
+
+Estimates: the count is the posterior mode of ``T`` (:attr:`count_mean` and
+:attr:`count_probabilities` hold the mean and the distribution). The states are
+weighted means of the partitions of the particles with ``T = mode``, after
+aligning each particle's targets to a reference (the previous estimate predicted
+with ``F`` when it has the same count, else the heaviest such particle), two
+rounds of align-then-average (Kreucher's K-means over permutations). Alignment
+minimises the summed squared position distance: exactly over all ``T!``
+permutations for ``T <= 4``, greedily (closest pair first) above.
+
+Prior before step 0: ``T_i ~ Poisson(initial_count_mean)`` clipped to ``t_max``
+(or exactly ``initial_count`` if given), positions uniform over the workspace,
+velocities ``N(0, birth_velocity_std^2)`` per axis.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from typing import Literal
+
+import numpy as np
+from scipy.special import logsumexp
+
+from scenarios.model import Looks, RayleighGridSensor, TrackingModel
+from trackers.base import Estimate, Tracker, register
+
+DEFAULT_BIRTH_RATE = 0.02  # per particle and step, used when the model has no births
+DEFAULT_DEATH_PROBABILITY = 0.01  # per target and step, used when the model has p_s = 1
+EXACT_ALIGN_MAX = 4  # enumerate all T! permutations up to this many targets
+
+
+# --------------------------------------------------------------------- kernels
+def systematic_resample(weights: np.ndarray, u: float) -> np.ndarray:
+    """Systematic resampling: indices ``(n,)`` int64 of the offspring.
+
+    ``weights (n,)`` sum to 1; ``u`` in ``[0, 1)`` is the single uniform offset.
+    Offspring ``k`` takes the first ``j`` with ``cumsum(w)[j] > (u + k) / n`` (the
+    same rule as filterpy's ``systematic_resample``), so particle ``j`` has between
+    ``floor(n w_j)`` and ``ceil(n w_j)`` offspring.
+    """
+    n = weights.shape[0]
+    positions = (u + np.arange(n)) / n
+    cumulative = np.cumsum(weights)
+    idx = np.searchsorted(cumulative, positions, side="right")
+    # rounding can leave cumsum[-1] a hair below the last position
+    np.minimum(idx, n - 1, out=idx)
+    return idx
+
+
+def bernoulli_indices(rng: np.random.Generator, n: int, p: float) -> np.ndarray:
+    """Sorted indices ``k < n`` of independent Bernoulli(``p``) successes.
+
+    Drawn by geometric gaps between successes, so the cost is ``O(n p)`` draws
+    instead of ``n`` uniforms (deaths and births are rare).
+    """
+    if n <= 0 or p <= 0.0:
+        return np.zeros(0, dtype=np.int64)
+    if p >= 1.0:
+        return np.arange(n, dtype=np.int64)
+    mean = n * p
+    chunk = int(mean + 6.0 * math.sqrt(mean) + 16)
+    pos = np.cumsum(rng.geometric(p, size=chunk)) - 1
+    while pos[-1] < n:
+        more = np.cumsum(rng.geometric(p, size=chunk)) + pos[-1]
+        pos = np.concatenate([pos, more])
+    return pos[pos < n]
+
+
+def grid_log_likelihood_tables(sensor: RayleighGridSensor, look_cells: np.ndarray,
+                               returns: np.ndarray, n_cells: int, t_max: int
+                               ) -> tuple[np.ndarray, np.ndarray]:
+    """Per-look tables for :func:`grid_log_likelihood`.
+
+    Returns ``slot_of_cell (n_cells + 1,) int64`` (looked slot of each cell; the
+    unlooked cells and the sentinel ``n_cells`` map to the zero row ``n_u``) and
+    ``table (n_u + 1, t_max + 1)`` with ``table[s, t] = sum_{looks at cell s}
+    log l(z, t)``; its last row is zero.
+    """
+    look_cells = np.asarray(look_cells, dtype=np.int64)
+    ucells, inverse = np.unique(look_cells, return_inverse=True)
+    n_u = ucells.shape[0]
+    t = np.arange(t_max + 1)
+    per_look = sensor.log_likelihood_ratio(np.asarray(returns, bool)[:, None], t[None, :])
+    table = np.zeros((n_u + 1, t_max + 1))
+    # several looks at one cell are independent: their log-ratios add
+    np.add.at(table, inverse.reshape(-1), per_look)
+    slot_of_cell = np.full(n_cells + 1, n_u, dtype=np.int64)
+    slot_of_cell[ucells] = np.arange(n_u)
+    return slot_of_cell, table
+
+
+def _ranks(c: np.ndarray) -> np.ndarray:
+    """``rank[j, i] = 1 + #{k < j : c[k, i] == c[j, i]}`` for ``c (t_max, N)``."""
+    t_max = c.shape[0]
+    rank = np.ones(c.shape, dtype=np.int64)
+    for j in range(1, t_max):
+        for k in range(j):
+            rank[j] += c[k] == c[j]
+    return rank
+
+
+def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.ndarray
+                        ) -> np.ndarray:
+    """``log p(z | X_i) - log p(z | no target)`` for every particle, shape ``(N,)``.
+
+    ``cells (N, t_max)`` int64 are the targets' flat cells, with ``n_cells`` for an
+    empty slot or a target outside the grid; tables from
+    :func:`grid_log_likelihood_tables`. Equation (DESIGN.md)::
+
+        log w_i = sum_{looked cells c} table[c, T_ic]
+
+    computed without counting cells: the ``j``-th target (in slot order) found in
+    cell ``c`` adds ``table[c, j] - table[c, j - 1]``, which telescopes to
+    ``table[c, T_ic]`` because ``table[c, 0] = 0``.
+    """
+    c = cells.T  # (t_max, N); contiguous rows when the caller stores (t_max, N)
+    n_counts = table.shape[1]
+    increments = np.zeros_like(table)
+    increments[:, 1:] = np.diff(table, axis=1)
+    flat = slot_of_cell[c]
+    flat *= n_counts
+    flat += _ranks(c)
+    return increments.ravel()[flat].sum(axis=0)
+
+
+def superposition_log_likelihood(X: np.ndarray, valid: np.ndarray, z: np.ndarray,
+                                 H: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """``log N(z; mean_{valid j} H x_j, R)`` up to a constant, shape ``(N,)``.
+
+    ``X (N, t_max, 4)``, ``valid (N, t_max)``; the mean is 0 for a particle with no
+    target (the sensor then reports pure noise).
+    """
+    count = valid.sum(axis=1)
+    hx = np.einsum("ntd,md->ntm", X, H)
+    mean = (hx * valid[..., None]).sum(axis=1) / np.maximum(count, 1)[:, None]
+    r = z[None, :] - mean
+    return -0.5 * np.einsum("nm,nm->n", r, np.linalg.solve(R, r.T).T)
+
+
+def cell_count_distribution_from(cells: np.ndarray, weights: np.ndarray, n_cells: int,
+                                 n_counts: int) -> np.ndarray:
+    """``P_c(t) = sum_i w_i [T_ic = t]`` (last column "t or more"), ``(n_cells, n_counts)``.
+
+    ``cells (N, t_max)`` as in :func:`grid_log_likelihood`, ``weights (N,)``
+    normalised. Only occupied (particle, cell) pairs are visited: the first target
+    of each cell in a particle carries the particle's count in that cell; the mass
+    not accounted for goes to ``t = 0``.
+    """
+    c = cells.T
+    t_max = c.shape[0]
+    first = _ranks(c) == 1
+    n_in = np.zeros(c.shape, dtype=np.int64)
+    for j in range(t_max):
+        for k in range(t_max):
+            n_in[j] += c[k] == c[j]
+    keep = first & (c < n_cells)
+    slot, particle = np.nonzero(keep)
+    key = c[slot, particle] * n_counts + np.minimum(n_in[slot, particle], n_counts - 1)
+    P = np.bincount(key, weights=weights[particle], minlength=n_cells * n_counts)
+    P = P.reshape(n_cells, n_counts)
+    P[:, 0] = np.maximum(1.0 - P[:, 1:].sum(axis=1), 0.0)
+    P /= P.sum(axis=1, keepdims=True)
+    return P
+
+
+def _fold(pos: np.ndarray, vel: np.ndarray, length: float) -> tuple[np.ndarray, np.ndarray]:
+    """Reflect positions into ``[0, length)``, flipping velocity on odd bounces."""
+    folded = np.mod(pos, 2.0 * length)
+    bounced = folded >= length
+    pos = np.where(bounced, 2.0 * length - folded, folded)
+    pos = np.minimum(pos, np.nextafter(length, 0.0))
+    return pos, np.where(bounced, -vel, vel)
+
+
+_PERMS: dict[int, np.ndarray] = {}
+
+
+def _perms(n: int) -> np.ndarray:
+    if n not in _PERMS:
+        _PERMS[n] = np.array(list(itertools.permutations(range(n))), dtype=np.int64)
+    return _PERMS[n]
+
+
+def greedy_assignment(cost: np.ndarray) -> np.ndarray:
+    """Greedy (closest pair first) assignment, vectorised over the leading axis.
+
+    ``cost (n, a, b)`` with ``inf`` for forbidden pairs. Returns ``(n, b)`` int64:
+    the row assigned to each column, ``-1`` where none is left.
+    """
+    cost = cost.copy()
+    n, a, b = cost.shape
+    out = np.full((n, b), -1, dtype=np.int64)
+    rows = np.arange(n)
+    for _ in range(min(a, b)):
+        flat = cost.reshape(n, -1).argmin(axis=1)
+        i, j = np.divmod(flat, b)
+        ok = np.isfinite(cost[rows, i, j])
+        out[rows[ok], j[ok]] = i[ok]
+        cost[rows[ok], i[ok], :] = np.inf
+        cost[rows[ok], :, j[ok]] = np.inf
+    return out
+
+
+def align_square(Y: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """Reorder each particle's targets to match ``ref``.
+
+    ``Y (n, R, 4)`` all valid, ``ref (R, 4)``; returns ``(n, R, 4)`` with row ``b``
+    the target matched to ``ref[b]``, minimising ``sum_b |pos(Y[pi(b)]) - pos(ref_b)|^2``
+    over permutations: exhaustively for ``R <= EXACT_ALIGN_MAX``, greedily above.
+    """
+    n, R, _ = Y.shape
+    if R <= 1:
+        return Y
+    d = Y[:, :, None, [0, 2]] - ref[None, None, :, [0, 2]]
+    cost = np.einsum("nabk,nabk->nab", d, d)  # (n, R targets, R refs)
+    if R <= EXACT_ALIGN_MAX:
+        perms = _perms(R)  # (P, R): perms[q, b] = target placed at ref b
+        total = cost[:, perms, np.arange(R)].sum(axis=2)  # (n, P)
+        order = perms[total.argmin(axis=1)]
+    else:
+        order = greedy_assignment(cost)
+    return np.take_along_axis(Y, order[:, :, None], axis=1)
+
+
+# --------------------------------------------------------------------- tracker
+@register
+class JMPDTracker(Tracker):
+    """JMPD particle filter, bootstrap (kinematic prior) proposal by default.
+
+    Parameters: ``n_particles`` N; ``t_max`` largest count a particle can hold;
+    ``birth_rate`` (per particle and step, None: the model's rate or
+    ``DEFAULT_BIRTH_RATE``); ``death_probability`` (per target and step, None:
+    ``1 - p_s`` or ``DEFAULT_DEATH_PROBABILITY``); ``resample_threshold`` (resample
+    when ESS < threshold * N); ``proposal`` "bootstrap" or "ip"; ``initial_count``
+    (None: Poisson prior; an int: every particle starts with that many targets).
+    """
+
+    name = "jmpd"
+    summary = "JMPD particle filter (Kreucher et al. 2005), bootstrap proposal"
+
+    def __init__(self, n_particles: int = 2000, t_max: int = 5,
+                 birth_rate: float | None = None, death_probability: float | None = None,
+                 resample_threshold: float = 0.5,
+                 proposal: Literal["bootstrap", "ip"] = "bootstrap",
+                 initial_count: int | None = None) -> None:
+        self.n_particles = n_particles
+        self.t_max = t_max
+        self.birth_rate = birth_rate
+        self.death_probability = death_probability
+        self.resample_threshold = resample_threshold
+        self.proposal = proposal
+        self.initial_count = initial_count
+
+    # ------------------------------------------------------------- views
+    @property
+    def states(self) -> np.ndarray:
+        """Target states ``(N, t_max, 4)`` (a view; empty slots hold junk)."""
+        return self._buf[:4].transpose(2, 1, 0)
+
+    @property
+    def mask(self) -> np.ndarray:
+        """Slot validity ``(N, t_max)`` bool (a view)."""
+        return self._valid.T
+
+    @property
+    def log_weights(self) -> np.ndarray:
+        """Normalised log-weights ``(N,)``."""
+        return self._logw
+
+    # ------------------------------------------------------------- life cycle
+    def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
+        if self.proposal not in ("bootstrap", "ip"):
+            raise ValueError(f"proposal must be 'bootstrap' or 'ip', got {self.proposal!r}")
+        if int(self.n_particles) < 1 or int(self.t_max) < 1:
+            raise ValueError("n_particles and t_max must be >= 1")
+        N, T = int(self.n_particles), int(self.t_max)
+        self._model, self._rng, self._N, self._T = model, rng, N, T
+        bd, dyn = model.birth_death, model.dynamics
+        self._grid = model.grid
+        self._width, self._height = model.grid.extent
+        self._n_cells = model.grid.n_cells
+        self._F = dyn.F
+        self._tau = float(dyn.tau)
+        # L L^T = Q; the jitter admits Q = 0 (static targets)
+        self._L = np.linalg.cholesky(dyn.Q + 1e-15 * np.eye(4))
+        self._L[np.abs(self._L) < 1e-300] = 0.0
+        self._pairs = [(i, j, float(self._L[i, j])) for i in range(4) for j in range(i + 1)
+                       if self._L[i, j] != 0.0]
+        rate = self.birth_rate
+        if rate is None:
+            rate = bd.birth_rate if bd.birth_rate > 0 else DEFAULT_BIRTH_RATE
+        self._p_birth = 1.0 - math.exp(-float(rate))
+        death = self.death_probability
+        if death is None:
+            death = 1.0 - bd.survival_probability
+            death = death if death > 0 else DEFAULT_DEATH_PROBABILITY
+        self._p_death = float(death)
+        self._bv = float(bd.birth_velocity_std)
+
+        # rows 0-3: state components; rows 4-7: the step's standard normals
+        self._buf = np.empty((8, T, N))
+        self._valid = np.zeros((T, N), dtype=bool)
+        if self.initial_count is None:
+            counts = np.minimum(rng.poisson(bd.initial_count_mean, size=N), T)
+        else:
+            counts = np.full(N, min(int(self.initial_count), T))
+        self._valid[:] = np.arange(T)[:, None] < counts[None, :]
+        X = self._buf[:4]
+        X[0] = rng.uniform(0.0, self._width, (T, N))
+        X[2] = rng.uniform(0.0, self._height, (T, N))
+        X[1] = rng.normal(0.0, self._bv, (T, N))
+        X[3] = rng.normal(0.0, self._bv, (T, N))
+        self._counts = counts.astype(np.int64)
+        self._logw = np.full(N, -math.log(N))
+        self._tmp = np.empty((T, N))
+        self._ref: np.ndarray | None = None
+        self.count_mean = float(counts.mean())
+        self.count_probabilities = np.bincount(counts, minlength=T + 1) / N
+        self.n_resamples = 0
+        self._update_cells()
+
+    # ------------------------------------------------------------- predict
+    def predict(self) -> None:
+        rng, N, T = self._rng, self._N, self._T
+        X, E, valid = self._buf[:4], self._buf[4:], self._valid
+        # 1. deaths (Bernoulli per slot; empty slots "dying" changes nothing)
+        dead = bernoulli_indices(rng, T * N, self._p_death)
+        if dead.size:
+            valid.reshape(-1)[dead] = False
+        # 2. x <- F x + L e, with F = [[1, tau], [0, 1]] per axis
+        # F first (it reads the old velocities), then the noise L e
+        tmp = self._tmp
+        if self._tau == 1.0:
+            X[0] += X[1]
+            X[2] += X[3]
+        else:
+            np.multiply(X[1], self._tau, out=tmp)
+            X[0] += tmp
+            np.multiply(X[3], self._tau, out=tmp)
+            X[2] += tmp
+        rng.standard_normal(out=E)
+        for i, j, lij in self._pairs:  # x_i += L_ij e_j over the nonzeros of L
+            np.multiply(E[j], lij, out=tmp)
+            X[i] += tmp
+        self._apply_boundary()
+        # 3. births: at most one per particle, into its first free slot
+        born = bernoulli_indices(rng, N, self._p_birth)
+        if born.size:
+            born = born[valid[:, born].sum(axis=0) < T]
+            slot = np.argmin(valid[:, born], axis=0)
+            n = born.size
+            X[0, slot, born] = rng.uniform(0.0, self._width, n)
+            X[2, slot, born] = rng.uniform(0.0, self._height, n)
+            X[1, slot, born] = rng.normal(0.0, self._bv, n)
+            X[3, slot, born] = rng.normal(0.0, self._bv, n)
+            valid[slot, born] = True
+        self._counts = valid.sum(axis=0)
+        if self._ref is not None and len(self._ref):
+            self._ref = self._ref @ self._F.T
+        self._update_cells()
+
+    def _apply_boundary(self) -> None:
+        X, valid = self._buf[:4], self._valid
+        for p_row, v_row, length in ((0, 1, self._width), (2, 3, self._height)):
+            pos = X[p_row]
+            if pos.min() >= 0.0 and pos.max() < length:
+                continue
+            out = np.flatnonzero((pos < 0.0) | (pos >= length))
+            if self._model.birth_death.boundary == "reflect":
+                p, v = _fold(pos.reshape(-1)[out], X[v_row].reshape(-1)[out], length)
+                pos.reshape(-1)[out] = p
+                X[v_row].reshape(-1)[out] = v
+            else:
+                valid.reshape(-1)[out] = False
+                # park dead slots inside so they do not trigger this path again
+                pos.reshape(-1)[out] = 0.5 * length
+
+    def _update_cells(self) -> None:
+        """Flat cell of every slot ``(t_max, N)`` int64; ``n_cells`` for empty slots."""
+        X = self._buf[:4]
+        inv = 1.0 / self._grid.cell_size
+        np.multiply(X[0], inv, out=self._tmp)
+        ix = self._tmp.astype(np.int64)
+        np.multiply(X[2], inv, out=self._tmp)
+        cells = self._tmp.astype(np.int64)
+        cells *= self._grid.nx
+        cells += ix
+        cells[~self._valid] = self._n_cells
+        self._cells = cells
+
+    # ------------------------------------------------------------- P_c(t)
+    def cell_count_distribution(self) -> np.ndarray:
+        w = np.exp(self._logw)
+        return cell_count_distribution_from(self._cells.T, w, self._n_cells, self._T + 1)
+
+    # ------------------------------------------------------------- update
+    def update(self, looks: Looks) -> None:
+        sensor = self._model.sensor
+        if isinstance(sensor, RayleighGridSensor):
+            if len(looks) == 0:
+                return
+            slot_of_cell, table = grid_log_likelihood_tables(
+                sensor, looks.cells, looks.returns, self._n_cells, self._T)
+            if self.proposal == "ip":
+                self._ip_partitions(slot_of_cell, table)
+            ll = grid_log_likelihood(self._cells.T, slot_of_cell, table)
+        else:
+            if looks.z is None:
+                return
+            ll = superposition_log_likelihood(self.states, self.mask, np.asarray(looks.z),
+                                              sensor.H, sensor.R)
+        if self.proposal == "ip" and isinstance(sensor, RayleighGridSensor):
+            ll -= self._ip_correction
+        logw = self._logw
+        logw += ll
+        logw -= logsumexp(logw)
+        self._maybe_resample()
+
+    def _maybe_resample(self) -> None:
+        w = np.exp(self._logw)
+        ess = 1.0 / np.dot(w, w)
+        if ess >= self.resample_threshold * self._N:
+            return
+        idx = systematic_resample(w, self._rng.random())
+        self._buf[:4] = self._buf[:4][:, :, idx]
+        self._valid = self._valid[:, idx]
+        self._cells = self._cells[:, idx]
+        self._counts = self._counts[idx]
+        self._logw = np.full(self._N, -math.log(self._N))
+        self.n_resamples += 1
+
+    def _align_to_reference(self) -> None:
+        """Permute every particle's slots so that slot ``b`` holds its target nearest
+        (greedy) to reference target ``b``; unmatched targets follow, then holes."""
+        ref = self._ref
+        if ref is None or len(ref) == 0:
+            return
+        T, N = self._T, self._N
+        R = min(len(ref), T)
+        X, valid = self._buf[:4], self._valid
+        dx = X[0][:, :, None] - ref[None, None, :R, 0]  # (T, N, R)
+        dy = X[2][:, :, None] - ref[None, None, :R, 2]
+        cost = dx * dx + dy * dy
+        cost[~valid] = np.inf
+        assign = greedy_assignment(cost.transpose(1, 0, 2))  # (N, R): old slot per ref
+        matched = assign >= 0
+        rows = np.arange(N)
+        is_matched = np.zeros((N, T), dtype=bool)  # by old slot
+        is_matched[rows[:, None].repeat(R, 1)[matched], assign[matched]] = True
+        # old slots not matched: leftover targets first, then empty slots (stable)
+        key = np.where(is_matched, 2, np.where(valid.T, 0, 1))
+        rest_old = np.argsort(key, axis=1, kind="stable")
+        used_new = np.zeros((N, T), dtype=bool)
+        used_new[:, :R] = matched
+        free_new = np.argsort(used_new, axis=1, kind="stable")  # free positions first
+        # Leftover targets exist only when every reference is matched, so the free
+        # positions are then exactly R..T-1 and the leftovers come right after the
+        # matched slots; the pairs beyond the free ones are overwritten below.
+        perm = np.empty((N, T), dtype=np.int64)  # perm[i, new slot] = old slot
+        np.put_along_axis(perm, free_new, rest_old, axis=1)
+        perm[:, :R] = np.where(matched, assign, perm[:, :R])
+        pT = perm.T
+        self._buf[:4] = np.take_along_axis(X, pT[None], axis=1)
+        self._valid = np.take_along_axis(valid, pT, axis=0)
+        self._cells = np.take_along_axis(self._cells, pT, axis=0)
+
+    def _ip_partitions(self, slot_of_cell: np.ndarray, table: np.ndarray) -> None:
+        """Kreucher's independent-partition resampling (module docstring)."""
+        self._align_to_reference()
+        rng, N = self._rng, self._N
+        corr = np.zeros(N)
+        self._ip_correction = corr
+        if self._ref is None:
+            return
+        X, valid, cells, logw = self._buf[:4], self._valid, self._cells, self._logw
+        lp = table[:, 1][slot_of_cell[cells]]  # (T, N) log l of each target alone
+        # only slots aligned to an estimated target are partitions; the others
+        # (new or unmatched targets) keep the kinematic proposal, else every free
+        # slot would be pulled onto the strongest detection (coupled partitions)
+        for p in range(min(len(self._ref), self._T)):
+            pool = np.flatnonzero(valid[p])
+            if pool.size == 0:
+                continue
+            logb = logw[pool] + lp[p, pool]
+            lse_b = logsumexp(logb)
+            log_c = lse_b - logsumexp(logw[pool])
+            donors = pool[systematic_resample(np.exp(logb - lse_b), rng.random())]
+            donors = donors[rng.permutation(pool.size)]
+            X[:, p, pool] = X[:, p, donors]
+            cells[p, pool] = cells[p, donors]
+            corr[pool] += lp[p, donors] - log_c
+        self._ip_correction = corr
+
+    # ------------------------------------------------------------- estimate
+    def estimate(self) -> Estimate:
+        w = np.exp(self._logw)
+        T = self._T
+        pT = np.bincount(self._counts, weights=w, minlength=T + 1)
+        pT /= pT.sum()
+        self.count_probabilities = pT
+        self.count_mean = float(np.dot(np.arange(T + 1), pT))
+        mode = int(np.argmax(pT))
+        if mode == 0:
+            self._ref = np.zeros((0, 4))
+            return Estimate(0, np.zeros((0, 4)), np.zeros((0, 4, 4)))
+        sel = np.flatnonzero(self._counts == mode)
+        ws = w[sel] / w[sel].sum()
+        order = np.argsort(~self._valid[:, sel], axis=0, kind="stable")[:mode]  # (mode, n)
+        Xs = self._buf[:4][:, :, sel]  # (4, T, n)
+        Y = np.take_along_axis(Xs, order[None], axis=1).transpose(2, 1, 0)  # (n, mode, 4)
+        if self._ref is not None and len(self._ref) == mode:
+            ref = self._ref
+        else:
+            ref = Y[np.argmax(ws)]
+        for _ in range(2):  # align, average, realign (K-means over permutations)
+            Ya = align_square(Y, ref)
+            ref = np.einsum("n,ntd->td", ws, Ya)
+        d = Ya - ref[None]
+        cov = np.einsum("n,ntd,nte->tde", ws, d, d)
+        self._ref = ref.copy()
+        return Estimate(mode, ref.astype(np.float64), cov)
+
+
+@register
+class JMPDIPTracker(JMPDTracker):
+    """JMPD with Kreucher's independent-partition proposal (``proposal="ip"``)."""
+
+    name = "jmpd-ip"
+    summary = "JMPD particle filter (Kreucher et al. 2005), independent-partition proposal"
+
+    def __init__(self, n_particles: int = 2000, t_max: int = 5,
+                 birth_rate: float | None = None, death_probability: float | None = None,
+                 resample_threshold: float = 0.5,
+                 proposal: Literal["bootstrap", "ip"] = "ip",
+                 initial_count: int | None = None) -> None:
+        super().__init__(n_particles=n_particles, t_max=t_max, birth_rate=birth_rate,
+                         death_probability=death_probability,
+                         resample_threshold=resample_threshold, proposal=proposal,
+                         initial_count=initial_count)
