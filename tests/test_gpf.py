@@ -1,0 +1,133 @@
+"""The GPF tracker as a whole: merging, pruning, extraction, births, P_c, long-run health."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import scenarios
+import trackers
+from scenarios.model import Looks
+from scenarios.simulator import simulate
+from trackers.cells import gaussian_cell_mass
+from trackers.gpf import merge_particles
+
+
+def _cov(s=0.3, v=0.05):
+    return np.diag([s * s, v * v, s * s, v * v])
+
+
+def test_merge_rules_keep_weights_probabilities():
+    w = np.array([0.7, 0.6, 0.9])
+    m = np.array([[3.0, 0.1, 3.0, 0.0], [3.05, 0.1, 2.98, 0.0], [9.0, 0.0, 9.0, 0.0]])
+    P = np.stack([_cov()] * 3)
+    wc, mc, Pc = merge_particles(w, m, P, 4.0, "capped_sum")
+    wu, _, _ = merge_particles(w, m, P, 4.0, "union")
+    assert sorted(wc) == pytest.approx([0.9, 1.0])
+    assert sorted(wu) == pytest.approx([1 - 0.3 * 0.4, 0.9])
+    # the merged Gaussian is the weighted moment match of the pair
+    i = int(np.argmin(np.abs(mc[:, 0] - 3.0)))
+    mean = (0.7 * m[0] + 0.6 * m[1]) / 1.3
+    cov = (0.7 * (P[0] + np.outer(m[0] - mean, m[0] - mean))
+           + 0.6 * (P[1] + np.outer(m[1] - mean, m[1] - mean))) / 1.3
+    np.testing.assert_allclose(mc[i], mean, atol=1e-12)
+    np.testing.assert_allclose(Pc[i], cov, atol=1e-12)
+    # nothing merges at threshold 0
+    assert len(merge_particles(w, m, P, 0.0)[0]) == 3
+
+
+def test_prune_cap_and_extraction_rules():
+    sc = scenarios.get("default")
+    rng = np.random.default_rng(0)
+    w = np.array([0.9, 0.55, 0.4, 0.3, 0.0005])
+    m = np.stack([[1.0 + 2 * i, 0.0, 1.0 + 2 * i, 0.0] for i in range(5)])
+    P = np.stack([_cov()] * 5)
+    for extraction, expected in (("round_sum", [0, 1]), ("threshold", [0, 1])):
+        t = trackers.make("gpf", births=False, max_particles=3, extraction=extraction)
+        t.reset(sc.model, rng)
+        t.set_particles(w, m, P)
+        t.update(Looks(np.array([143]), np.array([False])))  # far away: only merge/prune act
+        wp, mp, _ = t.particles
+        np.testing.assert_allclose(np.sort(wp)[::-1], [0.9, 0.55, 0.4])  # floor, then cap
+        est = t.estimate()
+        assert est.count == pytest.approx(1.85)
+        np.testing.assert_allclose(est.states, m[expected])
+    t = trackers.make("gpf", births=False, extraction="threshold", extraction_threshold=0.35)
+    t.reset(sc.model, rng)
+    t.set_particles(w, m, P)
+    assert len(t.estimate().states) == 3
+
+
+def test_cell_count_distribution_is_poisson_binomial_of_particles_and_field():
+    sc = scenarios.get("default")
+    t = trackers.make("gpf", n_counts=8)
+    t.reset(sc.model, np.random.default_rng(0))
+    m = np.array([[3.2, 0.0, 4.7, 0.0], [3.6, 0.0, 4.4, 0.0]])
+    t.set_particles([0.8, 0.6], m, np.stack([_cov(0.4), _cov(0.5)]))
+    Pc = t.cell_count_distribution()
+    np.testing.assert_allclose(Pc.sum(axis=1), 1.0, atol=1e-12)
+    mass = gaussian_cell_mass(sc.grid, m[:, [0, 2]], np.stack([_cov(0.4), _cov(0.5)])[:, [0, 2]]
+                              [:, :, [0, 2]])
+    u0 = sc.model.birth_death.initial_count_mean / sc.grid.n_cells  # the undetected field
+    expected_count = np.array([0.8, 0.6]) @ mass + u0
+    np.testing.assert_allclose(Pc @ np.arange(8), expected_count, atol=1e-9)
+
+
+def test_without_births_an_empty_filter_stays_empty():
+    sc = dataclasses.replace(scenarios.get("default"), n_steps=5)
+    run = simulate(sc, 0)
+    t = trackers.make("gpf", births=False)
+    t.reset(sc.model, np.random.default_rng(0))
+    for k in range(5):
+        t.predict()
+        np.testing.assert_allclose(t.cell_count_distribution()[:, 0], 1.0)
+        t.update(run.look(k, np.arange(sc.grid.n_cells)))
+        assert t.estimate().count == 0.0
+
+
+@pytest.mark.parametrize("name", ["default", "births"])
+def test_births_recover_the_targets_from_the_field(name):
+    """All cells looked at each step: the filter starts with no particles and must find them.
+
+    Count within 0.5 of the truth on average over the last 20 of 60 steps, and the
+    distance from a true target to the nearest estimate (cut at 2 cells, so a missed
+    target costs 2) below one cell on average (loose on purpose: the claim is recovery).
+    """
+    sc = dataclasses.replace(scenarios.get(name), n_steps=60)
+    run = simulate(sc, 4)
+    t = trackers.make("gpf")
+    t.reset(sc.model, np.random.default_rng(1))
+    errs, dists = [], []
+    for k in range(sc.n_steps):
+        t.predict()
+        t.update(run.look(k, np.arange(sc.grid.n_cells)))
+        est = t.estimate()
+        if k >= 40:
+            errs.append(abs(est.count - len(run.states[k])))
+            for p in run.positions(k):
+                d = np.linalg.norm(est.states[:, [0, 2]] - p, axis=1)
+                dists.append(min(d.min(), 2.0) if len(d) else 2.0)  # cut at 2 cells
+    assert np.mean(errs) < 0.5
+    assert np.mean(dists) < 1.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["default", "births"])
+def test_2000_steps_stay_finite_and_positive_definite(name):
+    sc = dataclasses.replace(scenarios.get(name), n_steps=2000)
+    run = simulate(sc, 0)
+    t = trackers.make("gpf")
+    t.reset(sc.model, np.random.default_rng(0))
+    n_cells, m = sc.grid.n_cells, 8  # a cheap raster: 8 looks per step, each cell every 18
+    for k in range(sc.n_steps):
+        t.predict()
+        t.update(run.look(k, (k * m + np.arange(m)) % n_cells))
+        w, mean, P = t.particles
+        assert np.all(np.isfinite(w)) and np.all((w >= 0) & (w <= 1))
+        assert np.all(np.isfinite(mean)) and np.all(np.isfinite(P))
+        if len(P):
+            np.testing.assert_allclose(P, np.swapaxes(P, -1, -2), atol=1e-12)
+            assert np.linalg.eigvalsh(P).min() > 0, k
+        assert np.isfinite(t.estimate().count)
