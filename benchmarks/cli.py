@@ -6,7 +6,8 @@
     mttbench trackers                       # registered trackers (+ parameters) and policies
     mttbench run --scenarios default crossing --trackers kfnn jmpd:n_particles=1000 \\
                  --seeds 20 --policy raster,renyi --looks 12,24 --workers 2
-    mttbench compare                        # every tracker on the standard scenarios
+    mttbench compare                        # the main job: head-to-head report
+    mttbench reproduce paper [--reduced] [--check]   # the paper's figures, checked
 
 Bad input (an unknown tracker, parameter, scenario or policy, a bad scenario
 file) ends with exit status 2 and a one-line message, never a traceback.
@@ -17,7 +18,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import inspect
-import os
 import sys
 import textwrap
 from collections.abc import Sequence
@@ -29,13 +29,12 @@ import pandas as pd
 import scenarios
 import trackers
 from benchmarks import policies
+from benchmarks.compare import COMPARE_REFERENCE, COMPARE_SCENARIOS, COMPARE_SEEDS
 from benchmarks.harness import PolicySpec, TrackerSpec, build_jobs, run_sweep, split_specs
 from benchmarks.summary import summarize, to_markdown
 
 #: scenarios of ``mttbench compare`` (the superposition and large presets are left out:
 #: not every tracker supports the former, the latter is a scale test)
-COMPARE_SCENARIOS = ("default", "crossing", "births", "paper")
-COMPARE_SEEDS = 10
 
 
 class UsageError(Exception):
@@ -211,39 +210,27 @@ def cmd_run(args: argparse.Namespace) -> int:
                   args.workers or 1, "mttbench run")
 
 
-def compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
-            tracker_texts: Sequence[str] | None = None, seeds: Sequence[int] | None = None,
-            steps: int | None = None, workers: int | None = None,
-            out_dir: str | Path | None = None, progress: bool = True, resume: bool = False,
-            c: float = 2.0, p: float = 2.0) -> tuple[pd.DataFrame, Path]:
-    """Head-to-head: every registered tracker (default) on the ``compare`` scenarios,
-    raster policy at each scenario's own look budget, seeds ``0..9`` by default.
-
-    Writes ``results.parquet``, ``summary.csv`` and ``summary.md`` into ``out_dir``
-    (default ``reports/compare-<UTC timestamp>``) and returns the results and folder.
-    Raises :class:`UsageError` on bad names.
-    """
-    scs = resolve_scenarios(scenario_names, steps)
-    tracker_specs = resolve_trackers(tracker_texts or trackers.available())
-    seeds = list(range(COMPARE_SEEDS)) if seeds is None else list(seeds)
-    out = Path(out_dir) if out_dir else Path("reports") / f"compare-{_timestamp()}"
-    out.mkdir(parents=True, exist_ok=True)
-    jobs = build_jobs(scs, tracker_specs, [PolicySpec("raster")], None, seeds)
-    results = run_sweep(jobs, out, workers=workers or os.cpu_count() or 1, progress=progress,
-                        resume=resume, c=c, p=p)
-    return results, out
-
-
 def cmd_compare(args: argparse.Namespace) -> int:
+    """The head-to-head report (:mod:`benchmarks.compare`)."""
+    from benchmarks.compare import run_compare
+
     _check_common(args)
     seeds = _seeds(args, default=COMPARE_SEEDS)
-    results, out = compare(args.scenarios, args.trackers, seeds, args.steps, args.workers,
-                           args.out, progress=not args.no_progress, resume=args.resume,
-                           c=args.c, p=args.p)
-    text = write_outputs(results, out, "mttbench compare")
-    print(text)
-    print(f"wrote {out / 'results.parquet'}, summary.csv, summary.md")
+    res = run_compare(args.scenarios, args.trackers, seeds, args.steps, args.workers, args.out,
+                      reference=args.reference, progress=not args.no_progress,
+                      resume=args.resume, c=args.c, p=args.p,
+                      argv=args.argv)
+    print((res.out_dir / "summary.md").read_text())
+    print(f"wrote {res.out_dir}/: results.parquet, report.md, report.html, figures/, "
+          f"manifest.json ({res.manifest['wall_time_s']:.0f} s)")
     return 0
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    """Reviewer reproduction of the paper's figures (:mod:`benchmarks.reproduce`)."""
+    from benchmarks.reproduce import main_reproduce
+
+    return main_reproduce(args)
 
 
 # ----------------------------------------------------------------------- parser
@@ -315,20 +302,64 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser(
-        "compare", help="head-to-head of every tracker on the standard scenarios",
+        "compare", help="head-to-head report of every tracker on the standard scenarios",
         formatter_class=fmt,
-        description="Every registered tracker (including the `null` baseline) on the "
-                    f"scenarios {', '.join(COMPARE_SCENARIOS)}, raster policy at each "
-                    f"scenario's look budget, {COMPARE_SEEDS} seeds. Writes results.parquet, "
-                    "summary.csv and summary.md into --out (default "
-                    "reports/compare-<UTC timestamp>) and prints the summary.",
-        epilog="example:\n  mttbench compare --trackers null kfnn --seeds 5 --workers 2")
+        description="The main job. Every registered tracker (including the `null` baseline; "
+                    "JMPD at 1000 and 250 particles) on the scenarios "
+                    f"{', '.join(COMPARE_SCENARIOS)}, raster policy at each scenario's look "
+                    f"budget, {COMPARE_SEEDS} seeds, in parallel processes. Writes "
+                    "results.parquet, summary.csv/.md, report.md, a self-contained "
+                    "report.html, figures/ and manifest.json into --out (default "
+                    "reports/compare-<UTC timestamp>). Defaults take about 1-2 minutes on "
+                    "2 cores.",
+        epilog=textwrap.dedent("""\
+            examples:
+              mttbench compare
+              mttbench compare --seeds 30 --steps 200 --workers 8
+              mttbench compare --trackers kfnn gpf jmpd:n_particles=4000 --scenarios crossing \\
+                  --reference gpf"""))
     p.add_argument("--scenarios", nargs="+", default=list(COMPARE_SCENARIOS),
                    metavar="SCENARIO", help="override the scenarios")
     _add_sweep_options(p, seeds_default=COMPARE_SEEDS, trackers_required=False)
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel worker processes (default: the number of CPUs)")
+    p.add_argument("--reference", default=COMPARE_REFERENCE, metavar="TRACKER",
+                   help="tracker (name or label) that paired differences subtract "
+                        f"(default {COMPARE_REFERENCE})")
     p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser(
+        "reproduce", help="regenerate the paper's figures and check them against the reference",
+        formatter_class=fmt,
+        description="Regenerate the paper's two result figures (snapshot on the 12x12 grid; "
+                    "state and count error over time) for the GPF with the other trackers "
+                    "overlaid, from pinned seeds, into --out (default reports/paper), with "
+                    "the numbers behind each figure as CSV. Runs are cached by their "
+                    "configuration (.cache/reproduce); figures only plot. --check compares "
+                    "the numbers with the checked-in reference and exits 1 naming every "
+                    "number that moved.",
+        epilog=textwrap.dedent("""\
+            examples:
+              mttbench reproduce paper                    # full setting
+              mttbench reproduce paper --reduced --check  # what CI runs"""))
+    p.add_argument("target", choices=["paper"], help="what to reproduce")
+    p.add_argument("--reduced", action="store_true",
+                   help="the reduced setting (fewer seeds and steps; what CI checks)")
+    p.add_argument("--check", action="store_true",
+                   help="compare the numbers with the reference CSV; exit 1 if any moved")
+    p.add_argument("--reference-csv", metavar="CSV",
+                   help="reference to check against (default "
+                        "reports/reference/paper_<setting>.csv)")
+    p.add_argument("--trackers", nargs="+", metavar="SPEC",
+                   help="trackers to overlay (default: the reproduction's pinned list, "
+                        "those registered)")
+    p.add_argument("--out", metavar="DIR", help="output folder (default reports/paper)")
+    p.add_argument("--cache-dir", metavar="DIR", help="run cache (default .cache/reproduce)")
+    p.add_argument("--no-cache", action="store_true", help="recompute even if cached")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="parallel worker processes (default: the number of CPUs)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_reproduce)
     return parser
 
 
@@ -339,6 +370,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help (0) or an argparse error (2)
         return exc.code if isinstance(exc.code, int) else 2
+    args.argv = ["mttbench", *(sys.argv[1:] if argv is None else argv)]
     if args.command is None:
         parser.print_help()
         return 2

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -60,10 +61,22 @@ def _save(fig: plt.Figure, path: str | Path) -> Path:
 def _grid_of_axes(n: int, width: float = 4.2, height: float = 3.2):
     cols = min(n, 2) if n > 1 else 1
     rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(width * cols, height * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(width * cols, height * rows), squeeze=False,
+                             layout="constrained")
     for ax in axes.flat[n:]:
         ax.set_visible(False)
     return fig, list(axes.flat[:n])
+
+
+def _legend_below(fig: plt.Figure, axes: list[plt.Axes]) -> None:
+    """One legend for all panels, below them (``loc="best"`` is slow with many artists)."""
+    seen: dict[str, Any] = {}
+    for ax in axes:
+        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
+            seen.setdefault(lab, h)
+    if seen:
+        fig.legend(list(seen.values()), list(seen), loc="outside lower center", fontsize=8,
+                   ncol=min(len(seen), 4))
 
 
 def metric_over_time(results: pd.DataFrame, metric: str, path: str | Path,
@@ -84,8 +97,7 @@ def metric_over_time(results: pd.DataFrame, metric: str, path: str | Path,
         ax.set_xlabel("step")
         ax.set_ylabel(ylabel or metric)
         ax.grid(alpha=0.3)
-    if scen:
-        axes[0].legend(fontsize=7, loc="best")
+    _legend_below(fig, axes)
     fig.suptitle(f"{ylabel or metric}: mean over seeds, shaded 95% interval", fontsize=10)
     return _save(fig, path)
 
@@ -136,8 +148,7 @@ def accuracy_vs_runtime(summary: pd.DataFrame, path: str | Path,
         ax.set_ylabel(f"mean {metric}")
         ax.set_title(sc)
         ax.grid(alpha=0.3)
-    if scen:
-        axes[0].legend(fontsize=7, loc="best")
+    _legend_below(fig, axes)
     fig.suptitle("accuracy against runtime (lower-left is better), 95% intervals", fontsize=10)
     return _save(fig, path)
 
@@ -230,7 +241,7 @@ def paper_error_curves(curves: pd.DataFrame, path: str | Path, highlight: str = 
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("state error (OSPA, c = 2, p = 2)")
     axes[1].set_ylabel("target number error |N_est - N|")
-    axes[0].legend(fontsize=7)
+    axes[0].legend(fontsize=7, loc="upper right")
     fig.suptitle("estimation error over time (mean over seeds, 95% band)", fontsize=10)
     fig.tight_layout()
     return _save(fig, path)

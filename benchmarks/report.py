@@ -45,12 +45,15 @@ ACCURACY_COLUMNS = [
     ("ospa", "OSPA", 1.0, ".3f"),
     ("ospa_loc", "OSPA loc", 1.0, ".3f"),
     ("ospa_card", "OSPA card", 1.0, ".3f"),
+    ("count_error", "count error", 1.0, ".3f"),
+    ("rmse", "RMSE", 1.0, ".3f"),
+]
+#: (column stem, header, scale, format) of the GOSPA table
+GOSPA_COLUMNS = [
     ("gospa", "GOSPA", 1.0, ".3f"),
     ("gospa_loc", "GOSPA loc", 1.0, ".3f"),
     ("gospa_missed", "GOSPA missed", 1.0, ".3f"),
     ("gospa_false", "GOSPA false", 1.0, ".3f"),
-    ("count_error", "count error", 1.0, ".3f"),
-    ("rmse", "RMSE", 1.0, ".3f"),
 ]
 #: (column stem, header, scale, format) of the runtime table
 RUNTIME_COLUMNS = [
@@ -105,7 +108,10 @@ def summary_table(summ: pd.DataFrame, columns: list[tuple[str, str, float, str]]
 def paired_differences(results: pd.DataFrame, reference: str,
                        metrics: list[str] | None = None) -> pd.DataFrame:
     """Long table of paired differences ``tracker - reference`` for each metric
-    (:func:`benchmarks.summary.paired_difference`); empty if the reference has no ok run."""
+    (:func:`benchmarks.summary.paired_difference`); empty if the reference has no ok run.
+
+    ``results`` is the step table or its :func:`benchmarks.summary.per_run` table.
+    """
     metrics = metrics or [m for m, *_ in PAIRED_COLUMNS]
     parts = []
     for m in metrics:
@@ -261,10 +267,15 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
         doc.add("list", [f"{k}: {v}" for k, v in settings.items()])
     doc.add("h2", "Accuracy")
     doc.add("p", "Mean over seeds of each run's mean over steps, ± half-width of the 95% "
-                 "Student-t interval over seeds. OSPA and its parts in workspace units; GOSPA "
-                 "(alpha = 2) localisation, missed and false parts are costs in the squared "
-                 "domain (they add up to GOSPA²). Count error is |N_est - N| per step.")
+                 "Student-t interval over seeds. OSPA, its localisation and cardinality parts "
+                 "and the RMSE of the optimally assigned pairs are in workspace units (cells); "
+                 "count error is |N_est - N| per step.")
     doc.add("table", summary_table(summ, ACCURACY_COLUMNS))
+    doc.add("h3", "GOSPA and its parts")
+    doc.add("p", "GOSPA (alpha = 2); the localisation, missed and false parts are costs in the "
+                 "p-th-power domain (they add up to GOSPA^p per step; missed and false are "
+                 "c^p/2 per missed or false target).")
+    doc.add("table", summary_table(summ, GOSPA_COLUMNS))
     doc.add("h2", "Runtime")
     doc.add("p", "Tracker time is predict + update + estimate per step (median over the steps "
                  "of a run, then mean over seeds, ± 95% interval); selection time is the cell "
@@ -272,7 +283,7 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
                  "Peak RSS is the worker's high-water mark, an upper bound.")
     doc.add("table", summary_table(summ, RUNTIME_COLUMNS))
     doc.add("h2", f"Paired differences against {reference}")
-    paired = paired_differences(results, reference) if reference else pd.DataFrame()
+    paired = paired_differences(runs, reference) if reference else pd.DataFrame()
     if paired.empty:
         doc.add("p", f"No ok runs of the reference tracker {reference!r}: no paired differences.")
     else:

@@ -83,7 +83,8 @@ def built(tmp_path_factory):
 def test_accuracy_table_rows_and_intervals_match_scipy(built):
     results, _, _ = built
     from benchmarks import summary
-    table = report.summary_table(summary.summarize(results), report.ACCURACY_COLUMNS)
+    table = report.summary_table(summary.summarize(results),
+                                 report.ACCURACY_COLUMNS + report.GOSPA_COLUMNS)
     assert len(table) == len(SCENARIOS) * len(TRACKERS)
     assert sorted(zip(table["scenario"], table["tracker"], strict=True)) == sorted(
         (s, t) for s in SCENARIOS for t in TRACKERS)

@@ -1,0 +1,214 @@
+"""``mttbench compare``: the head-to-head report of every tracker (the main job).
+
+One command runs every registered tracker on the standard scenarios (``default``,
+``crossing``, ``births``, ``paper``) over several seeds, in parallel processes
+(:func:`benchmarks.harness.run_sweep`: the results do not depend on the number of
+workers, timings aside), and writes a report folder::
+
+    reports/compare-<UTC timestamp>/
+        results.parquet     the tidy table, one row per scenario x tracker x seed x step
+        summary.csv/.md     means over seeds with 95% t half-widths
+        report.md           tables, paired differences against --reference, figures
+        report.html         the same, self-contained (figures embedded)
+        figures/*.png       error over time, runtime, accuracy vs runtime, snapshot
+        manifest.json       command line, versions, git commit, seeds, wall time
+
+Default budget: the settings below are chosen so that the default command finishes
+in about one to two minutes on a 2-core machine: 10 seeds, each scenario's own
+length, the raster policy at each scenario's look budget, and JMPD at 1000 particles
+(its own default is 2000), plus a 250-particle JMPD setting so the accuracy-against-
+runtime figure shows the particle-count trade-off. ``--seeds``, ``--steps``,
+``--trackers`` (with ``name:key=val`` parameters), ``--scenarios`` scale it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+import trackers
+from benchmarks import report, summary
+from benchmarks.harness import PolicySpec, TrackerSpec, build_jobs, run_sweep
+
+COMPARE_SCENARIOS = ("default", "crossing", "births", "paper")
+COMPARE_SEEDS = 10
+COMPARE_REFERENCE = "kfnn"
+#: parameters used when ``--trackers`` is not given (keeps the default run ~1-2 min)
+DEFAULT_PARAMS: dict[str, list[dict[str, Any]]] = {
+    "jmpd": [{"n_particles": 1000}, {"n_particles": 250}],
+    "jmpd-ip": [{"n_particles": 1000}],
+}
+#: tracker drawn in the snapshot figure, first registered one wins
+SNAPSHOT_PREFERENCE = ("gpf", "jmpd", "kfnn")
+#: distributions whose versions go into the manifest
+VERSIONED = ("mttbench", "numpy", "scipy", "pandas", "pyarrow", "matplotlib", "filterpy", "tqdm")
+
+
+def default_tracker_texts() -> list[str]:
+    """Every registered tracker, with the budget parameters of :data:`DEFAULT_PARAMS`
+    (only those the tracker actually accepts)."""
+    out = []
+    for name in trackers.available():
+        accepted = set(trackers.get_class(name).param_names())
+        settings = [s for s in DEFAULT_PARAMS.get(name, []) if set(s) <= accepted] or [{}]
+        for s in settings:
+            out.append(name + (":" + ",".join(f"{k}={v}" for k, v in s.items()) if s else ""))
+    return out
+
+
+def package_versions() -> dict[str, str]:
+    """Installed versions of :data:`VERSIONED` (``"not installed"`` if absent)."""
+    out = {"python": platform.python_version()}
+    for dist in VERSIONED:
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            out[dist] = "not installed"
+    return out
+
+
+def git_commit(where: Path | None = None) -> dict[str, Any]:
+    """``{"commit": sha or None, "dirty": bool or None}`` of the checkout holding this file."""
+    where = where or Path(__file__).resolve().parent
+    try:
+        sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=where, capture_output=True,
+                             text=True, timeout=10, check=True).stdout.strip()
+        status = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                                cwd=where, capture_output=True, text=True, timeout=10,
+                                check=True).stdout
+        return {"commit": sha, "dirty": bool(status.strip())}
+    except (OSError, subprocess.SubprocessError):
+        return {"commit": None, "dirty": None}
+
+
+@dataclass(frozen=True)
+class CompareOutput:
+    results: pd.DataFrame
+    out_dir: Path
+    files: report.ReportFiles
+    manifest: dict[str, Any]
+
+
+def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
+                tracker_texts: Sequence[str] | None = None, seeds: Sequence[int] | None = None,
+                steps: int | None = None, workers: int | None = None,
+                out_dir: str | Path | None = None, reference: str = COMPARE_REFERENCE,
+                progress: bool = True, resume: bool = False, c: float = 2.0, p: float = 2.0,
+                snapshot: bool = True, argv: Sequence[str] | None = None) -> CompareOutput:
+    """Run the comparison and write the report folder (see the module docstring).
+
+    ``tracker_texts`` None means :func:`default_tracker_texts`; ``seeds`` None means
+    ``0..COMPARE_SEEDS-1``; ``workers`` None means the number of CPUs. ``reference`` is
+    a tracker label (``name`` or ``name(k=v)``); a bare name matches that tracker's
+    single setting. Raises :class:`benchmarks.cli.UsageError` on bad names.
+    """
+    from benchmarks import cli  # cli imports this module; import lazily
+
+    t0 = time.perf_counter()
+    started = datetime.now(UTC)
+    scs = cli.resolve_scenarios(list(scenario_names), steps)
+    texts = list(tracker_texts) if tracker_texts else default_tracker_texts()
+    specs = cli.resolve_trackers(texts)
+    reference = _resolve_reference(reference, specs)
+    seeds = list(range(COMPARE_SEEDS)) if seeds is None else [int(s) for s in seeds]
+    workers = workers or os.cpu_count() or 1
+    out = Path(out_dir) if out_dir else Path("reports") / f"compare-{started:%Y%m%dT%H%M%SZ}"
+    out.mkdir(parents=True, exist_ok=True)
+
+    jobs = build_jobs(scs, specs, [PolicySpec("raster")], None, seeds)
+    print(f"{len(jobs)} runs ({len(scs)} scenarios x {len(specs)} trackers x {len(seeds)} "
+          f"seeds) on {workers} worker(s) -> {out}", file=sys.stderr)
+    results = run_sweep(jobs, out, workers=workers, progress=progress, resume=resume, c=c, p=p)
+    t_runs = time.perf_counter() - t0
+
+    summ = summary.summarize(results)
+    summ.to_csv(out / "summary.csv", index=False)
+    (out / "summary.md").write_text("# mttbench compare\n\n" + summary.to_markdown(summ))
+
+    trace = _snapshot_trace(scs, specs, seeds) if snapshot else None
+    settings = {
+        "scenarios": ", ".join(f"{sc.name} ({sc.n_steps} steps)" for sc in scs),
+        "trackers": ", ".join(s.label for s in specs),
+        "seeds": _seed_text(seeds),
+        "policy": "raster sweep at each scenario's looks_per_step (the same cells for every "
+                  "tracker, so differences are the trackers')",
+        "metrics": f"OSPA/GOSPA cut-off c = {c:g}, order p = {p:g}; positions only",
+        "reference for paired differences": reference,
+        "workers": str(workers),
+        "wall time of the runs": f"{t_runs:.1f} s",
+    }
+    intro = [
+        "Every tracker on the same simulated worlds (common random numbers: truth and sensor "
+        "returns depend only on scenario and seed). Default budget: 10 seeds, each scenario's "
+        "own length, JMPD at 1000 particles (plus a 250-particle setting), chosen so the default "
+        "command takes about one to two minutes on two cores; widen the intervals' basis with "
+        "`--seeds`, lengthen runs with `--steps`, choose trackers and parameters with "
+        "`--trackers name:key=value`.",
+    ]
+    files = report.build_report(results, out, reference=reference, intro=intro,
+                                settings=settings, trace=trace)
+    wall = time.perf_counter() - t0
+    manifest = {
+        "command": list(argv) if argv is not None else sys.argv,
+        "started_utc": started.isoformat(),
+        "wall_time_s": round(wall, 3),
+        "runs_wall_time_s": round(t_runs, 3),
+        "workers": workers,
+        "cpu_count": os.cpu_count(),
+        "platform": platform.platform(),
+        "versions": package_versions(),
+        "git": git_commit(),
+        "scenarios": [sc.name for sc in scs],
+        "steps": {sc.name: sc.n_steps for sc in scs},
+        "trackers": [s.label for s in specs],
+        "seeds": seeds,
+        "reference": reference,
+        "ospa_c": c,
+        "ospa_p": p,
+        "n_runs": len(jobs),
+        "n_rows": len(results),
+    }
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+    return CompareOutput(results, out, files, manifest)
+
+
+def _resolve_reference(reference: str, specs: list[TrackerSpec]) -> str:
+    labels = [s.label for s in specs]
+    if reference in labels:
+        return reference
+    named = [s.label for s in specs if s.name == reference]
+    return named[0] if named else reference
+
+
+def _seed_text(seeds: list[int]) -> str:
+    if seeds and seeds == list(range(seeds[0], seeds[0] + len(seeds))):
+        return f"{seeds[0]}..{seeds[-1]} ({len(seeds)} seeds)"
+    return ", ".join(map(str, seeds))
+
+
+def _snapshot_trace(scs, specs: list[TrackerSpec], seeds: list[int]):
+    """Trace seed ``seeds[0]`` of the first grid scenario for the preferred tracker."""
+    from benchmarks.snapshot import trace_run
+    from scenarios.model import RayleighGridSensor
+
+    grid_scs = [sc for sc in scs if isinstance(sc.model.sensor, RayleighGridSensor)]
+    if not grid_scs or not seeds:
+        return None
+    by_name = {s.name: s for s in specs}
+    chosen = next((by_name[n] for n in SNAPSHOT_PREFERENCE if n in by_name), specs[0])
+    try:
+        return trace_run(grid_scs[0], chosen, seeds[0], PolicySpec("raster"))
+    except Exception:  # noqa: BLE001 - a failing tracker is already in the tables
+        return None

@@ -1,0 +1,53 @@
+"""``mttbench compare``: the report folder, its manifest and the CLI wiring."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import pandas as pd
+
+import trackers
+from benchmarks import compare
+from benchmarks.cli import main
+
+
+def test_compare_writes_the_report_folder(tmp_path, capsys):
+    out = tmp_path / "cmp"
+    rc = main(["compare", "--scenarios", "default", "--trackers", "null", "kfnn", "--seeds", "3",
+               "--steps", "6", "--workers", "1", "--out", str(out), "--no-progress"])
+    assert rc == 0
+    for name in ("results.parquet", "report.md", "report.html", "manifest.json", "summary.csv",
+                 "figures/ospa_over_time.png", "figures/count_error_over_time.png",
+                 "figures/runtime_per_step.png", "figures/accuracy_vs_runtime.png",
+                 "figures/snapshot.png"):
+        assert (out / name).is_file(), name
+    df = pd.read_parquet(out / "results.parquet")
+    assert len(df) == 2 * 3 * 6
+    man = json.loads((out / "manifest.json").read_text())
+    assert man["command"][:2] == ["mttbench", "compare"] and "--seeds" in man["command"]
+    assert man["seeds"] == [0, 1, 2] and sorted(man["trackers"]) == ["kfnn", "null"]
+    assert man["reference"] == "kfnn" and man["wall_time_s"] > 0
+    assert man["versions"]["numpy"] and "commit" in man["git"]
+    md = (out / "report.md").read_text()
+    # paired table: null against the kfnn reference, 3 pairs
+    assert re.search(r"\| default \| raster \| 24 \| null \| 3 \|", md), md
+    page = (out / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == 5
+
+
+def test_default_trackers_cover_the_registry_with_budget_params():
+    texts = compare.default_tracker_texts()
+    assert {t.split(":")[0] for t in texts} == set(trackers.available())
+    for t in texts:  # every budget parameter is one the tracker accepts
+        name, _, params = t.partition(":")
+        accepted = set(trackers.get_class(name).param_names())
+        assert {kv.split("=")[0] for kv in params.split(",") if kv} <= accepted
+
+
+def test_reference_by_bare_name_picks_the_setting():
+    from benchmarks.harness import TrackerSpec
+    specs = [TrackerSpec("kfnn"), TrackerSpec("null", {})]
+    assert compare._resolve_reference("kfnn", specs) == "kfnn"
+    specs = [TrackerSpec("null"), TrackerSpec("kfnn", {"max_misses": 5})]
+    assert compare._resolve_reference("kfnn", specs) == "kfnn(max_misses=5)"
