@@ -35,7 +35,9 @@ of ``p``.
 
 "Uniform" particles (the tracker's birth candidates) have all their mass in one cell and
 are treated as uniform there: they take part in the likelihood like any particle, and
-their posterior given existence is unchanged (it stays uniform on the cell).
+their posterior given existence is unchanged (it stays uniform on the cell). In a cell that
+returned a detection they always join the cluster of the particles that occupy it; in a
+cell without a detection only by the usual occupancy threshold.
 """
 
 from __future__ import annotations
@@ -223,7 +225,11 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
 
     # ---- clusters: particles linked through a looked cell both occupy significantly
     occ = w[pi] * mass
-    signif = (occ > interaction_threshold) | ~gauss[pi]
+    # a uniform particle (birth candidate) always links in a cell that returned a detection,
+    # so that a return an existing particle explains is not also credited to a new target
+    hit = np.zeros(n_u, dtype=bool)
+    hit[np.searchsorted(U, cells[returns])] = True
+    signif = (occ > interaction_threshold) | (~gauss[pi] & hit[pu])
     n_sig = np.bincount(pu[signif], minlength=n_u)
     link = signif & (n_sig[pu] >= 2)
     graph = coo_matrix((np.ones(int(link.sum())), (pi[link], K + pu[link])),
