@@ -287,3 +287,23 @@ def test_registered_with_parameters():
     assert trackers.make("jmpd").get_params() == {
         "n_particles": 2000, "t_max": 5, "birth_rate": None, "death_probability": None,
         "resample_threshold": 0.5, "proposal": "bootstrap", "initial_count": None}
+
+
+def test_moves_after_resampling_reach_the_particles():
+    """Deaths, reflection and cells act on the resampled arrays (not on copies)."""
+    sc = __import__("scenarios").get("paper")  # Q = diag(20, .2, 20, .2): many bounces
+    tr = JMPDTracker(n_particles=500, t_max=4, resample_threshold=1.0, birth_rate=0.0,
+                     death_probability=0.0)
+    tr.reset(sc.model, np.random.default_rng(5))
+    width, height = sc.model.grid.extent
+    for k in range(10):
+        tr.predict()
+        X, valid = tr.states, tr.mask
+        assert np.all((X[..., 0] >= 0) & (X[..., 0] < width))
+        assert np.all((X[..., 2] >= 0) & (X[..., 2] < height))
+        assert np.array_equal(tr._cells.T < sc.model.grid.n_cells, valid)
+        tr.update(Looks(np.arange(24) + 24 * (k % 6), np.zeros(24, bool)))
+    assert tr.n_resamples >= 5
+    tr._p_death = 1.0
+    tr.predict()
+    assert not tr.mask.any() and tr.estimate().count == 0

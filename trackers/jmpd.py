@@ -177,12 +177,18 @@ def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.n
     """
     c = cells.T  # (t_max, N); contiguous rows when the caller stores (t_max, N)
     n_counts = table.shape[1]
+    n_u = table.shape[0] - 1
     increments = np.zeros_like(table)
     increments[:, 1:] = np.diff(table, axis=1)
-    flat = slot_of_cell[c]
-    flat *= n_counts
-    flat += _ranks(c)
-    return increments.ravel()[flat].sum(axis=0)
+    slot = slot_of_cell[c]
+    # only targets in looked cells contribute: work on those (a few per cent) alone
+    j, i = np.nonzero(slot != n_u)
+    cj = c[j, i]
+    rank = np.ones(j.shape[0], dtype=np.int64)
+    for k in range(c.shape[0] - 1):
+        rank += (c[k, i] == cj) & (k < j)
+    contrib = increments.ravel()[slot[j, i] * n_counts + rank]
+    return np.bincount(i, weights=contrib, minlength=c.shape[1])
 
 
 def superposition_log_likelihood(X: np.ndarray, valid: np.ndarray, z: np.ndarray,
@@ -317,7 +323,7 @@ class JMPDTracker(Tracker):
     @property
     def states(self) -> np.ndarray:
         """Target states ``(N, t_max, 4)`` (a view; empty slots hold junk)."""
-        return self._buf[:4].transpose(2, 1, 0)
+        return self._X.transpose(2, 1, 0)
 
     @property
     def mask(self) -> np.ndarray:
@@ -359,15 +365,16 @@ class JMPDTracker(Tracker):
         self._p_death = float(death)
         self._bv = float(bd.birth_velocity_std)
 
-        # rows 0-3: state components; rows 4-7: the step's standard normals
-        self._buf = np.empty((8, T, N))
+        # component-major state (4, T, N) and the step's standard normals, same shape
+        self._X = np.empty((4, T, N))
+        self._E = np.empty((4, T, N))
         self._valid = np.zeros((T, N), dtype=bool)
         if self.initial_count is None:
             counts = np.minimum(rng.poisson(bd.initial_count_mean, size=N), T)
         else:
             counts = np.full(N, min(int(self.initial_count), T))
         self._valid[:] = np.arange(T)[:, None] < counts[None, :]
-        X = self._buf[:4]
+        X = self._X
         X[0] = rng.uniform(0.0, self._width, (T, N))
         X[2] = rng.uniform(0.0, self._height, (T, N))
         X[1] = rng.normal(0.0, self._bv, (T, N))
@@ -384,11 +391,11 @@ class JMPDTracker(Tracker):
     # ------------------------------------------------------------- predict
     def predict(self) -> None:
         rng, N, T = self._rng, self._N, self._T
-        X, E, valid = self._buf[:4], self._buf[4:], self._valid
+        X, E, valid = self._X, self._E, self._valid
         # 1. deaths (Bernoulli per slot; empty slots "dying" changes nothing)
         dead = bernoulli_indices(rng, T * N, self._p_death)
         if dead.size:
-            valid.reshape(-1)[dead] = False
+            valid[np.divmod(dead, N)] = False
         # 2. x <- F x + L e, with F = [[1, tau], [0, 1]] per axis
         # F first (it reads the old velocities), then the noise L e
         tmp = self._tmp
@@ -422,24 +429,23 @@ class JMPDTracker(Tracker):
         self._update_cells()
 
     def _apply_boundary(self) -> None:
-        X, valid = self._buf[:4], self._valid
+        X, valid = self._X, self._valid
         for p_row, v_row, length in ((0, 1, self._width), (2, 3, self._height)):
             pos = X[p_row]
             if pos.min() >= 0.0 and pos.max() < length:
                 continue
             out = np.flatnonzero((pos < 0.0) | (pos >= length))
+            at = np.divmod(out, pos.shape[1])
             if self._model.birth_death.boundary == "reflect":
-                p, v = _fold(pos.reshape(-1)[out], X[v_row].reshape(-1)[out], length)
-                pos.reshape(-1)[out] = p
-                X[v_row].reshape(-1)[out] = v
+                pos[at], X[v_row][at] = _fold(pos[at], X[v_row][at], length)
             else:
-                valid.reshape(-1)[out] = False
+                valid[at] = False
                 # park dead slots inside so they do not trigger this path again
-                pos.reshape(-1)[out] = 0.5 * length
+                pos[at] = 0.5 * length
 
     def _update_cells(self) -> None:
         """Flat cell of every slot ``(t_max, N)`` int64; ``n_cells`` for empty slots."""
-        X = self._buf[:4]
+        X = self._X
         inv = 1.0 / self._grid.cell_size
         np.multiply(X[0], inv, out=self._tmp)
         ix = self._tmp.astype(np.int64)
@@ -484,9 +490,10 @@ class JMPDTracker(Tracker):
         if ess >= self.resample_threshold * self._N:
             return
         idx = systematic_resample(w, self._rng.random())
-        self._buf[:4] = self._buf[:4][:, :, idx]
-        self._valid = self._valid[:, idx]
-        self._cells = self._cells[:, idx]
+        # np.take keeps C order (fancy indexing on the last axis would not)
+        self._X = np.take(self._X, idx, axis=2)
+        self._valid = np.take(self._valid, idx, axis=1)
+        self._cells = None  # stale until the next predict recomputes it
         self._counts = self._counts[idx]
         self._logw = np.full(self._N, -math.log(self._N))
         self.n_resamples += 1
@@ -499,7 +506,7 @@ class JMPDTracker(Tracker):
             return
         T, N = self._T, self._N
         R = min(len(ref), T)
-        X, valid = self._buf[:4], self._valid
+        X, valid = self._X, self._valid
         dx = X[0][:, :, None] - ref[None, None, :R, 0]  # (T, N, R)
         dy = X[2][:, :, None] - ref[None, None, :R, 2]
         cost = dx * dx + dy * dy
@@ -522,7 +529,7 @@ class JMPDTracker(Tracker):
         np.put_along_axis(perm, free_new, rest_old, axis=1)
         perm[:, :R] = np.where(matched, assign, perm[:, :R])
         pT = perm.T
-        self._buf[:4] = np.take_along_axis(X, pT[None], axis=1)
+        self._X = np.take_along_axis(X, pT[None], axis=1)
         self._valid = np.take_along_axis(valid, pT, axis=0)
         self._cells = np.take_along_axis(self._cells, pT, axis=0)
 
@@ -534,7 +541,7 @@ class JMPDTracker(Tracker):
         self._ip_correction = corr
         if self._ref is None:
             return
-        X, valid, cells, logw = self._buf[:4], self._valid, self._cells, self._logw
+        X, valid, cells, logw = self._X, self._valid, self._cells, self._logw
         lp = table[:, 1][slot_of_cell[cells]]  # (T, N) log l of each target alone
         # only slots aligned to an estimated target are partitions; the others
         # (new or unmatched targets) keep the kinematic proposal, else every free
@@ -568,7 +575,7 @@ class JMPDTracker(Tracker):
         sel = np.flatnonzero(self._counts == mode)
         ws = w[sel] / w[sel].sum()
         order = np.argsort(~self._valid[:, sel], axis=0, kind="stable")[:mode]  # (mode, n)
-        Xs = self._buf[:4][:, :, sel]  # (4, T, n)
+        Xs = self._X[:, :, sel]  # (4, T, n)
         Y = np.take_along_axis(Xs, order[None], axis=1).transpose(2, 1, 0)  # (n, mode, 4)
         if self._ref is not None and len(self._ref) == mode:
             ref = self._ref
