@@ -485,7 +485,8 @@ def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1, progress: 
                 _run_and_save(job, path, c, p)
                 bar.update()
         else:
-            with ProcessPoolExecutor(max_workers=workers) as pool:
+            pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)))
+            try:
                 futures = {pool.submit(_run_and_save, job, path, c, p): (job, path)
                            for job, path in todo}
                 for fut in as_completed(futures):
@@ -496,6 +497,12 @@ def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1, progress: 
                         msg = f"worker failed: {type(exc).__name__}: {exc}".replace("\n", " ")
                         lost[path] = _lost_job_frame(job, msg, c, p)
                     bar.update()
+            except BaseException:
+                # Ctrl-C: drop the queued runs instead of waiting for all of them; the
+                # finished parts stay on disk for --resume
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
+            pool.shutdown()
     finally:
         bar.close()
 

@@ -202,6 +202,9 @@ def to_markdown(summary: pd.DataFrame,
     lines = ["| " + " | ".join(head) + " |", "|" + "|".join(align) + "|"]
     for _, r in summary.iterrows():
         cells = [str(r[k]) for k in keys] + [str(r.get("n_seeds", ""))]
+        truth = r.get("uses_truth", False)
+        if "policy_label" in keys and isinstance(truth, bool | np.bool_) and truth:
+            cells[keys.index("policy_label")] += " (uses truth)"
         if "looks_per_step" in keys and r.get("policy_label") == "none":
             cells[keys.index("looks_per_step")] = "–"  # superposition: no looks
         cells += [_pm(r[f"{s}_mean"], r[f"{s}_ci95"], scale, fmt) for s, _, scale, fmt in shown]

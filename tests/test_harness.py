@@ -223,6 +223,7 @@ def test_policy_randomness_is_shared_by_trackers_and_tracker_randomness_is_not(t
 def test_oracle_policy_marks_rows_as_using_truth():
     df = run_job(Job(short("default", 4), TrackerSpec("null"), PolicySpec("oracle"), 5, 0))
     assert df["uses_truth"].all() and (df["status"] == "ok").all()
+    assert "| oracle (uses truth) |" in to_markdown(summarize(df))
 
 
 def test_superposition_job_has_no_policy():
