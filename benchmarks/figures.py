@@ -189,7 +189,11 @@ def draw_snapshot(ax: plt.Axes, frames: dict[str, pd.DataFrame], step: int, nx: 
     ax.set_xlim(0, nx * cell_size)
     ax.set_ylim(0, ny * cell_size)
     ax.set_aspect("equal")
-    count = float(est["count"].iloc[0]) if len(est) else float("nan")
+    if "counts" in frames:
+        c = frames["counts"].loc[frames["counts"]["step"] == step, "count"]
+        count = float(c.iloc[0]) if len(c) else float("nan")
+    else:
+        count = float(est["count"].iloc[0]) if len(est) else float("nan")
     extra = f"  true {len(truth)}, est. count {count:.2f}" if show_estimates else ""
     ax.set_title((title + f"  step {step}" + extra).strip(), fontsize=8)
     ax.tick_params(labelsize=7)

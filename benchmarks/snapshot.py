@@ -55,16 +55,17 @@ class Trace:
     steps: list[StepTrace]
 
     def frames(self) -> dict[str, pd.DataFrame]:
-        """Three tidy tables of the trace.
+        """Four tidy tables of the trace.
 
         ``looks``: step, look (index within the step), cell, ix, iy, positive.
         ``truth``: step, target id, px, vx, py, vy.
         ``estimates``: step, index, count (the step's count estimate), px, vx, py, vy,
         and the position covariance ``cov_xx, cov_xy, cov_yy`` (NaN when the tracker
-        gives none). Positions in workspace units.
+        gives none). ``counts``: step, count (the tracker's count estimate, also when it
+        reports no states). Positions in workspace units.
         """
         nx = self.scenario.grid.nx
-        looks, truth, est = [], [], []
+        looks, truth, est, counts = [], [], [], []
         for s in self.steps:
             looks.append(pd.DataFrame({
                 "step": s.step, "look": np.arange(len(s.cells)), "cell": s.cells,
@@ -79,8 +80,10 @@ class Trace:
                 "px": s.est_states[:, 0], "vx": s.est_states[:, 1], "py": s.est_states[:, 2],
                 "vy": s.est_states[:, 3], "cov_xx": covs[:, 0, 0], "cov_xy": covs[:, 0, 2],
                 "cov_yy": covs[:, 2, 2]}))
+            counts.append(pd.DataFrame({"step": [s.step], "count": [float(s.est_count)]}))
         return {name: pd.concat(parts, ignore_index=True).astype({"step": "int64"})
-                for name, parts in (("looks", looks), ("truth", truth), ("estimates", est))}
+                for name, parts in (("looks", looks), ("truth", truth), ("estimates", est),
+                                    ("counts", counts))}
 
 
 def trace_run(scenario: Scenario, tracker: TrackerSpec, seed: int,
