@@ -182,16 +182,25 @@ class RenyiGain(Policy):
     """Looks where the expected Renyi alpha-divergence gain of the count is largest.
 
     Uses the tracker's predicted ``P_c(t)`` and the scenario's Rayleigh sensor model.
-    ``repeats=True`` (default): greedy by marginal gain ``G_c(n_c+1) - G_c(n_c)``, so
-    a cell may be looked at several times in one step (Kreucher's managed sensor);
-    ``repeats=False``: top-M distinct cells by single-look gain.
+    ``repeats=False`` (default): the top-M distinct cells by single-look gain ``G_c(1)``.
+    ``repeats=True``: greedy by marginal gain ``G_c(n_c+1) - G_c(n_c)``, so a cell may
+    be looked at several times in one step (Kreucher's managed sensor).
+
+    Why distinct cells by default (measured, ``crossing``, 20 seeds, 95% intervals):
+    greedy-with-repeats piles the looks onto the few cells around known targets
+    (about 8 distinct cells per step out of 24 looks with KF-NN), because at
+    ``p_d = 0.5`` every further look at a 50/50 cell still beats a first look at a
+    cell that probably holds no target; the search for targets the tracker has not
+    found starves. Time-averaged OSPA at M = 24: GPF 0.64 +- 0.11 distinct vs
+    1.17 +- 0.12 with repeats; KF-NN 1.15 +- 0.11 vs 1.43 +- 0.07. With repeats the
+    policy does not even reach the full-grid result at M = 144.
     """
 
     name = "renyi"
     summary = "expected Renyi alpha-divergence gain of each cell's count (tracker's prediction)"
     uses_prediction = True
 
-    def __init__(self, alpha: float = 0.5, repeats: bool = True) -> None:
+    def __init__(self, alpha: float = 0.5, repeats: bool = False) -> None:
         self.alpha = alpha
         self.repeats = repeats
 

@@ -81,13 +81,13 @@ def test_renyi_policy_matches_the_kernel_and_is_reproducible():
     pd = MODEL.sensor.detection_probability(np.arange(3))
     out = []
     for _ in range(2):
-        pol = make_policy("renyi", alpha=0.5, repeats=False)
+        pol = make_policy("renyi")  # default: alpha = 0.5, distinct cells
         pol.reset(MODEL, 24, np.random.default_rng(11))
         out.append(pol.select(0, counts=P))
     assert out[0].tolist() == out[1].tolist()
     best = np.argsort(-expected_gain(P, pd, 0.5))[:24]
     assert set(out[0].tolist()) == set(best.tolist())
-    pol = make_policy("renyi")
+    pol = make_policy("renyi", repeats=True)
     pol.reset(MODEL, 24, np.random.default_rng(11))
     want = greedy_looks(P, pd, 24, 0.5, repeats=True, rng=np.random.default_rng(11))
     assert pol.select(0, counts=P).tolist() == want.tolist()
@@ -123,8 +123,9 @@ def test_renyi_looks_at_uncertain_cells():
 CLOSED_LOOP_STEPS = 200
 
 
+@pytest.mark.parametrize("repeats", [False, True])
 @pytest.mark.parametrize("name", trackers.available())
-def test_every_tracker_runs_closed_loop_with_renyi(name):
+def test_every_tracker_runs_closed_loop_with_renyi(name, repeats):
     """predict -> P_c -> renyi looks -> look (common random numbers) -> update -> estimate."""
     sc = dataclasses.replace(DEFAULT, n_steps=CLOSED_LOOP_STEPS)
     tracker = trackers.make(name)
@@ -133,7 +134,7 @@ def test_every_tracker_runs_closed_loop_with_renyi(name):
         pytest.skip(reason)
     run = simulate(sc, 0)
     tracker.reset(sc.model, np.random.default_rng(tracker_seed(sc.name, 0, name)))
-    pol = make_policy("renyi")
+    pol = make_policy("renyi", repeats=repeats)
     pol.reset(sc.model, 24, np.random.default_rng(1))
     n_cells = sc.model.grid.n_cells
     for k in range(CLOSED_LOOP_STEPS):
