@@ -307,3 +307,18 @@ def test_moves_after_resampling_reach_the_particles():
     tr._p_death = 1.0
     tr.predict()
     assert not tr.mask.any() and tr.estimate().count == 0
+
+
+def test_ip_update_when_no_particle_occupies_a_looked_cell():
+    """Regression: an empty weighted bincount is int64 in numpy; the IP correction
+    subtraction then failed."""
+    sc = __import__("scenarios").get("default")
+    tr = trackers.make("jmpd-ip", n_particles=50)
+    tr.reset(sc.model, np.random.default_rng(0))
+    tr.predict()
+    tr.update(Looks(np.array([0]), np.array([True])))
+    tr.estimate()
+    tr.predict()
+    free = np.setdiff1d(np.arange(144), tr._cells[tr._cells < 144])[:1]
+    tr.update(Looks(free, np.array([False])))
+    assert tr.log_weights.dtype == np.float64 and np.all(np.isfinite(tr.log_weights))

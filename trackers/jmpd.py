@@ -188,7 +188,8 @@ def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.n
     for k in range(c.shape[0] - 1):
         rank += (c[k, i] == cj) & (k < j)
     contrib = increments.ravel()[slot[j, i] * n_counts + rank]
-    return np.bincount(i, weights=contrib, minlength=c.shape[1])
+    # an empty weighted bincount comes back as int64: force float
+    return np.bincount(i, weights=contrib, minlength=c.shape[1]).astype(np.float64, copy=False)
 
 
 def superposition_log_likelihood(X: np.ndarray, valid: np.ndarray, z: np.ndarray,
