@@ -341,12 +341,16 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=textwrap.dedent("""\
             examples:
               mttbench reproduce paper                    # full setting
-              mttbench reproduce paper --reduced --check  # what CI runs"""))
+              mttbench reproduce paper --reduced --check  # what CI runs
+              mttbench reproduce paper --reduced --update-reference  # after a change"""))
     p.add_argument("target", choices=["paper"], help="what to reproduce")
     p.add_argument("--reduced", action="store_true",
                    help="the reduced setting (fewer seeds and steps; what CI checks)")
     p.add_argument("--check", action="store_true",
                    help="compare the numbers with the reference CSV; exit 1 if any moved")
+    p.add_argument("--update-reference", action="store_true",
+                   help="write the numbers as the new reference (after a deliberate change "
+                        "of a tracker or of the setting; commit the CSV)")
     p.add_argument("--reference-csv", metavar="CSV",
                    help="reference to check against (default "
                         "reports/reference/paper_<setting>.csv)")

@@ -424,10 +424,15 @@ def main_reproduce(args: argparse.Namespace) -> int:
                           use_cache=not args.no_cache)
     print(f"wrote {out}/ (figures, CSVs, report.md, report.html; runs "
           f"{'from the cache' if res.cached else 'computed'})")
-    if not args.check:
-        return 0
     ref_path = (Path(args.reference_csv) if args.reference_csv
                 else REFERENCE_DIR / f"paper_{setting.name}.csv")
+    if args.update_reference:
+        ref_path.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(res.numbers_csv, ref_path)
+        print(f"reference updated: {ref_path} ({len(res.numbers)} numbers)")
+        return 0
+    if not args.check:
+        return 0
     if not ref_path.exists():
         print(f"reproduce --check: no reference {ref_path}", file=sys.stderr)
         return 1
