@@ -34,7 +34,8 @@ from trackers.base import Tracker
 
 WARM_STEPS = 10
 SIZES = {"small": "default", "large": "large"}
-ROUNDS = {"small": 20, "large": 5}
+#: rounds per benchmark: more for the cheap small steps, whose minimum then settles
+ROUNDS = {"small": 50, "large": 10}
 
 
 @dataclass
