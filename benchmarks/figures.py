@@ -227,7 +227,7 @@ def paper_error_curves(curves: pd.DataFrame, path: str | Path, highlight: str = 
     ``highlight`` tracker is drawn as in the paper (state error black, count error red);
     the others are overlaid in thin coloured lines.
     """
-    fig, axes = plt.subplots(1, 2, figsize=(9.5, 3.6))
+    fig, axes = plt.subplots(1, 2, figsize=(9.5, 4.0), layout="constrained")
     labels = sorted(curves["tracker_label"].unique())
     colors = tracker_colors(labels)
     for ax, col, main in ((axes[0], "state_error", "black"), (axes[1], "count_error", "red")):
@@ -245,7 +245,6 @@ def paper_error_curves(curves: pd.DataFrame, path: str | Path, highlight: str = 
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("state error (OSPA, c = 2, p = 2)")
     axes[1].set_ylabel("target number error |N_est - N|")
-    axes[0].legend(fontsize=7, loc="upper right")
+    _legend_below(fig, [axes[0]])
     fig.suptitle("estimation error over time (mean over seeds, 95% band)", fontsize=10)
-    fig.tight_layout()
     return _save(fig, path)
