@@ -83,7 +83,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, Self
 
 import numpy as np
 import pandas as pd
@@ -153,11 +153,12 @@ def _parse(text: str, what: str) -> tuple[str, dict[str, Any]]:
 
 
 @dataclass(frozen=True)
-class TrackerSpec:
-    """A registered tracker name and the parameters given to its constructor."""
+class _Spec:
+    """A registered name and the parameters given to its constructor."""
 
     name: str
     params: dict[str, Any] = field(default_factory=dict)
+    kind: ClassVar[str] = ""
 
     @property
     def label(self) -> str:
@@ -165,34 +166,27 @@ class TrackerSpec:
         return _label(self.name, self.params)
 
     def __hash__(self) -> int:
-        return hash(("tracker", self.label))
+        return hash((self.kind, self.label))
 
     @classmethod
-    def parse(cls, text: str) -> TrackerSpec:
+    def parse(cls, text: str) -> Self:
         """From ``name`` or ``name:key=val,key=val`` (values as :func:`parse_value`)."""
-        return cls(*_parse(text, "tracker"))
+        return cls(*_parse(text, cls.kind))
+
+
+class TrackerSpec(_Spec):
+    """A registered tracker and its parameters."""
+
+    kind = "tracker"
 
     def make(self) -> trackers.Tracker:
         return trackers.make(self.name, **self.params)
 
 
-@dataclass(frozen=True)
-class PolicySpec:
-    """A registered cell-selection policy name and its parameters."""
+class PolicySpec(_Spec):
+    """A registered cell-selection policy and its parameters."""
 
-    name: str
-    params: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def label(self) -> str:
-        return _label(self.name, self.params)
-
-    def __hash__(self) -> int:
-        return hash(("policy", self.label))
-
-    @classmethod
-    def parse(cls, text: str) -> PolicySpec:
-        return cls(*_parse(text, "policy"))
+    kind = "policy"
 
     def make(self) -> policies.Policy:
         return policies.make_policy(self.name, **self.params)
