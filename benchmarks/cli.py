@@ -66,35 +66,31 @@ def resolve_scenarios(names: Sequence[str], steps: int | None = None
     return out
 
 
-def resolve_trackers(texts: Sequence[str]) -> list[TrackerSpec]:
-    """Tracker specs (``name`` or ``name:key=val,...``), checked against the registry."""
+def _resolve_specs(texts: Sequence[str], spec_type: type[TrackerSpec] | type[PolicySpec]
+                   ) -> list:
+    """Specs (``name`` or ``name:key=val,...``) checked by building each one once."""
     specs = []
     for text in split_specs(list(texts)):
         try:
-            spec = TrackerSpec.parse(text)
+            spec = spec_type.parse(text)
             spec.make()  # refuses unknown names and parameters
         except (ValueError, KeyError, TypeError) as exc:
-            raise UsageError(f"tracker {text!r}: {_first_line(exc)}") from None
+            raise UsageError(f"{spec_type.kind} {text!r}: {_first_line(exc)}") from None
         specs.append(spec)
     labels = [s.label for s in specs]
     if len(set(labels)) != len(labels):
-        raise UsageError(f"a tracker is given more than once: {labels}")
+        raise UsageError(f"a {spec_type.kind} is given more than once: {labels}")
     return specs
+
+
+def resolve_trackers(texts: Sequence[str]) -> list[TrackerSpec]:
+    """Tracker specs, checked against the registry."""
+    return _resolve_specs(texts, TrackerSpec)
 
 
 def resolve_policies(texts: Sequence[str]) -> list[PolicySpec]:
-    specs = []
-    for text in split_specs(list(texts)):
-        try:
-            spec = PolicySpec.parse(text)
-            spec.make()
-        except (ValueError, KeyError, TypeError) as exc:
-            raise UsageError(f"policy {text!r}: {_first_line(exc)}") from None
-        specs.append(spec)
-    labels = [s.label for s in specs]
-    if len(set(labels)) != len(labels):
-        raise UsageError(f"a policy is given more than once: {labels}")
-    return specs
+    """Policy specs, checked against the registry."""
+    return _resolve_specs(texts, PolicySpec)
 
 
 def _int_list(texts: Sequence[str] | None, what: str, lo: int) -> list[int] | None:
