@@ -77,12 +77,19 @@ def fmt_pm(mean: float, half: float, scale: float = 1.0, fmt: str = ".3f") -> st
     """``mean ± half`` (scaled), ``–`` for a missing mean and ``± n/a`` for one seed."""
     if mean is None or (isinstance(mean, float) and math.isnan(mean)):
         return "–"
-    text = format(mean * scale, fmt)
+    text = _num(mean * scale, fmt)
     if half is None or (isinstance(half, float) and math.isnan(half)):
         return text + " ± n/a"
     # rounding noise of a constant (e.g. 4.99e-16) reads better as 0
     small = abs(half * scale) <= 1e-9 * max(abs(mean * scale), 1e-300)
-    return f"{text} ± {'0' if small else format(half * scale, fmt)}"
+    return f"{text} ± {'0' if small else _num(half * scale, fmt)}"
+
+
+def _num(x: float, fmt: str) -> str:
+    """``format(x, fmt)``; ``g`` formats keep their significant trailing zeros (1.00)."""
+    if fmt.endswith("g"):
+        return format(x, "#" + fmt).rstrip(".")
+    return format(x, fmt)
 
 
 # ----------------------------------------------------------------------- tables
