@@ -54,6 +54,7 @@ import pandas as pd
 import scenarios
 import trackers
 from benchmarks import figures
+from benchmarks.compare import package_versions
 from benchmarks.harness import PolicySpec, TrackerSpec, build_jobs, run_sweep
 from benchmarks.snapshot import trace_run
 from scenarios.spec import dumps
@@ -426,10 +427,13 @@ def main_reproduce(args: argparse.Namespace) -> int:
           f"{'from the cache' if res.cached else 'computed'})")
     ref_path = (Path(args.reference_csv) if args.reference_csv
                 else REFERENCE_DIR / f"paper_{setting.name}.csv")
+    versions_path = ref_path.with_suffix(".versions.json")
     if args.update_reference:
         ref_path.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(res.numbers_csv, ref_path)
-        print(f"reference updated: {ref_path} ({len(res.numbers)} numbers)")
+        versions_path.write_text(json.dumps(package_versions(), indent=2) + "\n")
+        print(f"reference updated: {ref_path} ({len(res.numbers)} numbers; versions in "
+              f"{versions_path.name})")
         return 0
     if not args.check:
         return 0
@@ -447,4 +451,12 @@ def main_reproduce(args: argparse.Namespace) -> int:
         print("  " + line, file=sys.stderr)
     if len(moved) > MAX_REPORTED:
         print(f"  ... and {len(moved) - MAX_REPORTED} more", file=sys.stderr)
+    if versions_path.exists():
+        then, now = json.loads(versions_path.read_text()), package_versions()
+        changed = [f"{k} {then.get(k)} -> {now.get(k)}" for k in sorted(set(then) | set(now))
+                   if then.get(k) != now.get(k)]
+        if changed:
+            print("  note: the reference was made with other versions: " + ", ".join(changed)
+                  + " (a different numpy/scipy can change results beyond the tolerance)",
+                  file=sys.stderr)
     return 1

@@ -50,6 +50,8 @@ def test_check_fails_naming_the_altered_number(cache, tmp_path, capsys):
     altered.loc[sel, "value"] *= 1 + 1e-6  # far beyond rtol 1e-9
     path = tmp_path / "altered.csv"
     altered.to_csv(path, index=False, float_format="%.17g")
+    # a reference made with another numpy: the failure message says so
+    path.with_suffix(".versions.json").write_text('{"numpy": "0.0"}')
     rc = _run(cache, tmp_path / "out", "--check", "--reference-csv", str(path))
     io = capsys.readouterr()
     assert rc == 1
@@ -57,6 +59,7 @@ def test_check_fails_naming_the_altered_number(cache, tmp_path, capsys):
     assert ("figure=error scenario=default tracker=gpf step=5 item=0 quantity=state_error"
             in io.err), io.err
     assert "1 number(s) differ" in io.err
+    assert "numpy 0.0 -> " in io.err
 
 
 def test_check_numbers_tolerance_and_missing_rows():
