@@ -151,11 +151,11 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
     }
     intro = [
         "Every tracker on the same simulated worlds (common random numbers: truth and sensor "
-        "returns depend only on scenario and seed). Default budget: 10 seeds, each scenario's "
-        "own length, JMPD at 1000 particles (plus a 250-particle setting), chosen so the default "
-        "command takes about one to two minutes on two cores; widen the intervals' basis with "
-        "`--seeds`, lengthen runs with `--steps`, choose trackers and parameters with "
-        "`--trackers name:key=value`.",
+        "returns depend only on scenario and seed); the settings of this report are listed "
+        "below. Without options `mttbench compare` runs a budget chosen to take about one to "
+        "two minutes on two cores: 10 seeds, each scenario's own length, JMPD at 1000 "
+        "particles (plus a 250-particle setting). Narrow the intervals with `--seeds`, lengthen "
+        "runs with `--steps`, choose trackers and parameters with `--trackers name:key=value`.",
     ]
     files = report.build_report(results, out, reference=reference, intro=intro,
                                 settings=settings, trace=trace)
