@@ -198,7 +198,7 @@ class Document:
                 data = base64.b64encode(Path(b[1]).read_bytes()).decode("ascii")
                 body.append(f'<figure><img alt="{html.escape(b[2])}" '
                             f'src="data:image/png;base64,{data}"/>'
-                            f"<figcaption>{html.escape(b[2])}</figcaption></figure>")
+                            f"<figcaption>{_inline(b[2])}</figcaption></figure>")
         return (
             "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"/>"
             f"<title>{html.escape(title)}</title><style>{_CSS}</style></head>"

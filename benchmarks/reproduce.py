@@ -37,10 +37,8 @@ The command then exits 1 and names every number that moved (up to ``MAX_REPORTED
 from __future__ import annotations
 
 import argparse
-import base64
 import dataclasses
 import hashlib
-import html
 import json
 import math
 import shutil
@@ -56,6 +54,7 @@ import trackers
 from benchmarks import figures
 from benchmarks.compare import package_versions
 from benchmarks.harness import PolicySpec, TrackerSpec, build_jobs, run_sweep
+from benchmarks.report import Document
 from benchmarks.snapshot import trace_run
 from scenarios.spec import dumps
 
@@ -314,46 +313,31 @@ def check_numbers(now: pd.DataFrame, reference: pd.DataFrame, rtol: float = RTOL
 # ---------------------------------------------------------------------- report
 def _write_report(out: Path, setting: Setting, specs: list[TrackerSpec], missing: list[str],
                   figs: list[tuple[Path, str]], failures: list[str], cached: bool) -> None:
-    lines = [
-        f"# Reproduction of the paper's result figures ({setting.name} setting)", "",
-        "Command: `mttbench reproduce paper" + (" --reduced" if setting.name == "reduced"
-                                                 else "") + "`.", "",
-        f"- scenarios: {', '.join(setting.scenarios)} ({setting.n_steps} steps)",
-        f"- trackers: {', '.join(s.label for s in specs)}"
-        + (f" (not registered, skipped: {', '.join(missing)})" if missing else ""),
-        f"- seeds: {', '.join(map(str, setting.seeds))}; snapshot: seed "
+    """``report.md`` and a self-contained ``report.html`` (figures embedded)."""
+    doc = Document()
+    doc.add("h1", f"Reproduction of the paper's result figures ({setting.name} setting)")
+    doc.add("p", "Command: `mttbench reproduce paper"
+            + (" --reduced" if setting.name == "reduced" else "") + "`.")
+    doc.add("list", [
+        f"scenarios: {', '.join(setting.scenarios)} ({setting.n_steps} steps)",
+        f"trackers: {', '.join(s.label for s in specs)}"
+        + (f" (not registered, left out: {', '.join(missing)})" if missing else ""),
+        f"seeds: {', '.join(map(str, setting.seeds))}; snapshot: seed "
         f"{setting.snapshot_seed}, steps {', '.join(map(str, setting.snapshot_steps))}",
-        f"- cell selection: {setting.policy} (24 looks per step); OSPA c = {setting.c:g}, "
-        f"p = {setting.p:g}",
-        f"- runs {'loaded from the cache' if cached else 'computed'}", "",
-    ]
+        f"cell selection: {setting.policy} (each scenario's 24 looks per step); OSPA "
+        f"c = {setting.c:g}, p = {setting.p:g}",
+        f"runs {'loaded from the cache' if cached else 'computed'}",
+    ])
     if failures:
-        lines += ["Runs that failed (excluded from the means):", ""]
-        lines += [f"- {f}" for f in failures] + [""]
-    lines += ["## Figures", ""]
+        doc.add("h2", "Runs that failed (excluded from the means)")
+        doc.add("list", failures)
+    doc.add("h2", "Figures")
     for path, caption in figs:
-        lines += [f"![{caption}]({path.name})", "", f"*{caption}*", ""]
-    lines += ["## Where our reading departs from the paper's text", ""]
-    lines += [f"{i}. {d}" for i, d in enumerate(DEPARTURES, 1)] + [""]
-    (out / "report.md").write_text("\n".join(lines))
-    body = []
-    for ln in lines:
-        if ln.startswith("# "):
-            body.append(f"<h1>{html.escape(ln[2:])}</h1>")
-        elif ln.startswith("## "):
-            body.append(f"<h2>{html.escape(ln[3:])}</h2>")
-        elif ln.startswith("!["):
-            fname = ln[ln.rindex("](") + 2:-1]
-            data = base64.b64encode((out / fname).read_bytes()).decode("ascii")
-            body.append(f'<img style="max-width:100%" alt="{html.escape(fname)}" '
-                        f'src="data:image/png;base64,{data}"/>')
-        elif ln:
-            body.append(f"<p>{html.escape(ln)}</p>")
-    (out / "report.html").write_text(
-        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"/>"
-        "<title>mttbench paper reproduction</title><style>body{font-family:system-ui,"
-        "sans-serif;max-width:1100px;margin:2em auto;padding:0 1em}</style></head><body>\n"
-        + "\n".join(body) + "\n</body></html>\n")
+        doc.add("figure", path, caption)
+    doc.add("h2", "Where our reading departs from the paper's text")
+    doc.add("list", DEPARTURES)
+    (out / "report.md").write_text(doc.markdown(out), encoding="utf-8")
+    (out / "report.html").write_text(doc.html("mttbench paper reproduction"), encoding="utf-8")
 
 
 # ------------------------------------------------------------------------ main
