@@ -319,9 +319,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_sweep_options(p, seeds_default=COMPARE_SEEDS, trackers_required=False)
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel worker processes (default: the number of CPUs)")
-    p.add_argument("--reference", default=COMPARE_REFERENCE, metavar="TRACKER",
+    p.add_argument("--reference", default=None, metavar="TRACKER",
                    help="tracker (name or label) that paired differences subtract "
-                        f"(default {COMPARE_REFERENCE})")
+                        f"(default {COMPARE_REFERENCE}, or the first tracker if it does not run)")
     p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser(

@@ -104,15 +104,16 @@ class CompareOutput:
 def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
                 tracker_texts: Sequence[str] | None = None, seeds: Sequence[int] | None = None,
                 steps: int | None = None, workers: int | None = None,
-                out_dir: str | Path | None = None, reference: str = COMPARE_REFERENCE,
+                out_dir: str | Path | None = None, reference: str | None = None,
                 progress: bool = True, resume: bool = False, c: float = 2.0, p: float = 2.0,
                 snapshot: bool = True, argv: Sequence[str] | None = None) -> CompareOutput:
     """Run the comparison and write the report folder (see the module docstring).
 
     ``tracker_texts`` None means :func:`default_tracker_texts`; ``seeds`` None means
     ``0..COMPARE_SEEDS-1``; ``workers`` None means the number of CPUs. ``reference`` is
-    a tracker label (``name`` or ``name(k=v)``); a bare name matches that tracker's
-    single setting. Raises :class:`benchmarks.cli.UsageError` on bad names.
+    a tracker label (``name`` or ``name(k=v)``; a bare name matches that tracker's first
+    setting); None means ``kfnn`` when it runs, else the first tracker. Raises
+    :class:`benchmarks.cli.UsageError` on bad names, including an unknown reference.
     """
     from benchmarks import cli  # cli imports this module; import lazily
 
@@ -121,7 +122,13 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
     scs = cli.resolve_scenarios(list(scenario_names), steps)
     texts = list(tracker_texts) if tracker_texts else default_tracker_texts()
     specs = cli.resolve_trackers(texts)
+    labels = [s.label for s in specs]
+    if reference is None:  # kfnn when it runs, else the first tracker
+        reference = _resolve_reference(COMPARE_REFERENCE, specs)
+        reference = reference if reference in labels else labels[0]
     reference = _resolve_reference(reference, specs)
+    if reference not in labels:
+        raise cli.UsageError(f"--reference {reference!r} is not one of the trackers {labels}")
     seeds = list(range(COMPARE_SEEDS)) if seeds is None else [int(s) for s in seeds]
     workers = workers or os.cpu_count() or 1
     out = Path(out_dir) if out_dir else Path("reports") / f"compare-{started:%Y%m%dT%H%M%SZ}"

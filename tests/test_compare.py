@@ -51,3 +51,18 @@ def test_reference_by_bare_name_picks_the_setting():
     assert compare._resolve_reference("kfnn", specs) == "kfnn"
     specs = [TrackerSpec("null"), TrackerSpec("kfnn", {"max_misses": 5})]
     assert compare._resolve_reference("kfnn", specs) == "kfnn(max_misses=5)"
+
+
+def test_unknown_reference_is_a_usage_error(tmp_path, capsys):
+    rc = main(["compare", "--scenarios", "default", "--trackers", "null", "--reference", "kfnn",
+               "--seeds", "1", "--steps", "2", "--out", str(tmp_path / "never"),
+               "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "--reference 'kfnn' is not one of the trackers" in err, err
+    assert "\n" not in err and not (tmp_path / "never").exists()
+
+
+def test_reference_defaults_to_the_first_tracker_without_kfnn(tmp_path):
+    res = compare.run_compare(["default"], ["null"], [0, 1], steps=2, workers=1,
+                              out_dir=tmp_path, progress=False, snapshot=False, argv=["x"])
+    assert res.manifest["reference"] == "null"
