@@ -38,6 +38,35 @@ def test_merge_rules_keep_weights_probabilities():
     assert len(merge_particles(w, m, P, 0.0)[0]) == 3
 
 
+def test_bounded_sum_merge_keeps_the_count():
+    """A particle joins a group (nearest first) only while the group's weight sum stays <= 1."""
+    m = np.array([[3.0, 0.1, 3.0, 0.0], [3.05, 0.1, 3.0, 0.0], [3.1, 0.1, 3.0, 0.0]])
+    P = np.stack([_cov()] * 3)
+    w = np.array([0.6, 0.5, 0.3])
+    wb, mb, Pb = merge_particles(w, m, P, 4.0, "bounded_sum")
+    # from 0.6: the nearest (0.5) would overflow, the next (0.3) fits -> {0.6, 0.3}, {0.5}
+    np.testing.assert_allclose(wb, [0.9, 0.5], atol=1e-15)
+    np.testing.assert_allclose(mb[0], (0.6 * m[0] + 0.3 * m[2]) / 0.9, atol=1e-12)
+    np.testing.assert_allclose(mb[1], m[1], atol=0)
+    assert merge_particles(w, m, P, 4.0, "capped_sum")[0] == pytest.approx([1.0])
+    # two certain, broad, overlapping particles are two targets: never merged
+    broad = np.stack([np.diag([12.0, 0.01, 12.0, 0.01])] * 2)
+    w2, _, _ = merge_particles(np.ones(2), m[:2] + [[0, 0, 0, 0], [4, 0, 0, 0]], broad, 4.0,
+                               "bounded_sum")
+    np.testing.assert_allclose(w2, [1.0, 1.0])
+    # random sets: the count is kept exactly and every weight stays a probability
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        k = int(rng.integers(2, 12))
+        wr = rng.uniform(0.0, 1.0, k)
+        A = rng.normal(size=(k, 4, 4))
+        Pr = A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(4)
+        wm, _, Pm = merge_particles(wr, rng.uniform(0.0, 3.0, (k, 4)), Pr, 4.0, "bounded_sum")
+        assert wm.sum() == pytest.approx(wr.sum(), abs=1e-12)
+        assert np.all(wm <= 1.0) and len(wm) <= k
+        assert np.linalg.eigvalsh(Pm).min() > 0
+
+
 def test_prune_cap_and_extraction_rules():
     sc = scenarios.get("default")
     rng = np.random.default_rng(0)

@@ -195,3 +195,20 @@ def test_uniform_candidate_alone_gets_the_bernoulli_posterior():
                       np.array([8]), np.array([8, 8]), np.array([True, False]), GRID, SENSOR)
     l = np.exp(SENSOR.log_likelihood_ratio(np.array([True, False]), np.array([1, 1])).sum())
     assert res.weights[0] == pytest.approx(u * l / (u * l + 1 - u), rel=1e-12)
+
+
+def test_cluster_components_equal_scipy_connected_components():
+    """The particle -- cell clustering gives the same partition as scipy's graph components."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from trackers.gpf_grid import _components
+
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        K, n_u, n_e = (int(v) for v in rng.integers(1, 25, 3))
+        part, cell = rng.integers(0, K, n_e), rng.integers(0, n_u, n_e)
+        graph = coo_matrix((np.ones(n_e), (part, K + cell)), shape=(K + n_u, K + n_u))
+        ref = connected_components(graph, directed=False)[1][:K]
+        got = _components(part, cell, K)
+        np.testing.assert_array_equal(ref[:, None] == ref[None, :], got[:, None] == got[None, :])

@@ -57,6 +57,7 @@ the field's ``u_c`` -- summed by :func:`trackers.cells.poisson_binomial`.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -70,6 +71,45 @@ from trackers.gpf_grid import grid_update
 from trackers.gpf_linear import superposition_update
 
 _POS = np.array([0, 2])
+_MERGE_RULES = ("bounded_sum", "capped_sum", "union")
+#: slack on "the group's weight sum stays <= 1" (float round-off of weights that are 1)
+_SUM_TOL = 1e-9
+
+
+@functools.lru_cache(maxsize=256)
+def _upper_pairs(K: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.triu_indices(K, 1)``, cached (the particle count repeats from step to step)."""
+    iu, ju = np.triu_indices(K, 1)
+    iu.flags.writeable = False
+    ju.flags.writeable = False
+    return iu, ju
+
+
+def _pair_distances(m: np.ndarray, P: np.ndarray, threshold: float) -> np.ndarray:
+    """``d2 (K, K)``: ``(mu_i - mu_j)^T (Sigma_i + Sigma_j)^-1 (mu_i - mu_j)`` where it can be
+    below ``threshold``, ``inf`` elsewhere (and on the diagonal).
+
+    The position-only form is a lower bound of the full one (a marginal's quadratic form never
+    exceeds the joint's), so it screens the pairs in closed form (2x2 inverse) and the 4x4
+    solve runs only on the pairs that pass.
+    """
+    K = len(m)
+    iu, ju = _upper_pairs(K)
+    diff = m[iu] - m[ju]  # (n_pairs, 4)
+    S = P[iu] + P[ju]
+    a, b, c = S[:, 0, 0], S[:, 0, 2], S[:, 2, 2]
+    dx, dy = diff[:, 0], diff[:, 2]
+    det = a * c - b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lower = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
+    cand = ~(lower >= threshold)  # NaN (degenerate) pairs go to the exact solve
+    d2 = np.full((K, K), np.inf)
+    if np.any(cand):
+        dc = diff[cand]
+        full = np.einsum("ka,ka->k", dc, np.linalg.solve(S[cand], dc[..., None])[..., 0])
+        d2[iu[cand], ju[cand]] = full
+        d2[ju[cand], iu[cand]] = full
+    return d2
 
 
 def merge_particles(w: np.ndarray, m: np.ndarray, P: np.ndarray, threshold: float,
@@ -78,41 +118,52 @@ def merge_particles(w: np.ndarray, m: np.ndarray, P: np.ndarray, threshold: floa
 
     Returns the merged ``w``, ``m``, ``P``; a group's Gaussian is the ``w``-weighted moment
     match ``m = sum w_j m_j / sum w_j``, ``P = sum w_j (P_j + (m_j - m)(m_j - m)^T) / sum w_j``.
+    Groups are formed from the heaviest remaining particle ``i`` (distances to the original
+    ``mu_i``, ``Sigma_i``); with ``"bounded_sum"`` the particles within the threshold join in
+    order of increasing distance, each only if the group's weight sum stays ``<= 1``.
     """
+    if rule not in _MERGE_RULES:
+        raise ValueError(f"merge_weight must be one of {_MERGE_RULES}, got {rule!r}")
     K = len(w)
     if K <= 1 or threshold <= 0:
         return w, m, P
     order = np.argsort(-w, kind="stable")
     w, m, P = w[order], m[order], P[order]
-    left = np.ones(K, dtype=bool)
-    out_w, out_m, out_P = [], [], []
+    close = _pair_distances(m, P, threshold)
+    label = np.full(K, -1)
+    out_w = []
     for i in range(K):
-        if not left[i]:
+        if label[i] >= 0:
             continue
-        idx = np.nonzero(left)[0]
-        diff = m[idx] - m[i]
-        d2 = np.einsum("ka,ka->k", diff, np.linalg.solve(P[idx] + P[i], diff[..., None])[..., 0])
-        grp = idx[d2 < threshold]
-        grp = np.union1d(grp, [i])
-        left[grp] = False
-        wg = w[grp]
-        tot = wg.sum()
-        if rule == "capped_sum":
-            out_w.append(min(1.0, tot))
-        elif rule == "union":
-            out_w.append(1.0 - np.prod(1.0 - wg))
+        g = len(out_w)
+        label[i] = g
+        grp = np.nonzero((close[i] < threshold) & (label < 0))[0]
+        if rule == "bounded_sum":
+            tot = w[i]
+            for j in grp[np.argsort(close[i, grp], kind="stable")]:
+                if tot + w[j] <= 1.0 + _SUM_TOL:
+                    label[j] = g
+                    tot += w[j]
+            out_w.append(min(tot, 1.0))
         else:
-            raise ValueError(f"merge_weight must be 'capped_sum' or 'union', got {rule!r}")
-        if len(grp) == 1 or tot <= 0:
-            out_m.append(m[i])
-            out_P.append(P[i])
-            continue
-        mean = wg @ m[grp] / tot
-        dev = m[grp] - mean
-        out_m.append(mean)
-        out_P.append((np.einsum("k,kab->ab", wg, P[grp])
-                      + np.einsum("k,ka,kb->ab", wg, dev, dev)) / tot)
-    return np.array(out_w), np.array(out_m).reshape(-1, 4), np.array(out_P).reshape(-1, 4, 4)
+            label[grp] = g
+            wg = w[label == g]
+            out_w.append(min(1.0, wg.sum()) if rule == "capped_sum"
+                         else 1.0 - np.prod(1.0 - wg))
+    n_g = len(out_w)
+    if n_g == K:
+        return np.array(out_w), m, P
+    # w-weighted moment match per group; a group of total weight 0 keeps its head's Gaussian
+    tot = np.bincount(label, weights=w, minlength=n_g)
+    head = np.unique(label, return_index=True)[1]  # the first member is the group's head
+    safe = np.where(tot > 0.0, tot, 1.0)
+    wn = np.where(tot[label] > 0.0, w / safe[label], (np.arange(K) == head[label]) * 1.0)
+    mean = np.zeros((n_g, 4))
+    np.add.at(mean, label, wn[:, None] * m)
+    dev = m - mean[label]
+    cov = np.zeros((n_g, 4, 4))
+    np.add.at(cov, label, wn[:, None, None] * (P + dev[:, :, None] * dev[:, None, :]))
+    return np.array(out_w), mean, cov
 
 
 @register

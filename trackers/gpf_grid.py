@@ -13,17 +13,18 @@ Single particle (no other particle shares its looked cells), with
     w'    = w L / (w L + 1 - w)                        (exact Bernoulli update)
     p(x | exists, z) = N(x; mu, Sigma) g(x) / L,  g = l_c in cell c, 1 elsewhere
 
-and the posterior Gaussian is the moment match of that density (law of total covariance
-over the bins). Clusters of particles that share a looked cell (each with occupancy
-probability ``w m_c`` above ``interaction_threshold``; connected components, so the cost
-grows with the cluster sizes, never with ``2^K``) are updated by enumerating
-combinations: every particle of the cluster picks one option -- absent (prior ``1 - w``),
-elsewhere (``w m_out``) or looked cell ``c`` (``w m_c``) -- the paper's ``E`` refined by the
-cell, which the grid needs because ``p_d(T)`` depends on the in-cell count ``T``. The
-combination likelihood is ``prod_c l_c(T_c)``; combinations with prior ``<= epsilon`` (or
-beyond ``max_combinations``) are dropped and the rest renormalised, and the dropped mass
-is reported. Particle ``i``'s posterior is then ``w_i' = P(i present | z)`` and, given
-presence, bin ``b`` with probability ``pi_b``, i.e. density ratio ``g_b = pi_b / m_b``.
+and the posterior Gaussian is the moment match of that density (law of total covariance over
+the bins). Clusters of particles that share a looked cell (each with occupancy probability
+``w m_c`` above ``interaction_threshold``; connected components of the particle -- cell
+graph, so the cost grows with the cluster sizes, never with ``2^K``) are updated by
+enumerating combinations: every particle of the cluster picks one option -- absent (prior
+``1 - w``), elsewhere (``w m_out``) or looked cell ``c`` (``w m_c``) -- the paper's ``E``
+refined by the cell, which the grid needs because ``p_d(T)`` depends on the in-cell count
+``T``. The combination likelihood is ``prod_c l_c(T_c)``; combinations with prior
+``<= epsilon`` (or beyond ``max_combinations``) are dropped and the rest renormalised, and the
+dropped mass is reported. Particle ``i``'s posterior is then ``w_i' = P(i present | z)``
+and, given presence, bin ``b`` with probability ``pi_b``, i.e. density ratio
+``g_b = pi_b / m_b``.
 
 Truncated moments: the position density is written ``p(px) p(py | px)`` (exact for any
 covariance); the ``py`` integral over ``[y0, y1)`` is closed form and the ``px`` integral is
@@ -45,8 +46,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.special import ndtr
 
 from scenarios.model import Grid, RayleighGridSensor
@@ -166,6 +165,30 @@ def look_log_ratios(sensor: RayleighGridSensor, cells: np.ndarray, returns: np.n
     return U, LL
 
 
+def _components(part: np.ndarray, cell: np.ndarray, K: int) -> np.ndarray:
+    """Connected components of the bipartite graph particle -- looked cell.
+
+    ``part (E,)`` particle index and ``cell (E,)`` looked-cell index of each edge. Returns a
+    label ``(K,)`` per particle (equal labels = same component; a particle without edges is
+    alone). Minimum-label propagation over the few edges (a cell joins to its smallest
+    particle, a particle to its smallest cell's label) until nothing changes; the loop runs
+    about the component diameter times, and no sparse matrix is built.
+    """
+    label = np.arange(K)
+    if len(part) == 0:
+        return label
+    cells, cidx = np.unique(cell, return_inverse=True)
+    while True:
+        cell_lab = np.full(len(cells), K)
+        np.minimum.at(cell_lab, cidx, label[part])
+        new = label.copy()
+        np.minimum.at(new, part, cell_lab[cidx])
+        new = new[new]  # pointer jumping: follow a label to its own label
+        if np.array_equal(new, label):
+            return label
+        label = new
+
+
 def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.ndarray,
                 cells: np.ndarray, returns: np.ndarray, grid: Grid,
                 sensor: RayleighGridSensor, epsilon: float = 1e-3,
@@ -232,10 +255,7 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     signif = (occ > interaction_threshold) | (~gauss[pi] & hit[pu])
     n_sig = np.bincount(pu[signif], minlength=n_u)
     link = signif & (n_sig[pu] >= 2)
-    graph = coo_matrix((np.ones(int(link.sum())), (pi[link], K + pu[link])),
-                       shape=(K + n_u, K + n_u))
-    _, label = connected_components(graph, directed=False)
-    plabel = label[:K]
+    plabel = _components(pi[link], pu[link], K)
     sizes = np.bincount(plabel)
     in_cluster = sizes[plabel] >= 2
     t_max = int(sizes[plabel].max()) if K else 1
