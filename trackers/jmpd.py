@@ -180,14 +180,15 @@ def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.n
     n_u = table.shape[0] - 1
     increments = np.zeros_like(table)
     increments[:, 1:] = np.diff(table, axis=1)
-    slot = slot_of_cell[c]
-    # only targets in looked cells contribute: work on those (a few per cent) alone
-    j, i = np.nonzero(slot != n_u)
+    # only targets in looked cells contribute: find those (a few per cent) with a
+    # one-byte lookup per slot, then work on them alone
+    looked = (slot_of_cell != n_u).view(np.uint8)
+    j, i = np.nonzero(np.take(looked, c, mode="clip"))
     cj = c[j, i]
     rank = np.ones(j.shape[0], dtype=np.int64)
     for k in range(c.shape[0] - 1):
         rank += (c[k, i] == cj) & (k < j)
-    contrib = increments.ravel()[slot[j, i] * n_counts + rank]
+    contrib = increments.ravel()[slot_of_cell[cj] * n_counts + rank]
     # an empty weighted bincount comes back as int64: force float
     return np.bincount(i, weights=contrib, minlength=c.shape[1]).astype(np.float64, copy=False)
 
@@ -370,6 +371,10 @@ class JMPDTracker(Tracker):
         self._X = np.empty((4, T, N))
         self._E = np.empty((4, T, N))
         self._valid = np.zeros((T, N), dtype=bool)
+        # resampling gathers into these and swaps (no fresh 16 MB arrays per step)
+        self._X_spare = np.empty((4, T, N))
+        self._valid_spare = np.empty((T, N), dtype=bool)
+        self._cells_buf = np.empty((T, N), dtype=np.int64)
         if self.initial_count is None:
             counts = np.minimum(rng.poisson(bd.initial_count_mean, size=N), T)
         else:
@@ -382,6 +387,7 @@ class JMPDTracker(Tracker):
         X[3] = rng.normal(0.0, self._bv, (T, N))
         self._counts = counts.astype(np.int64)
         self._logw = np.full(N, -math.log(N))
+        self._w = np.full(N, 1.0 / N)  # exp(self._logw), kept in step with it
         self._tmp = np.empty((T, N))
         self._ref: np.ndarray | None = None
         self.count_mean = float(counts.mean())
@@ -448,19 +454,20 @@ class JMPDTracker(Tracker):
         """Flat cell of every slot ``(t_max, N)`` int64; ``n_cells`` for empty slots."""
         X = self._X
         inv = 1.0 / self._grid.cell_size
-        np.multiply(X[0], inv, out=self._tmp)
-        ix = self._tmp.astype(np.int64)
-        np.multiply(X[2], inv, out=self._tmp)
-        cells = self._tmp.astype(np.int64)
+        tmp, cells = self._tmp, self._cells_buf
+        # positions are inside the workspace, so truncation (the unsafe cast) is floor
+        np.multiply(X[2], inv, out=tmp)
+        np.copyto(cells, tmp, casting="unsafe")
         cells *= self._grid.nx
-        cells += ix
-        cells[~self._valid] = self._n_cells
+        np.multiply(X[0], inv, out=tmp)
+        np.trunc(tmp, out=tmp)
+        np.add(cells, tmp, out=cells, casting="unsafe")
+        np.copyto(cells, self._n_cells, where=~self._valid)
         self._cells = cells
 
     # ------------------------------------------------------------- P_c(t)
     def cell_count_distribution(self) -> np.ndarray:
-        w = np.exp(self._logw)
-        return cell_count_distribution_from(self._cells.T, w, self._n_cells, self._T + 1)
+        return cell_count_distribution_from(self._cells.T, self._w, self._n_cells, self._T + 1)
 
     # ------------------------------------------------------------- update
     def update(self, looks: Looks) -> None:
@@ -480,23 +487,35 @@ class JMPDTracker(Tracker):
                                               sensor.H, sensor.R)
         if self.proposal == "ip" and isinstance(sensor, RayleighGridSensor):
             ll -= self._ip_correction
-        logw = self._logw
+        logw, w = self._logw, self._w
         logw += ll
-        logw -= logsumexp(logw)
+        # normalise: w = exp(logw - max) / sum, logw -= max + log(sum) (= logsumexp)
+        top = logw.max()
+        np.subtract(logw, top, out=w)
+        np.exp(w, out=w)
+        total = w.sum()
+        w /= total
+        logw -= top + math.log(total)
         self._maybe_resample()
 
     def _maybe_resample(self) -> None:
-        w = np.exp(self._logw)
+        w = self._w
         ess = 1.0 / np.dot(w, w)
         if ess >= self.resample_threshold * self._N:
             return
         idx = systematic_resample(w, self._rng.random())
-        # np.take keeps C order (fancy indexing on the last axis would not)
-        self._X = np.take(self._X, idx, axis=2)
-        self._valid = np.take(self._valid, idx, axis=1)
+        # one gather per array into the spare buffer, then swap; np.take keeps C order
+        # (fancy indexing on the last axis would not) and mode="clip" stops it from
+        # buffering the output (idx is in range by construction)
+        X, V = self._X_spare, self._valid_spare
+        np.take(self._X, idx, axis=2, out=X, mode="clip")
+        np.take(self._valid, idx, axis=1, out=V, mode="clip")
+        self._X_spare, self._X = self._X, X
+        self._valid_spare, self._valid = self._valid, V
         self._cells = None  # stale until the next predict recomputes it
         self._counts = self._counts[idx]
-        self._logw = np.full(self._N, -math.log(self._N))
+        self._logw.fill(-math.log(self._N))
+        w.fill(1.0 / self._N)
         self.n_resamples += 1
 
     def _align_to_reference(self) -> None:
@@ -563,7 +582,7 @@ class JMPDTracker(Tracker):
 
     # ------------------------------------------------------------- estimate
     def estimate(self) -> Estimate:
-        w = np.exp(self._logw)
+        w = self._w
         T = self._T
         pT = np.bincount(self._counts, weights=w, minlength=T + 1)
         pT /= pT.sum()
