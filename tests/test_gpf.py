@@ -160,3 +160,24 @@ def test_2000_steps_stay_finite_and_positive_definite(name):
             np.testing.assert_allclose(P, np.swapaxes(P, -1, -2), atol=1e-12)
             assert np.linalg.eigvalsh(P).min() > 0, k
         assert np.isfinite(t.estimate().count)
+
+
+def test_superposition_keeps_the_prior_count():
+    """Superposition: z is a mean, so the count must come from the prior weights and merging
+    must not lose it. The default (``auto`` -> ``bounded_sum`` here) keeps 2 for 2 targets;
+    ``capped_sum`` merges the two broad starting particles into one (count 1)."""
+    sc = dataclasses.replace(scenarios.get("superposition"), n_steps=20)
+    run = simulate(sc, 0)
+    counts = {}
+    for rule in ("auto", "capped_sum"):
+        t = trackers.make("gpf", merge_weight=rule)
+        t.reset(sc.model, np.random.default_rng(0))
+        counts[rule] = []
+        for k in range(sc.n_steps):
+            t.predict()
+            t.update(run.measure(k))
+            counts[rule].append(t.estimate().count)
+    np.testing.assert_allclose(counts["auto"], 2.0, atol=1e-9)
+    assert counts["capped_sum"][-1] == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="merge_weight"):
+        trackers.make("gpf", merge_weight="sum").reset(sc.model, np.random.default_rng(0))

@@ -286,39 +286,45 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     pair_start = np.searchsorted(pi, np.arange(K + 1))
     for lab in np.unique(plabel[in_cluster]):
         members = np.nonzero(plabel == lab)[0]
+        n = len(members)
         n_clusters += 1
-        max_cluster = max(max_cluster, len(members))
-        option_probs, option_cell = [], []
-        for i in members:
-            a, b = pair_start[i], pair_start[i + 1]
-            option_probs.append(np.concatenate([[1.0 - w[i], w[i] * mass_out[i]],
-                                                w[i] * mass[a:b]]))
-            option_cell.append(np.concatenate([[-1, -1], pu[a:b]]))
+        max_cluster = max(max_cluster, n)
+        # options per member, padded to (n, 2 + most pairs): absent, elsewhere, its cells
+        first, cnt = pair_start[members], pair_start[members + 1] - pair_start[members]
+        n_opt = 2 + int(cnt.max())
+        rows = np.repeat(np.arange(n), cnt)
+        cols = 2 + np.arange(len(rows)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        pidx = first[rows] + cols - 2  # the member's pairs, in pair order
+        wm = w[members]
+        option_probs = np.zeros((n, n_opt))
+        option_probs[:, 0] = 1.0 - wm
+        option_probs[:, 1] = wm * mass_out[members]
+        option_probs[rows, cols] = wm[rows] * mass[pidx]
+        option_cell = np.full((n, n_opt), -1)
+        option_cell[rows, cols] = pu[pidx]
         combs = enumerate_combinations(option_probs, epsilon, max_combinations)
         dropped += combs.dropped
         ch = combs.choice  # (C, n)
-        cell_of = np.full(ch.shape, -1)
-        for j in range(len(members)):
-            cell_of[:, j] = option_cell[j][ch[:, j]]
+        cell_of = option_cell[np.arange(n)[None, :], ch]
         # counts per looked cell in each combination, then sum_c LL[c, T_c]
         loc_cells, loc_idx = np.unique(cell_of[cell_of >= 0], return_inverse=True)
         counts = np.zeros((ch.shape[0], len(loc_cells)), dtype=np.int64)
-        rows = np.nonzero(cell_of >= 0)[0]
-        np.add.at(counts, (rows, loc_idx), 1)
+        crow = np.nonzero(cell_of >= 0)[0]
+        np.add.at(counts, (crow, loc_idx), 1)
         loglik = LL[loc_cells[None, :], counts].sum(axis=1)
         pc = log_normalise(combs.log_prior + loglik)  # (C,)
-        for j, i in enumerate(members):
-            post = np.bincount(ch[:, j], weights=pc, minlength=len(option_probs[j]))
-            present = 1.0 - post[0]
-            w_new[i] = present
-            if present <= 0.0:
-                continue
-            with np.errstate(divide="ignore", invalid="ignore"):
-                g = np.where(option_probs[j] > 0.0, post / present / (option_probs[j] / w[i]),
-                             0.0)
-            g_out[i] = g[1]
-            a, b = pair_start[i], pair_start[i + 1]
-            g_pair[a:b] = g[2:]
+        # posterior of every member's options: post[j, o] = sum_{C: choice_j = o} p(C | z)
+        post = np.bincount((np.arange(n)[None, :] * n_opt + ch).ravel(),
+                           weights=np.repeat(pc, n), minlength=n * n_opt).reshape(n, n_opt)
+        present = 1.0 - post[:, 0]
+        w_new[members] = present
+        ok = present > 0.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            g = np.where(option_probs > 0.0,
+                         post / present[:, None] / (option_probs / wm[:, None]), 0.0)
+        g[~ok] = 0.0
+        g_out[members] = np.where(ok, g[:, 1], g_out[members])
+        g_pair[pidx] = np.where(ok[rows], g[rows, cols], g_pair[pidx])
 
     # ---- moment match the Gaussian particles: density prior * g, g piecewise constant
     means, covs = m.copy(), P.copy()

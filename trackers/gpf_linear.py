@@ -76,14 +76,14 @@ class Combinations:
 _BLOCK = 64
 
 
-def enumerate_combinations(option_probs: list[np.ndarray], epsilon: float,
+def enumerate_combinations(option_probs: list[np.ndarray] | np.ndarray, epsilon: float,
                            max_combinations: int) -> Combinations:
     """All joint choices whose prior ``prod_k option_probs[k][choice_k]`` exceeds ``epsilon``.
 
     ``option_probs[k]`` is a 1-D array of the (non-negative, summing to 1) probabilities of
-    particle ``k``'s options. Particles are independent a priori, so a combination's prior
-    is the product; options of probability 0 are never chosen. At most ``max_combinations``
-    are kept: the most probable ones.
+    particle ``k``'s options (or one ``(K, n_options)`` array padded with zeros). Particles are
+    independent a priori, so a combination's prior is the product; options of probability 0 are
+    never chosen. At most ``max_combinations`` are kept: the most probable ones.
 
     Branch and bound, vectorised over partial choices: the particles are taken in blocks
     (consecutive particles whose joint option count is at most 64, listed in full); after
@@ -100,12 +100,15 @@ def enumerate_combinations(option_probs: list[np.ndarray], epsilon: float,
     if n == 0:
         return Combinations(np.zeros((1, 0), dtype=np.int64), np.zeros(1), 0.0)
     # pad to (n, n_opt_max), sort each row by decreasing probability (zeros last)
-    lens = np.array([len(p) for p in option_probs])
-    flat = np.concatenate([np.asarray(p, dtype=float).ravel() for p in option_probs])
-    row = np.repeat(np.arange(n), lens)
-    col = np.arange(len(flat)) - np.repeat(np.cumsum(lens) - lens, lens)
-    pad = np.zeros((n, int(lens.max())))
-    pad[row, col] = flat
+    if isinstance(option_probs, np.ndarray) and option_probs.ndim == 2:
+        pad = np.asarray(option_probs, dtype=float)  # already padded with zeros
+    else:
+        lens = np.array([len(p) for p in option_probs])
+        flat = np.concatenate([np.asarray(p, dtype=float).ravel() for p in option_probs])
+        row = np.repeat(np.arange(n), lens)
+        col = np.arange(len(flat)) - np.repeat(np.cumsum(lens) - lens, lens)
+        pad = np.zeros((n, int(lens.max())))
+        pad[row, col] = flat
     orders = np.argsort(-pad, axis=1, kind="stable")
     srt = np.take_along_axis(pad, orders, axis=1)
     n_pos = np.maximum((srt > 0.0).sum(axis=1), 1)
