@@ -350,12 +350,9 @@ class JMPDTracker(Tracker):
         self._width, self._height = model.grid.extent
         self._n_cells = model.grid.n_cells
         self._F = dyn.F
-        self._tau = float(dyn.tau)
         # L L^T = Q; the jitter admits Q = 0 (static targets)
         self._L = np.linalg.cholesky(dyn.Q + 1e-15 * np.eye(4))
         self._L[np.abs(self._L) < 1e-300] = 0.0
-        self._pairs = [(i, j, float(self._L[i, j])) for i in range(4) for j in range(i + 1)
-                       if self._L[i, j] != 0.0]
         rate = self.birth_rate
         if rate is None:
             rate = bd.birth_rate if bd.birth_rate > 0 else DEFAULT_BIRTH_RATE
@@ -368,11 +365,14 @@ class JMPDTracker(Tracker):
         self._bv = float(bd.birth_velocity_std)
 
         # component-major state (4, T, N) and the step's standard normals, same shape
-        self._X = np.empty((4, T, N))
-        self._E = np.empty((4, T, N))
+        # Two buffers (8, T, N): rows 0-3 the states, rows 4-7 the step's standard
+        # normals, so that the move x <- F x + L e is one (4, 8) @ (8, T N) product
+        # into the other buffer. Resampling also gathers into the other buffer; the
+        # two then swap (no fresh 16 MB arrays per step).
+        self._bufs = [np.empty((8, T, N)), np.empty((8, T, N))]
+        self._X = self._bufs[0][:4]
+        self._FL = np.hstack([dyn.F, self._L])
         self._valid = np.zeros((T, N), dtype=bool)
-        # resampling gathers into these and swaps (no fresh 16 MB arrays per step)
-        self._X_spare = np.empty((4, T, N))
         self._valid_spare = np.empty((T, N), dtype=bool)
         self._cells_buf = np.empty((T, N), dtype=np.int64)
         if self.initial_count is None:
@@ -398,26 +398,14 @@ class JMPDTracker(Tracker):
     # ------------------------------------------------------------- predict
     def predict(self) -> None:
         rng, N, T = self._rng, self._N, self._T
-        X, E, valid = self._X, self._E, self._valid
+        valid = self._valid
         # 1. deaths (Bernoulli per slot; empty slots "dying" changes nothing)
         dead = bernoulli_indices(rng, T * N, self._p_death)
         if dead.size:
             valid[np.divmod(dead, N)] = False
-        # 2. x <- F x + L e, with F = [[1, tau], [0, 1]] per axis
-        # F first (it reads the old velocities), then the noise L e
-        tmp = self._tmp
-        if self._tau == 1.0:
-            X[0] += X[1]
-            X[2] += X[3]
-        else:
-            np.multiply(X[1], self._tau, out=tmp)
-            X[0] += tmp
-            np.multiply(X[3], self._tau, out=tmp)
-            X[2] += tmp
-        rng.standard_normal(out=E)
-        for i, j, lij in self._pairs:  # x_i += L_ij e_j over the nonzeros of L
-            np.multiply(E[j], lij, out=tmp)
-            X[i] += tmp
+        # 2. x <- F x + L e
+        self._move()
+        X = self._X
         self._apply_boundary()
         # 3. births: at most one per particle, into its first free slot
         born = bernoulli_indices(rng, N, self._p_birth)
@@ -434,6 +422,31 @@ class JMPDTracker(Tracker):
         if self._ref is not None and len(self._ref):
             self._ref = self._ref @ self._F.T
         self._update_cells()
+
+    def _other_buffer(self) -> np.ndarray:
+        """The buffer not holding the states (the target of the next move/gather)."""
+        a, b = self._bufs
+        if self._X.base is not a:
+            if self._X.base is not b:  # replaced by a realignment: copy it home
+                a[:4] = self._X
+                self._X = a[:4]
+                return b
+            return a
+        return b
+
+    def _move(self) -> None:
+        """``x <- F x + L e`` for every slot as one matrix product.
+
+        ``e`` are ``4 T N`` standard normals from one ``standard_normal`` call, in
+        rows 4-7 of the buffer holding ``x``; ``[F | L] (4, 8)`` times that buffer
+        seen as ``(8, T N)`` goes into the other buffer's state rows.
+        """
+        out = self._other_buffer()
+        src = self._X.base
+        T, N = self._T, self._N
+        self._rng.standard_normal(out=src[4:])
+        np.matmul(self._FL, src.reshape(8, T * N), out=out[:4].reshape(4, T * N))
+        self._X = out[:4]
 
     def _apply_boundary(self) -> None:
         X, valid = self._X, self._valid
@@ -507,10 +520,10 @@ class JMPDTracker(Tracker):
         # one gather per array into the spare buffer, then swap; np.take keeps C order
         # (fancy indexing on the last axis would not) and mode="clip" stops it from
         # buffering the output (idx is in range by construction)
-        X, V = self._X_spare, self._valid_spare
+        X, V = self._other_buffer()[:4], self._valid_spare
         np.take(self._X, idx, axis=2, out=X, mode="clip")
         np.take(self._valid, idx, axis=1, out=V, mode="clip")
-        self._X_spare, self._X = self._X, X
+        self._X = X
         self._valid_spare, self._valid = self._valid, V
         self._cells = None  # stale until the next predict recomputes it
         self._counts = self._counts[idx]
