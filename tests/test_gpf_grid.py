@@ -212,3 +212,36 @@ def test_cluster_components_equal_scipy_connected_components():
         ref = connected_components(graph, directed=False)[1][:K]
         got = _components(part, cell, K)
         np.testing.assert_array_equal(ref[:, None] == ref[None, :], got[:, None] == got[None, :])
+
+
+@pytest.mark.parametrize("eps", [0.0, 1e-3, 0.05])
+def test_small_clusters_listed_together_equal_one_at_a_time(eps):
+    """The batched full listing of small clusters equals the per-cluster enumeration."""
+    from trackers.gpf_grid import _cluster_posterior, _small_clusters_posterior
+
+    rng = np.random.default_rng(int(eps * 1000) + 5)
+    sizes = [2, 3, 1, 4, 2]
+    n_opt, n_u = 5, 6
+    LL = np.column_stack([np.zeros(n_u), rng.normal(0.0, 2.0, (n_u, 4))])
+    probs, cells, cl = [], [], []
+    for c, size in enumerate(sizes):
+        for _ in range(size):
+            k = int(rng.integers(1, n_opt - 1))  # looked cells of this member
+            w = rng.uniform(0.05, 0.95)
+            mass = rng.dirichlet(np.ones(k + 1))
+            row = np.zeros(n_opt)
+            row[0], row[1], row[2:2 + k] = 1.0 - w, w * mass[0], w * mass[1:]
+            cell = np.full(n_opt, -1)
+            cell[2:2 + k] = rng.choice(n_u, k, replace=False)
+            probs.append(row), cells.append(cell), cl.append(c)
+    probs, cells, cl = np.array(probs), np.array(cells), np.array(cl)
+    n_pos = (probs > 0).sum(axis=1)
+    post, dropped = _small_clusters_posterior(probs, cells, cl, n_pos, LL, eps)
+    ref_dropped = 0.0
+    for c in range(len(sizes)):
+        sl = cl == c
+        ref, d = _cluster_posterior(probs[sl], cells[sl], LL, eps, 10**6)
+        np.testing.assert_allclose(post[sl], ref, rtol=1e-12, atol=1e-14)
+        ref_dropped += d
+    assert dropped == pytest.approx(ref_dropped, abs=1e-12)
+    np.testing.assert_allclose(post.sum(axis=1), 1.0, atol=1e-12)

@@ -209,3 +209,11 @@ def test_enumeration_epsilon_and_cap_drop_exactly_what_was_cut(eps):
     top = sorted(allc.values(), reverse=True)[:cap]
     np.testing.assert_allclose(np.exp(capped.log_prior), top, rtol=1e-12)
     assert capped.dropped == pytest.approx(1.0 - sum(top), abs=1e-12)
+
+
+def test_enumeration_keeps_the_most_probable_when_nothing_passes_epsilon():
+    probs = [np.array([0.5, 0.5])] * 4 + [np.array([0.3, 0.3, 0.4])]  # best prior 0.025
+    c = enumerate_combinations(probs, 0.1, 5)
+    assert len(c.choice) == 5
+    np.testing.assert_allclose(np.exp(c.log_prior), [0.025] * 5, rtol=1e-12)
+    assert c.dropped == pytest.approx(1.0 - 5 * 0.025, abs=1e-12)

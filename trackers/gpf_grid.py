@@ -43,6 +43,7 @@ cell without a detection only by the usual occupancy threshold.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -108,30 +109,40 @@ def rect_position_moments(mean_xy: np.ndarray, cov_xy: np.ndarray, x0: np.ndarra
 
 
 def rect_state_moments(means: np.ndarray, covs: np.ndarray, x0: np.ndarray, x1: np.ndarray,
-                       y0: np.ndarray, y1: np.ndarray
+                       y0: np.ndarray, y1: np.ndarray, owner: np.ndarray | None = None
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Like :func:`rect_position_moments` for full states ``means (N, 4)``, ``covs (N, 4, 4)``.
+    """Like :func:`rect_position_moments` for full states ``means (K, 4)``, ``covs (K, 4, 4)``.
 
-    Returns ``mass (N,)``, ``M1 (N, 4)`` and ``M2 (N, 4, 4)`` (centred on the mean), with
-    the velocity parts from the regression ``v - m_v = B (p - m_p) + e``:
-    ``M1_v = B m1``, ``M2_pv = m2 B^T``, ``M2_vv = B m2 B^T + mass (S_vv - B S_pv)``.
+    ``owner (N,)``: the Gaussian (row of ``means``) of each of the ``N`` rectangles (default:
+    rectangle ``k`` belongs to Gaussian ``k``, ``N = K``). Returns ``mass (N,)``, ``M1 (N, 4)``
+    and ``M2 (N, 4, 4)`` (centred on the owner's mean), with the velocity parts from the
+    regression ``v - m_v = B (p - m_p) + e`` (``B = S_vp S_pp^-1`` and ``S_vv - B S_pv``
+    computed once per Gaussian, closed-form 2x2 inverse): ``M1_v = B m1``,
+    ``M2_pv = m2 B^T``, ``M2_vv = B m2 B^T + mass (S_vv - B S_pv)``.
     """
-    Spp = covs[:, _POS][:, :, _POS]
-    Svp = covs[:, _VEL][:, :, _POS]
-    Svv = covs[:, _VEL][:, :, _VEL]
-    mass, m1, m2 = rect_position_moments(means[:, _POS], Spp, x0, x1, y0, y1)
-    B = np.linalg.solve(Spp, np.swapaxes(Svp, -1, -2)).swapaxes(-1, -2)  # S_vp S_pp^-1
-    resid = Svv - B @ np.swapaxes(Svp, -1, -2)
-    Bt = np.swapaxes(B, -1, -2)
+    if owner is None:
+        owner = np.arange(len(means))
+    Spp = covs[:, 0::2, 0::2]  # positions are state entries 0, 2; velocities 1, 3
+    Svp = covs[:, 1::2, 0::2]
+    a, b, c = Spp[:, 0, 0], Spp[:, 0, 1], Spp[:, 1, 1]
+    det = a * c - b * b
+    inv = np.empty_like(Spp)
+    inv[:, 0, 0], inv[:, 1, 1] = c / det, a / det
+    inv[:, 0, 1] = inv[:, 1, 0] = -b / det
+    B = Svp @ inv  # (K, 2, 2)
+    resid = covs[:, 1::2, 1::2] - B @ np.swapaxes(Svp, -1, -2)
+    mass, m1, m2 = rect_position_moments(means[owner][:, 0::2], Spp[owner], x0, x1, y0, y1)
+    Bo = B[owner]
+    Bt = np.swapaxes(Bo, -1, -2)
     M1 = np.empty((len(mass), 4))
-    M1[:, _POS] = m1
-    M1[:, _VEL] = (B @ m1[..., None])[..., 0]
+    M1[:, 0::2] = m1
+    M1[:, 1::2] = (Bo @ m1[..., None])[..., 0]
     M2 = np.empty((len(mass), 4, 4))
     pv = m2 @ Bt
-    M2[:, _POS[:, None], _POS[None, :]] = m2
-    M2[:, _POS[:, None], _VEL[None, :]] = pv
-    M2[:, _VEL[:, None], _POS[None, :]] = np.swapaxes(pv, -1, -2)
-    M2[:, _VEL[:, None], _VEL[None, :]] = B @ m2 @ Bt + mass[:, None, None] * resid
+    M2[:, 0::2, 0::2] = m2
+    M2[:, 0::2, 1::2] = pv
+    M2[:, 1::2, 0::2] = np.swapaxes(pv, -1, -2)
+    M2[:, 1::2, 1::2] = Bo @ m2 @ Bt + mass[:, None, None] * resid[owner]
     return mass, M1, M2
 
 
@@ -189,6 +200,91 @@ def _components(part: np.ndarray, cell: np.ndarray, K: int) -> np.ndarray:
         label = new
 
 
+#: clusters with at most this many joint option choices are listed in full, all together
+_FULL_LISTING = 4096
+
+
+def _cluster_posterior(option_probs: np.ndarray, option_cell: np.ndarray, LL: np.ndarray,
+                       epsilon: float, max_combinations: int) -> tuple[np.ndarray, float]:
+    """One cluster by :func:`enumerate_combinations`: ``option_probs``, ``option_cell`` are
+    ``(n, O)`` (cell ``-1`` = not in a looked cell); returns ``post (n, O)``, the posterior
+    probability of each member's options, and the dropped prior mass."""
+    n, n_opt = option_probs.shape
+    combs = enumerate_combinations(option_probs, epsilon, max_combinations)
+    ch = combs.choice  # (C, n)
+    cell_of = option_cell[np.arange(n)[None, :], ch]
+    # counts per looked cell in each combination, then sum_c LL[c, T_c]
+    loc_cells, loc_idx = np.unique(cell_of[cell_of >= 0], return_inverse=True)
+    counts = np.zeros((ch.shape[0], len(loc_cells)), dtype=np.int64)
+    np.add.at(counts, (np.nonzero(cell_of >= 0)[0], loc_idx), 1)
+    loglik = LL[loc_cells[None, :], counts].sum(axis=1)
+    pc = log_normalise(combs.log_prior + loglik)  # (C,)
+    # post[j, o] = sum over combinations with choice_j = o of p(C | z)
+    post = np.bincount((np.arange(n)[None, :] * n_opt + ch).ravel(),
+                       weights=np.repeat(pc, n), minlength=n * n_opt).reshape(n, n_opt)
+    return post, combs.dropped
+
+
+def _small_clusters_posterior(option_probs: np.ndarray, option_cell: np.ndarray,
+                              cl: np.ndarray, n_pos: np.ndarray, LL: np.ndarray,
+                              epsilon: float) -> tuple[np.ndarray, float]:
+    """Several clusters at once, each listing all its joint choices (few: the cap never binds).
+
+    ``option_probs``, ``option_cell (M, O)`` for the members of all the clusters, grouped by
+    cluster (``cl (M,)`` non-decreasing), ``n_pos (M,)`` options of positive probability.
+    Combination ``r`` of a cluster picks, for member ``j``, its positive option number
+    ``(r // stride_j) % n_pos_j`` (mixed radix, ``stride_j`` = product of ``n_pos`` of the
+    later members). Combinations with prior ``<= epsilon`` are dropped as in
+    :func:`enumerate_combinations` (if none passes, the cluster keeps them all). Returns
+    ``post (M, O)`` and the total dropped prior mass.
+    """
+    M, n_opt = option_probs.shape
+    # positive options first, in their original order
+    pos_opt = np.argsort(option_probs <= 0.0, axis=1, kind="stable")
+    stride = np.empty(M, dtype=np.int64)
+    cl_l, np_l = cl.tolist(), n_pos.tolist()
+    size = {}
+    acc = 1
+    for r in range(M - 1, -1, -1):  # suffix products within each cluster (integers)
+        if r == M - 1 or cl_l[r + 1] != cl_l[r]:
+            acc = 1
+        stride[r] = acc
+        acc *= np_l[r]
+        size[cl_l[r]] = acc
+    _, cidx = np.unique(cl, return_inverse=True)  # clusters numbered 0..G-1
+    n_comb = np.array([size[c] for c in dict.fromkeys(cl_l)], dtype=np.int64)  # (G,)
+    comb_start = np.cumsum(n_comb) - n_comb
+    comb_cl = np.repeat(np.arange(len(n_comb)), n_comb)
+    # one entry per (combination, member of its cluster)
+    per_member = n_comb[cidx]
+    member = np.repeat(np.arange(M), per_member)
+    r_local = np.arange(len(member)) - np.repeat(np.cumsum(per_member) - per_member, per_member)
+    comb = comb_start[cidx[member]] + r_local
+    opt = pos_opt[member, (r_local // stride[member]) % n_pos[member]]
+    with np.errstate(divide="ignore"):
+        lp = np.bincount(comb, weights=np.log(option_probs[member, opt]),
+                         minlength=len(comb_cl))
+    keep = lp > (math.log(epsilon) if epsilon > 0 else -math.inf)
+    kept_any = np.bincount(comb_cl, weights=keep, minlength=len(n_comb)) > 0
+    keep |= ~kept_any[comb_cl]
+    prior = np.where(keep, np.exp(lp), 0.0)
+    dropped = float(np.maximum(1.0 - np.bincount(comb_cl, weights=prior), 0.0).sum())
+    # sum_c LL[c, T_c]: count each looked cell's occupants per combination
+    n_u = LL.shape[0]
+    cell = option_cell[member, opt]
+    hit = (cell >= 0) & keep[comb]
+    key, t_count = np.unique(comb[hit] * n_u + cell[hit], return_counts=True)
+    loglik = np.bincount(key // n_u, weights=LL[key % n_u, t_count], minlength=len(comb_cl))
+    log_post = np.where(keep, lp + loglik, -np.inf)
+    top = np.full(len(n_comb), -np.inf)
+    np.maximum.at(top, comb_cl, log_post)
+    e = np.exp(log_post - top[comb_cl])
+    pc = e / np.bincount(comb_cl, weights=e)[comb_cl]
+    post = np.bincount(member * n_opt + opt, weights=pc[comb],
+                       minlength=M * n_opt).reshape(M, n_opt)
+    return post, dropped
+
+
 def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.ndarray,
                 cells: np.ndarray, returns: np.ndarray, grid: Grid,
                 sensor: RayleighGridSensor, epsilon: float = 1e-3,
@@ -223,9 +319,8 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
             & (uy[None] >= iy_lo[:, None]) & (uy[None] <= iy_hi[:, None]) & gauss[:, None])
     pi_g, pu_g = np.nonzero(near)
     x0, x1, y0, y1 = grid.cell_bounds(U[pu_g])
-    mass_g, M1_g, M2_g = rect_state_moments(m[pi_g], P[pi_g], x0.astype(float),
-                                            x1.astype(float), y0.astype(float),
-                                            y1.astype(float))
+    mass_g, M1_g, M2_g = rect_state_moments(m, P, x0.astype(float), x1.astype(float),
+                                            y0.astype(float), y1.astype(float), owner=pi_g)
     keep = mass_g > 1e-12
     pi_g, pu_g, mass_g, M1_g, M2_g = pi_g[keep], pu_g[keep], mass_g[keep], M1_g[keep], M2_g[keep]
     # uniform particles: one pair, mass 1 (their moments are never used)
@@ -283,47 +378,50 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     # multi-particle clusters: enumerate combinations
     dropped = 0.0
     n_clusters, max_cluster = 0, 0
-    pair_start = np.searchsorted(pi, np.arange(K + 1))
-    for lab in np.unique(plabel[in_cluster]):
-        members = np.nonzero(plabel == lab)[0]
-        n = len(members)
-        n_clusters += 1
-        max_cluster = max(max_cluster, n)
-        # options per member, padded to (n, 2 + most pairs): absent, elsewhere, its cells
-        first, cnt = pair_start[members], pair_start[members + 1] - pair_start[members]
+    mem = np.nonzero(in_cluster)[0]
+    if len(mem):
+        mem = mem[np.argsort(plabel[mem], kind="stable")]  # grouped by cluster
+        _, cl, csize = np.unique(plabel[mem], return_inverse=True, return_counts=True)
+        n_clusters, max_cluster = len(csize), int(csize.max())
+        M = len(mem)
+        # options per member, padded to (M, 2 + most pairs): absent, elsewhere, its cells
+        pair_start = np.searchsorted(pi, np.arange(K + 1))
+        first, cnt = pair_start[mem], pair_start[mem + 1] - pair_start[mem]
         n_opt = 2 + int(cnt.max())
-        rows = np.repeat(np.arange(n), cnt)
+        rows = np.repeat(np.arange(M), cnt)
         cols = 2 + np.arange(len(rows)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
         pidx = first[rows] + cols - 2  # the member's pairs, in pair order
-        wm = w[members]
-        option_probs = np.zeros((n, n_opt))
+        wm = w[mem]
+        option_probs = np.zeros((M, n_opt))
         option_probs[:, 0] = 1.0 - wm
-        option_probs[:, 1] = wm * mass_out[members]
+        option_probs[:, 1] = wm * mass_out[mem]
         option_probs[rows, cols] = wm[rows] * mass[pidx]
-        option_cell = np.full((n, n_opt), -1)
+        option_cell = np.full((M, n_opt), -1)
         option_cell[rows, cols] = pu[pidx]
-        combs = enumerate_combinations(option_probs, epsilon, max_combinations)
-        dropped += combs.dropped
-        ch = combs.choice  # (C, n)
-        cell_of = option_cell[np.arange(n)[None, :], ch]
-        # counts per looked cell in each combination, then sum_c LL[c, T_c]
-        loc_cells, loc_idx = np.unique(cell_of[cell_of >= 0], return_inverse=True)
-        counts = np.zeros((ch.shape[0], len(loc_cells)), dtype=np.int64)
-        crow = np.nonzero(cell_of >= 0)[0]
-        np.add.at(counts, (crow, loc_idx), 1)
-        loglik = LL[loc_cells[None, :], counts].sum(axis=1)
-        pc = log_normalise(combs.log_prior + loglik)  # (C,)
-        # posterior of every member's options: post[j, o] = sum_{C: choice_j = o} p(C | z)
-        post = np.bincount((np.arange(n)[None, :] * n_opt + ch).ravel(),
-                           weights=np.repeat(pc, n), minlength=n * n_opt).reshape(n, n_opt)
+        n_pos = np.maximum((option_probs > 0.0).sum(axis=1), 1)
+        # clusters with few joint choices (at most the cap) are listed in full, all at once
+        log_size = np.bincount(cl, weights=np.log(n_pos))
+        small = log_size <= math.log(min(max_combinations, _FULL_LISTING)) + 1e-9
+        post = np.zeros((M, n_opt))
+        cstart = np.cumsum(csize) - csize
+        for c in np.nonzero(~small)[0]:
+            sl = slice(cstart[c], cstart[c] + csize[c])
+            post[sl], d = _cluster_posterior(option_probs[sl], option_cell[sl], LL, epsilon,
+                                             max_combinations)
+            dropped += d
+        sm = np.nonzero(small[cl])[0]
+        if len(sm):
+            post[sm], d = _small_clusters_posterior(option_probs[sm], option_cell[sm], cl[sm],
+                                                    n_pos[sm], LL, epsilon)
+            dropped += d
         present = 1.0 - post[:, 0]
-        w_new[members] = present
+        w_new[mem] = present
         ok = present > 0.0
         with np.errstate(divide="ignore", invalid="ignore"):
             g = np.where(option_probs > 0.0,
                          post / present[:, None] / (option_probs / wm[:, None]), 0.0)
         g[~ok] = 0.0
-        g_out[members] = np.where(ok, g[:, 1], g_out[members])
+        g_out[mem] = np.where(ok, g[:, 1], g_out[mem])
         g_pair[pidx] = np.where(ok[rows], g[rows, cols], g_pair[pidx])
 
     # ---- moment match the Gaussian particles: density prior * g, g piecewise constant

@@ -94,7 +94,9 @@ def enumerate_combinations(option_probs: list[np.ndarray] | np.ndarray, epsilon:
     are carried on (each has a completion that reaches its bound, so a dropped partial
     cannot hold one of the ``max_combinations`` most probable combinations; ties are broken
     arbitrarily). The result is exactly the set the threshold and the cap define, listed in
-    decreasing prior; the work is about ``C * 64`` per block, independent of ``2^K``.
+    decreasing prior (if no combination exceeds ``epsilon``, the ``max_combinations`` most
+    probable ones instead, so that a posterior always exists); the work is about ``C * 64``
+    per block, independent of ``2^K``.
     """
     n = len(option_probs)
     if n == 0:
@@ -138,6 +140,9 @@ def enumerate_combinations(option_probs: list[np.ndarray] | np.ndarray, epsilon:
         ranks[:, start:stop] = blk[opt]
         lp = cand[keep]
         start = stop
+    if len(lp) == 0 and log_eps > -math.inf:
+        # nothing passes epsilon (many particles, none nearly certain): keep the cap's worth
+        return enumerate_combinations(option_probs, 0.0, max_combinations)
     # decreasing prior; ties in the order of the ranks (as a best-first search lists them)
     order = np.lexsort(tuple(ranks[:, j] for j in range(n - 1, -1, -1)) + (-lp,))
     ranks, lp = ranks[order], lp[order]
