@@ -6,7 +6,7 @@ VENV   ?= .venv
 BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.installed
 
-.PHONY: test compare bench lint clean
+.PHONY: test compare bench bench-check reproduce lint clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -16,12 +16,21 @@ $(STAMP): pyproject.toml
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -n 2 -q
+	$(BIN)/python -m pytest -q benchmarks/bench --benchmark-disable
 
 compare: $(STAMP)
 	$(BIN)/mttbench compare
 
 bench: $(STAMP)
 	$(BIN)/python -m pytest benchmarks/bench --benchmark-only
+
+bench-check: $(STAMP)
+	$(BIN)/python -m pytest benchmarks/bench --benchmark-only \
+	    --benchmark-storage=.benchmarks/baseline --benchmark-compare=0001 \
+	    --benchmark-compare-fail=min:150%
+
+reproduce: $(STAMP)
+	$(BIN)/mttbench reproduce paper
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
