@@ -78,6 +78,25 @@ def test_grid_log_likelihood_equals_loop(seed):
     assert any(np.bincount(row[row < n_cells]).max() >= 3 for row in cells)
 
 
+@pytest.mark.parametrize("looked", [[0, 0, 7, 20], [0, 1, 1, 2, 3, 3, 9]])
+def test_grid_log_likelihood_sparse_and_dense_paths_equal_loop(looked):
+    """The kernel switches to whole-array rank compares when more than a quarter of
+    the slots sit in looked cells; both branches against the loop."""
+    rng = np.random.default_rng(11)
+    n_cells, t_max = 30, 5
+    sensor = RayleighGridSensor(p_d=0.5, snr=10.0)
+    cells, _ = _random_particles(rng, 300, t_max, n_cells)  # targets in cells 0..3
+    look_cells = np.array(looked)
+    returns = rng.random(look_cells.size) < 0.5
+    slot_of_cell, table = grid_log_likelihood_tables(sensor, look_cells, returns, n_cells, t_max)
+    frac = np.isin(cells, look_cells).mean()
+    assert (frac > 0.25) == (len(looked) > 4)  # one case per branch
+    fast = grid_log_likelihood(cells, slot_of_cell, table)
+    slow = _loop_log_likelihood(cells, n_cells, sensor, look_cells, returns)
+    assert fast.dtype == np.float64
+    assert np.max(np.abs(fast - slow)) < EXACT
+
+
 def test_tracker_update_weights_equal_loop():
     """The tracker's own path (positions -> cells -> weights) against the loop."""
     model = TrackingModel(Grid(3, 2), Dynamics(wna_intensity=1e-3),

@@ -180,14 +180,24 @@ def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.n
     n_u = table.shape[0] - 1
     increments = np.zeros_like(table)
     increments[:, 1:] = np.diff(table, axis=1)
-    # only targets in looked cells contribute: find those (a few per cent) with a
-    # one-byte lookup per slot, then work on them alone
     looked = (slot_of_cell != n_u).view(np.uint8)
-    j, i = np.nonzero(np.take(looked, c, mode="clip"))
+    hit = np.take(looked, c, mode="clip")
+    n_hit = int(np.count_nonzero(hit))
+    if 4 * n_hit > hit.size:
+        # dense (particles gathered on looked cells): contiguous row compares beat
+        # gathers; rank[j] = 1 + #{k < j: same cell}, for every slot
+        rank = _ranks(c)
+        key = np.take(slot_of_cell, c, mode="clip")
+        key *= n_counts
+        key += rank
+        return np.take(increments.ravel(), key).sum(axis=0)
+    # sparse (the usual case: a few per cent of the slots are looked at): work on
+    # the looked slots alone
+    j, i = np.nonzero(hit)
     cj = c[j, i]
     rank = np.ones(j.shape[0], dtype=np.int64)
     for k in range(c.shape[0] - 1):
-        rank += (c[k, i] == cj) & (k < j)
+        rank += (c[k].take(i) == cj) & (k < j)
     contrib = increments.ravel()[slot_of_cell[cj] * n_counts + rank]
     # an empty weighted bincount comes back as int64: force float
     return np.bincount(i, weights=contrib, minlength=c.shape[1]).astype(np.float64, copy=False)
