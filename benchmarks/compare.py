@@ -34,13 +34,16 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pandas as pd
 
 import trackers
-from benchmarks import report, summary
+from benchmarks import summary
 from benchmarks.harness import PolicySpec, TrackerSpec, build_jobs, run_sweep
+
+if TYPE_CHECKING:
+    from benchmarks.report import ReportFiles
 
 COMPARE_SCENARIOS = ("default", "crossing", "births", "paper")
 COMPARE_SEEDS = 10
@@ -97,7 +100,7 @@ def git_commit(where: Path | None = None) -> dict[str, Any]:
 class CompareOutput:
     results: pd.DataFrame
     out_dir: Path
-    files: report.ReportFiles
+    files: ReportFiles
     manifest: dict[str, Any]
 
 
@@ -164,6 +167,8 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
         "particles (plus a 250-particle setting). Narrow the intervals with `--seeds`, lengthen "
         "runs with `--steps`, choose trackers and parameters with `--trackers name:key=value`.",
     ]
+    from benchmarks import report  # matplotlib: imported only when a report is drawn
+
     files = report.build_report(results, out, reference=reference, intro=intro,
                                 settings=settings, trace=trace)
     wall = time.perf_counter() - t0
