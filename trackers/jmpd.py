@@ -326,7 +326,10 @@ class JMPDTracker(Tracker):
     ``DEFAULT_BIRTH_RATE``); ``death_probability`` (per target and step, None:
     ``1 - p_s`` or ``DEFAULT_DEATH_PROBABILITY``); ``resample_threshold`` (resample
     when ESS < threshold * N); ``proposal`` "bootstrap" or "ip"; ``initial_count``
-    (None: Poisson prior; an int: every particle starts with that many targets).
+    (None: Poisson prior; an int: every particle starts with that many targets);
+    ``move_steps`` Metropolis-Hastings sweeps after each resampling (0: none, the
+    plain bootstrap; bootstrap proposal only) with proposal covariance
+    ``move_scale^2 Q`` (module docstring, "Resample-move").
     """
 
     name = "jmpd"
@@ -336,7 +339,8 @@ class JMPDTracker(Tracker):
                  birth_rate: float | None = None, death_probability: float | None = None,
                  resample_threshold: float = 0.5,
                  proposal: Literal["bootstrap", "ip"] = "bootstrap",
-                 initial_count: int | None = None) -> None:
+                 initial_count: int | None = None, move_steps: int = 0,
+                 move_scale: float = 1.0) -> None:
         self.n_particles = n_particles
         self.t_max = t_max
         self.birth_rate = birth_rate
@@ -344,6 +348,8 @@ class JMPDTracker(Tracker):
         self.resample_threshold = resample_threshold
         self.proposal = proposal
         self.initial_count = initial_count
+        self.move_steps = move_steps
+        self.move_scale = move_scale
 
     # ------------------------------------------------------------- views
     @property
@@ -367,6 +373,11 @@ class JMPDTracker(Tracker):
             raise ValueError(f"proposal must be 'bootstrap' or 'ip', got {self.proposal!r}")
         if int(self.n_particles) < 1 or int(self.t_max) < 1:
             raise ValueError("n_particles and t_max must be >= 1")
+        if int(self.move_steps) < 0 or not float(self.move_scale) > 0.0:
+            raise ValueError("move_steps must be >= 0 and move_scale > 0")
+        if int(self.move_steps) > 0 and self.proposal != "bootstrap":
+            raise ValueError("move_steps > 0 needs proposal='bootstrap' (the IP exchange "
+                             "does not keep each slot's parent state)")
         N, T = int(self.n_particles), int(self.t_max)
         self._model, self._rng, self._N, self._T = model, rng, N, T
         bd, dyn = model.birth_death, model.dynamics
@@ -417,6 +428,14 @@ class JMPDTracker(Tracker):
         self.count_mean = float(counts.mean())
         self.count_probabilities = np.bincount(counts, minlength=T + 1) / N
         self.n_resamples = 0
+        # resample-move: where the current states' parents and noises live (None: no
+        # predict since the last reset), the slots that may move, the current step's
+        # likelihood inputs, and acceptance counters
+        self._parents: np.ndarray | None = None
+        self._movable = np.zeros((T, N), dtype=bool)
+        self._lik: tuple | None = None
+        self.move_proposed = 0
+        self.move_accepted = 0
         self._update_cells()
 
     # ------------------------------------------------------------- predict
@@ -431,6 +450,11 @@ class JMPDTracker(Tracker):
         self._move()
         X = self._X
         self._apply_boundary()
+        if self.move_steps > 0:
+            # the buffer the move read: rows 0-3 x_{k-1}, rows 4-7 this step's e; the
+            # survivors (not the births below) may be moved after a resampling
+            self._parents = self._other_buffer()
+            np.copyto(self._movable, valid)
         # 3. births: at most one per particle, into its first free slot
         born = bernoulli_indices(rng, N, self._p_birth)
         if born.size:
@@ -514,6 +538,7 @@ class JMPDTracker(Tracker):
                 return
             slot_of_cell, table = grid_log_likelihood_tables(
                 sensor, looks.cells, looks.returns, self._n_cells, self._T)
+            self._lik = (slot_of_cell, table)
             if self.proposal == "ip":
                 self._ip_partitions(slot_of_cell, table)
             ll = grid_log_likelihood(self._cells.T, slot_of_cell, table)
@@ -522,6 +547,7 @@ class JMPDTracker(Tracker):
                 return
             ll = superposition_log_likelihood(self.states, self.mask, np.asarray(looks.z),
                                               sensor.H, sensor.R)
+            self._lik = (np.asarray(looks.z), sensor.H, sensor.R)
         if self.proposal == "ip" and isinstance(sensor, RayleighGridSensor):
             ll -= self._ip_correction
         logw, w = self._logw, self._w
@@ -533,14 +559,21 @@ class JMPDTracker(Tracker):
         total = w.sum()
         w /= total
         logw -= top + math.log(total)
-        self._maybe_resample()
+        self._maybe_resample(ll)
 
-    def _maybe_resample(self) -> None:
+    def _maybe_resample(self, ll: np.ndarray) -> None:
+        """Resample when the ESS is low; ``ll (N,)`` the current states' log-likelihoods
+        (used by the resample-move step)."""
         w = self._w
         ess = 1.0 / np.dot(w, w)
         if ess >= self.resample_threshold * self._N:
             return
         idx = systematic_resample(w, self._rng.random())
+        move = self.move_steps > 0 and self._parents is not None
+        if move:
+            # before the states' gather below overwrites the buffer the parents sit in
+            self._parents = np.take(self._parents, idx, axis=2)
+            self._movable = self._movable[:, idx]
         # one gather per array into the spare buffer, then swap; np.take keeps C order
         # (fancy indexing on the last axis would not) and mode="clip" stops it from
         # buffering the output (idx is in range by construction)
@@ -554,6 +587,75 @@ class JMPDTracker(Tracker):
         self._logw.fill(-math.log(self._N))
         w.fill(1.0 / self._N)
         self.n_resamples += 1
+        if move:
+            self._resample_move(ll[idx])
+
+    def _log_likelihood(self, X: np.ndarray, cells: np.ndarray) -> np.ndarray:
+        """This step's ``log p(z | X_i)`` (up to a constant) of states ``X (4, T, N)``
+        with flat cells ``cells (T, N)`` (``n_cells`` for empty slots), shape ``(N,)``."""
+        if isinstance(self._model.sensor, RayleighGridSensor):
+            slot_of_cell, table = self._lik
+            return grid_log_likelihood(cells.T, slot_of_cell, table)
+        z, H, R = self._lik
+        return superposition_log_likelihood(X.transpose(2, 1, 0), self._valid.T, z, H, R)
+
+    def _resample_move(self, ll: np.ndarray) -> None:
+        """``move_steps`` Metropolis-Hastings sweeps on the resampled particles (module
+        docstring, "Resample-move"); ``ll (N,)`` the log-likelihoods of the current states.
+
+        Each sweep proposes ``e' = e + move_scale * eps`` (``eps ~ N(0, I)``) for every
+        movable slot of every particle at once, rebuilds ``x' = b(F x_{k-1} + L e')``
+        (``b`` the boundary rule) and accepts per particle with probability
+        ``min(1, p(z | X') N(e'; 0, I) / (p(z | X) N(e; 0, I)))``.
+        """
+        rng, T, N = self._rng, self._T, self._N
+        movable = self._movable
+        active = movable.any(axis=0)  # particles with something to move
+        n_active = int(np.count_nonzero(active))
+        if n_active == 0:
+            return
+        parents = self._parents  # (8, T, N): x_{k-1} and e, gathered with the states
+        X, e = self._X, parents[4:]
+        nx, inv, n_cells = self._grid.nx, 1.0 / self._grid.cell_size, self._n_cells
+        reflect = self._model.birth_death.boundary == "reflect"
+        prop = np.empty_like(parents)
+        for _ in range(int(self.move_steps)):
+            prop[:4] = parents[:4]
+            rng.standard_normal(out=prop[4:])
+            prop[4:] *= self.move_scale
+            prop[4:] += e
+            np.copyto(prop[4:], e, where=~movable)  # births and empty slots stay put
+            Xn = (self._FL @ prop.reshape(8, T * N)).reshape(4, T, N)
+            np.copyto(Xn, X, where=~movable)
+            ok = np.ones(N, dtype=bool)
+            for p_row, v_row, length in ((0, 1, self._width), (2, 3, self._height)):
+                if reflect:
+                    Xn[p_row], Xn[v_row] = _fold(Xn[p_row], Xn[v_row], length)
+                else:
+                    # leaving would kill the target: the kernel keeps every slot's
+                    # alive/dead state, so such a proposal is rejected
+                    out = (Xn[p_row] < 0.0) | (Xn[p_row] >= length)
+                    ok &= ~(out & movable).any(axis=0)
+                    np.clip(Xn[p_row], 0.0, np.nextafter(length, 0.0), out=Xn[p_row])
+            # same cell rule as _update_cells: positions are inside, truncation is floor
+            cells = (Xn[2] * inv).astype(np.int64) * nx + (Xn[0] * inv).astype(np.int64)
+            cells[~self._valid] = n_cells
+            ll_new = self._log_likelihood(Xn, cells)
+            de = np.einsum("dtn,dtn->n", prop[4:], prop[4:]) - np.einsum("dtn,dtn->n", e, e)
+            log_a = ll_new - ll - 0.5 * de
+            acc = active & ok & (np.log(rng.random(N)) < log_a)
+            np.copyto(X, Xn, where=acc)
+            np.copyto(e, prop[4:], where=acc)
+            ll = np.where(acc, ll_new, ll)
+            self.move_proposed += n_active
+            self.move_accepted += int(np.count_nonzero(acc))
+
+    @property
+    def move_acceptance(self) -> float:
+        """Fraction of accepted resample-move proposals so far (NaN before any)."""
+        if self.move_proposed == 0:
+            return math.nan
+        return self.move_accepted / self.move_proposed
 
     def _align_to_reference(self) -> None:
         """Permute every particle's slots so that slot ``b`` holds its target nearest
@@ -658,8 +760,10 @@ class JMPDIPTracker(JMPDTracker):
                  birth_rate: float | None = None, death_probability: float | None = None,
                  resample_threshold: float = 0.5,
                  proposal: Literal["bootstrap", "ip"] = "ip",
-                 initial_count: int | None = None) -> None:
+                 initial_count: int | None = None, move_steps: int = 0,
+                 move_scale: float = 1.0) -> None:
         super().__init__(n_particles=n_particles, t_max=t_max, birth_rate=birth_rate,
                          death_probability=death_probability,
                          resample_threshold=resample_threshold, proposal=proposal,
-                         initial_count=initial_count)
+                         initial_count=initial_count, move_steps=move_steps,
+                         move_scale=move_scale)
