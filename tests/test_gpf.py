@@ -3,16 +3,17 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
 
 import scenarios
 import trackers
-from scenarios.model import Looks
+from scenarios.model import Dynamics, Looks
 from scenarios.simulator import simulate
 from trackers.cells import gaussian_cell_mass
-from trackers.gpf import merge_particles
+from trackers.gpf import DEFAULT_DEATH_FLOOR, merge_particles
 
 
 def _cov(s=0.3, v=0.05):
@@ -181,3 +182,74 @@ def test_superposition_keeps_the_prior_count():
     assert counts["capped_sum"][-1] == pytest.approx(1.0)
     with pytest.raises(ValueError, match="merge_weight"):
         trackers.make("gpf", merge_weight="sum").reset(sc.model, np.random.default_rng(0))
+
+
+def _still_particle_model(name: str = "default"):
+    """``name``'s model with almost no process noise, so a particle's cell mass stays ~1."""
+    sc = scenarios.get(name)
+    return dataclasses.replace(sc.model, dynamics=Dynamics(tau=1.0, wna_intensity=1e-10))
+
+
+@pytest.mark.parametrize("floor", [0.003, 0.01, 0.03])
+def test_death_floor_lets_a_saturated_weight_fall_after_negative_looks(floor):
+    """A weight that rounds to exactly 1.0 must come down when its cell keeps returning 0.
+
+    Six detections in one step from ``w = 0.5`` take the log-odds to ``6 log l(1) = 41.6``,
+    and ``w`` rounds to 1.0; without a floor ``w L / (w L + 1 - w)`` then stays 1.0 for any
+    ``L``. With the floor ``f`` the predict gives ``w <= 1 - f`` (log-odds at most
+    ``log((1 - f) / f)``) and each look at the particle's cell without a return adds
+    ``log(m l(1) + 1 - m)`` with ``m`` its mass in the cell (here ``>= 0.999``) and
+    ``l(1) = (1 - p_d) / (1 - p_f)``; later predicts only lower it. So ``w < 0.5`` after at
+    most ``ceil(log((1 - f) / f) / -log(1 - 0.999 (1 - l(1))))`` looks (7 at ``f = 0.01``).
+    """
+    model = _still_particle_model()
+    sensor = model.sensor
+    t = trackers.make("gpf", births=False, death_probability=floor)
+    t.reset(model, np.random.default_rng(0))
+    cell = model.grid.cell_of(5.5, 6.5)
+    t.set_particles([0.5], [[5.5, 0.0, 6.5, 0.0]], _cov(0.05, 1e-4)[None])
+    t.update(Looks(np.full(6, cell), np.ones(6, dtype=bool)))
+    assert t.particles[0][0] == 1.0  # saturated in floating point
+    l1 = (1.0 - sensor.p_d) / (1.0 - sensor.p_f)
+    n_max = math.ceil(math.log((1 - floor) / floor) / -math.log(1.0 - 0.999 * (1.0 - l1)))
+    weights = []
+    for _ in range(n_max):
+        t.predict()
+        w, m, P = t.particles
+        assert w[0] <= 1.0 - floor
+        assert gaussian_cell_mass(model.grid, m[:, [0, 2]], P[:, [0, 2]][:, :, [0, 2]])[
+            0, cell] >= 0.999
+        t.update(Looks(np.array([cell]), np.zeros(1, dtype=bool)))
+        weights.append(t.particles[0][0])
+    assert weights[-1] < 0.5, weights
+    assert np.all(np.diff(weights) < 0)
+
+
+def test_death_floor_default_only_on_the_grid_with_births():
+    """``death_probability=None``: the floor on the grid with births; the model's ``p_s``
+    without births (the exact reductions) and on the superposition sensor (whose count lives
+    in the prior weights); an explicit value always applies, as ``min(p_s, 1 - floor)``; and
+    ``0`` reproduces the model, under which a saturated weight never falls."""
+    grid = _still_particle_model()
+    births = scenarios.get("births").model  # p_s = 0.98 is below 1 - floor
+    sup = scenarios.get("superposition").model
+    cases = [({}, grid, 1.0 - DEFAULT_DEATH_FLOOR), ({"births": False}, grid, 1.0),
+             ({}, sup, 1.0), ({}, births, 0.98),
+             ({"births": False, "death_probability": 0.05}, grid, 0.95),
+             ({"death_probability": 0.05}, sup, 0.95)]
+    for kwargs, model, survival in cases:
+        t = trackers.make("gpf", **kwargs)
+        t.reset(model, np.random.default_rng(0))
+        t.set_particles([1.0], [[5.5, 0.0, 6.5, 0.0]], _cov(0.05, 1e-4)[None])
+        t.predict()
+        assert t.particles[0][0] == pytest.approx(survival, abs=1e-15), kwargs
+    t = trackers.make("gpf", births=False, death_probability=0.0)
+    t.reset(grid, np.random.default_rng(0))
+    t.set_particles([1.0], [[5.5, 0.0, 6.5, 0.0]], _cov(0.05, 1e-4)[None])
+    cell = grid.grid.cell_of(5.5, 6.5)
+    for _ in range(50):
+        t.predict()
+        t.update(Looks(np.array([cell]), np.zeros(1, dtype=bool)))
+    assert t.particles[0][0] == 1.0
+    with pytest.raises(ValueError, match="death_probability"):
+        trackers.make("gpf", death_probability=1.5).reset(grid, np.random.default_rng(0))
