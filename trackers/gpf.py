@@ -86,8 +86,9 @@ Step (the harness calls predict, then update, then estimate):
     (with ``Sigma_i + Sigma_j`` of 24 cells^2 per axis everything is "close") into one of
     weight 1: count error 0.60 -> 0.00 and OSPA 1.91 -> 1.65..1.75 with ``bounded_sum`` (the
     OSPA depends on the randomly drawn starting means). On the grid a target whose particle
-    was lost (a broad particle of weight ~1: with ``p_s = 1`` nothing lowers it) is found
-    again by a birth, and ``capped_sum`` folds the two into one; ``bounded_sum`` keeps both,
+    was lost (a broad particle of weight ~1: with ``p_s = 1`` and no death floor nothing
+    lowers it; measured before the floor) is found again by a birth, and ``capped_sum`` folds
+    the two into one; ``bounded_sum`` keeps both,
     which measured better count error on ``default`` (0.54 vs 0.84) but worse GOSPA (2.25 vs
     2.10), slightly worse ``crossing`` (OSPA 1.07 vs 1.05) and an overcount on ``paper`` (4.4
     for 3 targets). Lattice starting priors (``L x L`` particles of weight ``n0 / L^2``) were
