@@ -6,6 +6,8 @@ the scenario's looks per step. The baseline draws the same ``N * t_max * 4``
 standard normals with the same kind of Generator into a preallocated buffer, the
 floor of any bootstrap step. Goal: step / baseline <= 1.5 at N = 1e5.
 
+Also one resampling step with and without a resample-move sweep.
+
 Run: ``pytest benchmarks/bench/bench_jmpd.py --benchmark-only``.
 """
 
@@ -53,3 +55,23 @@ def test_draw_process_noise_only(benchmark, n):
     out = np.empty((8, T_MAX, n))[4:]  # the tracker's noise rows, same layout
     benchmark.extra_info.update(n_particles=n, t_max=T_MAX)
     benchmark.pedantic(lambda: rng.standard_normal(out=out), rounds=15, warmup_rounds=2)
+
+
+@pytest.mark.parametrize("move_steps", [0, 1])
+def test_jmpd_resample_move_step(benchmark, world, move_steps):
+    """One step resampling every time (threshold 1), with and without one MH sweep
+    of the opt-in resample-move (its cost: one more noise draw, matrix product and
+    likelihood per sweep)."""
+    sc, looks = world
+    n = 10_000
+    tr = JMPDTracker(n_particles=n, t_max=T_MAX, resample_threshold=1.0, move_steps=move_steps)
+    tr.reset(sc.model, np.random.default_rng(0))
+
+    def step():
+        tr.predict()
+        tr.update(looks)
+
+    benchmark.extra_info.update(scenario=sc.name, n_particles=n, t_max=T_MAX,
+                                move_steps=move_steps)
+    benchmark.pedantic(step, rounds=15, warmup_rounds=2)
+    benchmark.extra_info["move_acceptance"] = tr.move_acceptance
