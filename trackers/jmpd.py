@@ -162,13 +162,47 @@ def systematic_resample(weights: np.ndarray, u: float) -> np.ndarray:
     ``weights (n,)`` sum to 1; ``u`` in ``[0, 1)`` is the single uniform offset.
     Offspring ``k`` takes the first ``j`` with ``cumsum(w)[j] > (u + k) / n`` (the
     same rule as filterpy's ``systematic_resample``), so particle ``j`` has between
-    ``floor(n w_j)`` and ``ceil(n w_j)`` offspring.
+    ``floor(n w_j)`` and ``ceil(n w_j)`` offspring; ``n - 1`` when rounding leaves
+    ``cumsum(w)[-1]`` below a position.
+
+    Computed in linear time instead of by ``n`` binary searches: with
+    ``m_j = #{k : (u + k) / n < cumsum(w)[j]}`` (the first position not below
+    ``cumsum(w)[j]``), offspring ``k`` is ``#{j : m_j <= k}``. ``m_j`` is guessed as
+    ``ceil(n cumsum(w)[j] - u)`` and corrected by comparing the same floating-point
+    positions and sums, so the result equals ``searchsorted(cumsum(w), positions,
+    side="right")`` exactly.
     """
     n = weights.shape[0]
-    positions = (u + np.arange(n)) / n
+    # padded[k + 1] = positions[k] = (u + k) / n, padded[0] = -inf, padded[n + 1] = inf
+    padded = np.empty(n + 2)
+    padded[0], padded[-1] = -np.inf, np.inf
+    positions = padded[1:-1]
+    positions[:] = np.arange(n)
+    positions += u
+    positions /= n
     cumulative = np.cumsum(weights)
-    idx = np.searchsorted(cumulative, positions, side="right")
-    # rounding can leave cumsum[-1] a hair below the last position
+    if n == 0 or not np.isfinite(cumulative[-1]):
+        idx = np.searchsorted(cumulative, positions, side="right")
+        return np.minimum(idx, max(n - 1, 0), out=idx)
+    guess = cumulative * n
+    guess -= u
+    np.ceil(guess, out=guess)
+    np.clip(guess, 0.0, float(n), out=guess)
+    m = guess.astype(np.int64)
+    below, above = np.empty(n, dtype=bool), np.empty(n, dtype=bool)
+    while True:  # the guess is off by at most a rounding step; positions increase
+        # positions[m - 1] >= cumulative: m too large; positions[m] < cumulative: too small
+        np.greater_equal(np.take(padded, m), cumulative, out=below)
+        m += 1
+        np.less(np.take(padded, m), cumulative, out=above)
+        m -= 1
+        if not (below.any() or above.any()):
+            break
+        m -= below
+        m += above
+    # m <= n; offspring at m = n would be index n, clipped to n - 1 like before
+    idx = np.bincount(m, minlength=n + 1)[:n]
+    np.cumsum(idx, out=idx)
     np.minimum(idx, n - 1, out=idx)
     return idx
 
@@ -225,46 +259,91 @@ def _ranks(c: np.ndarray) -> np.ndarray:
     return rank
 
 
-def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.ndarray
-                        ) -> np.ndarray:
+def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.ndarray,
+                        valid: np.ndarray | None = None,
+                        work: tuple[np.ndarray, np.ndarray] | None = None,
+                        path: Literal["auto", "dense", "sparse"] = "auto") -> np.ndarray:
     """``log p(z | X_i) - log p(z | no target)`` for every particle, shape ``(N,)``.
 
     ``cells (N, t_max)`` int64 are the targets' flat cells, with ``n_cells`` for an
     empty slot or a target outside the grid; tables from
-    :func:`grid_log_likelihood_tables`. Equation (DESIGN.md)::
+    :func:`grid_log_likelihood_tables`. If ``valid (N, t_max)`` bool is given, the
+    slots where it is False are empty whatever their cell (it may then be any index
+    in ``[0, n_cells]``, or beyond it, which counts as unlooked). ``work``: optional
+    scratch arrays ``(t_max, N)`` int64 and float64 (saves allocating them).
+    ``path`` forces one of the two computations (for tests; "auto" picks by cost).
+    Equation (DESIGN.md)::
 
         log w_i = sum_{looked cells c} table[c, T_ic]
 
     computed without counting cells: the ``j``-th target (in slot order) found in
     cell ``c`` adds ``table[c, j] - table[c, j - 1]``, which telescopes to
-    ``table[c, T_ic]`` because ``table[c, 0] = 0``.
+    ``table[c, T_ic]`` because ``table[c, 0] = 0``. Each particle's terms are added
+    in slot order, starting from 0 (both code paths below; results are identical).
     """
     c = cells.T  # (t_max, N); contiguous rows when the caller stores (t_max, N)
+    v = None if valid is None else valid.T
+    t_max, n = c.shape
     n_counts = table.shape[1]
     n_u = table.shape[0] - 1
     increments = np.zeros_like(table)
     increments[:, 1:] = np.diff(table, axis=1)
     looked = (slot_of_cell != n_u).view(np.uint8)
-    hit = np.take(looked, c, mode="clip")
-    n_hit = int(np.count_nonzero(hit))
-    if 4 * n_hit > hit.size:
-        # dense (particles gathered on looked cells): contiguous row compares beat
-        # gathers; rank[j] = 1 + #{k < j: same cell}, for every slot
-        rank = _ranks(c)
-        key = np.take(slot_of_cell, c, mode="clip")
-        key *= n_counts
-        key += rank
-        return np.take(increments.ravel(), key).sum(axis=0)
+    # choose the path on a sample of particles (the choice never changes the result)
+    n_sample = min(n, 4096)  # contiguous, so cheap
+    hit = np.take(looked, c[:, :n_sample], mode="clip")
+    if v is not None:
+        hit &= v[:, :n_sample].view(np.uint8)
+    # measured crossover: the sparse path wins below about 5% of the slots looked at
+    if path == "dense" or (path == "auto" and 20 * int(np.count_nonzero(hit)) > hit.size):
+        # dense (particles gathered on looked cells): one gather per slot from the
+        # per-cell table inc_cell[c, r] = increments[slot_of_cell[c], r], with the
+        # key c * n_counts + r and r = 1 + #{k < j: same cell} (0 for an empty slot:
+        # column 0 is zero); cells >= n_cells land in the zero sentinel row or are
+        # clipped onto its last entry
+        inc_cell = increments[slot_of_cell].ravel()
+        key, val = work if work is not None else (np.empty((t_max, n), np.int64),
+                                                 np.empty((t_max, n)))
+        np.multiply(c, n_counts, out=key)
+        if v is not None:
+            key += v
+        else:
+            key += 1
+        # before slot j gets its rank, key[k] == key[j] (k < j) says same cell and
+        # same validity; going down j, the slots k < j are not ranked yet
+        same = np.empty(n, dtype=bool)
+        count = np.empty(n, dtype=np.uint8 if t_max < 256 else np.int64)
+        for j in range(t_max - 1, 0, -1):
+            count.fill(0)
+            for k in range(j):
+                np.equal(key[k], key[j], out=same)
+                count += same
+            if v is not None:
+                count *= v[j]  # an empty slot keeps rank 0
+            key[j] += count
+        # log w = ((val[0] + val[1]) + val[2]) + ..., row by row (the order of
+        # val.sum(axis=0)) so that each gathered row is added while in cache
+        total = np.take(inc_cell, key[0], mode="clip")
+        row = val[0]
+        for j in range(1, t_max):
+            total += np.take(inc_cell, key[j], mode="clip", out=row)
+        return total
     # sparse (the usual case: a few per cent of the slots are looked at): work on
-    # the looked slots alone
-    j, i = np.nonzero(hit)
+    # the looked slots alone, in slot-major order (the order of the sums above)
+    hit = np.take(looked, c, mode="clip")  # (t_max, N) uint8, C order
+    if v is not None:
+        hit &= v.view(np.uint8)
+    j, i = np.divmod(np.flatnonzero(hit), n)
     cj = c[j, i]
     rank = np.ones(j.shape[0], dtype=np.int64)
-    for k in range(c.shape[0] - 1):
-        rank += (c[k].take(i) == cj) & (k < j)
+    for k in range(t_max - 1):
+        same = (c[k].take(i) == cj) & (k < j)
+        if v is not None:
+            same &= v[k].take(i)
+        rank += same
     contrib = increments.ravel()[slot_of_cell[cj] * n_counts + rank]
     # an empty weighted bincount comes back as int64: force float
-    return np.bincount(i, weights=contrib, minlength=c.shape[1]).astype(np.float64, copy=False)
+    return np.bincount(i, weights=contrib, minlength=n).astype(np.float64, copy=False)
 
 
 def superposition_log_likelihood(X: np.ndarray, valid: np.ndarray, z: np.ndarray,
@@ -460,6 +539,8 @@ class JMPDTracker(Tracker):
         self._valid = np.zeros((T, N), dtype=bool)
         self._valid_spare = np.empty((T, N), dtype=bool)
         self._cells_buf = np.empty((T, N), dtype=np.int64)
+        self._col_buf = np.empty((T, N), dtype=np.int64)
+        self._flags = np.empty((T, N), dtype=bool)
         if self.initial_count is None:
             counts = np.minimum(rng.poisson(bd.initial_count_mean, size=N), T)
         else:
@@ -474,6 +555,8 @@ class JMPDTracker(Tracker):
         self._logw = np.full(N, -math.log(N))
         self._w = np.full(N, 1.0 / N)  # exp(self._logw), kept in step with it
         self._tmp = np.empty((T, N))
+        # flat cell of every slot, valid or not (None: stale after a resampling)
+        self._raw_cells: np.ndarray | None = None
         self._ref: np.ndarray | None = None
         self.count_mean = float(counts.mean())
         self.count_probabilities = np.bincount(counts, minlength=T + 1) / N
@@ -516,7 +599,11 @@ class JMPDTracker(Tracker):
             X[1, slot, born] = rng.normal(0.0, self._bv, n)
             X[3, slot, born] = rng.normal(0.0, self._bv, n)
             valid[slot, born] = True
-        self._counts = valid.sum(axis=0)
+        # valid.sum(axis=0) as row additions (a strided reduction is several times slower)
+        counts = valid[0].astype(np.int64)
+        for row in valid[1:]:
+            counts += row
+        self._counts = counts
         if self._ref is not None and len(self._ref):
             self._ref = self._ref @ self._F.T
         self._update_cells()
@@ -547,34 +634,64 @@ class JMPDTracker(Tracker):
         self._X = out[:4]
 
     def _apply_boundary(self) -> None:
-        X, valid = self._X, self._valid
+        """Reflect (or kill) the slots whose position left ``[0, length)``, every slot.
+
+        The candidates come from one unsigned comparison of the float bits per row:
+        for ``x >= 0`` the bits increase with ``x``, and a negative ``x`` has the sign
+        bit set, so ``bits(x) >= bits(length)`` holds for every ``x`` outside (and
+        also for -0.0 and NaN); the exact test then runs on the few candidates.
+        """
+        X, valid, flags = self._X, self._valid, self._flags
         for p_row, v_row, length in ((0, 1, self._width), (2, 3, self._height)):
             pos = X[p_row]
-            if pos.min() >= 0.0 and pos.max() < length:
+            np.greater_equal(pos.view(np.uint64), np.float64(length).view(np.uint64),
+                             out=flags)
+            out = np.flatnonzero(flags)
+            if out.size == 0:
                 continue
-            out = np.flatnonzero((pos < 0.0) | (pos >= length))
             at = np.divmod(out, pos.shape[1])
+            p = pos[at]
+            keep = (p < 0.0) | (p >= length)
+            if not keep.all():
+                at = (at[0][keep], at[1][keep])
+                p = p[keep]
             if self._model.birth_death.boundary == "reflect":
-                pos[at], X[v_row][at] = _fold(pos[at], X[v_row][at], length)
+                pos[at], X[v_row][at] = _fold(p, X[v_row][at], length)
             else:
                 valid[at] = False
-                # park dead slots inside so they do not trigger this path again
+                # park dead slots inside so they do not leave again by themselves
                 pos[at] = 0.5 * length
 
     def _update_cells(self) -> None:
-        """Flat cell of every slot ``(t_max, N)`` int64; ``n_cells`` for empty slots."""
-        X = self._X
-        inv = 1.0 / self._grid.cell_size
-        tmp, cells = self._tmp, self._cells_buf
-        # positions are inside the workspace, so truncation (the unsafe cast) is floor
-        np.multiply(X[2], inv, out=tmp)
-        np.copyto(cells, tmp, casting="unsafe")
+        """Flat cell ``floor(py / s) nx + floor(px / s)`` of every slot, valid or not,
+        ``(t_max, N)`` int64 (``s`` the cell size; empty slots hold positions inside
+        the workspace too, so their cells are in range and the likelihood masks them).
+
+        Computed as ``trunc(py * (1 / s)) nx + trunc(px * (1 / s))``; positions are
+        inside the workspace, so the truncating cast is the floor. With ``s = 1`` the
+        products are skipped (``x * 1.0 == x`` exactly).
+        """
+        X, tmp = self._X, self._tmp
+        cells, col = self._cells_buf, self._col_buf
+        if self._grid.cell_size == 1.0:
+            np.copyto(cells, X[2], casting="unsafe")
+            np.copyto(col, X[0], casting="unsafe")
+        else:
+            inv = 1.0 / self._grid.cell_size
+            np.multiply(X[2], inv, out=tmp)
+            np.copyto(cells, tmp, casting="unsafe")
+            np.multiply(X[0], inv, out=tmp)
+            np.copyto(col, tmp, casting="unsafe")
         cells *= self._grid.nx
-        np.multiply(X[0], inv, out=tmp)
-        np.trunc(tmp, out=tmp)
-        np.add(cells, tmp, out=cells, casting="unsafe")
-        np.copyto(cells, self._n_cells, where=~self._valid)
-        self._cells = cells
+        cells += col
+        self._raw_cells = cells
+
+    @property
+    def _cells(self) -> np.ndarray | None:
+        """Flat cells ``(t_max, N)`` int64 with ``n_cells`` for empty slots (a copy)."""
+        if self._raw_cells is None:
+            return None
+        return np.where(self._valid, self._raw_cells, self._n_cells)
 
     # ------------------------------------------------------------- P_c(t)
     def cell_count_distribution(self) -> np.ndarray:
@@ -591,7 +708,8 @@ class JMPDTracker(Tracker):
             self._lik = (slot_of_cell, table)
             if self.proposal == "ip":
                 self._ip_partitions(slot_of_cell, table)
-            ll = grid_log_likelihood(self._cells.T, slot_of_cell, table)
+            ll = grid_log_likelihood(self._raw_cells.T, slot_of_cell, table, self._valid.T,
+                                     work=(self._col_buf, self._tmp))
         else:
             if looks.z is None:
                 return
@@ -629,16 +747,33 @@ class JMPDTracker(Tracker):
         # buffering the output (idx is in range by construction)
         X, V = self._other_buffer()[:4], self._valid_spare
         np.take(self._X, idx, axis=2, out=X, mode="clip")
-        np.take(self._valid, idx, axis=1, out=V, mode="clip")
+        self._gather_valid(idx, V)
         self._X = X
         self._valid_spare, self._valid = self._valid, V
-        self._cells = None  # stale until the next predict recomputes it
+        self._raw_cells = None  # stale until the next predict recomputes it
         self._counts = self._counts[idx]
         self._logw.fill(-math.log(self._N))
         w.fill(1.0 / self._N)
         self.n_resamples += 1
         if move:
             self._resample_move(ll[idx])
+
+    def _gather_valid(self, idx: np.ndarray, out: np.ndarray) -> None:
+        """``out[:, k] = valid[:, idx[k]]``: up to 8 slots go as the bits of one byte
+        per particle (one gather of N bytes instead of T N)."""
+        valid, T = self._valid, self._T
+        if T > 8:
+            np.take(valid, idx, axis=1, out=out, mode="clip")
+            return
+        bits = valid[0].view(np.uint8).copy()
+        tmp = np.empty_like(bits)
+        for t in range(1, T):
+            np.left_shift(valid[t].view(np.uint8), t, out=tmp)
+            bits |= tmp
+        bits = np.take(bits, idx, mode="clip")
+        for t in range(T):
+            np.right_shift(bits, t, out=tmp)
+            np.bitwise_and(tmp, 1, out=out[t].view(np.uint8))
 
     def _log_likelihood(self, X: np.ndarray, cells: np.ndarray) -> np.ndarray:
         """This step's ``log p(z | X_i)`` (up to a constant) of states ``X (4, T, N)``
@@ -740,7 +875,7 @@ class JMPDTracker(Tracker):
         pT = perm.T
         self._X = np.take_along_axis(X, pT[None], axis=1)
         self._valid = np.take_along_axis(valid, pT, axis=0)
-        self._cells = np.take_along_axis(self._cells, pT, axis=0)
+        self._raw_cells = np.take_along_axis(self._raw_cells, pT, axis=0)
 
     def _ip_partitions(self, slot_of_cell: np.ndarray, table: np.ndarray) -> None:
         """Kreucher's independent-partition resampling (module docstring)."""
@@ -750,8 +885,9 @@ class JMPDTracker(Tracker):
         self._ip_correction = corr
         if self._ref is None:
             return
-        X, valid, cells, logw = self._X, self._valid, self._cells, self._logw
-        lp = table[:, 1][slot_of_cell[cells]]  # (T, N) log l of each target alone
+        X, valid, cells, logw = self._X, self._valid, self._raw_cells, self._logw
+        # (T, N) log l of each target alone (empty slots: junk, never read)
+        lp = table[:, 1][np.take(slot_of_cell, cells, mode="clip")]
         # only slots aligned to an estimated target are partitions; the others
         # (new or unmatched targets) keep the kinematic proposal, else every free
         # slot would be pulled onto the strongest detection (coupled partitions)
