@@ -80,8 +80,8 @@ def test_grid_log_likelihood_equals_loop(seed):
 
 @pytest.mark.parametrize("looked", [[0, 0, 7, 20], [0, 1, 1, 2, 3, 3, 9]])
 def test_grid_log_likelihood_sparse_and_dense_paths_equal_loop(looked):
-    """The kernel switches to whole-array rank compares when more than a quarter of
-    the slots sit in looked cells; both branches against the loop."""
+    """Both branches of the kernel (whole-array ranks / looked slots only), chosen
+    automatically and forced, against the loop; the branches agree bit for bit."""
     rng = np.random.default_rng(11)
     n_cells, t_max = 30, 5
     sensor = RayleighGridSensor(p_d=0.5, snr=10.0)
@@ -95,6 +95,32 @@ def test_grid_log_likelihood_sparse_and_dense_paths_equal_loop(looked):
     slow = _loop_log_likelihood(cells, n_cells, sensor, look_cells, returns)
     assert fast.dtype == np.float64
     assert np.max(np.abs(fast - slow)) < EXACT
+    for path in ("dense", "sparse"):
+        forced = grid_log_likelihood(cells, slot_of_cell, table, path=path)
+        assert np.array_equal(forced, fast)
+
+
+@pytest.mark.parametrize("path", ["auto", "dense", "sparse"])
+@pytest.mark.parametrize("seed", range(3))
+def test_grid_log_likelihood_with_validity_mask_ignores_empty_cells(path, seed):
+    """With ``valid`` given, empty slots may hold any cell (in range, the sentinel or
+    beyond, as the tracker's raw cells do): the result equals the sentinel form bit
+    for bit and the loop to round-off."""
+    rng = np.random.default_rng(seed)
+    n_cells, t_max = 10, 5
+    sensor = RayleighGridSensor(p_d=0.7, snr=2.0)
+    cells, valid = _random_particles(rng, 400, t_max, n_cells)
+    junk = rng.integers(0, n_cells + 4, size=cells.shape)  # includes n_cells and beyond
+    raw = np.where(valid, cells, junk)
+    look_cells = np.concatenate([[0, 0, 1, 3], rng.integers(0, n_cells, 5)])
+    returns = rng.random(look_cells.size) < 0.5
+    slot_of_cell, table = grid_log_likelihood_tables(sensor, look_cells, returns, n_cells, t_max)
+    ref = grid_log_likelihood(cells, slot_of_cell, table)
+    for c in (raw, raw.astype(np.int32)):
+        got = grid_log_likelihood(c, slot_of_cell, table, valid, path=path)
+        assert np.array_equal(got, ref)
+    slow = _loop_log_likelihood(cells, n_cells, sensor, look_cells, returns)
+    assert np.max(np.abs(ref - slow)) < EXACT
 
 
 def test_tracker_update_weights_equal_loop():
@@ -157,6 +183,50 @@ def test_systematic_resample_equals_filterpy(monkeypatch):
         assert np.array_equal(systematic_resample(w, u), fp_resampling.systematic_resample(w))
 
 
+def _searchsorted_resample(w, u):
+    """The textbook form: first j with cumsum(w)[j] > (u + k) / n, clipped to n - 1."""
+    n = w.size
+    idx = np.searchsorted(np.cumsum(w), (u + np.arange(n)) / n, side="right")
+    return np.minimum(idx, n - 1)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.one_of(st.just(0.0), st.floats(0.0, 1e3), st.floats(0.0, 1e-12)),
+                min_size=1, max_size=80).filter(lambda v: sum(v) > 1e-300),
+       st.floats(0.0, 1.0, exclude_max=True))
+def test_systematic_resample_equals_binary_search(raw, u):
+    """The linear-time kernel equals the binary-search definition index for index,
+    with zero and tiny weights (ties in the cumulative sum) and sums that round off."""
+    w = np.asarray(raw) / np.sum(raw)
+    assert np.array_equal(systematic_resample(w, u), _searchsorted_resample(w, u))
+
+
+@pytest.mark.parametrize("n", [1000, 100_000])
+def test_systematic_resample_equals_binary_search_large(n):
+    rng = np.random.default_rng(n)
+    for power in (1, 20, 200):  # from flat to a few dominant weights
+        w = rng.random(n) ** power
+        w[rng.random(n) < 0.1] = 0.0
+        w /= w.sum()
+        for u in (0.0, float(rng.random()), np.nextafter(1.0, 0.0)):
+            assert np.array_equal(systematic_resample(w, u), _searchsorted_resample(w, u))
+
+
+def test_systematic_resample_equals_binary_search_at_ties():
+    """Cumulative sums placed on the positions (u + k) / n and a few ulps either side,
+    where the kernel's first guess is off by one and must be corrected."""
+    rng = np.random.default_rng(0)
+    for _ in range(2000):
+        n = int(rng.integers(2, 50))
+        u = float(rng.random())
+        pos = (u + np.arange(n)) / n
+        k = np.sort(rng.integers(0, n, n - 1))
+        targets = pos[k] + rng.integers(-2, 3, n - 1) * np.spacing(pos[k])
+        cum = np.concatenate([np.maximum.accumulate(np.clip(targets, 0.0, 1.0)), [1.0]])
+        w = np.diff(cum, prepend=0.0)
+        assert np.array_equal(systematic_resample(w, u), _searchsorted_resample(w, u))
+
+
 @settings(max_examples=200, deadline=None)
 @given(st.lists(st.floats(0.0, 1e3), min_size=1, max_size=60).filter(lambda v: sum(v) > 1e-6),
        st.floats(0.0, 1.0, exclude_max=True))
@@ -168,6 +238,71 @@ def test_systematic_offspring_between_floor_and_ceil(raw, u):
     # 1e-9: the cumulative sum is rounded, so N w_j within 1e-9 of an integer may tip
     assert np.all(counts >= np.floor(n * w - 1e-9))
     assert np.all(counts <= np.ceil(n * w + 1e-9))
+
+
+# ------------------------------------------------------------------ step kernels
+def _reference_boundary(X, valid, width, height, boundary):
+    """The plain rule: every slot outside [0, length) folds back (or dies, parked at
+    the centre), found by exact comparisons."""
+    from trackers.jmpd import _fold
+    X, valid = X.copy(), valid.copy()
+    for p_row, v_row, length in ((0, 1, width), (2, 3, height)):
+        out = (X[p_row] < 0.0) | (X[p_row] >= length)
+        if boundary == "reflect":
+            X[p_row][out], X[v_row][out] = _fold(X[p_row][out], X[v_row][out], length)
+        else:
+            valid[out] = False
+            X[p_row][out] = 0.5 * length
+    return X, valid
+
+
+@pytest.mark.parametrize("boundary", ["reflect", "die"])
+@pytest.mark.parametrize("cell_size", [1.0, 0.7])
+def test_boundary_and_cells_equal_plain_rules(boundary, cell_size):
+    """``_apply_boundary`` (unsigned-bits candidates) equals exact comparisons, edge
+    values included (0, -0.0, the length, just below it, tiny negatives, far out);
+    ``_update_cells`` equals ``Grid.cell_of`` for every slot afterwards."""
+    grid = Grid(7, 5, cell_size)
+    model = TrackingModel(grid, Dynamics(wna_intensity=1e-3),
+                          BirthDeath(n_random_initial=2, boundary=boundary), RayleighGridSensor())
+    tr = JMPDTracker(n_particles=400, t_max=3)
+    tr.reset(model, np.random.default_rng(8))
+    width, height = grid.extent
+    rng = np.random.default_rng(9)
+    X = tr._X
+    X[0] = rng.uniform(-0.5 * width, 1.5 * width, X[0].shape)
+    X[2] = rng.uniform(-0.5 * height, 1.5 * height, X[2].shape)
+    edges = [0.0, -0.0, width, np.nextafter(width, 0.0), -1e-300, -5e-324, 3 * width,
+             np.nextafter(0.0, 1.0)]
+    X[0, 0, :len(edges)] = edges
+    X[2, 1, :len(edges)] = [min(e, height) if e > 0 else e for e in edges]
+    want_X, want_valid = _reference_boundary(X, tr._valid, width, height, boundary)
+    tr._apply_boundary()
+    assert np.array_equal(tr._X.view(np.uint64), want_X.view(np.uint64))  # bit for bit
+    assert np.array_equal(tr._valid, want_valid)
+    tr._update_cells()
+    # the tracker's rule floor(p * (1 / s)) (DESIGN's floor(p / s) when s = 1; with
+    # other sizes a position a hair below a cell edge may round up, as it always did)
+    inv = 1.0 / cell_size
+    want_cells = np.floor(tr._X[2] * inv) * grid.nx + np.floor(tr._X[0] * inv)
+    assert np.array_equal(tr._raw_cells, want_cells)
+    assert np.array_equal(tr._cells, np.where(tr._valid, want_cells, grid.n_cells))
+    if cell_size == 1.0:
+        assert np.array_equal(tr._raw_cells, grid.cell_of(tr._X[0], tr._X[2]))
+
+
+def test_gather_valid_equals_take():
+    model = TrackingModel(Grid(12, 12), Dynamics(wna_intensity=5e-4),
+                          BirthDeath(n_random_initial=3), RayleighGridSensor())
+    for t_max in (1, 5, 8, 9):
+        tr = JMPDTracker(n_particles=300, t_max=t_max)
+        tr.reset(model, np.random.default_rng(t_max))
+        rng = np.random.default_rng(0)
+        tr._valid[:] = rng.random(tr._valid.shape) < 0.5
+        idx = np.sort(rng.integers(0, 300, 300))
+        out = np.empty_like(tr._valid)
+        tr._gather_valid(idx, out)
+        assert np.array_equal(out, tr._valid[:, idx])
 
 
 # ------------------------------------------------------------------ alignment

@@ -190,7 +190,7 @@ def systematic_resample(weights: np.ndarray, u: float) -> np.ndarray:
     np.clip(guess, 0.0, float(n), out=guess)
     m = guess.astype(np.int64)
     below, above = np.empty(n, dtype=bool), np.empty(n, dtype=bool)
-    while True:  # the guess is off by at most a rounding step; positions increase
+    for _ in range(8):  # the guess is off by a rounding step at most; positions increase
         # positions[m - 1] >= cumulative: m too large; positions[m] < cumulative: too small
         np.greater_equal(np.take(padded, m), cumulative, out=below)
         m += 1
@@ -200,6 +200,9 @@ def systematic_resample(weights: np.ndarray, u: float) -> np.ndarray:
             break
         m -= below
         m += above
+    else:  # not expected; the binary search is always right
+        idx = np.searchsorted(cumulative, positions, side="right")
+        return np.minimum(idx, n - 1, out=idx)
     # m <= n; offspring at m = n would be index n, clipped to n - 1 like before
     idx = np.bincount(m, minlength=n + 1)[:n]
     np.cumsum(idx, out=idx)
@@ -261,16 +264,16 @@ def _ranks(c: np.ndarray) -> np.ndarray:
 
 def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.ndarray,
                         valid: np.ndarray | None = None,
-                        work: tuple[np.ndarray, np.ndarray] | None = None,
+                        key_buffer: np.ndarray | None = None,
                         path: Literal["auto", "dense", "sparse"] = "auto") -> np.ndarray:
     """``log p(z | X_i) - log p(z | no target)`` for every particle, shape ``(N,)``.
 
-    ``cells (N, t_max)`` int64 are the targets' flat cells, with ``n_cells`` for an
+    ``cells (N, t_max)`` (integers) are the targets' flat cells, with ``n_cells`` for an
     empty slot or a target outside the grid; tables from
     :func:`grid_log_likelihood_tables`. If ``valid (N, t_max)`` bool is given, the
     slots where it is False are empty whatever their cell (it may then be any index
-    in ``[0, n_cells]``, or beyond it, which counts as unlooked). ``work``: optional
-    scratch arrays ``(t_max, N)`` int64 and float64 (saves allocating them).
+    in ``[0, n_cells]``, or beyond it, which counts as unlooked). ``key_buffer``:
+    optional int32 scratch ``(t_max, N)`` for the dense path (saves allocating it).
     ``path`` forces one of the two computations (for tests; "auto" picks by cost).
     Equation (DESIGN.md)::
 
@@ -302,9 +305,13 @@ def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.n
         # column 0 is zero); cells >= n_cells land in the zero sentinel row or are
         # clipped onto its last entry
         inc_cell = increments[slot_of_cell].ravel()
-        key, val = work if work is not None else (np.empty((t_max, n), np.int64),
-                                                 np.empty((t_max, n)))
-        np.multiply(c, n_counts, out=key)
+        # int32 keys when they fit (half the traffic of the rank compares)
+        key_type = np.int32 if inc_cell.size < 2**30 else np.int64
+        if key_buffer is not None and key_buffer.dtype == key_type:
+            key = key_buffer
+        else:
+            key = np.empty((t_max, n), key_type)
+        np.multiply(c, n_counts, out=key, dtype=key_type, casting="unsafe")
         if v is not None:
             key += v
         else:
@@ -324,12 +331,12 @@ def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.n
         # log w = ((val[0] + val[1]) + val[2]) + ..., row by row (the order of
         # val.sum(axis=0)) so that each gathered row is added while in cache
         total = np.take(inc_cell, key[0], mode="clip")
-        row = val[0]
+        row = np.empty(n)
         for j in range(1, t_max):
             total += np.take(inc_cell, key[j], mode="clip", out=row)
         return total
-    # sparse (the usual case: a few per cent of the slots are looked at): work on
-    # the looked slots alone, in slot-major order (the order of the sums above)
+    # sparse (few slots in looked cells): work on the looked slots alone, in
+    # slot-major order (the order of the sums above)
     hit = np.take(looked, c, mode="clip")  # (t_max, N) uint8, C order
     if v is not None:
         hit &= v.view(np.uint8)
@@ -538,8 +545,10 @@ class JMPDTracker(Tracker):
         self._FL = np.hstack([dyn.F, self._L])
         self._valid = np.zeros((T, N), dtype=bool)
         self._valid_spare = np.empty((T, N), dtype=bool)
-        self._cells_buf = np.empty((T, N), dtype=np.int64)
-        self._col_buf = np.empty((T, N), dtype=np.int64)
+        # int32 cells (half the memory traffic of int64); int64 scratch for the keys
+        self._cells_buf = np.empty((T, N), dtype=np.int32)
+        self._col_buf = np.empty((T, N), dtype=np.int32)
+        self._key_buf = np.empty((T, N), dtype=np.int32)
         self._flags = np.empty((T, N), dtype=bool)
         if self.initial_count is None:
             counts = np.minimum(rng.poisson(bd.initial_count_mean, size=N), T)
@@ -664,7 +673,7 @@ class JMPDTracker(Tracker):
 
     def _update_cells(self) -> None:
         """Flat cell ``floor(py / s) nx + floor(px / s)`` of every slot, valid or not,
-        ``(t_max, N)`` int64 (``s`` the cell size; empty slots hold positions inside
+        ``(t_max, N)`` int32 (``s`` the cell size; empty slots hold positions inside
         the workspace too, so their cells are in range and the likelihood masks them).
 
         Computed as ``trunc(py * (1 / s)) nx + trunc(px * (1 / s))``; positions are
@@ -688,10 +697,10 @@ class JMPDTracker(Tracker):
 
     @property
     def _cells(self) -> np.ndarray | None:
-        """Flat cells ``(t_max, N)`` int64 with ``n_cells`` for empty slots (a copy)."""
+        """Flat cells ``(t_max, N)`` int64 with ``n_cells`` for empty slots (a new array)."""
         if self._raw_cells is None:
             return None
-        return np.where(self._valid, self._raw_cells, self._n_cells)
+        return np.where(self._valid, self._raw_cells, self._n_cells).astype(np.int64)
 
     # ------------------------------------------------------------- P_c(t)
     def cell_count_distribution(self) -> np.ndarray:
@@ -709,7 +718,7 @@ class JMPDTracker(Tracker):
             if self.proposal == "ip":
                 self._ip_partitions(slot_of_cell, table)
             ll = grid_log_likelihood(self._raw_cells.T, slot_of_cell, table, self._valid.T,
-                                     work=(self._col_buf, self._tmp))
+                                     key_buffer=self._key_buf)
         else:
             if looks.z is None:
                 return
