@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import ndtr
 
-from scenarios.model import Grid
+from scenarios.model import Grid, RayleighGridSensor
 
 #: smallest standard deviation (in cells) used for a position axis; keeps the
 #: standardised edges finite for a degenerate (zero-variance) Gaussian
@@ -114,3 +114,18 @@ def _add_bernoulli(dist: np.ndarray, p: np.ndarray) -> None:
     dist[1:-1] = dist[1:-1] * (1.0 - p) + dist[:-2] * p
     dist[0] *= 1.0 - p
     dist[-1] += into_last
+
+
+def look_log_ratios(sensor: RayleighGridSensor, cells: np.ndarray, returns: np.ndarray,
+                    t_max: int) -> tuple[np.ndarray, np.ndarray]:
+    """Looked cells ``U (n_u,)`` (sorted, unique) and ``LL (n_u, t_max + 1)``.
+
+    ``LL[u, T] = sum_{looks at U[u]} log p(z | T) / p(z | 0)``: several looks at one cell
+    multiply their likelihoods; ``LL[:, 0] = 0``.
+    """
+    U, inv = np.unique(cells, return_inverse=True)
+    T = np.arange(t_max + 1)
+    per_look = sensor.log_likelihood_ratio(returns[:, None], T[None, :])  # (L, t_max+1)
+    LL = np.zeros((len(U), t_max + 1))
+    np.add.at(LL, inv, per_look)
+    return U, LL

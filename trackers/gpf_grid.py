@@ -50,6 +50,7 @@ import numpy as np
 from scipy.special import ndtr
 
 from scenarios.model import Grid, RayleighGridSensor
+from trackers.cells import look_log_ratios
 from trackers.gpf_linear import enumerate_combinations, log_normalise
 
 _GL_T, _GL_W = np.polynomial.legendre.leggauss(24)
@@ -159,21 +160,6 @@ class GridUpdateResult:
     dropped: float
     n_clusters: int
     max_cluster: int
-
-
-def look_log_ratios(sensor: RayleighGridSensor, cells: np.ndarray, returns: np.ndarray,
-                    t_max: int) -> tuple[np.ndarray, np.ndarray]:
-    """Looked cells ``U (n_u,)`` (sorted, unique) and ``LL (n_u, t_max + 1)``.
-
-    ``LL[u, T] = sum_{looks at U[u]} log p(z | T) / p(z | 0)``: several looks at one cell
-    multiply their likelihoods; ``LL[:, 0] = 0``.
-    """
-    U, inv = np.unique(cells, return_inverse=True)
-    T = np.arange(t_max + 1)
-    per_look = sensor.log_likelihood_ratio(returns[:, None], T[None, :])  # (L, t_max+1)
-    LL = np.zeros((len(U), t_max + 1))
-    np.add.at(LL, inv, per_look)
-    return U, LL
 
 
 def _components(part: np.ndarray, cell: np.ndarray, K: int) -> np.ndarray:

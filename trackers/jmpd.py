@@ -149,6 +149,7 @@ from scipy.special import logsumexp
 
 from scenarios.model import Looks, RayleighGridSensor, TrackingModel
 from trackers.base import Estimate, Tracker, register
+from trackers.cells import look_log_ratios
 
 DEFAULT_BIRTH_RATE = 0.02  # per particle and step, used when the model has no births
 DEFAULT_DEATH_PROBABILITY = 0.01  # per target and step, used when the model has p_s = 1
@@ -239,14 +240,10 @@ def grid_log_likelihood_tables(sensor: RayleighGridSensor, look_cells: np.ndarra
     ``table (n_u + 1, t_max + 1)`` with ``table[s, t] = sum_{looks at cell s}
     log l(z, t)``; its last row is zero.
     """
-    look_cells = np.asarray(look_cells, dtype=np.int64)
-    ucells, inverse = np.unique(look_cells, return_inverse=True)
+    ucells, LL = look_log_ratios(sensor, np.asarray(look_cells, dtype=np.int64),
+                                 np.asarray(returns, bool), t_max)
     n_u = ucells.shape[0]
-    t = np.arange(t_max + 1)
-    per_look = sensor.log_likelihood_ratio(np.asarray(returns, bool)[:, None], t[None, :])
-    table = np.zeros((n_u + 1, t_max + 1))
-    # several looks at one cell are independent: their log-ratios add
-    np.add.at(table, inverse.reshape(-1), per_look)
+    table = np.vstack([LL, np.zeros((1, t_max + 1))])  # the zero row of unlooked cells
     slot_of_cell = np.full(n_cells + 1, n_u, dtype=np.int64)
     slot_of_cell[ucells] = np.arange(n_u)
     return slot_of_cell, table
