@@ -56,7 +56,8 @@ DEFAULT_PARAMS: dict[str, list[dict[str, Any]]] = {
 #: tracker drawn in the snapshot figure, first registered one wins
 SNAPSHOT_PREFERENCE = ("gpf", "jmpd", "kfnn")
 #: distributions whose versions go into the manifest
-VERSIONED = ("mttbench", "numpy", "scipy", "pandas", "pyarrow", "matplotlib", "filterpy", "tqdm")
+VERSIONED = ("mttbench", "numpy", "scipy", "pandas", "pyarrow", "matplotlib", "filterpy", "tqdm",
+             "numba")
 
 
 def default_tracker_texts() -> list[str]:

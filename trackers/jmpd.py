@@ -15,6 +15,12 @@ Storage (never one Python object per particle, never an ``(N, n_cells)`` array):
   independent-partition proposal keep slot ``s`` aligned with estimated target
   ``s``), counts ``T_i`` ``(N,)`` and normalised log-weights ``(N,)``.
 
+Speed: the step is numpy over whole arrays; three per-slot passes (boundary rule +
+cell + count, the likelihood's dense path, the systematic resampling indices) run as
+numba kernels when numba is installed (:mod:`trackers.kernels`,
+:func:`compiled_kernels`). Each kernel repeats its numpy form's floating-point
+operations in the same order, so the numbers are the same with or without numba.
+
 Bootstrap step (the kinematic prior as proposal), in the simulator's order:
 
 1. death: every target dies with ``death_probability`` (default ``1 - p_s`` of the
@@ -142,6 +148,8 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
+from types import ModuleType
 from typing import Literal
 
 import numpy as np
@@ -154,6 +162,27 @@ from trackers.cells import look_log_ratios
 DEFAULT_BIRTH_RATE = 0.02  # per particle and step, used when the model has no births
 DEFAULT_DEATH_PROBABILITY = 0.01  # per target and step, used when the model has p_s = 1
 EXACT_ALIGN_MAX = 4  # enumerate all T! permutations up to this many targets
+
+
+_KERNELS: ModuleType | None | bool = False  # False: not looked up yet
+
+
+def compiled_kernels() -> ModuleType | None:
+    """:mod:`trackers.kernels` (numba), imported on first use; None when numba is not
+    installed or ``MTTBENCH_NO_NUMBA`` is set (not ``0``). Results are the same either
+    way: every kernel equals its numpy form bit for bit."""
+    global _KERNELS
+    if _KERNELS is False:
+        if os.environ.get("MTTBENCH_NO_NUMBA", "") not in ("", "0"):
+            _KERNELS = None
+        else:
+            try:
+                from trackers import kernels
+            except ImportError:
+                _KERNELS = None
+            else:
+                _KERNELS = kernels
+    return _KERNELS
 
 
 # --------------------------------------------------------------------- kernels
@@ -173,6 +202,10 @@ def systematic_resample(weights: np.ndarray, u: float) -> np.ndarray:
     positions and sums, so the result equals ``searchsorted(cumsum(w), positions,
     side="right")`` exactly.
     """
+    kernels = compiled_kernels()
+    if kernels is not None:  # the same indices by one merge
+        return kernels.systematic_indices(np.ascontiguousarray(weights, dtype=np.float64),
+                                          float(u))
     n = weights.shape[0]
     # padded[k + 1] = positions[k] = (u + k) / n, padded[0] = -inf, padded[n + 1] = inf
     padded = np.empty(n + 2)
@@ -249,6 +282,9 @@ def grid_log_likelihood_tables(sensor: RayleighGridSensor, look_cells: np.ndarra
     return slot_of_cell, table
 
 
+_NO_MASK = np.ones((1, 1), dtype=bool)  # the kernel's unread mask when there is none
+
+
 def _ranks(c: np.ndarray) -> np.ndarray:
     """``rank[j, i] = 1 + #{k < j : c[k, i] == c[j, i]}`` for ``c (t_max, N)``."""
     t_max = c.shape[0]
@@ -262,7 +298,8 @@ def _ranks(c: np.ndarray) -> np.ndarray:
 def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.ndarray,
                         valid: np.ndarray | None = None,
                         key_buffer: np.ndarray | None = None,
-                        path: Literal["auto", "dense", "sparse"] = "auto") -> np.ndarray:
+                        path: Literal["auto", "compiled", "dense", "sparse"] = "auto"
+                        ) -> np.ndarray:
     """``log p(z | X_i) - log p(z | no target)`` for every particle, shape ``(N,)``.
 
     ``cells (N, t_max)`` (integers) are the targets' flat cells, with ``n_cells`` for an
@@ -271,7 +308,9 @@ def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.n
     slots where it is False are empty whatever their cell (it may then be any index
     in ``[0, n_cells]``, or beyond it, which counts as unlooked). ``key_buffer``:
     optional int32 scratch ``(t_max, N)`` for the dense path (saves allocating it).
-    ``path`` forces one of the two computations (for tests; "auto" picks by cost).
+    ``path`` forces one computation (for tests). "auto": the dense path compiled
+    (:func:`trackers.kernels.grid_log_likelihood_dense`) when :func:`compiled_kernels`
+    has it, else dense or sparse chosen by cost.
     Equation (DESIGN.md)::
 
         log w_i = sum_{looked cells c} table[c, T_ic]
@@ -289,13 +328,18 @@ def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.n
     increments = np.zeros_like(table)
     increments[:, 1:] = np.diff(table, axis=1)
     looked = (slot_of_cell != n_u).view(np.uint8)
-    # choose the path on a sample of particles (the choice never changes the result)
-    n_sample = min(n, 4096)  # contiguous, so cheap
-    hit = np.take(looked, c[:, :n_sample], mode="clip")
-    if v is not None:
-        hit &= v[:, :n_sample].view(np.uint8)
-    # measured crossover: the sparse path wins below about 5% of the slots looked at
-    if path == "dense" or (path == "auto" and 20 * int(np.count_nonzero(hit)) > hit.size):
+    kernels = compiled_kernels() if path in ("auto", "compiled") else None
+    if path == "compiled" and kernels is None:
+        raise RuntimeError("path='compiled' needs numba (trackers.kernels)")
+    if path == "auto" and kernels is None:
+        # choose on a sample of particles (the choice never changes the result); measured
+        # crossover: the sparse path wins below about 5% of the slots looked at
+        n_sample = min(n, 4096)  # contiguous, so cheap
+        hit = np.take(looked, c[:, :n_sample], mode="clip")
+        if v is not None:
+            hit &= v[:, :n_sample].view(np.uint8)
+        path = "dense" if 20 * int(np.count_nonzero(hit)) > hit.size else "sparse"
+    if path != "sparse":
         # dense (particles gathered on looked cells): one gather per slot from the
         # per-cell table inc_cell[c, r] = increments[slot_of_cell[c], r], with the
         # key c * n_counts + r and r = 1 + #{k < j: same cell} (0 for an empty slot:
@@ -308,6 +352,12 @@ def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.n
             key = key_buffer
         else:
             key = np.empty((t_max, n), key_type)
+        if kernels is not None and key_type is np.int32:  # the same steps, fused
+            total = np.empty(n)
+            kernels.grid_log_likelihood_dense(
+                c, _NO_MASK if v is None else v, v is not None, inc_cell, n_counts, key,
+                np.empty(n, dtype=np.int32), total)
+            return total
         np.multiply(c, n_counts, out=key, dtype=key_type, casting="unsafe")
         if v is not None:
             key += v
@@ -512,6 +562,11 @@ class JMPDTracker(Tracker):
             raise ValueError("move_steps > 0 needs proposal='bootstrap' (the IP exchange "
                              "does not keep each slot's parent state)")
         N, T = int(self.n_particles), int(self.t_max)
+        kernels = compiled_kernels()
+        # whether predict runs the compiled boundary/cell pass (results are the same)
+        self.uses_compiled_kernels = kernels is not None
+        if kernels is not None:
+            kernels.warm_up()  # compile (or load) them now, not in a timed step
         self._model, self._rng, self._N, self._T = model, rng, N, T
         bd, dyn = model.birth_death, model.dynamics
         self._grid = model.grid
@@ -585,10 +640,22 @@ class JMPDTracker(Tracker):
         dead = bernoulli_indices(rng, T * N, self._p_death)
         if dead.size:
             valid[np.divmod(dead, N)] = False
-        # 2. x <- F x + L e
+        # 2. x <- F x + L e, then the boundary rule; with the compiled kernel the
+        # cells and counts come from the same pass (births patch them below)
         self._move()
         X = self._X
-        self._apply_boundary()
+        fused = self.uses_compiled_kernels
+        if fused:
+            counts = np.empty(N, dtype=np.int64)
+            cells = self._cells_buf
+            grid, width, height = self._grid, self._width, self._height
+            compiled_kernels().boundary_cells_counts(
+                X[0], X[1], X[2], X[3], valid, width, height, np.nextafter(width, 0.0),
+                np.nextafter(height, 0.0), grid.nx, grid.ny, 1.0 / grid.cell_size,
+                grid.cell_size == 1.0, self._model.birth_death.boundary == "reflect",
+                cells, counts)
+        else:
+            self._apply_boundary()
         if self.move_steps > 0:
             # the buffer the move read: rows 0-3 x_{k-1}, rows 4-7 this step's e; the
             # survivors (not the births below) may be moved after a resampling
@@ -605,14 +672,21 @@ class JMPDTracker(Tracker):
             X[1, slot, born] = rng.normal(0.0, self._bv, n)
             X[3, slot, born] = rng.normal(0.0, self._bv, n)
             valid[slot, born] = True
-        # valid.sum(axis=0) as row additions (a strided reduction is several times slower)
-        counts = valid[0].astype(np.int64)
-        for row in valid[1:]:
-            counts += row
+            if fused:
+                cells[slot, born] = self._cell_index(X[0, slot, born], X[2, slot, born])
+                counts[born] += 1
+        if fused:
+            self._raw_cells = cells
+        else:
+            # valid.sum(axis=0) as row additions (a strided reduction is several times
+            # slower)
+            counts = valid[0].astype(np.int64)
+            for row in valid[1:]:
+                counts += row
+            self._update_cells()
         self._counts = counts
         if self._ref is not None and len(self._ref):
             self._ref = self._ref @ self._F.T
-        self._update_cells()
 
     def _other_buffer(self) -> np.ndarray:
         """The buffer not holding the states (the target of the next move/gather)."""
@@ -675,22 +749,42 @@ class JMPDTracker(Tracker):
 
         Computed as ``trunc(py * (1 / s)) nx + trunc(px * (1 / s))``; positions are
         inside the workspace, so the truncating cast is the floor. With ``s = 1`` the
-        products are skipped (``x * 1.0 == x`` exactly).
+        products are skipped (``x * 1.0 == x`` exactly); otherwise the indices are
+        clamped to the grid, because a position one ulp below the edge can round up
+        to ``nx`` (``ny``) in the product. :func:`trackers.kernels.boundary_cells_counts`
+        is the compiled form.
         """
         X, tmp = self._X, self._tmp
         cells, col = self._cells_buf, self._col_buf
-        if self._grid.cell_size == 1.0:
+        grid = self._grid
+        if grid.cell_size == 1.0:
             np.copyto(cells, X[2], casting="unsafe")
             np.copyto(col, X[0], casting="unsafe")
         else:
-            inv = 1.0 / self._grid.cell_size
+            inv = 1.0 / grid.cell_size
             np.multiply(X[2], inv, out=tmp)
             np.copyto(cells, tmp, casting="unsafe")
+            np.minimum(cells, grid.ny - 1, out=cells)
             np.multiply(X[0], inv, out=tmp)
             np.copyto(col, tmp, casting="unsafe")
-        cells *= self._grid.nx
+            np.minimum(col, grid.nx - 1, out=col)
+        cells *= grid.nx
         cells += col
         self._raw_cells = cells
+
+    def _cell_index(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+        """Flat int32 cells of positions inside the workspace, by the rule of
+        :meth:`_update_cells` (for a few slots: births, resample-move proposals)."""
+        grid = self._grid
+        if grid.cell_size == 1.0:
+            col, row = px.astype(np.int32), py.astype(np.int32)
+        else:
+            inv = 1.0 / grid.cell_size
+            col = np.minimum((px * inv).astype(np.int32), grid.nx - 1)
+            row = np.minimum((py * inv).astype(np.int32), grid.ny - 1)
+        row *= grid.nx
+        row += col
+        return row
 
     @property
     def _cells(self) -> np.ndarray | None:
@@ -807,7 +901,7 @@ class JMPDTracker(Tracker):
             return
         parents = self._parents  # (8, T, N): x_{k-1} and e, gathered with the states
         X, e = self._X, parents[4:]
-        nx, inv, n_cells = self._grid.nx, 1.0 / self._grid.cell_size, self._n_cells
+        n_cells = self._n_cells
         reflect = self._model.birth_death.boundary == "reflect"
         prop = np.empty_like(parents)
         for _ in range(int(self.move_steps)):
@@ -829,7 +923,7 @@ class JMPDTracker(Tracker):
                     ok &= ~(out & movable).any(axis=0)
                     np.clip(Xn[p_row], 0.0, np.nextafter(length, 0.0), out=Xn[p_row])
             # same cell rule as _update_cells: positions are inside, truncation is floor
-            cells = (Xn[2] * inv).astype(np.int64) * nx + (Xn[0] * inv).astype(np.int64)
+            cells = self._cell_index(Xn[0], Xn[2]).astype(np.int64)
             cells[~self._valid] = n_cells
             ll_new = self._log_likelihood(Xn, cells)
             de = np.einsum("dtn,dtn->n", prop[4:], prop[4:]) - np.einsum("dtn,dtn->n", e, e)
