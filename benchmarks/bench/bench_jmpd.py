@@ -8,10 +8,14 @@ floor of any bootstrap step. Goal: step / baseline <= 1.5 at N = 1e5.
 
 Also one resampling step with and without a resample-move sweep.
 
-Run: ``pytest benchmarks/bench/bench_jmpd.py --benchmark-only``.
+Run: ``pytest benchmarks/bench/bench_jmpd.py --benchmark-only``; the paired ratios
+(``extra_info["paired_ratio"]``, see ``test_jmpd_bootstrap_step``) are listed at the
+end of the terminal output and kept in the saved JSON.
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 import pytest
@@ -35,18 +39,38 @@ def world(request):
 
 
 @pytest.mark.parametrize("n", SIZES)
-def test_jmpd_bootstrap_step(benchmark, world, n):
+def test_jmpd_bootstrap_step(benchmark, world, n, record_ratio):
+    """The step, timed by pytest-benchmark; before every round (untimed, in the
+    setup) the same noise draw as ``test_draw_process_noise_only`` is timed too, so
+    ``extra_info["paired_ratio"]`` (median over rounds of step / draw just before it)
+    is free of the drift between two benchmarks run seconds apart (the draw alone has
+    wandered by 30% between runs on the reference machine)."""
     sc, looks = world
     tr = JMPDTracker(n_particles=n, t_max=T_MAX)
     tr.reset(sc.model, np.random.default_rng(0))
+    rng = np.random.default_rng(1)
+    noise = np.empty((8, T_MAX, n))[4:]
+    noise_times: list[float] = []
+
+    def time_noise():
+        t0 = time.perf_counter()
+        rng.standard_normal(out=noise)
+        noise_times.append(time.perf_counter() - t0)
 
     def step():
         tr.predict()
         tr.update(looks)
 
-    benchmark.extra_info.update(scenario=sc.name, n_particles=n, t_max=T_MAX)
-    benchmark.pedantic(step, rounds=15, warmup_rounds=2)
+    benchmark.extra_info.update(scenario=sc.name, n_particles=n, t_max=T_MAX,
+                                compiled_kernels=tr.uses_compiled_kernels)
+    benchmark.pedantic(step, setup=time_noise, rounds=15, warmup_rounds=2)
     benchmark.extra_info["resamples"] = tr.n_resamples
+    if benchmark.stats is not None:  # None under --benchmark-disable
+        steps = np.asarray(benchmark.stats.stats.data)
+        draws = np.asarray(noise_times[-len(steps):])
+        benchmark.extra_info["paired_ratio"] = float(np.median(steps / draws))
+        benchmark.extra_info["noise_median_s"] = float(np.median(draws))
+        record_ratio(benchmark.extra_info["paired_ratio"], float(np.median(draws)))
 
 
 @pytest.mark.parametrize("n", SIZES)

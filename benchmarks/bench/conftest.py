@@ -29,3 +29,23 @@ def pytest_collect_file(file_path, parent):
     if any(fnmatch.fnmatch(file_path.name, p) for p in patterns):
         return None
     return pytest.Module.from_parent(parent, path=file_path)
+
+
+_RATIOS: list[tuple[str, float, float]] = []  # (benchmark, paired ratio, noise median s)
+
+
+@pytest.fixture
+def record_ratio(request):
+    """``record_ratio(ratio, noise_s)``: list a paired step / noise ratio in the
+    terminal summary (``bench_jmpd.test_jmpd_bootstrap_step``)."""
+    def record(ratio: float, noise_s: float) -> None:
+        _RATIOS.append((request.node.name, ratio, noise_s))
+    return record
+
+
+def pytest_terminal_summary(terminalreporter):
+    if not _RATIOS:
+        return
+    terminalreporter.section("JMPD bootstrap step / its noise draw (paired, median of rounds)")
+    for name, ratio, noise_s in _RATIOS:
+        terminalreporter.write_line(f"{name:45s} {ratio:5.2f}x   (draw {noise_s * 1e3:6.1f} ms)")
