@@ -23,6 +23,12 @@ from trackers.jmpd import JMPDTracker
 kernels = pytest.importorskip("trackers.kernels", reason="numba is not installed")
 
 
+@pytest.fixture(autouse=True)
+def _kernels_allowed(monkeypatch):
+    """These tests choose the backend themselves, whatever MTTBENCH_NO_NUMBA says."""
+    monkeypatch.delenv("MTTBENCH_NO_NUMBA", raising=False)
+
+
 def _edge_values(length: float) -> list[float]:
     """Finite positions on and around the edges of ``[0, length)`` and far outside."""
     return [0.0, -0.0, length, np.nextafter(length, 0.0), np.nextafter(length, np.inf),
