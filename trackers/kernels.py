@@ -30,9 +30,15 @@ from numba import njit
 
 
 @njit(cache=True)
-def _reflect(p: float, v: float, length: float, cap: float) -> tuple[float, float]:
-    """One value of ``trackers.jmpd._fold``: ``np.mod(p, 2 L)`` (fmod, then the sign
-    fix of numpy's remainder), mirrored above ``L``, capped below ``L``."""
+def _outside(p: float, v: float, length: float, cap: float,
+             reflect: bool) -> tuple[float, float, bool]:
+    """A position ``p`` outside ``[0, length)`` with velocity ``v``: ``(p, v, alive)``
+    after the boundary rule. Reflect is one value of ``trackers.jmpd._fold``:
+    ``np.mod(p, 2 L)`` (fmod, then the sign fix of numpy's remainder), mirrored above
+    ``L`` with the velocity, capped at ``cap`` (``np.minimum``, which keeps a NaN). Die
+    parks the position at ``L / 2``."""
+    if not reflect:
+        return 0.5 * length, v, False
     two = 2.0 * length
     folded = np.fmod(p, two)
     if folded != 0.0:
@@ -44,9 +50,9 @@ def _reflect(p: float, v: float, length: float, cap: float) -> tuple[float, floa
         p, v = two - folded, -v
     else:
         p = folded
-    if p > cap:  # np.minimum(p, cap), which keeps a NaN
+    if p > cap:
         p = cap
-    return p, v
+    return p, v, True
 
 
 @njit(cache=True)
@@ -76,23 +82,13 @@ def boundary_cells_counts(px: np.ndarray, vx: np.ndarray, py: np.ndarray, vy: np
             y = pyt[i]
             if not (x >= 0.0 and x < width and y >= 0.0 and y < height):
                 if x < 0.0 or x >= width:  # a NaN is left alone, as in numpy
-                    if reflect:
-                        x, v = _reflect(x, vxt[i], width, cap_w)
-                        pxt[i] = x
-                        vxt[i] = v
-                    else:
-                        vt[i] = False
-                        x = 0.5 * width
-                        pxt[i] = x
+                    x, vxt[i], alive = _outside(x, vxt[i], width, cap_w, reflect)
+                    pxt[i] = x
+                    vt[i] = vt[i] and alive
                 if y < 0.0 or y >= height:
-                    if reflect:
-                        y, v = _reflect(y, vyt[i], height, cap_h)
-                        pyt[i] = y
-                        vyt[i] = v
-                    else:
-                        vt[i] = False
-                        y = 0.5 * height
-                        pyt[i] = y
+                    y, vyt[i], alive = _outside(y, vyt[i], height, cap_h, reflect)
+                    pyt[i] = y
+                    vt[i] = vt[i] and alive
             if unit:
                 col = np.int32(x)
                 row = np.int32(y)
