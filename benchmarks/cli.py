@@ -26,12 +26,11 @@ from pathlib import Path
 
 import pandas as pd
 
-import scenarios
-import trackers
-from benchmarks import policies
-from benchmarks.compare import COMPARE_REFERENCE, COMPARE_SCENARIOS, COMPARE_SEEDS
-from benchmarks.harness import PolicySpec, TrackerSpec, build_jobs, run_sweep, split_specs
-from benchmarks.summary import summarize, to_markdown
+from .. import scenarios, trackers
+from . import policies
+from .compare import COMPARE_REFERENCE, COMPARE_SCENARIOS, COMPARE_SEEDS
+from .harness import PolicySpec, TrackerSpec, build_jobs, run_sweep, split_specs
+from .summary import summarize, to_markdown
 
 #: scenarios of ``mttbench compare`` (the superposition and large presets are left out:
 #: not every tracker supports the former, the latter is a scale test)
@@ -208,7 +207,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """The head-to-head report (:mod:`benchmarks.compare`)."""
-    from benchmarks.compare import run_compare
+    from .compare import run_compare
 
     _check_common(args)
     seeds = _seeds(args, default=COMPARE_SEEDS)
@@ -224,7 +223,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
     """Reviewer reproduction of the paper's figures (:mod:`benchmarks.reproduce`)."""
-    from benchmarks.reproduce import main_reproduce
+    from .reproduce import main_reproduce
 
     return main_reproduce(args)
 

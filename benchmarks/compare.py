@@ -38,12 +38,12 @@ from typing import TYPE_CHECKING, Any
 
 import pandas as pd
 
-import trackers
-from benchmarks import summary
-from benchmarks.harness import PolicySpec, TrackerSpec, build_jobs, run_sweep
+from .. import trackers
+from . import summary
+from .harness import PolicySpec, TrackerSpec, build_jobs, run_sweep
 
 if TYPE_CHECKING:
-    from benchmarks.report import ReportFiles
+    from .report import ReportFiles
 
 COMPARE_SCENARIOS = ("default", "crossing", "births", "paper")
 COMPARE_SEEDS = 10
@@ -119,7 +119,7 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
     setting); None means ``kfnn`` when it runs, else the first tracker. Raises
     :class:`benchmarks.cli.UsageError` on bad names, including an unknown reference.
     """
-    from benchmarks import cli  # cli imports this module; import lazily
+    from . import cli  # cli imports this module; import lazily
 
     t0 = time.perf_counter()
     started = datetime.now(UTC)
@@ -168,7 +168,7 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
         "particles (plus a 250-particle setting). Narrow the intervals with `--seeds`, lengthen "
         "runs with `--steps`, choose trackers and parameters with `--trackers name:key=value`.",
     ]
-    from benchmarks import report  # matplotlib: imported only when a report is drawn
+    from . import report  # matplotlib: imported only when a report is drawn
 
     files = report.build_report(results, out, reference=reference, intro=intro,
                                 settings=settings, trace=trace)
@@ -213,8 +213,8 @@ def _seed_text(seeds: list[int]) -> str:
 
 def _snapshot_trace(scs, specs: list[TrackerSpec], seeds: list[int]):
     """Trace seed ``seeds[0]`` of the first grid scenario for the preferred tracker."""
-    from benchmarks.snapshot import trace_run
-    from scenarios.model import RayleighGridSensor
+    from ..scenarios.model import RayleighGridSensor
+    from .snapshot import trace_run
 
     grid_scs = [sc for sc in scs if isinstance(sc.model.sensor, RayleighGridSensor)]
     if not grid_scs or not seeds:

@@ -88,12 +88,12 @@ from typing import Any, ClassVar, Self
 import numpy as np
 import pandas as pd
 
-import trackers
-from benchmarks import policies
-from benchmarks.metrics import step_metrics
-from scenarios.model import RayleighGridSensor
-from scenarios.simulator import simulate, tracker_seed
-from scenarios.spec import Scenario, dumps
+from .. import trackers
+from ..scenarios.model import RayleighGridSensor
+from ..scenarios.simulator import simulate, tracker_seed
+from ..scenarios.spec import Scenario, dumps
+from . import policies
+from .metrics import step_metrics
 
 METRIC_COLUMNS = [
     "count_error", "ospa", "ospa_loc", "ospa_card", "gospa", "gospa_loc", "gospa_missed",

@@ -37,8 +37,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import binom
 
-from benchmarks.policies import Policy, register_policy
-from scenarios.model import RayleighGridSensor, TrackingModel
+from ..scenarios.model import RayleighGridSensor, TrackingModel
+from .policies import Policy, register_policy
 
 
 def expected_gain(counts: np.ndarray, likelihood: np.ndarray, alpha: float = 0.5) -> np.ndarray:

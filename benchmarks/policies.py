@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from scenarios.model import TrackingModel
+from ..scenarios.model import TrackingModel
 
 
 class Policy(ABC):
@@ -133,4 +133,4 @@ class Oracle(Policy):
 # The information-driven policy lives in its own module, which imports this one for
 # the registry; importing it here (after the registry exists) registers "renyi"
 # whenever the policies are imported, without a circular-import failure.
-from benchmarks import information  # noqa: E402, F401
+from . import information  # noqa: E402, F401

@@ -38,7 +38,7 @@ from typing import Any
 
 import pandas as pd
 
-from benchmarks import figures, summary
+from . import figures, summary
 
 #: (column stem, header, scale, format) of the accuracy table
 ACCURACY_COLUMNS = [

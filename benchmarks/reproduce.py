@@ -49,26 +49,27 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-import scenarios
-import trackers
-from benchmarks import figures
-from benchmarks.compare import package_versions
-from benchmarks.harness import PolicySpec, TrackerSpec, build_jobs, run_sweep
-from benchmarks.report import Document
-from benchmarks.snapshot import trace_run
-from scenarios.spec import dumps
+from .. import reference, scenarios, trackers
+from ..scenarios.spec import dumps
+from . import figures
+from .compare import package_versions
+from .harness import PolicySpec, TrackerSpec, build_jobs, run_sweep
+from .report import Document
+from .snapshot import trace_run
 
 RTOL = 1e-9
 ATOL = 1e-12
 MAX_REPORTED = 25
 KEYS = ["figure", "scenario", "tracker", "step", "item", "quantity"]
-REPO = Path(__file__).resolve().parent.parent
-REFERENCE_DIR = REPO / "reports" / "reference"
-#: source that determines the numbers (hashed into the cache key)
-FINGERPRINT_GLOBS = ("trackers/*.py", "scenarios/*.py", "scenarios/presets/*.toml",
-                     "benchmarks/harness.py", "benchmarks/metrics.py",
-                     "benchmarks/policies.py", "benchmarks/information.py",
-                     "benchmarks/snapshot.py", "benchmarks/reproduce.py")
+#: the checked-in references: package data, so ``--check`` works from a plain install
+REFERENCE_DIR = Path(reference.__file__).parent
+#: source that determines the numbers (hashed into the cache key), per layer package
+FINGERPRINT_GLOBS = {
+    trackers: ("**/*.py",),
+    scenarios: ("*.py", "presets/*.toml"),
+    sys.modules[__package__]: ("harness.py", "metrics.py", "policies.py", "information.py",
+                               "snapshot.py", "reproduce.py", "specs.py"),
+}
 
 #: where our reading of the paper departs from its text (shown in the report and README)
 DEPARTURES = [
@@ -144,12 +145,15 @@ def available_trackers(texts: tuple[str, ...]) -> tuple[list[TrackerSpec], list[
 
 
 def code_fingerprint() -> str:
-    """SHA-256 over the sources that determine the numbers (:data:`FINGERPRINT_GLOBS`)."""
+    """SHA-256 over the sources that determine the numbers (:data:`FINGERPRINT_GLOBS`),
+    read from the installed packages (a checkout or a plain install alike)."""
     h = hashlib.sha256()
-    for pattern in FINGERPRINT_GLOBS:
-        for path in sorted(REPO.glob(pattern)):
-            h.update(path.relative_to(REPO).as_posix().encode())
-            h.update(path.read_bytes())
+    for package, patterns in FINGERPRINT_GLOBS.items():
+        folder = Path(package.__file__).parent
+        for pattern in patterns:
+            for path in sorted(folder.glob(pattern)):
+                h.update(f"{package.__name__}/{path.relative_to(folder).as_posix()}".encode())
+                h.update(path.read_bytes())
     return h.hexdigest()
 
 

@@ -19,10 +19,10 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from benchmarks.harness import Job, PolicySpec, TrackerSpec
-from scenarios.model import RayleighGridSensor
-from scenarios.simulator import simulate, tracker_seed
-from scenarios.spec import Scenario
+from ..scenarios.model import RayleighGridSensor
+from ..scenarios.simulator import simulate, tracker_seed
+from ..scenarios.spec import Scenario
+from .harness import Job, PolicySpec, TrackerSpec
 
 
 @dataclass(frozen=True)

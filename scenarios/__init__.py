@@ -1,6 +1,6 @@
 """Scenario models, presets (TOML) and the simulator of truth and sensor returns."""
 
-from scenarios.model import (
+from .model import (
     BirthDeath,
     Dynamics,
     Grid,
@@ -9,7 +9,7 @@ from scenarios.model import (
     SuperpositionSensor,
     TrackingModel,
 )
-from scenarios.spec import Scenario, ScenarioError, get, load, preset_names
+from .spec import Scenario, ScenarioError, get, load, preset_names
 
 __all__ = [
     "BirthDeath", "Dynamics", "Grid", "Looks", "RayleighGridSensor", "Scenario",

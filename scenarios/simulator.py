@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scenarios.model import Looks, RayleighGridSensor, SuperpositionSensor, TrackingModel
-from scenarios.spec import Scenario
+from .model import Looks, RayleighGridSensor, SuperpositionSensor, TrackingModel
+from .spec import Scenario
 
 # spawn-key tags; the world uses (scenario, TAG, ...) and trackers use their own tag
 _TRUTH, _LOOKS, _LINEAR = 0, 1, 2

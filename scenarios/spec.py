@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from scenarios.model import (
+from .model import (
     BirthDeath,
     Dynamics,
     Grid,
@@ -267,7 +267,7 @@ def load(path: str | Path) -> Scenario:
 # ------------------------------------------------------------------------ presets
 def preset_names() -> list[str]:
     """Names of the shipped presets, sorted."""
-    folder = resources.files("scenarios.presets")
+    folder = resources.files(__package__ + ".presets")
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
 
 
@@ -279,5 +279,5 @@ def get(name_or_path: str) -> Scenario:
     if name_or_path not in names:
         raise ScenarioError(f"unknown scenario {name_or_path!r}: presets are {names}, "
                             "or give a path to a .toml file")
-    text = resources.files("scenarios.presets").joinpath(f"{name_or_path}.toml").read_text()
+    text = resources.files(__package__ + ".presets").joinpath(f"{name_or_path}.toml").read_text()
     return loads(text, default_name=name_or_path)

@@ -6,10 +6,9 @@ import itertools
 
 import numpy as np
 import pytest
+from mttbench.scenarios.model import Grid
+from mttbench.trackers.cells import gaussian_cell_mass, poisson_binomial
 from scipy import integrate, stats
-
-from scenarios.model import Grid
-from trackers.cells import gaussian_cell_mass, poisson_binomial
 
 #: one tolerance for quadrature comparisons (dblquad/quad absolute error ~1e-10)
 QUAD_ATOL = 1e-8

@@ -6,13 +6,12 @@ import dataclasses
 
 import pandas as pd
 import pytest
+from mttbench.benchmarks import policies
+from mttbench.benchmarks.cli import COMPARE_SCENARIOS, main
+from mttbench.benchmarks.harness import COLUMNS
+from mttbench.scenarios.spec import dumps
 
-import scenarios
-import trackers
-from benchmarks import policies
-from benchmarks.cli import COMPARE_SCENARIOS, main
-from benchmarks.harness import COLUMNS
-from scenarios.spec import dumps
+from mttbench import scenarios, trackers
 
 
 @pytest.mark.parametrize("command", [[], ["scenarios"], ["trackers"], ["run"], ["compare"]])

@@ -12,10 +12,9 @@ import itertools
 
 import numpy as np
 import pytest
+from mttbench.scenarios.model import Grid, RayleighGridSensor
+from mttbench.trackers.gpf_grid import grid_update, rect_position_moments
 from scipy.stats import multivariate_normal
-
-from scenarios.model import Grid, RayleighGridSensor
-from trackers.gpf_grid import grid_update, rect_position_moments
 
 GRID = Grid(6, 5, cell_size=1.0)
 SENSOR = RayleighGridSensor(p_d=0.5, snr=10.0, looks_per_step=10)
@@ -199,10 +198,9 @@ def test_uniform_candidate_alone_gets_the_bernoulli_posterior():
 
 def test_cluster_components_equal_scipy_connected_components():
     """The particle -- cell clustering gives the same partition as scipy's graph components."""
+    from mttbench.trackers.gpf_grid import _components
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
-
-    from trackers.gpf_grid import _components
 
     rng = np.random.default_rng(11)
     for _ in range(200):
@@ -217,7 +215,7 @@ def test_cluster_components_equal_scipy_connected_components():
 @pytest.mark.parametrize("eps", [0.0, 1e-3, 0.05])
 def test_small_clusters_listed_together_equal_one_at_a_time(eps):
     """The batched full listing of small clusters equals the per-cluster enumeration."""
-    from trackers.gpf_grid import _cluster_posterior, _small_clusters_posterior
+    from mttbench.trackers.gpf_grid import _cluster_posterior, _small_clusters_posterior
 
     rng = np.random.default_rng(int(eps * 1000) + 5)
     sizes = [2, 3, 1, 4, 2]

@@ -9,11 +9,8 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
-from scipy import stats
-
-import scenarios
-from benchmarks import harness
-from benchmarks.harness import (
+from mttbench.benchmarks import harness
+from mttbench.benchmarks.harness import (
     COLUMNS,
     Job,
     PolicySpec,
@@ -24,10 +21,19 @@ from benchmarks.harness import (
     run_sweep,
     split_specs,
 )
-from benchmarks.metrics import step_metrics
-from benchmarks.summary import mean_ci95, paired_difference, per_run, summarize, to_markdown
-from scenarios.simulator import simulate
-from trackers.base import _REGISTRY, Estimate, Tracker, register
+from mttbench.benchmarks.metrics import step_metrics
+from mttbench.benchmarks.summary import (
+    mean_ci95,
+    paired_difference,
+    per_run,
+    summarize,
+    to_markdown,
+)
+from mttbench.scenarios.simulator import simulate
+from mttbench.trackers.base import _REGISTRY, Estimate, Tracker, register
+from scipy import stats
+
+from mttbench import scenarios
 
 #: one tolerance for float comparisons of recomputed statistics
 TOL = 1e-12

@@ -6,15 +6,14 @@ import itertools
 
 import numpy as np
 import pytest
-from scipy.stats import entropy
-
-from benchmarks.information import (
+from mttbench.benchmarks.information import (
     binomial_likelihood,
     expected_gain,
     gain_of_looks,
     greedy_looks,
 )
-from scenarios.model import RayleighGridSensor
+from mttbench.scenarios.model import RayleighGridSensor
+from scipy.stats import entropy
 
 TOL = 1e-12  # brute force vs closed form: same maths, different order of operations
 

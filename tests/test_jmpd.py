@@ -14,10 +14,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from scipy.optimize import linear_sum_assignment
-
-import trackers
-from scenarios.model import (
+from mttbench.scenarios.model import (
     BirthDeath,
     Dynamics,
     Grid,
@@ -26,8 +23,8 @@ from scenarios.model import (
     SuperpositionSensor,
     TrackingModel,
 )
-from trackers import kalman
-from trackers.jmpd import (
+from mttbench.trackers import kalman
+from mttbench.trackers.jmpd import (
     JMPDTracker,
     align_square,
     cell_count_distribution_from,
@@ -36,6 +33,9 @@ from trackers.jmpd import (
     superposition_log_likelihood,
     systematic_resample,
 )
+from scipy.optimize import linear_sum_assignment
+
+from mttbench import scenarios, trackers
 
 EXACT = 1e-12  # sums of a few dozen logs of O(1..10): round-off only
 # the backend fixture's monkeypatch holds for every hypothesis example
@@ -46,7 +46,7 @@ FIXTURE_OK = [HealthCheck.function_scoped_fixture]
 def backend(request, monkeypatch):
     """Run a test with the numpy forms and again with the numba kernels
     (``trackers.kernels``); both must give the same answers."""
-    import trackers.jmpd as jmpd_module
+    import mttbench.trackers.jmpd as jmpd_module
     if request.param == "numpy":
         monkeypatch.setattr(jmpd_module, "_KERNELS", None)
     else:
@@ -261,7 +261,7 @@ def test_systematic_offspring_between_floor_and_ceil(backend, raw, u):
 def _reference_boundary(X, valid, width, height, boundary):
     """The plain rule: every slot outside [0, length) folds back (or dies, parked at
     the centre), found by exact comparisons."""
-    from trackers.jmpd import _fold
+    from mttbench.trackers.jmpd import _fold
     X, valid = X.copy(), valid.copy()
     for p_row, v_row, length in ((0, 1, width), (2, 3, height)):
         out = (X[p_row] < 0.0) | (X[p_row] >= length)
@@ -467,7 +467,7 @@ def test_registered_with_parameters():
 
 def test_moves_after_resampling_reach_the_particles():
     """Deaths, reflection and cells act on the resampled arrays (not on copies)."""
-    sc = __import__("scenarios").get("paper")  # Q = diag(20, .2, 20, .2): many bounces
+    sc = scenarios.get("paper")  # Q = diag(20, .2, 20, .2): many bounces
     tr = JMPDTracker(n_particles=500, t_max=4, resample_threshold=1.0, birth_rate=0.0,
                      death_probability=0.0)
     tr.reset(sc.model, np.random.default_rng(5))
@@ -488,7 +488,7 @@ def test_moves_after_resampling_reach_the_particles():
 def test_ip_update_when_no_particle_occupies_a_looked_cell():
     """Regression: an empty weighted bincount is int64 in numpy; the IP correction
     subtraction then failed."""
-    sc = __import__("scenarios").get("default")
+    sc = scenarios.get("default")
     tr = trackers.make("jmpd-ip", n_particles=50)
     tr.reset(sc.model, np.random.default_rng(0))
     tr.predict()
@@ -672,7 +672,7 @@ def test_conformance_with_move(check, monkeypatch):
 
 
 def test_move_needs_the_bootstrap_proposal():
-    model = __import__("scenarios").get("default").model
+    model = scenarios.get("default").model
     with pytest.raises(ValueError, match="bootstrap"):
         JMPDTracker(proposal="ip", move_steps=1).reset(model, np.random.default_rng(0))
     with pytest.raises(ValueError, match="move_scale"):
@@ -682,8 +682,8 @@ def test_move_needs_the_bootstrap_proposal():
 def test_move_off_draws_nothing_extra():
     """``move_steps=0`` is the plain bootstrap: same random stream, same results as a
     tracker built without the parameter; ``move_steps=1`` changes them."""
-    sc = __import__("scenarios").get("crossing")
-    from scenarios.simulator import simulate
+    sc = scenarios.get("crossing")
+    from mttbench.scenarios.simulator import simulate
     run = simulate(sc, 0)
     outs = []
     for params in ({}, {"move_steps": 0, "move_scale": 3.0}, {"move_steps": 1}):

@@ -11,16 +11,16 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 
+import mttbench.trackers.jmpd as jmpd_module
 import numpy as np
 import pytest
+from mttbench.scenarios.model import BirthDeath, Dynamics, Grid, RayleighGridSensor, TrackingModel
+from mttbench.scenarios.simulator import simulate
+from mttbench.trackers.jmpd import JMPDTracker
 
-import scenarios
-import trackers.jmpd as jmpd_module
-from scenarios.model import BirthDeath, Dynamics, Grid, RayleighGridSensor, TrackingModel
-from scenarios.simulator import simulate
-from trackers.jmpd import JMPDTracker
+from mttbench import scenarios
 
-kernels = pytest.importorskip("trackers.kernels", reason="numba is not installed")
+kernels = pytest.importorskip("mttbench.trackers.kernels", reason="numba is not installed")
 
 
 @pytest.fixture(autouse=True)

@@ -7,11 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
-from scipy import stats
-
-import scenarios
-from benchmarks.metrics import ospa
-from scenarios.model import (
+from mttbench.benchmarks.metrics import ospa
+from mttbench.scenarios.model import (
     BirthDeath,
     Dynamics,
     Grid,
@@ -19,10 +16,13 @@ from scenarios.model import (
     RayleighGridSensor,
     TrackingModel,
 )
-from scenarios.simulator import simulate
-from scenarios.spec import Scenario
-from trackers.cells import poisson_binomial
-from trackers.kfnn import KFNNTracker, associate
+from mttbench.scenarios.simulator import simulate
+from mttbench.scenarios.spec import Scenario
+from mttbench.trackers.cells import poisson_binomial
+from mttbench.trackers.kfnn import KFNNTracker, associate
+from scipy import stats
+
+from mttbench import scenarios
 
 #: one tolerance for "equal to the reference Kalman filter"
 KF_TOL = 1e-10

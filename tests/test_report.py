@@ -15,13 +15,13 @@ import re
 import numpy as np
 import pandas as pd
 import pytest
+from mttbench.benchmarks import figures, report
+from mttbench.benchmarks.harness import COLUMNS, Job, PolicySpec, TrackerSpec, run_job
+from mttbench.benchmarks.metrics import step_metrics
+from mttbench.benchmarks.snapshot import trace_run
 from scipy import stats
 
-import scenarios
-from benchmarks import figures, report
-from benchmarks.harness import COLUMNS, Job, PolicySpec, TrackerSpec, run_job
-from benchmarks.metrics import step_metrics
-from benchmarks.snapshot import trace_run
+from mttbench import scenarios
 
 DISPLAY_TOL = 5e-4 + 1e-12  # half a unit in the 3rd decimal of a ".3f" cell
 NUM_TOL = 1e-10
@@ -82,7 +82,7 @@ def built(tmp_path_factory):
 
 def test_accuracy_table_rows_and_intervals_match_scipy(built):
     results, _, _ = built
-    from benchmarks import summary
+    from mttbench.benchmarks import summary
     table = report.summary_table(summary.summarize(results),
                                  report.ACCURACY_COLUMNS + report.GOSPA_COLUMNS)
     assert len(table) == len(SCENARIOS) * len(TRACKERS)
@@ -163,7 +163,7 @@ def test_failed_runs_listed_and_excluded(tmp_path):
     files = report.build_report(results, tmp_path, reference="kfnn", draw=False)
     md = files.markdown.read_text()
     assert "Failed or unsupported runs" in md and "RuntimeError: boom" in md
-    from benchmarks import summary
+    from mttbench.benchmarks import summary
     summ = summary.summarize(results)
     assert set(summ.loc[summ["tracker_label"] == "third", "n_seeds"]) == {len(SEEDS) - 1}
 

@@ -8,10 +8,9 @@ import dataclasses
 import numpy as np
 import pandas as pd
 import pytest
-
-from benchmarks import reproduce
-from benchmarks.cli import main
-from benchmarks.harness import PolicySpec, TrackerSpec
+from mttbench.benchmarks import reproduce
+from mttbench.benchmarks.cli import main
+from mttbench.benchmarks.harness import PolicySpec, TrackerSpec
 
 REFERENCE = reproduce.REFERENCE_DIR / "paper_reduced.csv"
 

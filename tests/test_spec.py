@@ -5,11 +5,11 @@ from __future__ import annotations
 import re
 
 import pytest
+from mttbench.scenarios import ScenarioError
+from mttbench.scenarios.model import RayleighGridSensor
+from mttbench.scenarios.spec import dumps, loads
 
-import scenarios
-from scenarios import ScenarioError
-from scenarios.model import RayleighGridSensor
-from scenarios.spec import dumps, loads
+from mttbench import scenarios
 
 GOOD = """
 description = "test"

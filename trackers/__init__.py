@@ -4,12 +4,12 @@ Importing this package registers every shipped tracker; add a new module's impor
 below to register it (the conformance suite then tests it automatically).
 """
 
-from trackers import (
+from . import (
     gpf,  # noqa: F401  (registers "gpf")
     jmpd,  # noqa: F401  (registers "jmpd", "jmpd-ip")
     kfnn,  # noqa: F401  (registers "kfnn")
     null,  # noqa: F401  (registers "null")
 )
-from trackers.base import Estimate, Tracker, available, get_class, make, register
+from .base import Estimate, Tracker, available, get_class, make, register
 
 __all__ = ["Estimate", "Tracker", "available", "get_class", "make", "register"]

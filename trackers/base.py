@@ -24,7 +24,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from scenarios.model import Looks, TrackingModel
+from ..scenarios.model import Looks, TrackingModel
 
 
 @dataclass(frozen=True)

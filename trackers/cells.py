@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import ndtr
 
-from scenarios.model import Grid, RayleighGridSensor
+from ..scenarios.model import Grid, RayleighGridSensor
 
 #: smallest standard deviation (in cells) used for a position axis; keeps the
 #: standardised edges finite for a degenerate (zero-variance) Gaussian

@@ -149,12 +149,12 @@ import math
 import numpy as np
 from scipy.special import ndtr
 
-from scenarios.model import Looks, RayleighGridSensor, TrackingModel
-from trackers import kalman
-from trackers.base import Estimate, Tracker, register
-from trackers.cells import gaussian_cell_mass, poisson_binomial
-from trackers.gpf_grid import grid_update
-from trackers.gpf_linear import superposition_update
+from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
+from . import kalman
+from .base import Estimate, Tracker, register
+from .cells import gaussian_cell_mass, poisson_binomial
+from .gpf_grid import grid_update
+from .gpf_linear import superposition_update
 
 _POS = np.array([0, 2])
 _MERGE_RULES = ("bounded_sum", "capped_sum", "union")

@@ -49,9 +49,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtr
 
-from scenarios.model import Grid, RayleighGridSensor
-from trackers.cells import look_log_ratios
-from trackers.gpf_linear import enumerate_combinations, log_normalise
+from ..scenarios.model import Grid, RayleighGridSensor
+from .cells import look_log_ratios
+from .gpf_linear import enumerate_combinations, log_normalise
 
 _GL_T, _GL_W = np.polynomial.legendre.leggauss(24)
 _RANGE_SIGMAS = 7.0

@@ -155,9 +155,9 @@ from typing import Literal
 import numpy as np
 from scipy.special import logsumexp
 
-from scenarios.model import Looks, RayleighGridSensor, TrackingModel
-from trackers.base import Estimate, Tracker, register
-from trackers.cells import look_log_ratios
+from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
+from .base import Estimate, Tracker, register
+from .cells import look_log_ratios
 
 DEFAULT_BIRTH_RATE = 0.02  # per particle and step, used when the model has no births
 DEFAULT_DEATH_PROBABILITY = 0.01  # per target and step, used when the model has p_s = 1
@@ -177,7 +177,7 @@ def compiled_kernels() -> ModuleType | None:
             _KERNELS = None
         else:
             try:
-                from trackers import kernels
+                from . import kernels
             except ImportError:
                 _KERNELS = None
             else:

@@ -86,10 +86,10 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.stats import chi2
 
-from scenarios.model import Looks, RayleighGridSensor, TrackingModel
-from trackers import kalman
-from trackers.base import Estimate, Tracker, register
-from trackers.cells import gaussian_cell_mass, poisson_binomial
+from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
+from . import kalman
+from .base import Estimate, Tracker, register
+from .cells import gaussian_cell_mass, poisson_binomial
 
 #: count columns of P_c: 0, 1, 2 and "3 or more"
 N_COUNTS = 4

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from scenarios.model import Looks, TrackingModel
-from trackers.base import Estimate, Tracker, register
+from ..scenarios.model import Looks, TrackingModel
+from .base import Estimate, Tracker, register
 
 
 @register

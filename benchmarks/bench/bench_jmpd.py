@@ -19,10 +19,10 @@ import time
 
 import numpy as np
 import pytest
+from mttbench.scenarios.simulator import simulate
+from mttbench.trackers.jmpd import JMPDTracker
 
-import scenarios
-from scenarios.simulator import simulate
-from trackers.jmpd import JMPDTracker
+from mttbench import scenarios
 
 T_MAX = 5
 SIZES = [10_000, 100_000]

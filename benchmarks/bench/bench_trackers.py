@@ -24,13 +24,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from mttbench.benchmarks.metrics import step_metrics
+from mttbench.scenarios.model import Looks
+from mttbench.scenarios.simulator import simulate, tracker_seed
+from mttbench.trackers.base import Tracker
 
-import scenarios
-import trackers
-from benchmarks.metrics import step_metrics
-from scenarios.model import Looks
-from scenarios.simulator import simulate, tracker_seed
-from trackers.base import Tracker
+from mttbench import scenarios, trackers
 
 WARM_STEPS = 10
 SIZES = {"small": "default", "large": "large"}

@@ -12,8 +12,7 @@ import math
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from benchmarks.metrics import gospa, ospa
+from mttbench.benchmarks.metrics import gospa, ospa
 
 SETTINGS = settings(max_examples=150, deadline=None)
 TOL = 1e-9  # the one tolerance here: rounding of sums of up to 4 powers

@@ -1,0 +1,70 @@
+"""mttbench: head-to-head benchmarks of multi-target trackers with an unknown number of targets.
+
+The package has three layers, each a folder of the repository::
+
+    mttbench.scenarios    model types, scenario files (TOML) and presets, the simulator
+    mttbench.trackers     the Tracker interface, its registry, the trackers
+    mttbench.benchmarks   harness, metrics, cell-selection policies, reports, command line
+
+and a small public face, importable from here (loaded on first use, so
+``import mttbench`` stays cheap)::
+
+    import mttbench
+    scenario = mttbench.load_scenario("crossing")         # a preset name or a .toml path
+    tracker = mttbench.make_tracker("gpf", epsilon=1e-3)  # a registered tracker
+    jobs = mttbench.build_jobs([scenario], [mttbench.TrackerSpec("gpf")], None, None,
+                               seeds=range(5))
+    results = mttbench.run_sweep(jobs, "reports/mine")    # tidy table, one row per step
+
+``mttbench.testing.check_tracker`` is the conformance kit for trackers written
+elsewhere; outside packages register trackers and policies through the entry-point
+groups ``mttbench.trackers`` and ``mttbench.policies``.
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import Any
+
+__version__ = "0.1.0"
+
+#: public name -> (module, attribute)
+_API = {
+    "Tracker": ("mttbench.trackers.base", "Tracker"),
+    "Estimate": ("mttbench.trackers.base", "Estimate"),
+    "register": ("mttbench.trackers.base", "register"),
+    "make_tracker": ("mttbench.trackers.base", "make"),
+    "available_trackers": ("mttbench.trackers.base", "available"),
+    "Scenario": ("mttbench.scenarios.spec", "Scenario"),
+    "ScenarioError": ("mttbench.scenarios.spec", "ScenarioError"),
+    "load_scenario": ("mttbench.scenarios.spec", "get"),
+    "Looks": ("mttbench.scenarios.model", "Looks"),
+    "TrackingModel": ("mttbench.scenarios.model", "TrackingModel"),
+    "simulate": ("mttbench.scenarios.simulator", "simulate"),
+    "Policy": ("mttbench.benchmarks.policies", "Policy"),
+    "register_policy": ("mttbench.benchmarks.policies", "register_policy"),
+    "TrackerSpec": ("mttbench.benchmarks.specs", "TrackerSpec"),
+    "PolicySpec": ("mttbench.benchmarks.specs", "PolicySpec"),
+    "Job": ("mttbench.benchmarks.harness", "Job"),
+    "build_jobs": ("mttbench.benchmarks.harness", "build_jobs"),
+    "play": ("mttbench.benchmarks.harness", "play"),
+    "run_job": ("mttbench.benchmarks.harness", "run_job"),
+    "run_sweep": ("mttbench.benchmarks.harness", "run_sweep"),
+    "summarize": ("mttbench.benchmarks.summary", "summarize"),
+}
+
+__all__ = sorted(_API)
+
+
+def __getattr__(name: str) -> Any:
+    try:
+        module, attr = _API[name]
+    except KeyError:
+        raise AttributeError(f"module 'mttbench' has no attribute {name!r}") from None
+    value = getattr(import_module(module), attr)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_API])
