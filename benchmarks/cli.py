@@ -16,8 +16,8 @@ file) ends with exit status 2 and a one-line message, never a traceback.
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import inspect
+import json
+import shutil
 import sys
 import textwrap
 from collections.abc import Sequence
@@ -29,69 +29,18 @@ import pandas as pd
 from .. import scenarios, trackers
 from . import policies
 from .compare import COMPARE_REFERENCE, COMPARE_SCENARIOS, COMPARE_SEEDS
-from .harness import PolicySpec, TrackerSpec, build_jobs, run_sweep, split_specs
+from .harness import build_jobs, run_sweep
+from .specs import (
+    UsageError,
+    resolve_policies,
+    resolve_scenarios,
+    resolve_trackers,
+    split_specs,
+)
 from .summary import summarize, to_markdown
-
-#: scenarios of ``mttbench compare`` (the superposition and large presets are left out:
-#: not every tracker supports the former, the latter is a scale test)
-
-
-class UsageError(Exception):
-    """Bad command-line input; reported in one line with exit status 2."""
 
 
 # ------------------------------------------------------------------ validation
-def _first_line(exc: BaseException) -> str:
-    msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
-    return str(msg).strip().splitlines()[0] if str(msg).strip() else type(exc).__name__
-
-
-def resolve_scenarios(names: Sequence[str], steps: int | None = None
-                      ) -> list[scenarios.Scenario]:
-    """Presets or ``.toml`` paths -> scenarios, with ``n_steps`` overridden if given."""
-    out = []
-    for name in names:
-        try:
-            sc = scenarios.get(name)
-        except (scenarios.ScenarioError, OSError, UnicodeDecodeError) as exc:
-            raise UsageError(f"scenario {name!r}: {_first_line(exc)}") from None
-        if steps is not None:
-            sc = dataclasses.replace(sc, n_steps=steps)
-        out.append(sc)
-    seen = [sc.name for sc in out]
-    dupes = sorted({n for n in seen if seen.count(n) > 1})
-    if dupes:
-        raise UsageError(f"scenario name(s) {dupes} given more than once")
-    return out
-
-
-def _resolve_specs(texts: Sequence[str], spec_type: type[TrackerSpec] | type[PolicySpec]
-                   ) -> list:
-    """Specs (``name`` or ``name:key=val,...``) checked by building each one once."""
-    specs = []
-    for text in split_specs(list(texts)):
-        try:
-            spec = spec_type.parse(text)
-            spec.make()  # refuses unknown names and parameters
-        except (ValueError, KeyError, TypeError) as exc:
-            raise UsageError(f"{spec_type.kind} {text!r}: {_first_line(exc)}") from None
-        specs.append(spec)
-    labels = [s.label for s in specs]
-    if len(set(labels)) != len(labels):
-        raise UsageError(f"a {spec_type.kind} is given more than once: {labels}")
-    return specs
-
-
-def resolve_trackers(texts: Sequence[str]) -> list[TrackerSpec]:
-    """Tracker specs, checked against the registry."""
-    return _resolve_specs(texts, TrackerSpec)
-
-
-def resolve_policies(texts: Sequence[str]) -> list[PolicySpec]:
-    """Policy specs, checked against the registry."""
-    return _resolve_specs(texts, PolicySpec)
-
-
 def _int_list(texts: Sequence[str] | None, what: str, lo: int) -> list[int] | None:
     if not texts:
         return None
@@ -165,31 +114,30 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
     return 0
 
 
-def _policy_params(cls: type) -> dict:
-    if cls.__init__ is object.__init__:
-        return {}
-    sig = inspect.signature(cls.__init__)
-    return {n: p.default for n, p in sig.parameters.items()
-            if n != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
-
-
 def _fmt_params(params: dict) -> str:
     return ", ".join(f"{k}={v!r}" for k, v in params.items()) or "(no parameters)"
 
 
+def _print_entry(name: str, summary: str, params: dict) -> None:
+    print(f"  {name:<8} {summary}")
+    print(textwrap.fill(_fmt_params(params), width=96, initial_indent=" " * 11,
+                        subsequent_indent=" " * 11))
+
+
 def cmd_trackers(args: argparse.Namespace) -> int:
-    print("Trackers (use as NAME or NAME:key=value,key=value):")
+    print("Trackers (use as NAME or NAME:key=value,key=value; a tracker from elsewhere as "
+          "package.module:ClassName):")
     for name in trackers.available():
         cls = trackers.get_class(name)
-        print(f"  {name:<8} {cls.summary}")
-        print(textwrap.fill(_fmt_params(cls.param_defaults()), width=96,
-                            initial_indent=" " * 11, subsequent_indent=" " * 11))
+        _print_entry(name, cls.summary, cls.param_defaults())
+    for name, why in trackers.broken_plugins().items():
+        print(f"  {name:<8} NOT LOADED (entry point failed): {why}")
     print("\nCell-selection policies (--policy NAME or NAME:key=value,...):")
     for name in policies.available_policies():
-        cls = type(policies.make_policy(name))
-        print(f"  {name:<8} {cls.summary}")
-        print(textwrap.fill(_fmt_params(_policy_params(cls)), width=96,
-                            initial_indent=" " * 11, subsequent_indent=" " * 11))
+        cls = policies.get_policy_class(name)
+        _print_entry(name, cls.summary, cls.param_defaults())
+    for name, why in policies.broken_plugins().items():
+        print(f"  {name:<8} NOT LOADED (entry point failed): {why}")
     return 0
 
 
@@ -222,10 +170,71 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    """Reviewer reproduction of the paper's figures (:mod:`benchmarks.reproduce`)."""
-    from .reproduce import main_reproduce
+    """Reviewer reproduction of the paper's figures (:mod:`~mttbench.benchmarks.reproduce`):
+    exit 0, or 1 when ``--check`` finds moved numbers."""
+    from . import reproduce
 
-    return main_reproduce(args)
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers {args.workers} is not allowed: expected an integer >= 1")
+    setting = reproduce.SETTINGS["reduced" if args.reduced else "full"]
+    out = Path(args.out) if args.out else Path("reports") / "paper"
+    cache = Path(args.cache_dir) if args.cache_dir else Path(".cache") / "reproduce"
+    tracker_texts = tuple(split_specs(args.trackers)) if args.trackers else None
+    if tracker_texts:
+        resolve_trackers(tracker_texts)
+    res = reproduce.reproduce_paper(setting, out, cache, tracker_texts=tracker_texts,
+                                    workers=args.workers or 1, progress=not args.no_progress,
+                                    use_cache=not args.no_cache)
+    print(f"wrote {out}/ (figures, CSVs, report.md, report.html; runs "
+          f"{'from the cache' if res.cached else 'computed'})")
+    ref_path = (Path(args.reference_csv) if args.reference_csv
+                else reproduce.REFERENCE_DIR / f"paper_{setting.name}.csv")
+    versions_path = ref_path.with_suffix(".versions.json")
+    if args.update_reference:
+        ref_path.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(res.numbers_csv, ref_path)
+        versions_path.write_text(json.dumps(reproduce.package_versions(), indent=2) + "\n")
+        print(f"reference updated: {ref_path} ({len(res.numbers)} numbers; versions in "
+              f"{versions_path.name})")
+        return 0
+    if not args.check:
+        return 0
+    if not ref_path.exists():
+        raise UsageError(f"--check: no reference {ref_path}")
+    moved = reproduce.check_numbers(res.numbers, reproduce.read_numbers(ref_path))
+    tol = f"rtol {reproduce.RTOL:g}, atol {reproduce.ATOL:g}"
+    if not moved:
+        print(f"check passed: {len(res.numbers)} numbers match {ref_path} ({tol})")
+        return 0
+    print(f"check FAILED: {len(moved)} number(s) differ from {ref_path} beyond {tol}:",
+          file=sys.stderr)
+    limit = reproduce.MAX_REPORTED
+    for line in moved[:limit]:
+        print("  " + line, file=sys.stderr)
+    if len(moved) > limit:
+        print(f"  ... and {len(moved) - limit} more", file=sys.stderr)
+    if versions_path.exists():
+        changed = reproduce.changed_versions(json.loads(versions_path.read_text()))
+        if changed:
+            print("  note: the reference was made with other versions: " + ", ".join(changed)
+                  + " (a different numpy/scipy can change results beyond the tolerance)",
+                  file=sys.stderr)
+    return 1
+
+
+def cmd_screenshot(args: argparse.Namespace) -> int:
+    """Open a report folder's ``report.html`` in headless chromium; write ``screenshot.png``."""
+    from .report import screenshot
+
+    folder = Path(args.report_dir)
+    if not (folder / "report.html").is_file():
+        raise UsageError(f"{folder} holds no report.html")
+    try:
+        png = screenshot(folder / "report.html", folder / "screenshot.png")
+    except (FileNotFoundError, RuntimeError) as exc:
+        raise UsageError(str(exc).splitlines()[0]) from None
+    print(png)
+    return 0
 
 
 # ----------------------------------------------------------------------- parser
@@ -359,6 +368,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="parallel worker processes (default: the number of CPUs)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_reproduce)
+
+    p = sub.add_parser(
+        "screenshot", help="check a report in a real browser (headless chromium)",
+        description="Open REPORT_DIR/report.html in headless chromium (Debian: apt-get "
+                    "install chromium), with networking off, and write "
+                    "REPORT_DIR/screenshot.png.")
+    p.add_argument("report_dir", metavar="REPORT_DIR", help="a folder written by compare")
+    p.set_defaults(func=cmd_screenshot)
     return parser
 
 

@@ -40,7 +40,8 @@ import pandas as pd
 
 from .. import trackers
 from . import summary
-from .harness import PolicySpec, TrackerSpec, build_jobs, run_sweep
+from .harness import build_jobs, run_sweep
+from .specs import PolicySpec, TrackerSpec, UsageError, resolve_scenarios, resolve_trackers
 
 if TYPE_CHECKING:
     from .report import ReportFiles
@@ -117,22 +118,20 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
     ``0..COMPARE_SEEDS-1``; ``workers`` None means the number of CPUs. ``reference`` is
     a tracker label (``name`` or ``name(k=v)``; a bare name matches that tracker's first
     setting); None means ``kfnn`` when it runs, else the first tracker. Raises
-    :class:`benchmarks.cli.UsageError` on bad names, including an unknown reference.
+    :class:`~mttbench.benchmarks.specs.UsageError` on bad names, including an unknown reference.
     """
-    from . import cli  # cli imports this module; import lazily
-
     t0 = time.perf_counter()
     started = datetime.now(UTC)
-    scs = cli.resolve_scenarios(list(scenario_names), steps)
+    scs = resolve_scenarios(list(scenario_names), steps)
     texts = list(tracker_texts) if tracker_texts else default_tracker_texts()
-    specs = cli.resolve_trackers(texts)
+    specs = resolve_trackers(texts)
     labels = [s.label for s in specs]
     if reference is None:  # kfnn when it runs, else the first tracker
         reference = _resolve_reference(COMPARE_REFERENCE, specs)
         reference = reference if reference in labels else labels[0]
     reference = _resolve_reference(reference, specs)
     if reference not in labels:
-        raise cli.UsageError(f"--reference {reference!r} is not one of the trackers {labels}")
+        raise UsageError(f"--reference {reference!r} is not one of the trackers {labels}")
     seeds = list(range(COMPARE_SEEDS)) if seeds is None else [int(s) for s in seeds]
     workers = workers or os.cpu_count() or 1
     out = Path(out_dir) if out_dir else Path("reports") / f"compare-{started:%Y%m%dT%H%M%SZ}"

@@ -1,7 +1,10 @@
 """The harness: run trackers on scenarios and record one tidy row per step.
 
 A **job** is one Monte Carlo run: ``(scenario, tracker spec, policy spec,
-looks_per_step, seed)``. :func:`run_job` plays it step by step::
+looks_per_step, seed)``. :func:`play` is the one step loop of the suite (the rows of
+:func:`run_job`, the traces of :mod:`~mttbench.benchmarks.snapshot`, the warm states
+of the runtime benchmarks and the conformance kit all come from it); it yields a
+:class:`StepRecord` per step::
 
     run = simulate(scenario, seed)          # the world: depends on (scenario, seed) only
     tracker.reset(model, rng_tracker)       # rng from (scenario, seed, tracker label)
@@ -66,9 +69,7 @@ A job whose tracker raises at step ``k`` keeps its rows ``0..k-1`` (status
 ``"ok"``) and gets one row at step ``k`` with ``status = "error"`` and NaN metrics;
 the other jobs of the sweep are unaffected.
 
-Tracker and policy specifications on the command line are ``name`` or
-``name:key=val,key=val``; each value is parsed as ``true``/``false`` (bool,
-case-insensitive), then ``int``, then ``float``, otherwise kept as a string.
+Tracker and policy specifications are described in :mod:`~mttbench.benchmarks.specs`.
 """
 
 from __future__ import annotations
@@ -80,20 +81,22 @@ import os
 import resource
 import sys
 import time
+from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar, Self
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from .. import trackers
-from ..scenarios.model import RayleighGridSensor
+from ..scenarios.model import Looks, RayleighGridSensor
 from ..scenarios.simulator import simulate, tracker_seed
 from ..scenarios.spec import Scenario, dumps
-from . import policies
+from ..trackers.base import Estimate, Tracker
 from .metrics import step_metrics
+from .policies import Policy, Raster
+from .specs import PolicySpec, TrackerSpec
 
 METRIC_COLUMNS = [
     "count_error", "ospa", "ospa_loc", "ospa_card", "gospa", "gospa_loc", "gospa_missed",
@@ -113,103 +116,6 @@ _INT_COLUMNS = ["looks_per_step", "seed", "step", "n_looks", "n_positive"]
 _FLOAT_COLUMNS = ["true_count", "est_count", *METRIC_COLUMNS, *TIMING_COLUMNS, "ospa_c", "ospa_p",
                   "peak_rss_mb"]
 NO_POLICY = "none"
-
-
-# ------------------------------------------------------------------------ specs
-def parse_value(text: str) -> bool | int | float | str:
-    """``"true"``/``"false"`` -> bool, then int, then float, else the string itself."""
-    low = text.strip().lower()
-    if low in ("true", "false"):
-        return low == "true"
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
-
-
-def _label(name: str, params: dict[str, Any]) -> str:
-    if not params:
-        return name
-    return f"{name}(" + ",".join(f"{k}={params[k]}" for k in sorted(params)) + ")"
-
-
-def _parse(text: str, what: str) -> tuple[str, dict[str, Any]]:
-    name, sep, rest = text.strip().partition(":")
-    if not name:
-        raise ValueError(f"empty {what} name in {text!r}")
-    params: dict[str, Any] = {}
-    if sep:
-        for item in rest.split(","):
-            key, eq, value = item.partition("=")
-            key = key.strip()
-            if not eq or not key:
-                raise ValueError(f"bad {what} parameter {item!r} in {text!r}: expected key=value")
-            if key in params:
-                raise ValueError(f"{what} parameter {key!r} given twice in {text!r}")
-            params[key] = parse_value(value.strip())
-    return name, params
-
-
-@dataclass(frozen=True)
-class _Spec:
-    """A registered name and the parameters given to its constructor."""
-
-    name: str
-    params: dict[str, Any] = field(default_factory=dict)
-    kind: ClassVar[str] = ""
-
-    @property
-    def label(self) -> str:
-        """``name`` without parameters, else ``name(k=v,...)`` with sorted keys."""
-        return _label(self.name, self.params)
-
-    def __hash__(self) -> int:
-        return hash((self.kind, self.label))
-
-    @classmethod
-    def parse(cls, text: str) -> Self:
-        """From ``name`` or ``name:key=val,key=val`` (values as :func:`parse_value`)."""
-        return cls(*_parse(text, cls.kind))
-
-
-class TrackerSpec(_Spec):
-    """A registered tracker and its parameters."""
-
-    kind = "tracker"
-
-    def make(self) -> trackers.Tracker:
-        return trackers.make(self.name, **self.params)
-
-
-class PolicySpec(_Spec):
-    """A registered cell-selection policy and its parameters."""
-
-    kind = "policy"
-
-    def make(self) -> policies.Policy:
-        return policies.make_policy(self.name, **self.params)
-
-
-def split_specs(items: list[str] | str) -> list[str]:
-    """Split comma-separated spec lists, keeping ``key=val`` pieces with their spec.
-
-    ``["raster,renyi:alpha=0.5,max_count=3", "all"]`` ->
-    ``["raster", "renyi:alpha=0.5,max_count=3", "all"]``: a piece with ``=`` but no
-    ``:`` continues the parameter list of the spec before it.
-    """
-    out: list[str] = []
-    for item in [items] if isinstance(items, str) else items:
-        for piece in item.split(","):
-            piece = piece.strip()
-            if not piece:
-                continue
-            if "=" in piece and ":" not in piece and out and ":" in out[-1]:
-                out[-1] += "," + piece
-            else:
-                out.append(piece)
-    return out
 
 
 @dataclass(frozen=True)
@@ -316,8 +222,125 @@ def _frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
     return df
 
 
+@dataclass(frozen=True)
+class StepRecord:
+    """What happened at step ``k`` of a run (yielded by :func:`play`).
+
+    ``truth (n, 4)`` true states and ``truth_ids (n,)`` their ids; ``looks`` the
+    looks made (cells and returns, or the superposition measurement); ``estimate``
+    the tracker's output; ``counts`` the predicted ``P_c(t)`` ``(n_cells, n_counts)``
+    if the policy asked for it, else None. Times in seconds: the tracker's
+    predict + update + estimate, and the cell selection (including ``counts``).
+    """
+
+    k: int
+    truth: np.ndarray
+    truth_ids: np.ndarray
+    looks: Looks
+    estimate: Estimate
+    counts: np.ndarray | None
+    tracker_wall_s: float
+    tracker_cpu_s: float
+    select_wall_s: float
+    select_cpu_s: float
+
+
+class Playback:
+    """One run in progress: iterate it for one :class:`StepRecord` per step (see :func:`play`).
+
+    ``world`` is the simulated run (truth and sensor randomness); ``step`` is the
+    step being computed (-1 before the first), so a caller that catches a failure
+    knows where it happened.
+    """
+
+    def __init__(self, scenario: Scenario, tracker: Tracker, seed: int, policy: Policy | None,
+                 looks_per_step: int | None, tracker_label: str | None,
+                 policy_label: str | None, n_steps: int | None) -> None:
+        model = scenario.model
+        reason = tracker.unsupported_reason(model)
+        if reason:
+            raise ValueError(f"tracker {tracker.name or type(tracker).__name__!r} cannot run "
+                             f"{scenario.name!r}: {reason}")
+        grid_sensor = isinstance(model.sensor, RayleighGridSensor)
+        if grid_sensor and policy is None:
+            policy, policy_label = Raster(), "raster"
+        self.scenario, self.tracker = scenario, tracker
+        self.policy = policy if grid_sensor else None
+        self.step = -1
+        self.world = simulate(scenario, int(seed))
+        label = tracker.name if tracker_label is None else tracker_label
+        tracker.reset(model, np.random.default_rng(tracker_seed(scenario.name, seed, label)))
+        if self.policy is not None:
+            m = int(model.sensor.looks_per_step if looks_per_step is None else looks_per_step)
+            plabel = self.policy.name if policy_label is None else policy_label
+            # the policy's stream ignores the tracker: every tracker sees the same random cells
+            self.policy.reset(model, m, np.random.default_rng(
+                tracker_seed(scenario.name, seed, "policy:" + plabel)))
+        n = self.world.n_steps
+        self.n_steps = n if n_steps is None else min(int(n_steps), n)
+
+    def __iter__(self) -> Iterator[StepRecord]:
+        tracker, policy, run = self.tracker, self.policy, self.world
+        grid = self.scenario.model.grid
+        for k in range(self.n_steps):
+            self.step = k
+            truth = run.states[k]
+            counts = None
+            w0, c0 = time.perf_counter(), time.process_time()
+            tracker.predict()
+            w1, c1 = time.perf_counter(), time.process_time()
+            if policy is not None:
+                counts = tracker.cell_count_distribution() if policy.uses_prediction else None
+                truth_cells = None
+                if policy.uses_truth:
+                    flat = grid.cell_of(truth[:, 0], truth[:, 2])
+                    truth_cells = flat[flat >= 0]
+                cells = policy.select(k, counts=counts, truth_cells=truth_cells)
+                w2, c2 = time.perf_counter(), time.process_time()
+                looks = run.look(k, cells)
+            else:
+                w2, c2 = w1, c1
+                looks = run.measure(k)
+            w3, c3 = time.perf_counter(), time.process_time()
+            tracker.update(looks)
+            est = tracker.estimate()
+            w4, c4 = time.perf_counter(), time.process_time()
+            yield StepRecord(k, truth, run.ids[k], looks, est, counts,
+                             (w1 - w0) + (w4 - w3), (c1 - c0) + (c4 - c3), w2 - w1, c2 - c1)
+
+
+def play(scenario: Scenario, tracker: Tracker, seed: int, *, policy: Policy | None = None,
+         looks_per_step: int | None = None, tracker_label: str | None = None,
+         policy_label: str | None = None, n_steps: int | None = None) -> Playback:
+    """Start ``tracker`` on ``scenario``'s world ``seed``; iterate the result for one
+    :class:`StepRecord` per step. The suite's only step loop::
+
+        tracker.predict()                                  # timed (tracker)
+        P = tracker.cell_count_distribution()              # timed (selection), if asked
+        cells = policy.select(k, counts=P, truth_cells=...)   # timed (selection)
+        looks = world.look(k, cells)       # world.measure(k) on the superposition sensor
+        tracker.update(looks); est = tracker.estimate()    # timed (tracker)
+
+    The world (truth and the uniforms behind every look) depends only on
+    ``(scenario, seed)``. The tracker's generator is seeded from ``(scenario.name,
+    seed, tracker_label)`` (default ``tracker.name``) and the policy's from
+    ``(scenario.name, seed, "policy:" + policy_label)`` (default ``policy.name``), so a
+    random policy looks at the same cells for every tracker. On a grid sensor the
+    policy defaults to :class:`~mttbench.benchmarks.policies.Raster` and
+    ``looks_per_step`` to the sensor's budget; the superposition sensor takes
+    neither. ``n_steps`` stops early (default: the scenario's length). The tracker is
+    used as given, not copied: after the loop it holds the last state.
+
+    The setup (simulation, ``reset``) runs here; raises ``ValueError`` if the tracker
+    declares the scenario unsupported. A failing tracker or policy raises from the
+    iteration, with :attr:`Playback.step` naming the step.
+    """
+    return Playback(scenario, tracker, seed, policy, looks_per_step, tracker_label,
+                    policy_label, n_steps)
+
+
 def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
-    """Play one job; returns its rows (see the module docstring for the columns).
+    """Play one job (:func:`play`); returns its rows (see the module docstring).
 
     Never raises for a failing tracker or policy: the failure becomes a row with
     ``status = "error"``. An unsupported scenario gives one row with ``step = -1``.
@@ -350,8 +373,7 @@ def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
             r["peak_rss_mb"] = rss
         return _frame(rows)
 
-    k = -1
-    run = None
+    playback = None
     try:
         tracker = job.tracker.make()
         params = tracker.get_params()
@@ -367,51 +389,27 @@ def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
             rows.append(special_row(-1, "unsupported", str(reason), math.nan))
             return finish()
 
-        run = simulate(sc, job.seed)
-        tracker_rng = np.random.default_rng(tracker_seed(sc.name, job.seed, job.tracker.label))
-        tracker.reset(model, tracker_rng)
-        if policy is not None:
-            # the policy's stream ignores the tracker: every tracker sees the same random cells
-            policy_rng = np.random.default_rng(
-                tracker_seed(sc.name, job.seed, "policy:" + job.policy_label))
-            policy.reset(model, int(job.looks_per_step), policy_rng)
-        grid = model.grid
-        for k in range(run.n_steps):
-            truth = run.states[k]
-            w0, c0 = time.perf_counter(), time.process_time()
-            tracker.predict()
-            w1, c1 = time.perf_counter(), time.process_time()
-            if policy is not None:
-                counts = tracker.cell_count_distribution() if policy.uses_prediction else None
-                truth_cells = None
-                if policy.uses_truth:
-                    flat = grid.cell_of(truth[:, 0], truth[:, 2])
-                    truth_cells = flat[flat >= 0]
-                cells = policy.select(k, counts=counts, truth_cells=truth_cells)
-                w2, c2 = time.perf_counter(), time.process_time()
-                looks = run.look(k, cells)
-            else:
-                w2, c2 = w1, c1
-                looks = run.measure(k)
-            w3, c3 = time.perf_counter(), time.process_time()
-            tracker.update(looks)
-            est = tracker.estimate()
-            w4, c4 = time.perf_counter(), time.process_time()
-
+        playback = play(sc, tracker, job.seed, policy=policy,
+                        looks_per_step=job.looks_per_step, tracker_label=job.tracker.label,
+                        policy_label=job.policy_label)
+        for rec in playback:
+            est = rec.estimate
             states = np.asarray(est.states, dtype=float).reshape(-1, 4)
-            m = step_metrics(truth[:, [0, 2]], states[:, [0, 2]], float(est.count), c=c, p=p)
+            m = step_metrics(rec.truth[:, [0, 2]], states[:, [0, 2]], float(est.count), c=c, p=p)
             rows.append({
-                **base, "step": k, "true_count": float(len(truth)), "est_count": float(est.count),
+                **base, "step": rec.k, "true_count": float(len(rec.truth)),
+                "est_count": float(est.count),
                 **{name: float(m[name]) for name in METRIC_COLUMNS},
-                "n_looks": len(looks.cells), "n_positive": int(np.count_nonzero(looks.returns)),
-                "tracker_wall_s": (w1 - w0) + (w4 - w3),
-                "tracker_cpu_s": (c1 - c0) + (c4 - c3),
-                "select_wall_s": w2 - w1, "select_cpu_s": c2 - c1,
+                "n_looks": len(rec.looks.cells),
+                "n_positive": int(np.count_nonzero(rec.looks.returns)),
+                "tracker_wall_s": rec.tracker_wall_s, "tracker_cpu_s": rec.tracker_cpu_s,
+                "select_wall_s": rec.select_wall_s, "select_cpu_s": rec.select_cpu_s,
                 "status": "ok", "error": "",
             })
     except Exception as exc:  # noqa: BLE001 - any failure of a tracker is a result
         message = f"{type(exc).__name__}: {exc}".replace("\n", " ")
-        true_count = float(len(run.states[k])) if run is not None and k >= 0 else math.nan
+        k = playback.step if playback is not None else -1
+        true_count = float(len(playback.world.states[k])) if k >= 0 else math.nan
         rows.append(special_row(k, "error", message, true_count))
     return finish()
 

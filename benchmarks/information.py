@@ -37,9 +37,6 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import binom
 
-from ..scenarios.model import RayleighGridSensor, TrackingModel
-from .policies import Policy, register_policy
-
 
 def expected_gain(counts: np.ndarray, likelihood: np.ndarray, alpha: float = 0.5) -> np.ndarray:
     """Expected Renyi alpha-divergence between posterior and prior of each cell's count.
@@ -175,52 +172,3 @@ def greedy_looks(counts: np.ndarray, p_detect: np.ndarray, n_looks: int, alpha: 
                else expected_gain(P[c:c + 1], table(n + 1), alpha)[0])
         marginal[c] = nxt - gain_now[c]
     return np.sort(perm[chosen]).astype(np.int64)
-
-
-@register_policy
-class RenyiGain(Policy):
-    """Looks where the expected Renyi alpha-divergence gain of the count is largest.
-
-    Uses the tracker's predicted ``P_c(t)`` and the scenario's Rayleigh sensor model.
-    ``repeats=False`` (default): the top-M distinct cells by single-look gain ``G_c(1)``.
-    ``repeats=True``: greedy by marginal gain ``G_c(n_c+1) - G_c(n_c)``, so a cell may
-    be looked at several times in one step (Kreucher's managed sensor).
-
-    Why distinct cells by default (measured: ``mttbench run --scenarios crossing
-    --trackers kfnn gpf jmpd --policy renyi renyi:repeats=true --looks 24 --seeds 20``):
-    greedy-with-repeats piles the looks onto the few cells around known targets
-    (about 8 distinct cells per step out of 24 with KF-NN), because at ``p_d = 0.5``
-    a further look at a 50/50 cell still beats a first look at a cell that probably
-    holds no target, so the search for targets not yet found starves. Time-averaged
-    OSPA at M = 24 (mean +- 95% t half-width): GPF 0.71 +- 0.12 distinct vs
-    1.27 +- 0.10 with repeats; KF-NN 1.20 +- 0.10 vs 1.47 +- 0.07; JMPD 1.63 +- 0.05
-    vs 1.85 +- 0.02.
-    """
-
-    name = "renyi"
-    summary = "expected Renyi alpha-divergence gain of each cell's count (tracker's prediction)"
-    uses_prediction = True
-
-    def __init__(self, alpha: float = 0.5, repeats: bool = False) -> None:
-        self.alpha = alpha
-        self.repeats = repeats
-
-    def reset(self, model: TrackingModel, n_looks: int, rng: np.random.Generator) -> None:
-        super().reset(model, n_looks, rng)
-        if not isinstance(model.sensor, RayleighGridSensor):
-            raise TypeError("the renyi policy needs a grid (Rayleigh) sensor")
-        if not self.alpha > 0:
-            raise ValueError(f"alpha must be > 0, got {self.alpha}")
-        self._pd_cache: dict[int, np.ndarray] = {}
-        self._tables: dict[int, dict[int, np.ndarray]] = {}  # by n_counts, then by n
-
-    def select(self, k, counts=None, truth_cells=None):
-        if counts is None:
-            raise ValueError("the renyi policy needs the tracker's predicted counts")
-        n_counts = counts.shape[1]
-        pd = self._pd_cache.get(n_counts)
-        if pd is None:  # p_d(t) at the count columns t = 0..n_counts-1
-            pd = self._model.sensor.detection_probability(np.arange(n_counts))
-            self._pd_cache[n_counts] = pd
-        return greedy_looks(counts, pd, self._n_looks, self.alpha, self.repeats, self._rng,
-                            self._tables.setdefault(n_counts, {}))

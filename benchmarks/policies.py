@@ -12,12 +12,15 @@ it; ``truth_cells`` (flat cells of the true targets) only to policies with
 
 from __future__ import annotations
 
+import inspect
 from abc import ABC, abstractmethod
+from importlib import metadata
 from typing import Any, ClassVar
 
 import numpy as np
 
-from ..scenarios.model import TrackingModel
+from ..scenarios.model import RayleighGridSensor, TrackingModel
+from .information import greedy_looks
 
 
 class Policy(ABC):
@@ -27,6 +30,15 @@ class Policy(ABC):
     summary: ClassVar[str] = ""
     uses_prediction: ClassVar[bool] = False
     uses_truth: ClassVar[bool] = False
+
+    @classmethod
+    def param_defaults(cls) -> dict[str, Any]:
+        """Constructor parameters and their defaults (empty when it takes none)."""
+        if cls.__init__ is object.__init__:
+            return {}
+        sig = inspect.signature(cls.__init__)
+        return {n: p.default for n, p in sig.parameters.items()
+                if n != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
 
     def get_params(self) -> dict[str, Any]:
         """Constructor parameters (public attributes)."""
@@ -45,26 +57,71 @@ class Policy(ABC):
         """Flat cell indices ``(n,)`` int64 to look at during step ``k``."""
 
 
+#: entry-point group through which other packages register policies
+ENTRY_POINT_GROUP = "mttbench.policies"
+
 _POLICIES: dict[str, type[Policy]] = {}
+_BROKEN: dict[str, str] = {}
+_plugins_loaded = False
 
 
 def register_policy(cls: type[Policy]) -> type[Policy]:
-    if not cls.name or cls.name in _POLICIES:
+    """Class decorator: register a policy under ``cls.name``."""
+    if not (isinstance(cls, type) and issubclass(cls, Policy)):
+        raise TypeError(f"{cls!r} is not a subclass of mttbench.benchmarks.policies.Policy")
+    if not cls.name or _POLICIES.get(cls.name, cls) is not cls:
         raise ValueError(f"policy name {cls.name!r} is empty or already registered")
     _POLICIES[cls.name] = cls
     return cls
 
 
+def load_plugins() -> None:
+    """Register the policies of installed packages' ``mttbench.policies`` entry points
+    (``name = "package.module:Class"``); one that fails is kept in :data:`_BROKEN` with
+    its reason and never stops the others. Runs once per process."""
+    global _plugins_loaded
+    if _plugins_loaded:
+        return
+    _plugins_loaded = True
+    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
+        if ep.name in _POLICIES:
+            continue
+        try:
+            cls = ep.load()
+            if not (isinstance(cls, type) and issubclass(cls, Policy)):
+                raise TypeError(f"{ep.value} is not a Policy subclass")
+            if cls.name != ep.name:
+                raise ValueError(f"{ep.value}.name is {cls.name!r}, not {ep.name!r}")
+            register_policy(cls)
+        except Exception as exc:  # noqa: BLE001 - a broken plugin must not stop the suite
+            _BROKEN[ep.name] = f"{type(exc).__name__}: {exc}".splitlines()[0]
+
+
+def broken_plugins() -> dict[str, str]:
+    """Policy entry points that failed to load: name -> reason."""
+    load_plugins()
+    return dict(_BROKEN)
+
+
 def available_policies() -> list[str]:
+    """Registered policy names (shipped and from entry points), sorted."""
+    load_plugins()
     return sorted(_POLICIES)
 
 
-def make_policy(name: str, **params: Any) -> Policy:
+def get_policy_class(name: str) -> type[Policy]:
+    load_plugins()
     try:
-        cls = _POLICIES[name]
+        return _POLICIES[name]
     except KeyError:
-        raise KeyError(f"unknown policy {name!r}: policies are {available_policies()}") from None
-    return cls(**params)
+        why = f" failed to load: {_BROKEN[name]}" if name in _BROKEN else ""
+        raise KeyError(f"unknown policy {name!r}{why}: policies are "
+                       f"{available_policies()}") from None
+
+
+def make_policy(name: str, **params: Any) -> Policy:
+    """Build a registered policy; unknown parameters are refused."""
+    return get_policy_class(name)(**params)
 
 
 @register_policy
@@ -130,7 +187,44 @@ class Oracle(Policy):
         return np.sort(np.concatenate([truth, fill])).astype(np.int64)
 
 
-# The information-driven policy lives in its own module, which imports this one for
-# the registry; importing it here (after the registry exists) registers "renyi"
-# whenever the policies are imported, without a circular-import failure.
-from . import information  # noqa: E402, F401
+@register_policy
+class RenyiGain(Policy):
+    """Looks where the expected Renyi alpha-divergence gain of the count is largest.
+
+    Uses the tracker's predicted ``P_c(t)`` and the scenario's Rayleigh sensor model.
+    ``repeats=False`` (default): the top-M distinct cells by single-look gain ``G_c(1)``.
+    ``repeats=True``: greedy by marginal gain ``G_c(n_c+1) - G_c(n_c)``, so a cell may
+    be looked at several times in one step (Kreucher's managed sensor).
+
+    Top-M distinct cells by default: greedy with repeats piles the looks onto the few
+    cells around known targets and starves the search for new ones (measured on
+    ``crossing``: docs/policies.md).
+    """
+
+    name = "renyi"
+    summary = "expected Renyi alpha-divergence gain of each cell's count (tracker's prediction)"
+    uses_prediction = True
+
+    def __init__(self, alpha: float = 0.5, repeats: bool = False) -> None:
+        self.alpha = alpha
+        self.repeats = repeats
+
+    def reset(self, model: TrackingModel, n_looks: int, rng: np.random.Generator) -> None:
+        super().reset(model, n_looks, rng)
+        if not isinstance(model.sensor, RayleighGridSensor):
+            raise TypeError("the renyi policy needs a grid (Rayleigh) sensor")
+        if not self.alpha > 0:
+            raise ValueError(f"alpha must be > 0, got {self.alpha}")
+        self._pd_cache: dict[int, np.ndarray] = {}
+        self._tables: dict[int, dict[int, np.ndarray]] = {}  # by n_counts, then by n
+
+    def select(self, k, counts=None, truth_cells=None):
+        if counts is None:
+            raise ValueError("the renyi policy needs the tracker's predicted counts")
+        n_counts = counts.shape[1]
+        pd = self._pd_cache.get(n_counts)
+        if pd is None:  # p_d(t) at the count columns t = 0..n_counts-1
+            pd = self._model.sensor.detection_probability(np.arange(n_counts))
+            self._pd_cache[n_counts] = pd
+        return greedy_looks(counts, pd, self._n_looks, self.alpha, self.repeats, self._rng,
+                            self._tables.setdefault(n_counts, {}))

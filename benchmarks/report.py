@@ -19,18 +19,16 @@ two unpaired ones).
 Check a report in a real browser (headless Debian chromium; writes ``screenshot.png``
 into the report folder)::
 
-    python -m benchmarks.report --screenshot reports/compare-<timestamp>
+    mttbench screenshot reports/compare-<timestamp>
 """
 
 from __future__ import annotations
 
-import argparse
 import base64
 import html
 import math
 import shutil
 import subprocess
-import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -387,19 +385,3 @@ def screenshot(html_path: str | Path, png_path: str | Path, *, width: int = 1400
         raise RuntimeError(f"chromium wrote no screenshot (exit {proc.returncode}): "
                            f"{proc.stderr[-2000:]}")
     return png_path
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.report",
-                                 description="Check a report folder in headless chromium.")
-    ap.add_argument("--screenshot", metavar="REPORT_DIR", required=True,
-                    help="folder holding report.html; writes REPORT_DIR/screenshot.png")
-    args = ap.parse_args(argv)
-    folder = Path(args.screenshot)
-    png = screenshot(folder / "report.html", folder / "screenshot.png")
-    print(png)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

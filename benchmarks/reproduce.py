@@ -36,7 +36,6 @@ The command then exits 1 and names every number that moved (up to ``MAX_REPORTED
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import hashlib
 import json
@@ -53,9 +52,10 @@ from .. import reference, scenarios, trackers
 from ..scenarios.spec import dumps
 from . import figures
 from .compare import package_versions
-from .harness import PolicySpec, TrackerSpec, build_jobs, run_sweep
+from .harness import build_jobs, run_sweep
 from .report import Document
 from .snapshot import trace_run
+from .specs import PolicySpec, TrackerSpec
 
 RTOL = 1e-9
 ATOL = 1e-12
@@ -402,49 +402,8 @@ def reproduce_paper(setting: Setting, out_dir: str | Path, cache_dir: str | Path
     return Reproduction(out, numbers, csv, cached)
 
 
-def main_reproduce(args: argparse.Namespace) -> int:
-    """``mttbench reproduce paper``: exit 0, or 1 when ``--check`` finds moved numbers."""
-    setting = SETTINGS["reduced" if args.reduced else "full"]
-    out = Path(args.out) if args.out else Path("reports") / "paper"
-    cache = Path(args.cache_dir) if args.cache_dir else Path(".cache") / "reproduce"
-    res = reproduce_paper(setting, out, cache,
-                          tracker_texts=tuple(args.trackers) if args.trackers else None,
-                          workers=args.workers or 1, progress=not args.no_progress,
-                          use_cache=not args.no_cache)
-    print(f"wrote {out}/ (figures, CSVs, report.md, report.html; runs "
-          f"{'from the cache' if res.cached else 'computed'})")
-    ref_path = (Path(args.reference_csv) if args.reference_csv
-                else REFERENCE_DIR / f"paper_{setting.name}.csv")
-    versions_path = ref_path.with_suffix(".versions.json")
-    if args.update_reference:
-        ref_path.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(res.numbers_csv, ref_path)
-        versions_path.write_text(json.dumps(package_versions(), indent=2) + "\n")
-        print(f"reference updated: {ref_path} ({len(res.numbers)} numbers; versions in "
-              f"{versions_path.name})")
-        return 0
-    if not args.check:
-        return 0
-    if not ref_path.exists():
-        print(f"reproduce --check: no reference {ref_path}", file=sys.stderr)
-        return 1
-    moved = check_numbers(res.numbers, read_numbers(ref_path))
-    if not moved:
-        print(f"check passed: {len(res.numbers)} numbers match {ref_path} "
-              f"(rtol {RTOL:g}, atol {ATOL:g})")
-        return 0
-    print(f"check FAILED: {len(moved)} number(s) differ from {ref_path} beyond rtol {RTOL:g}, "
-          f"atol {ATOL:g}:", file=sys.stderr)
-    for line in moved[:MAX_REPORTED]:
-        print("  " + line, file=sys.stderr)
-    if len(moved) > MAX_REPORTED:
-        print(f"  ... and {len(moved) - MAX_REPORTED} more", file=sys.stderr)
-    if versions_path.exists():
-        then, now = json.loads(versions_path.read_text()), package_versions()
-        changed = [f"{k} {then.get(k)} -> {now.get(k)}" for k in sorted(set(then) | set(now))
-                   if then.get(k) != now.get(k)]
-        if changed:
-            print("  note: the reference was made with other versions: " + ", ".join(changed)
-                  + " (a different numpy/scipy can change results beyond the tolerance)",
-                  file=sys.stderr)
-    return 1
+def changed_versions(then: dict[str, str]) -> list[str]:
+    """``"pkg old -> new"`` for every package whose version differs from ``then``."""
+    now = package_versions()
+    return [f"{k} {then.get(k)} -> {now.get(k)}" for k in sorted(set(then) | set(now))
+            if then.get(k) != now.get(k)]

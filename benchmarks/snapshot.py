@@ -2,10 +2,10 @@
 
 The harness keeps only per-step numbers; a snapshot figure (paper Fig. "Snapshot of
 simulations") needs the looks, the returns, the true states and the estimates with
-their covariances. :func:`trace_run` drives one tracker and one policy directly with
-:mod:`scenarios.simulator`, seeded exactly as :func:`benchmarks.harness.run_job`
-seeds them, so the traced run is the same run as the harness's row for
-``(scenario, tracker label, policy label, looks, seed)`` and its metrics agree.
+their covariances. :func:`trace_run` keeps them from the harness's step loop
+(:func:`~mttbench.benchmarks.harness.play`), seeded as
+:func:`~mttbench.benchmarks.harness.run_job` seeds it, so the traced run is the same run
+as the harness's rows for ``(scenario, tracker label, policy label, looks, seed)``.
 
 :meth:`Trace.frames` flattens the trace into three tidy tables (looks, truth,
 estimates) that the figure functions read and the reproduction writes as CSV.
@@ -13,16 +13,14 @@ estimates) that the figure functions read and the reproduction writes as CSV.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
-from ..scenarios.model import RayleighGridSensor
-from ..scenarios.simulator import simulate, tracker_seed
 from ..scenarios.spec import Scenario
-from .harness import Job, PolicySpec, TrackerSpec
+from .harness import Job, play
+from .specs import PolicySpec, TrackerSpec
 
 
 @dataclass(frozen=True)
@@ -91,45 +89,23 @@ def trace_run(scenario: Scenario, tracker: TrackerSpec, seed: int,
               n_steps: int | None = None) -> Trace:
     """Run one ``(scenario, tracker, policy, looks, seed)`` and record every step.
 
-    Seeds as the harness: the tracker's generator from
-    ``tracker_seed(scenario, seed, tracker.label)`` and the policy's from
-    ``tracker_seed(scenario, seed, "policy:" + policy.label)``. ``n_steps`` shortens
-    the run (the truth of the first steps does not depend on the run length).
-    Raises if the tracker cannot run the scenario.
+    The run is :func:`~mttbench.benchmarks.harness.play` with the harness's labels, so
+    it is the same run as the harness's rows for that job. ``n_steps`` shortens the
+    run (the truth of the first steps does not depend on the run length). Raises if
+    the tracker cannot run the scenario.
     """
-    if n_steps is not None:
-        scenario = dataclasses.replace(scenario, n_steps=int(n_steps))
     job = Job(scenario, tracker, policy, looks_per_step, int(seed))
-    model = scenario.model
-    trk = tracker.make()
-    reason = trk.unsupported_reason(model)
-    if reason:
-        raise ValueError(f"tracker {tracker.label!r} cannot run {scenario.name!r}: {reason}")
-    run = simulate(scenario, int(seed))
-    trk.reset(model, np.random.default_rng(tracker_seed(scenario.name, seed, tracker.label)))
-    pol = job.policy.make() if job.policy is not None else None
-    if pol is not None:
-        pol.reset(model, int(job.looks_per_step),
-                  np.random.default_rng(tracker_seed(scenario.name, seed,
-                                                     "policy:" + job.policy_label)))
+    playback = play(scenario, tracker.make(), int(seed),
+                    policy=job.policy.make() if job.policy is not None else None,
+                    looks_per_step=job.looks_per_step, tracker_label=tracker.label,
+                    policy_label=job.policy_label, n_steps=n_steps)
     steps = []
-    for k in range(run.n_steps):
-        truth = run.states[k]
-        trk.predict()
-        if pol is not None and isinstance(model.sensor, RayleighGridSensor):
-            counts = trk.cell_count_distribution() if pol.uses_prediction else None
-            truth_cells = None
-            if pol.uses_truth:
-                flat = model.grid.cell_of(truth[:, 0], truth[:, 2])
-                truth_cells = flat[flat >= 0]
-            looks = run.look(k, pol.select(k, counts=counts, truth_cells=truth_cells))
-        else:
-            looks = run.measure(k)
-        trk.update(looks)
-        est = trk.estimate()
+    for rec in playback:
+        est = rec.estimate
         states = np.asarray(est.states, dtype=float).reshape(-1, 4)
         covs = None if est.covariances is None else np.asarray(est.covariances, dtype=float)
-        steps.append(StepTrace(k, np.asarray(looks.cells, dtype=np.int64).copy(),
-                               np.asarray(looks.returns, dtype=bool).copy(), truth.copy(),
-                               run.ids[k].copy(), states.copy(), covs, float(est.count)))
+        steps.append(StepTrace(rec.k, np.asarray(rec.looks.cells, dtype=np.int64).copy(),
+                               np.asarray(rec.looks.returns, dtype=bool).copy(),
+                               rec.truth.copy(), rec.truth_ids.copy(), states.copy(), covs,
+                               float(est.count)))
     return Trace(scenario, tracker.label, job.policy_label, int(seed), steps)

@@ -6,12 +6,12 @@ import dataclasses
 
 import pandas as pd
 import pytest
+
+from mttbench import scenarios, trackers
 from mttbench.benchmarks import policies
 from mttbench.benchmarks.cli import COMPARE_SCENARIOS, main
 from mttbench.benchmarks.harness import COLUMNS
 from mttbench.scenarios.spec import dumps
-
-from mttbench import scenarios, trackers
 
 
 @pytest.mark.parametrize("command", [[], ["scenarios"], ["trackers"], ["run"], ["compare"]])

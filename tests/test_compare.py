@@ -6,10 +6,10 @@ import json
 import re
 
 import pandas as pd
-from mttbench.benchmarks import compare
-from mttbench.benchmarks.cli import main
 
 from mttbench import trackers
+from mttbench.benchmarks import compare
+from mttbench.benchmarks.cli import main
 
 
 def test_compare_writes_the_report_folder(tmp_path, capsys):
@@ -46,7 +46,7 @@ def test_default_trackers_cover_the_registry_with_budget_params():
 
 
 def test_reference_by_bare_name_picks_the_setting():
-    from mttbench.benchmarks.harness import TrackerSpec
+    from mttbench.benchmarks.specs import TrackerSpec
     specs = [TrackerSpec("kfnn"), TrackerSpec("null", {})]
     assert compare._resolve_reference("kfnn", specs) == "kfnn"
     specs = [TrackerSpec("null"), TrackerSpec("kfnn", {"max_misses": 5})]

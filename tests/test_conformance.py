@@ -17,11 +17,11 @@ import json
 
 import numpy as np
 import pytest
+
+from mttbench import scenarios, trackers
 from mttbench.scenarios.model import Looks, RayleighGridSensor
 from mttbench.scenarios.simulator import simulate, tracker_seed
 from mttbench.trackers.base import Estimate, Tracker
-
-from mttbench import scenarios, trackers
 
 ROW_SUM_TOL = 1e-9
 

@@ -9,19 +9,13 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+from scipy import stats
+
+from mttbench import scenarios
 from mttbench.benchmarks import harness
-from mttbench.benchmarks.harness import (
-    COLUMNS,
-    Job,
-    PolicySpec,
-    TrackerSpec,
-    build_jobs,
-    parse_value,
-    run_job,
-    run_sweep,
-    split_specs,
-)
+from mttbench.benchmarks.harness import COLUMNS, Job, build_jobs, run_job, run_sweep
 from mttbench.benchmarks.metrics import step_metrics
+from mttbench.benchmarks.specs import PolicySpec, TrackerSpec, parse_value, split_specs
 from mttbench.benchmarks.summary import (
     mean_ci95,
     paired_difference,
@@ -31,9 +25,6 @@ from mttbench.benchmarks.summary import (
 )
 from mttbench.scenarios.simulator import simulate
 from mttbench.trackers.base import _REGISTRY, Estimate, Tracker, register
-from scipy import stats
-
-from mttbench import scenarios
 
 #: one tolerance for float comparisons of recomputed statistics
 TOL = 1e-12

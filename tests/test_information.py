@@ -6,6 +6,8 @@ import itertools
 
 import numpy as np
 import pytest
+from scipy.stats import entropy
+
 from mttbench.benchmarks.information import (
     binomial_likelihood,
     expected_gain,
@@ -13,7 +15,6 @@ from mttbench.benchmarks.information import (
     greedy_looks,
 )
 from mttbench.scenarios.model import RayleighGridSensor
-from scipy.stats import entropy
 
 TOL = 1e-12  # brute force vs closed form: same maths, different order of operations
 

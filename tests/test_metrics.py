@@ -12,6 +12,9 @@ import math
 
 import numpy as np
 import pytest
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial.distance import cdist
+
 from mttbench.benchmarks.metrics import (
     GOSPA,
     OSPA,
@@ -21,8 +24,6 @@ from mttbench.benchmarks.metrics import (
     ospa,
     step_metrics,
 )
-from scipy.optimize import linear_sum_assignment
-from scipy.spatial.distance import cdist
 
 SIZES = range(5)  # 0..4 points per set
 ORDERS = (1.0, 2.0, 3.0)

@@ -6,11 +6,11 @@ import dataclasses
 
 import numpy as np
 import pytest
+
+from mttbench import scenarios, trackers
 from mttbench.benchmarks.information import expected_gain, greedy_looks
 from mttbench.benchmarks.policies import available_policies, make_policy
 from mttbench.scenarios.simulator import simulate, tracker_seed
-
-from mttbench import scenarios, trackers
 
 DEFAULT = scenarios.get("default")
 MODEL = DEFAULT.model

@@ -15,13 +15,14 @@ import re
 import numpy as np
 import pandas as pd
 import pytest
-from mttbench.benchmarks import figures, report
-from mttbench.benchmarks.harness import COLUMNS, Job, PolicySpec, TrackerSpec, run_job
-from mttbench.benchmarks.metrics import step_metrics
-from mttbench.benchmarks.snapshot import trace_run
 from scipy import stats
 
 from mttbench import scenarios
+from mttbench.benchmarks import figures, report
+from mttbench.benchmarks.harness import COLUMNS, Job, run_job
+from mttbench.benchmarks.metrics import step_metrics
+from mttbench.benchmarks.snapshot import trace_run
+from mttbench.benchmarks.specs import PolicySpec, TrackerSpec
 
 DISPLAY_TOL = 5e-4 + 1e-12  # half a unit in the 3rd decimal of a ".3f" cell
 NUM_TOL = 1e-10

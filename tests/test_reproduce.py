@@ -8,9 +8,10 @@ import dataclasses
 import numpy as np
 import pandas as pd
 import pytest
+
 from mttbench.benchmarks import reproduce
 from mttbench.benchmarks.cli import main
-from mttbench.benchmarks.harness import PolicySpec, TrackerSpec
+from mttbench.benchmarks.specs import PolicySpec, TrackerSpec
 
 REFERENCE = reproduce.REFERENCE_DIR / "paper_reduced.csv"
 

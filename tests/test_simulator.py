@@ -6,11 +6,11 @@ import dataclasses
 
 import numpy as np
 import pytest
-from mttbench.scenarios.model import Dynamics, Grid, RayleighGridSensor
-from mttbench.scenarios.simulator import simulate, simulate_truth
 from scipy import stats
 
 from mttbench import scenarios
+from mttbench.scenarios.model import Dynamics, Grid, RayleighGridSensor
+from mttbench.scenarios.simulator import simulate, simulate_truth
 
 
 def _static_scenario(states, p_d=0.5, snr=1.0, n_steps=400, nx=4, ny=1):

@@ -5,11 +5,11 @@ from __future__ import annotations
 import re
 
 import pytest
+
+from mttbench import scenarios
 from mttbench.scenarios import ScenarioError
 from mttbench.scenarios.model import RayleighGridSensor
 from mttbench.scenarios.spec import dumps, loads
-
-from mttbench import scenarios
 
 GOOD = """
 description = "test"

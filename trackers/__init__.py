@@ -1,15 +1,21 @@
-"""Trackers behind one interface (:class:`trackers.base.Tracker`), registered by name.
+"""Trackers behind one interface (:class:`~mttbench.trackers.base.Tracker`), registered by name.
 
-Importing this package registers every shipped tracker; add a new module's import
-below to register it (the conformance suite then tests it automatically).
+Importing this package registers every shipped tracker. Trackers of other packages
+register through the entry-point group ``mttbench.trackers`` (loaded on the first use
+of the registry), or are named by class path, ``package.module:ClassName``.
 """
 
-from . import (
-    gpf,  # noqa: F401  (registers "gpf")
-    jmpd,  # noqa: F401  (registers "jmpd", "jmpd-ip")
-    kfnn,  # noqa: F401  (registers "kfnn")
-    null,  # noqa: F401  (registers "null")
+from . import gpf, jmpd, kfnn, null  # noqa: F401  (importing registers them)
+from .base import (
+    Estimate,
+    Tracker,
+    available,
+    broken_plugins,
+    get_class,
+    load_plugins,
+    make,
+    register,
 )
-from .base import Estimate, Tracker, available, get_class, make, register
 
-__all__ = ["Estimate", "Tracker", "available", "get_class", "make", "register"]
+__all__ = ["Estimate", "Tracker", "available", "broken_plugins", "get_class", "load_plugins",
+           "make", "register"]

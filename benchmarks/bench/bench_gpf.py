@@ -20,11 +20,11 @@ import dataclasses
 
 import numpy as np
 import pytest
+
+from mttbench import scenarios
 from mttbench.scenarios.model import Grid, Looks
 from mttbench.scenarios.simulator import simulate
 from mttbench.trackers.gpf import GaussianParticleFilter
-
-from mttbench import scenarios
 
 WARM_STEPS = 20
 

@@ -24,12 +24,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
-from mttbench.benchmarks.metrics import step_metrics
-from mttbench.scenarios.model import Looks
-from mttbench.scenarios.simulator import simulate, tracker_seed
-from mttbench.trackers.base import Tracker
 
 from mttbench import scenarios, trackers
+from mttbench.benchmarks.harness import play
+from mttbench.benchmarks.metrics import step_metrics
+from mttbench.scenarios.model import Looks
+from mttbench.trackers.base import Tracker
 
 WARM_STEPS = 10
 SIZES = {"small": "default", "large": "large"}
@@ -45,32 +45,22 @@ class Warm:
     warm_ospa: float
 
 
-def _raster(k: int, n_cells: int, m: int) -> np.ndarray:
-    m = min(m, n_cells)
-    return ((k * m + np.arange(m)) % n_cells).astype(np.int64)
-
-
 def _warm(name: str, size: str) -> Warm:
+    """Play ``WARM_STEPS`` raster steps of seed 0 through the harness's step loop."""
     sc = scenarios.get(SIZES[size])
-    model = sc.model
     tr = trackers.make(name)
-    reason = tr.unsupported_reason(model)
+    reason = tr.unsupported_reason(sc.model)
     if reason:
         pytest.skip(f"{name} cannot run {sc.name}: {reason}")
-    run = simulate(sc, 0)
-    tr.reset(model, np.random.default_rng(tracker_seed(sc.name, 0, name)))
-    m, n_cells = model.sensor.looks_per_step, model.grid.n_cells
+    playback = play(sc, tr, 0, n_steps=WARM_STEPS)
     ospa = []
-    for k in range(WARM_STEPS):
-        tr.predict()
-        tr.update(run.look(k, _raster(k, n_cells, m)))
-        est = tr.estimate()
-        states = np.asarray(est.states, dtype=float).reshape(-1, 4)
-        ospa.append(step_metrics(run.states[k][:, [0, 2]], states[:, [0, 2]],
-                                 float(est.count))["ospa"])
+    for rec in playback:
+        states = np.asarray(rec.estimate.states, dtype=float).reshape(-1, 4)
+        ospa.append(step_metrics(rec.truth[:, [0, 2]], states[:, [0, 2]],
+                                 float(rec.estimate.count))["ospa"])
     k = WARM_STEPS
-    return Warm(tr, run.look(k, _raster(k, n_cells, m)), run.states[k].copy(),
-                float(np.mean(ospa)))
+    looks = playback.world.look(k, playback.policy.select(k))
+    return Warm(tr, looks, playback.world.states[k].copy(), float(np.mean(ospa)))
 
 
 _CACHE: dict[tuple[str, str], Warm] = {}

@@ -12,6 +12,7 @@ import math
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+
 from mttbench.benchmarks.metrics import gospa, ospa
 
 SETTINGS = settings(max_examples=150, deadline=None)

@@ -1,0 +1,193 @@
+"""Specifications of trackers and policies (``name:key=val,...``) and their resolution.
+
+This module sits below every command (:mod:`~mttbench.benchmarks.cli` imports it,
+nothing here imports the command line), so the harness, ``compare`` and
+``reproduce`` share one way of turning user text into checked objects and one error
+type for bad input, :class:`UsageError` (reported by the command line in one line
+with exit status 2).
+
+Spec text: ``name`` or ``name:key=val,key=val``. ``name`` is a registered name
+(``mttbench trackers``) or, for a tracker written elsewhere, a class path
+``package.module:ClassName``, the class name capitalised (then
+``package.module:ClassName:key=val,...``). Each
+value is parsed as ``true``/``false`` (bool, case-insensitive), then ``int``, then
+``float``, otherwise kept as a string.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Self
+
+from .. import scenarios, trackers
+from ..scenarios.spec import Scenario
+from . import policies
+
+
+class UsageError(Exception):
+    """Bad user input (a name, parameter, value or file); one line, exit status 2."""
+
+
+def first_line(exc: BaseException) -> str:
+    """The first line of an exception's message (KeyError without its quotes)."""
+    msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
+    return str(msg).strip().splitlines()[0] if str(msg).strip() else type(exc).__name__
+
+
+# ------------------------------------------------------------------------ parsing
+def parse_value(text: str) -> bool | int | float | str:
+    """``"true"``/``"false"`` -> bool, then int, then float, else the string itself."""
+    low = text.strip().lower()
+    if low in ("true", "false"):
+        return low == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def label(name: str, params: dict[str, Any]) -> str:
+    """``name`` without parameters, else ``name(k=v,...)`` with sorted keys."""
+    if not params:
+        return name
+    return f"{name}(" + ",".join(f"{k}={params[k]}" for k in sorted(params)) + ")"
+
+
+#: ``package.module:ClassName`` at the start of a spec: a class path, told from
+#: ``name:key=val`` by the capital letter that starts a class name (PEP 8)
+_CLASS_PATH = re.compile(r"^\s*([A-Za-z_][\w.]*:[A-Z]\w*)\s*(?::(.*))?$", re.S)
+
+
+def parse_spec(text: str, what: str) -> tuple[str, dict[str, Any]]:
+    """``name[:key=val,...]`` or ``pkg.mod:Class[:key=val,...]`` -> (name, params)."""
+    m = _CLASS_PATH.match(text)
+    if m:
+        name, sep, rest = m.group(1), m.group(2) is not None, m.group(2) or ""
+    else:
+        name, colon, rest = text.strip().partition(":")
+        sep = bool(colon)
+    name = name.strip()
+    if not name:
+        raise ValueError(f"empty {what} name in {text!r}")
+    params: dict[str, Any] = {}
+    if sep:
+        for item in rest.split(","):
+            key, eq, value = item.partition("=")
+            key = key.strip()
+            if not eq or not key:
+                raise ValueError(f"bad {what} parameter {item!r} in {text!r}: expected key=value")
+            if key in params:
+                raise ValueError(f"{what} parameter {key!r} given twice in {text!r}")
+            params[key] = parse_value(value.strip())
+    return name, params
+
+
+def split_specs(items: Sequence[str] | str) -> list[str]:
+    """Split comma-separated spec lists, keeping ``key=val`` pieces with their spec.
+
+    ``["raster,renyi:alpha=0.5,max_count=3", "all"]`` ->
+    ``["raster", "renyi:alpha=0.5,max_count=3", "all"]``: a piece with ``=`` but no
+    ``:`` continues the parameter list of the spec before it.
+    """
+    out: list[str] = []
+    for item in [items] if isinstance(items, str) else items:
+        for piece in item.split(","):
+            piece = piece.strip()
+            if not piece:
+                continue
+            if "=" in piece and ":" not in piece and out and ":" in out[-1]:
+                out[-1] += "," + piece
+            else:
+                out.append(piece)
+    return out
+
+
+# -------------------------------------------------------------------------- specs
+@dataclass(frozen=True)
+class Spec:
+    """A registered name (or class path) and the parameters given to its constructor."""
+
+    name: str
+    params: dict[str, Any] = field(default_factory=dict)
+    kind: ClassVar[str] = ""
+
+    @property
+    def label(self) -> str:
+        """``name`` without parameters, else ``name(k=v,...)`` with sorted keys."""
+        return label(self.name, self.params)
+
+    def __hash__(self) -> int:
+        return hash((self.kind, self.label))
+
+    @classmethod
+    def parse(cls, text: str) -> Self:
+        """From ``name`` or ``name:key=val,key=val`` (values as :func:`parse_value`)."""
+        return cls(*parse_spec(text, cls.kind))
+
+
+class TrackerSpec(Spec):
+    """A tracker and its parameters."""
+
+    kind = "tracker"
+
+    def make(self) -> trackers.Tracker:
+        return trackers.make(self.name, **self.params)
+
+
+class PolicySpec(Spec):
+    """A cell-selection policy and its parameters."""
+
+    kind = "policy"
+
+    def make(self) -> policies.Policy:
+        return policies.make_policy(self.name, **self.params)
+
+
+# --------------------------------------------------------------------- resolution
+def resolve_scenarios(names: Sequence[str], steps: int | None = None) -> list[Scenario]:
+    """Presets or ``.toml`` paths -> scenarios, with ``n_steps`` overridden if given."""
+    out = []
+    for name in names:
+        try:
+            sc = scenarios.get(name)
+        except (scenarios.ScenarioError, OSError, UnicodeDecodeError) as exc:
+            raise UsageError(f"scenario {name!r}: {first_line(exc)}") from None
+        if steps is not None:
+            sc = dataclasses.replace(sc, n_steps=steps)
+        out.append(sc)
+    seen = [sc.name for sc in out]
+    dupes = sorted({n for n in seen if seen.count(n) > 1})
+    if dupes:
+        raise UsageError(f"scenario name(s) {dupes} given more than once")
+    return out
+
+
+def _resolve(texts: Sequence[str], spec_type: type[Spec]) -> list:
+    """Specs checked by building each one once (unknown names and parameters refused)."""
+    specs = []
+    for text in split_specs(list(texts)):
+        try:
+            spec = spec_type.parse(text)
+            spec.make()
+        except (ValueError, KeyError, TypeError, ImportError, AttributeError) as exc:
+            raise UsageError(f"{spec_type.kind} {text!r}: {first_line(exc)}") from None
+        specs.append(spec)
+    labels = [s.label for s in specs]
+    if len(set(labels)) != len(labels):
+        raise UsageError(f"a {spec_type.kind} is given more than once: {labels}")
+    return specs
+
+
+def resolve_trackers(texts: Sequence[str]) -> list[TrackerSpec]:
+    """Tracker specs, checked against the registry (or importable as class paths)."""
+    return _resolve(texts, TrackerSpec)
+
+
+def resolve_policies(texts: Sequence[str]) -> list[PolicySpec]:
+    """Policy specs, checked against the registry."""
+    return _resolve(texts, PolicySpec)
