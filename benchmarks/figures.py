@@ -2,7 +2,9 @@
 
 Every function takes tidy data (the results table, a summary, or the frames of a
 :class:`benchmarks.snapshot.Trace`), writes one PNG to ``path`` and returns it. No
-function runs a tracker. Matplotlib runs with the non-interactive Agg backend.
+function runs a tracker. Figures are built as :class:`matplotlib.figure.Figure` objects,
+never through pyplot, so drawing neither switches the process's backend nor leaves
+figures open.
 
 Confidence bands are 95% Student-t intervals over seeds at each step::
 
@@ -15,15 +17,14 @@ import math
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-from matplotlib.patches import Ellipse, Rectangle  # noqa: E402
-from scipy import stats  # noqa: E402
+import matplotlib as mpl
+import numpy as np
+import pandas as pd
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Ellipse, Rectangle
+from scipy import stats
 
 #: chi-square(2) 95% quantile: a 2-D Gaussian puts 95% of its mass inside this ellipse
 ELLIPSE_CHI2 = float(stats.chi2.ppf(0.95, 2))
@@ -32,7 +33,7 @@ DPI = 110
 
 def tracker_colors(labels: list[str]) -> dict[str, tuple]:
     """A fixed colour per tracker label (sorted order, tab10 cycle)."""
-    cmap = plt.get_cmap("tab10")
+    cmap = mpl.colormaps["tab10"]
     return {lab: cmap(i % 10) for i, lab in enumerate(sorted(labels))}
 
 
@@ -50,25 +51,30 @@ def step_stats(results: pd.DataFrame, metric: str,
     return out.drop(columns="sd")
 
 
-def _save(fig: plt.Figure, path: str | Path) -> Path:
+def _save(fig: Figure, path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=DPI, bbox_inches="tight")
-    plt.close(fig)
     return path
+
+
+def _subplots(rows: int, cols: int, **kwargs: Any) -> tuple[Figure, np.ndarray]:
+    """``(figure, axes (rows, cols))`` without pyplot (a plain Figure renders with Agg)."""
+    fig = Figure(figsize=kwargs.pop("figsize", None), layout=kwargs.pop("layout", None))
+    return fig, fig.subplots(rows, cols, squeeze=False, **kwargs)
 
 
 def _grid_of_axes(n: int, width: float = 4.2, height: float = 3.2):
     cols = min(n, 2) if n > 1 else 1
     rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(width * cols, height * rows), squeeze=False,
-                             layout="constrained")
+    fig, axes = _subplots(rows, cols, figsize=(width * cols, height * rows),
+                          layout="constrained")
     for ax in axes.flat[n:]:
         ax.set_visible(False)
     return fig, list(axes.flat[:n])
 
 
-def _legend_below(fig: plt.Figure, axes: list[plt.Axes]) -> None:
+def _legend_below(fig: Figure, axes: list[Axes]) -> None:
     """One legend for all panels, below them (``loc="best"`` is slow with many artists)."""
     seen: dict[str, Any] = {}
     for ax in axes:
@@ -162,7 +168,7 @@ def _cov_ellipse(px: float, py: float, cxx: float, cxy: float, cyy: float, **kw)
     return Ellipse((px, py), w, h, angle=angle, fill=False, **kw)
 
 
-def draw_snapshot(ax: plt.Axes, frames: dict[str, pd.DataFrame], step: int, nx: int, ny: int,
+def draw_snapshot(ax: Axes, frames: dict[str, pd.DataFrame], step: int, nx: int, ny: int,
                   cell_size: float = 1.0, title: str = "", show_estimates: bool = True) -> None:
     """One step of a trace on ``ax``: grid, looked-at cells (light grey), positive
     returns (magenta squares), true targets (blue dots), estimates (black crosses) with
@@ -202,14 +208,14 @@ def draw_snapshot(ax: plt.Axes, frames: dict[str, pd.DataFrame], step: int, nx: 
 def snapshot(frames: dict[str, pd.DataFrame], path: str | Path, steps: list[int], nx: int,
              ny: int, cell_size: float = 1.0, title: str = "") -> Path:
     """Snapshot panels of a traced run at ``steps`` (see :func:`draw_snapshot`)."""
-    fig, axes = plt.subplots(1, len(steps), figsize=(3.6 * len(steps), 3.9), squeeze=False)
+    fig, axes = _subplots(1, len(steps), figsize=(3.6 * len(steps), 3.9))
     for ax, k in zip(axes.flat, steps, strict=True):
         draw_snapshot(ax, frames, k, nx, ny, cell_size)
     handles = [
         Rectangle((0, 0), 1, 1, color="0.85", label="looked at, no return"),
         Rectangle((0, 0), 1, 1, color="magenta", alpha=0.75, label="positive return"),
-        plt.Line2D([], [], ls="", marker="o", color="blue", label="true target"),
-        plt.Line2D([], [], ls="", marker="x", color="black", label="estimate, 95% ellipse"),
+        Line2D([], [], ls="", marker="o", color="blue", label="true target"),
+        Line2D([], [], ls="", marker="x", color="black", label="estimate, 95% ellipse"),
     ]
     fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=8,
                bbox_to_anchor=(0.5, -0.02))
@@ -227,7 +233,8 @@ def paper_error_curves(curves: pd.DataFrame, path: str | Path, highlight: str = 
     ``highlight`` tracker is drawn as in the paper (state error black, count error red);
     the others are overlaid in thin coloured lines.
     """
-    fig, axes = plt.subplots(1, 2, figsize=(9.5, 4.0), layout="constrained")
+    fig, axes = _subplots(1, 2, figsize=(9.5, 4.0), layout="constrained")
+    axes = axes[0]
     labels = sorted(curves["tracker_label"].unique())
     colors = tracker_colors(labels)
     for ax, col, main in ((axes[0], "state_error", "black"), (axes[1], "count_error", "red")):
