@@ -60,6 +60,11 @@ class Tracker(ABC):
     name: ClassVar[str] = ""
     #: one line for ``mttbench trackers``
     summary: ClassVar[str] = ""
+    #: a baseline that does not track by design (``null``): the conformance kit
+    #: (:mod:`mttbench.testing`) skips its tracking checks
+    baseline: ClassVar[bool] = False
+    #: checks of the conformance kit this tracker cannot pass: ``{check name: reason}``
+    conformance_exceptions: ClassVar[dict[str, str]] = {}
 
     # ------------------------------------------------------------------ params
     @classmethod

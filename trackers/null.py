@@ -16,6 +16,7 @@ from .base import Estimate, Tracker, register
 class NullTracker(Tracker):
     name = "null"
     summary = "baseline that always reports zero targets"
+    baseline = True
 
     def __init__(self) -> None:
         pass

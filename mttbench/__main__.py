@@ -1,0 +1,5 @@
+"""``python -m mttbench``: the same as the ``mttbench`` command."""
+
+from mttbench.benchmarks.cli import main
+
+raise SystemExit(main())
