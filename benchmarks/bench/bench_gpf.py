@@ -23,28 +23,15 @@ import pytest
 
 from mttbench import scenarios
 from mttbench.scenarios.model import Grid, Looks
-from mttbench.scenarios.simulator import simulate
 from mttbench.trackers.gpf import GaussianParticleFilter
 
 WARM_STEPS = 20
 
 
-def _warm(name: str):
-    sc = scenarios.get(name)
-    run = simulate(sc, 0)
-    m, n_cells = sc.model.sensor.looks_per_step, sc.grid.n_cells
-    tr = GaussianParticleFilter()
-    tr.reset(sc.model, np.random.default_rng(0))
-    for k in range(WARM_STEPS):
-        tr.predict()
-        tr.update(run.look(k, (k * m + np.arange(m)) % n_cells))
-    looks = run.look(WARM_STEPS, (WARM_STEPS * m + np.arange(m)) % n_cells)
-    return tr, looks
-
-
 @pytest.mark.parametrize("name", ["paper", "large"])
-def test_gpf_step(benchmark, name):
-    base, looks = _warm(name)
+def test_gpf_step(benchmark, name, warm_up):
+    warm = warm_up(scenarios.get(name), GaussianParticleFilter(), WARM_STEPS)
+    base, looks = warm.tracker, warm.looks
     state = {}
 
     def setup():

@@ -20,16 +20,12 @@ tracker shows in the saved JSON next to its timing.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
 
 from mttbench import scenarios, trackers
-from mttbench.benchmarks.harness import play
 from mttbench.benchmarks.metrics import step_metrics
-from mttbench.scenarios.model import Looks
-from mttbench.trackers.base import Tracker
 
 WARM_STEPS = 10
 SIZES = {"small": "default", "large": "large"}
@@ -37,48 +33,23 @@ SIZES = {"small": "default", "large": "large"}
 ROUNDS = {"small": 50, "large": 10}
 
 
-@dataclass
-class Warm:
-    tracker: Tracker  # state after WARM_STEPS steps (never timed, never mutated)
-    looks: Looks  # the timed step's looks
-    truth: np.ndarray  # (n, 4) true states of the timed step
-    warm_ospa: float
-
-
-def _warm(name: str, size: str) -> Warm:
-    """Play ``WARM_STEPS`` raster steps of seed 0 through the harness's step loop."""
-    sc = scenarios.get(SIZES[size])
-    tr = trackers.make(name)
-    reason = tr.unsupported_reason(sc.model)
-    if reason:
-        pytest.skip(f"{name} cannot run {sc.name}: {reason}")
-    playback = play(sc, tr, 0, n_steps=WARM_STEPS)
-    ospa = []
-    for rec in playback:
-        states = np.asarray(rec.estimate.states, dtype=float).reshape(-1, 4)
-        ospa.append(step_metrics(rec.truth[:, [0, 2]], states[:, [0, 2]],
-                                 float(rec.estimate.count))["ospa"])
-    k = WARM_STEPS
-    looks = playback.world.look(k, playback.policy.select(k))
-    return Warm(tr, looks, playback.world.states[k].copy(), float(np.mean(ospa)))
-
-
-_CACHE: dict[tuple[str, str], Warm] = {}
+_CACHE: dict[tuple[str, str], object] = {}
 
 
 @pytest.fixture
-def warm(request) -> Warm:
+def warm(request, warm_up):
     """The warmed-up tracker for ``(tracker, size)`` (built once per session)."""
     key = (request.node.callspec.params["name"], request.node.callspec.params["size"])
     if key not in _CACHE:
-        _CACHE[key] = _warm(*key)
+        name, size = key
+        _CACHE[key] = warm_up(scenarios.get(SIZES[size]), trackers.make(name), WARM_STEPS)
     return _CACHE[key]
 
 
 @pytest.mark.parametrize("size", list(SIZES))
 @pytest.mark.parametrize("name", trackers.available())
 def test_tracker_step(benchmark, warm, name, size):
-    state: dict[str, Tracker] = {}
+    state: dict = {}
 
     def setup():
         state["tr"] = copy.deepcopy(warm.tracker)
