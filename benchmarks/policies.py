@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import inspect
 from abc import ABC, abstractmethod
-from importlib import metadata
 from typing import Any, ClassVar
 
 import numpy as np
 
 from ..scenarios.model import RayleighGridSensor, TrackingModel
+from ..trackers.registry import Registry
 from .information import greedy_looks
 
 
@@ -57,71 +57,19 @@ class Policy(ABC):
         """Flat cell indices ``(n,)`` int64 to look at during step ``k``."""
 
 
-#: entry-point group through which other packages register policies
+#: policies by name; other packages add theirs through this entry-point group
 ENTRY_POINT_GROUP = "mttbench.policies"
+_POLICIES: Registry[type[Policy]] = Registry("policy", Policy, ENTRY_POINT_GROUP)
 
-_POLICIES: dict[str, type[Policy]] = {}
-_BROKEN: dict[str, str] = {}
-_plugins_loaded = False
-
-
-def register_policy(cls: type[Policy]) -> type[Policy]:
-    """Class decorator: register a policy under ``cls.name``."""
-    if not (isinstance(cls, type) and issubclass(cls, Policy)):
-        raise TypeError(f"{cls!r} is not a subclass of mttbench.benchmarks.policies.Policy")
-    if not cls.name or _POLICIES.get(cls.name, cls) is not cls:
-        raise ValueError(f"policy name {cls.name!r} is empty or already registered")
-    _POLICIES[cls.name] = cls
-    return cls
-
-
-def load_plugins() -> None:
-    """Register the policies of installed packages' ``mttbench.policies`` entry points
-    (``name = "package.module:Class"``); one that fails is kept in :data:`_BROKEN` with
-    its reason and never stops the others. Runs once per process."""
-    global _plugins_loaded
-    if _plugins_loaded:
-        return
-    _plugins_loaded = True
-    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
-        if ep.name in _POLICIES:
-            continue
-        try:
-            cls = ep.load()
-            if not (isinstance(cls, type) and issubclass(cls, Policy)):
-                raise TypeError(f"{ep.value} is not a Policy subclass")
-            if cls.name != ep.name:
-                raise ValueError(f"{ep.value}.name is {cls.name!r}, not {ep.name!r}")
-            register_policy(cls)
-        except Exception as exc:  # noqa: BLE001 - a broken plugin must not stop the suite
-            _BROKEN[ep.name] = f"{type(exc).__name__}: {exc}".splitlines()[0]
-
-
-def broken_plugins() -> dict[str, str]:
-    """Policy entry points that failed to load: name -> reason."""
-    load_plugins()
-    return dict(_BROKEN)
-
-
-def available_policies() -> list[str]:
-    """Registered policy names (shipped and from entry points), sorted."""
-    load_plugins()
-    return sorted(_POLICIES)
-
-
-def get_policy_class(name: str) -> type[Policy]:
-    load_plugins()
-    try:
-        return _POLICIES[name]
-    except KeyError:
-        why = f" failed to load: {_BROKEN[name]}" if name in _BROKEN else ""
-        raise KeyError(f"unknown policy {name!r}{why}: policies are "
-                       f"{available_policies()}") from None
+register_policy = _POLICIES.register
+available_policies = _POLICIES.names
+get_policy_class = _POLICIES.get
+broken_plugins = _POLICIES.broken
 
 
 def make_policy(name: str, **params: Any) -> Policy:
     """Build a registered policy; unknown parameters are refused."""
-    return get_policy_class(name)(**params)
+    return _POLICIES.get(name)(**params)
 
 
 @register_policy

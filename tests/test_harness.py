@@ -24,7 +24,7 @@ from mttbench.benchmarks.summary import (
     to_markdown,
 )
 from mttbench.scenarios.simulator import simulate
-from mttbench.trackers.base import _REGISTRY, Estimate, Tracker, register
+from mttbench.trackers.base import Estimate, Tracker, register, unregister
 
 #: one tolerance for float comparisons of recomputed statistics
 TOL = 1e-12
@@ -102,7 +102,7 @@ def test_trackers():
     Recorder.looks_seen, Recorder.draws, Recorder.resets = {}, {}, 0
     yield
     for cls in classes:
-        _REGISTRY.pop(cls.name, None)
+        unregister(cls.name)
 
 
 def strip_timing(df: pd.DataFrame) -> pd.DataFrame:

@@ -12,10 +12,10 @@ from .base import (
     available,
     broken_plugins,
     get_class,
-    load_plugins,
     make,
     register,
+    unregister,
 )
 
-__all__ = ["Estimate", "Tracker", "available", "broken_plugins", "get_class", "load_plugins",
-           "make", "register"]
+__all__ = ["Estimate", "Tracker", "available", "broken_plugins", "get_class", "make", "register",
+           "unregister"]

@@ -21,12 +21,12 @@ import importlib
 import inspect
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from importlib import metadata
 from typing import Any, ClassVar
 
 import numpy as np
 
 from ..scenarios.model import Looks, TrackingModel
+from .registry import Registry
 
 
 @dataclass(frozen=True)
@@ -119,77 +119,22 @@ class Tracker(ABC):
 
 
 # ----------------------------------------------------------------------- registry
-#: entry-point group through which other packages register trackers
+#: trackers by name; other packages add theirs through this entry-point group
 ENTRY_POINT_GROUP = "mttbench.trackers"
+_TRACKERS: Registry[type[Tracker]] = Registry("tracker", Tracker, ENTRY_POINT_GROUP)
 
-_REGISTRY: dict[str, type[Tracker]] = {}
-#: entry points that failed to load: name -> one-line reason (listed by ``mttbench trackers``)
-_BROKEN: dict[str, str] = {}
-_plugins_loaded = False
-
-
-def register(cls: type[Tracker]) -> type[Tracker]:
-    """Class decorator: register a tracker under ``cls.name``."""
-    if not (isinstance(cls, type) and issubclass(cls, Tracker)):
-        raise TypeError(f"{cls!r} is not a subclass of mttbench.trackers.Tracker")
-    if not cls.name:
-        raise ValueError(f"{cls.__name__} needs a non-empty `name`")
-    if cls.name in _REGISTRY and _REGISTRY[cls.name] is not cls:
-        raise ValueError(f"tracker name {cls.name!r} is already registered")
-    _REGISTRY[cls.name] = cls
-    return cls
-
-
-def load_plugins() -> None:
-    """Register the trackers of installed packages' ``mttbench.trackers`` entry points.
-
-    An entry point ``name = "package.module:Class"`` names a :class:`Tracker` subclass
-    whose ``name`` is ``name``. One that fails to import or is not such a class is
-    left out and its reason kept in :func:`broken_plugins`; it never stops the others.
-    Runs once per process, on the first use of the registry.
-    """
-    global _plugins_loaded
-    if _plugins_loaded:
-        return
-    _plugins_loaded = True
-    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
-        if ep.name in _REGISTRY:
-            continue
-        try:
-            cls = ep.load()
-            if not (isinstance(cls, type) and issubclass(cls, Tracker)):
-                raise TypeError(f"{ep.value} is not a Tracker subclass")
-            if cls.name != ep.name:
-                raise ValueError(f"{ep.value}.name is {cls.name!r}, not {ep.name!r}")
-            register(cls)
-        except Exception as exc:  # noqa: BLE001 - a broken plugin must not stop the suite
-            _BROKEN[ep.name] = f"{type(exc).__name__}: {exc}".splitlines()[0]
-
-
-def broken_plugins() -> dict[str, str]:
-    """Entry points that failed to load: name -> reason."""
-    load_plugins()
-    return dict(_BROKEN)
-
-
-def available() -> list[str]:
-    """Registered tracker names (shipped and from entry points), sorted."""
-    load_plugins()
-    return sorted(_REGISTRY)
+register = _TRACKERS.register
+unregister = _TRACKERS.unregister
+available = _TRACKERS.names
+broken_plugins = _TRACKERS.broken
 
 
 def get_class(name: str) -> type[Tracker]:
-    """The tracker class of a registered name, or of a class path ``package.module:Class``
-    (a tracker written elsewhere, used without registering it)."""
-    load_plugins()
-    if name in _REGISTRY:
-        return _REGISTRY[name]
-    if name in _BROKEN:
-        raise KeyError(f"tracker {name!r} failed to load: {_BROKEN[name]}")
-    module, colon, attr = name.partition(":")
-    if not colon:
-        raise KeyError(f"unknown tracker {name!r}: registered trackers are {available()}; "
-                       "a tracker from elsewhere is named package.module:ClassName")
+    """The tracker class of a registered name (shipped or from an entry point), or of a
+    class path ``package.module:Class`` (a tracker written elsewhere, not registered)."""
+    if name in _TRACKERS or ":" not in name:
+        return _TRACKERS.get(name)
+    module, _, attr = name.partition(":")
     try:
         cls = getattr(importlib.import_module(module), attr)
     except (ImportError, AttributeError) as exc:
