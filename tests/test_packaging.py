@@ -1,0 +1,645 @@
+"""The architecture, checked from the outside.
+
+1. A plain (non-editable) install works away from the checkout and installs no generic
+   top-level name: only ``mttbench`` (the layer folders live under it).
+2. An outside package registers a tracker and a policy through entry points; a broken
+   entry point is listed with its reason and stops nothing; a tracker named by class path
+   runs without any entry point.
+3. The import graph of the package's sources has no cycle and keeps the layering
+   (scenarios below trackers below benchmarks; nothing imports the command line), and no
+   source anywhere imports the bare names ``trackers``, ``scenarios`` or ``benchmarks``.
+
+Parts 1 and 2 run ``python -m mttbench`` in subprocesses from empty working directories.
+The install of part 1 is built once per test session, also under pytest-xdist (the
+workers share it through a lock file).
+"""
+
+from __future__ import annotations
+
+import ast
+import fcntl
+import json
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+#: the repository's folders installed as subpackages of ``mttbench`` (pyproject.toml)
+LAYERS = ("trackers", "scenarios", "benchmarks")
+BARE_NAMES = frozenset(LAYERS)
+PYTHON = sys.executable
+
+
+def run_python(args: list[str], cwd: Path, pythonpath: list[Path], *, timeout: float = 600,
+               extra_env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    """``python <args>`` from ``cwd`` with exactly ``pythonpath`` on PYTHONPATH."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
+    env["PYTHONPATH"] = os.pathsep.join(str(p) for p in pythonpath)
+    env["PYTHONNOUSERSITE"] = "1"
+    env.update(extra_env or {})
+    return subprocess.run([PYTHON, *args], cwd=cwd, env=env, capture_output=True, text=True,
+                          timeout=timeout, check=False)
+
+
+def ok(proc: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
+    assert proc.returncode == 0, (
+        f"{proc.args} exited {proc.returncode}\n--- stdout\n{proc.stdout}\n--- stderr\n"
+        f"{proc.stderr}")
+    return proc
+
+
+# ============================================================ 1. a plain install
+#: top-level entries of the checkout that a build does not need (or must not see:
+#: a stale build/ folder would leak deleted modules into the wheel)
+_NOT_COPIED = {".git", ".venv", "build", "dist", "tests", "docs", ".cache", ".hypothesis",
+               ".pytest_cache", ".ruff_cache", ".benchmarks"}
+
+
+def _ignore(folder: str, names: list[str]) -> set[str]:
+    here = Path(folder)
+    skip = {n for n in names if n == "__pycache__" or n.endswith(".egg-info")}
+    if here == REPO:
+        skip |= _NOT_COPIED & set(names)
+    elif here == REPO / "reports":  # run outputs; only reference/ ships
+        skip |= {n for n in names if n not in ("reference", "README.md")}
+    return skip
+
+
+def _build_and_install(site: Path, work: Path) -> float:
+    """Copy the checkout's sources to ``work`` and ``pip install`` them (not editable) into
+    ``site``. Building from a copy leaves the checkout untouched. Returns the seconds."""
+    t0 = time.perf_counter()
+    src = work / "src"
+    shutil.copytree(REPO, src, ignore=_ignore)
+    proc = subprocess.run(
+        [PYTHON, "-m", "pip", "install", "--no-deps", "--no-input", "--disable-pip-version-check",
+         "--target", str(site), str(src)],
+        cwd=work, capture_output=True, text=True, timeout=900, check=False)
+    assert proc.returncode == 0, f"pip install failed:\n{proc.stdout}\n{proc.stderr}"
+    return time.perf_counter() - t0
+
+
+@pytest.fixture(scope="module")
+def installed_site(tmp_path_factory) -> Path:
+    """``<tmp>/site``: the project installed non-editably, built once per session (the
+    xdist workers' temp folders share a parent, where the first one builds under a lock)."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent
+    shared = root / "mttbench-plain-install"
+    shared.mkdir(exist_ok=True)
+    site, done, failed = shared / "site", shared / "done", shared / "failed"
+    with open(shared / "lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            if not done.exists() and not failed.exists():
+                work = shared / "work"
+                work.mkdir()
+                try:
+                    seconds = _build_and_install(site, work)
+                except BaseException as exc:  # one failed build per session, not one per test
+                    failed.write_text(str(exc))
+                    raise
+                finally:
+                    shutil.rmtree(work, ignore_errors=True)
+                done.write_text(f"{seconds:.1f}\n")
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+    if failed.exists():
+        pytest.fail("the plain install failed earlier in this session:\n" + failed.read_text(),
+                    pytrace=False)
+    return site
+
+
+@pytest.fixture
+def empty_cwd(tmp_path) -> Path:
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    return cwd
+
+
+def test_installed_files_hold_only_the_mttbench_package(installed_site):
+    top = {p.name for p in installed_site.iterdir()}
+    assert "mttbench" in top
+    assert not top & BARE_NAMES, f"generic top-level names installed: {sorted(top & BARE_NAMES)}"
+    packages = {n for n in top if not n.endswith((".dist-info", ".egg-info"))
+                and n not in ("bin", "__pycache__")}
+    assert packages == {"mttbench"}, f"unexpected top-level entries installed: {sorted(top)}"
+    # no layer folder anywhere but under mttbench/
+    for name in BARE_NAMES:
+        stray = [p for p in installed_site.rglob(name)
+                 if p.is_dir() and p.parent != installed_site / "mttbench"]
+        assert not stray, stray
+    pkg = installed_site / "mttbench"
+    for sub in (*LAYERS, "scenarios/presets", "reference"):
+        assert (pkg / sub).is_dir(), f"mttbench/{sub} is missing from the install"
+    # every source package of the checkout is installed (a new subpackage must be listed
+    # in pyproject.toml's packages, or the plain install lacks it)
+    for layer in LAYERS:
+        for init in (REPO / layer).rglob("__init__.py"):
+            rel = init.parent.relative_to(REPO / layer)
+            if layer == "benchmarks" and rel.parts[:1] == ("bench",):
+                continue  # the pytest-benchmark suites are not installed
+            assert (pkg / layer / rel / "__init__.py").is_file(), (
+                f"{layer}/{rel} is in the checkout but not in the plain install (add it to "
+                "[tool.setuptools] packages in pyproject.toml)")
+    assert list((pkg / "scenarios" / "presets").glob("*.toml"))
+    assert list((pkg / "reference").glob("*.csv"))
+    top_level = next(installed_site.glob("mttbench-*.dist-info")) / "top_level.txt"
+    if top_level.exists():
+        assert top_level.read_text().split() == ["mttbench"]
+
+
+_WHERE = textwrap.dedent("""
+    import importlib, importlib.resources, json, sys
+    import mttbench
+    out = {"mttbench": mttbench.__file__}
+    for name in ("trackers", "scenarios", "benchmarks", "benchmarks.cli", "trackers.base"):
+        out["mttbench." + name] = importlib.import_module("mttbench." + name).__file__
+    out["reference"] = str(importlib.resources.files("mttbench.reference"))
+    bare = {}
+    for name in ("trackers", "scenarios", "benchmarks"):
+        try:
+            importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            bare[name] = "ModuleNotFoundError:" + str(exc.name)
+        except Exception as exc:
+            bare[name] = type(exc).__name__
+        else:
+            bare[name] = "imported from " + str(sys.modules[name].__file__)
+    out["bare"] = bare
+    print(json.dumps(out))
+""")
+
+
+def test_installed_copy_wins_and_bare_layer_names_do_not_import(installed_site, empty_cwd):
+    """From an empty folder with the install on PYTHONPATH, ``mttbench`` and its layers
+    come from the install (not the .venv's editable finder, which maps the checkout)."""
+    proc = ok(run_python(["-c", "import mttbench; print(mttbench.__file__)"], empty_cwd,
+                         [installed_site]))
+    assert Path(proc.stdout.strip()).resolve().is_relative_to(installed_site.resolve())
+    where = json.loads(ok(run_python(["-c", _WHERE], empty_cwd, [installed_site])).stdout)
+    bare = where.pop("bare")
+    for name, file in where.items():
+        path = Path(file).resolve()
+        assert path.is_relative_to(installed_site.resolve()), f"{name} comes from {path}"
+        assert not path.is_relative_to(REPO), f"{name} comes from the checkout: {path}"
+    for name in BARE_NAMES:
+        assert bare[name] == f"ModuleNotFoundError:{name}", f"import {name}: {bare[name]}"
+    # nor does the development (editable) install expose the bare names
+    where = json.loads(ok(run_python(["-c", _WHERE], empty_cwd, [])).stdout)
+    for name in BARE_NAMES:
+        assert where["bare"][name] == f"ModuleNotFoundError:{name}", (
+            f"editable install, import {name}: {where['bare'][name]}")
+
+
+def test_installed_compare_writes_report_and_results(installed_site, empty_cwd, tmp_path):
+    out = tmp_path / "cmp"
+    ok(run_python(["-m", "mttbench", "compare", "--trackers", "null", "kfnn", "--seeds", "2",
+                   "--steps", "10", "--workers", "1", "--no-progress", "--out", str(out)],
+                  empty_cwd, [installed_site]))
+    assert (out / "report.html").is_file()
+    df = pd.read_parquet(out / "results.parquet")
+    assert set(df["tracker"]) == {"null", "kfnn"}
+    assert (df["status"] == "ok").all()
+    assert not list(empty_cwd.iterdir()), "compare wrote into the working directory"
+
+
+def test_installed_reproduce_reduced_check_passes(installed_site, empty_cwd, tmp_path):
+    """The reference numbers ship as package data, so the check works from a plain install.
+
+    Numba stays as the environment says (by default on: the kernels compile into the
+    install's own __pycache__, as for a user). Measured: ~8 s with the compile, ~4 s with
+    MTTBENCH_NO_NUMBA=1, so no need to switch it off or mark the test slow."""
+    proc = ok(run_python(["-m", "mttbench", "reproduce", "paper", "--reduced", "--check",
+                          "--no-progress", "--out", str(tmp_path / "repro"), "--cache-dir",
+                          str(tmp_path / "cache")], empty_cwd, [installed_site]))
+    assert "check passed" in proc.stdout, proc.stdout + proc.stderr
+    assert not list(empty_cwd.iterdir()), "reproduce wrote into the working directory"
+
+
+# ====================================================== 2. plugins by entry point
+PLUGIN_SOURCE = '''\
+"""An outside package with one tracker and one policy for mttbench."""
+
+import numpy as np
+
+from mttbench.benchmarks.policies import Policy
+from mttbench.trackers.base import Estimate, Tracker
+
+
+class DemoTracker(Tracker):
+    name = "demo-null"
+    summary = "plugin demo: reports zero targets"
+
+    def __init__(self) -> None:
+        pass
+
+    def reset(self, model, rng):
+        self._n_cells = model.grid.n_cells
+
+    def predict(self):
+        pass
+
+    def cell_count_distribution(self):
+        P = np.zeros((self._n_cells, 2))
+        P[:, 0] = 1.0
+        return P
+
+    def update(self, looks):
+        pass
+
+    def estimate(self):
+        return Estimate.empty()
+
+
+class DemoPolicy(Policy):
+    name = "demo-first"
+    summary = "plugin demo: looks at the first cells, every step"
+
+    def select(self, k, counts=None, truth_cells=None):
+        return np.arange(self._n_looks, dtype=np.int64) % self._n_cells
+'''
+
+# the broken entry points come first: they must not stop the ones after them
+PLUGIN_ENTRY_POINTS = """\
+[mttbench.trackers]
+demo-broken = mttbench_plugin_missing:Nothing
+demo-null = mttbench_plugin_demo:DemoTracker
+
+[mttbench.policies]
+demo-broken-policy = mttbench_plugin_missing:Nothing
+demo-first = mttbench_plugin_demo:DemoPolicy
+"""
+
+
+@pytest.fixture(scope="module")
+def plugin_dirs(tmp_path_factory) -> tuple[Path, Path]:
+    """(with entry points, without): the same package, once with a ``.dist-info`` that
+    importlib.metadata finds on PYTHONPATH, once bare (usable only by class path)."""
+    root = tmp_path_factory.mktemp("plugin")
+    registered, bare = root / "registered", root / "bare"
+    for folder in (registered, bare):
+        (folder / "mttbench_plugin_demo").mkdir(parents=True)
+        (folder / "mttbench_plugin_demo" / "__init__.py").write_text(PLUGIN_SOURCE)
+    info = registered / "mttbench_plugin_demo-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text(
+        "Metadata-Version: 2.1\nName: mttbench-plugin-demo\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(PLUGIN_ENTRY_POINTS)
+    (info / "top_level.txt").write_text("mttbench_plugin_demo\n")
+    return registered, bare
+
+
+def _tracker_lines(stdout: str) -> dict[str, str]:
+    """``mttbench trackers`` output: entry name -> its line."""
+    return {line.split()[0]: line for line in stdout.splitlines()
+            if line.startswith("  ") and not line.startswith("   ") and line.split()}
+
+
+def test_entry_points_are_listed_and_broken_ones_say_why(plugin_dirs, empty_cwd):
+    registered, _ = plugin_dirs
+    out = ok(run_python(["-m", "mttbench", "trackers"], empty_cwd, [registered])).stdout
+    lines = _tracker_lines(out)
+    assert "demo-null" in lines and "reports zero targets" in lines["demo-null"]
+    assert "demo-first" in lines and "first cells" in lines["demo-first"]
+    for name in ("demo-broken", "demo-broken-policy"):
+        assert name in lines, out
+        assert "NOT LOADED" in lines[name] and "mttbench_plugin_missing" in lines[name], out
+    # the broken ones stop nothing: the shipped trackers and policies are all listed
+    for name in ("null", "kfnn", "gpf", "raster"):
+        assert name in lines and "NOT LOADED" not in lines[name], out
+    trackers_part, policies_part = out.split("Cell-selection policies")
+    assert "demo-null" in trackers_part and "demo-broken " in trackers_part
+    assert "demo-first" in policies_part and "demo-broken-policy" in policies_part
+
+
+def test_entry_point_tracker_and_policy_run(plugin_dirs, empty_cwd, tmp_path):
+    registered, _ = plugin_dirs
+    out = tmp_path / "run"
+    ok(run_python(["-m", "mttbench", "run", "--scenarios", "default", "--trackers", "demo-null",
+                   "null", "--policy", "demo-first", "raster", "--seeds", "1", "--steps", "3",
+                   "--workers", "1", "--no-progress", "--out", str(out)],
+                  empty_cwd, [registered]))
+    df = pd.read_parquet(out / "results.parquet")
+    demo = df[df["tracker"] == "demo-null"]
+    assert len(demo) > 0 and (demo["status"] == "ok").all(), demo
+    assert set(df["tracker"]) == {"demo-null", "null"}
+    assert set(df["policy"]) == {"demo-first", "raster"}
+    assert (df["status"] == "ok").all()
+
+
+def test_broken_entry_point_fails_only_when_used(plugin_dirs, empty_cwd, tmp_path):
+    registered, _ = plugin_dirs
+    proc = run_python(["-m", "mttbench", "run", "--scenarios", "default", "--trackers",
+                       "demo-broken", "--seeds", "1", "--steps", "3", "--workers", "1",
+                       "--no-progress", "--out", str(tmp_path / "run")], empty_cwd, [registered])
+    assert proc.returncode != 0
+    assert "demo-broken" in proc.stderr and "mttbench_plugin_missing" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr, proc.stderr
+
+
+def test_tracker_by_class_path_needs_no_entry_point(plugin_dirs, empty_cwd, tmp_path):
+    _, bare = plugin_dirs
+    listed = ok(run_python(["-m", "mttbench", "trackers"], empty_cwd, [bare])).stdout
+    assert "demo-null" not in listed  # no entry point here
+    out = tmp_path / "run"
+    ok(run_python(["-m", "mttbench", "run", "--scenarios", "default", "--trackers",
+                   "mttbench_plugin_demo:DemoTracker", "--seeds", "1", "--steps", "3",
+                   "--workers", "1", "--no-progress", "--out", str(out)], empty_cwd, [bare]))
+    df = pd.read_parquet(out / "results.parquet")
+    assert len(df) > 0 and (df["status"] == "ok").all(), df
+    assert set(df["tracker"]) == {"mttbench_plugin_demo:DemoTracker"}
+
+
+# ======================================================== 3. the import graph
+def source_modules() -> dict[str, Path]:
+    """Module name -> source file, for every module the package installs (read from the
+    checkout: in editable mode pkgutil cannot see the mapped subpackages)."""
+    roots = {"mttbench": REPO / "mttbench", **{f"mttbench.{n}": REPO / n for n in LAYERS}}
+    modules: dict[str, Path] = {}
+    for prefix, folder in roots.items():
+        for path in sorted(folder.rglob("*.py")):
+            rel = path.relative_to(folder)
+            if "__pycache__" in rel.parts:
+                continue
+            if prefix == "mttbench.benchmarks" and rel.parts[0] == "bench":
+                continue  # not installed
+            if prefix == "mttbench" and len(rel.parts) > 1:
+                continue  # mttbench/ holds modules only; a subfolder would be a new layer
+            parts = list(rel.with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts.pop()
+            modules[".".join([prefix, *parts])] = path
+    return modules
+
+
+def _is_type_checking(test: ast.expr) -> bool:
+    return ((isinstance(test, ast.Name) and test.id == "TYPE_CHECKING")
+            or (isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"))
+
+
+def _imports(tree: ast.AST):
+    """Every Import/ImportFrom node, in functions too, but not under ``if TYPE_CHECKING:``."""
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, ast.If) and _is_type_checking(node.test):
+            stack.extend(node.orelse)
+            continue
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            yield node
+        stack.extend(ast.iter_child_nodes(node))
+
+
+def _deepest_known(name: str, known: set[str]) -> str | None:
+    parts = name.split(".")
+    while parts:
+        candidate = ".".join(parts)
+        if candidate in known:
+            return candidate
+        parts.pop()
+    return None
+
+
+def import_edges(module: str, path: Path, known: set[str]) -> set[str]:
+    """The mttbench modules ``module`` imports (relative imports resolved)."""
+    is_package = path.name == "__init__.py"
+    package = module if is_package else module.rpartition(".")[0]
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    targets: set[str] = set()
+    for node in _imports(tree):
+        if isinstance(node, ast.Import):
+            bases = [alias.name for alias in node.names]
+            names: list[str] = []
+        else:
+            if node.level:
+                anchor = package.split(".")
+                if node.level - 1 > len(anchor) - 1:
+                    raise AssertionError(f"{path}:{node.lineno}: relative import beyond the "
+                                         "top-level package")
+                anchor = anchor[:len(anchor) - (node.level - 1)]
+                base = ".".join(anchor + ([node.module] if node.module else []))
+            else:
+                base = node.module or ""
+            bases = [base]
+            names = [alias.name for alias in node.names if alias.name != "*"]
+        for base in bases:
+            if base != "mttbench" and not base.startswith("mttbench."):
+                continue
+            if names:  # from base import name: the submodule base.name if there is one
+                for name in names:
+                    sub = f"{base}.{name}"
+                    target = sub if sub in known else _deepest_known(base, known)
+                    if target:
+                        targets.add(target)
+            else:
+                target = _deepest_known(base, known)
+                if target:
+                    targets.add(target)
+    targets.discard(module)
+    return targets
+
+
+def import_graph() -> dict[str, set[str]]:
+    modules = source_modules()
+    known = set(modules)
+    return {m: import_edges(m, p, known) for m, p in modules.items()}
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One cycle of ``graph`` as ``[a, b, ..., a]``, or None. Iterative three-colour DFS,
+    nodes and edges visited in sorted order so the answer is reproducible."""
+    WHITE, GREY, BLACK = 0, 1, 2
+    colour = dict.fromkeys(graph, WHITE)
+    for start in sorted(graph):
+        if colour[start] != WHITE:
+            continue
+        path = [start]
+        colour[start] = GREY
+        stack = [iter(sorted(graph[start]))]
+        while stack:
+            nxt = next(stack[-1], None)
+            if nxt is None:
+                stack.pop()
+                colour[path.pop()] = BLACK
+                continue
+            state = colour.get(nxt, BLACK)  # edges out of the graph lead nowhere
+            if state == GREY:
+                return path[path.index(nxt):] + [nxt]
+            if state == WHITE:
+                colour[nxt] = GREY
+                path.append(nxt)
+                stack.append(iter(sorted(graph.get(nxt, ()))))
+    return None
+
+
+@pytest.mark.parametrize("graph, cyclic", [
+    ({}, False),
+    ({"a": set()}, False),
+    ({"a": {"a"}}, True),
+    ({"a": {"b"}, "b": {"c"}, "c": set()}, False),
+    ({"a": {"b", "c"}, "b": {"d"}, "c": {"d"}, "d": set()}, False),  # a diamond is no cycle
+    ({"a": {"b"}, "b": {"c"}, "c": {"a"}}, True),
+    ({"a": {"x"}, "x": {"y"}, "y": {"z"}, "z": {"x"}}, True),  # reached from outside
+    ({"a": {"b"}, "b": set(), "c": {"d"}, "d": {"e"}, "e": {"c", "f"}, "f": set()}, True),
+    ({"a": {"outside"}}, False),
+])
+def test_find_cycle_on_hand_made_graphs(graph, cyclic):
+    cycle = find_cycle(graph)
+    assert (cycle is not None) == cyclic, cycle
+    if cycle:
+        assert cycle[0] == cycle[-1] and len(cycle) >= 2
+        for a, b in zip(cycle, cycle[1:], strict=False):
+            assert b in graph[a], (a, b, cycle)
+
+
+def test_import_edges_resolve_relative_and_absolute_imports(tmp_path):
+    known = {"mttbench", "mttbench.trackers", "mttbench.trackers.base", "mttbench.trackers.gpf",
+             "mttbench.scenarios", "mttbench.scenarios.model", "mttbench.benchmarks",
+             "mttbench.benchmarks.cli", "mttbench.benchmarks.specs"}
+    src = tmp_path / "mod.py"
+    src.write_text(textwrap.dedent("""
+        from __future__ import annotations
+        from typing import TYPE_CHECKING
+        import numpy
+        from . import base, nothing_here
+        from ..scenarios.model import Looks
+        from .. import benchmarks
+        import mttbench.benchmarks.specs
+        if TYPE_CHECKING:
+            from ..benchmarks.cli import main
+        else:
+            from mttbench import scenarios
+
+        def lazy():
+            from mttbench.benchmarks.cli import main  # a lazy import is still an import
+    """))
+    edges = import_edges("mttbench.trackers.gpf", src, known)
+    assert edges == {"mttbench.trackers.base", "mttbench.trackers", "mttbench.scenarios.model",
+                     "mttbench.benchmarks", "mttbench.benchmarks.specs", "mttbench.scenarios",
+                     "mttbench.benchmarks.cli"}
+    init = tmp_path / "__init__.py"
+    init.write_text("from . import gpf\nfrom .base import Tracker\n")
+    assert import_edges("mttbench.trackers", init, known) == {"mttbench.trackers.gpf",
+                                                               "mttbench.trackers.base"}
+
+
+def test_every_layer_and_module_is_found():
+    modules = source_modules()
+    for name in ("mttbench", "mttbench.__main__", "mttbench.trackers", "mttbench.trackers.base",
+                 "mttbench.scenarios", "mttbench.scenarios.model", "mttbench.benchmarks",
+                 "mttbench.benchmarks.cli"):
+        assert name in modules, name
+    assert not any(m.startswith("mttbench.benchmarks.bench") for m in modules)
+
+
+def test_no_import_cycle():
+    graph = import_graph()
+    cycle = find_cycle(graph)
+    assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def _layer_violations(graph: dict[str, set[str]]) -> list[str]:
+    def within(name: str, package: str) -> bool:
+        return name == package or name.startswith(package + ".")
+
+    bad = []
+    for module, targets in sorted(graph.items()):
+        for target in sorted(targets):
+            edge = f"{module} imports {target}"
+            if within(module, "mttbench.scenarios") and (
+                    within(target, "mttbench.trackers") or within(target, "mttbench.benchmarks")):
+                bad.append(f"{edge} (scenarios is the bottom layer)")
+            if within(module, "mttbench.trackers") and not (
+                    within(target, "mttbench.trackers") or target == "mttbench.scenarios.model"):
+                bad.append(f"{edge} (trackers may import only mttbench.scenarios.model)")
+            if target == "mttbench.benchmarks.cli" and not module.endswith(".__main__"):
+                bad.append(f"{edge} (only __main__ may import the command line)")
+    return bad
+
+
+def test_layering():
+    bad = _layer_violations(import_graph())
+    assert not bad, "layering violations:\n  " + "\n  ".join(bad)
+
+
+def test_layering_check_catches_violations():
+    graph = {"mttbench.scenarios.spec": {"mttbench.trackers.base"},
+             "mttbench.trackers.gpf": {"mttbench.scenarios.simulator", "mttbench.trackers.base",
+                                       "mttbench.scenarios.model"},
+             "mttbench.benchmarks.report": {"mttbench.benchmarks.cli"},
+             "mttbench.__main__": {"mttbench.benchmarks.cli"}}
+    bad = _layer_violations(graph)
+    assert len(bad) == 3, bad
+
+
+def _python_sources() -> list[Path]:
+    """Every .py file of the checkout (tests and benchmarks/bench included)."""
+    skip = {".git", ".venv", "build", "dist", ".cache", ".hypothesis", ".pytest_cache",
+            ".ruff_cache", ".benchmarks", "__pycache__"}
+    out = []
+    for folder, dirs, files in os.walk(REPO):
+        dirs[:] = sorted(d for d in dirs if d not in skip and not d.endswith(".egg-info"))
+        out += [Path(folder, f) for f in sorted(files) if f.endswith(".py")]
+    return out
+
+
+#: calls whose first (string) argument names a module to import or patch
+_IMPORTING_CALLS = {"import_module", "__import__", "find_spec", "patch", "setattr", "delattr"}
+
+
+def bare_layer_imports(text: str, where: str = "<text>") -> list[str]:
+    """``where:line`` of every absolute import of a bare layer name (``import trackers``,
+    ``from scenarios.spec import x``, ``import_module("benchmarks.cli")``, ...)."""
+    tree = ast.parse(text, filename=where)
+    hits = []
+    for node in ast.walk(tree):
+        names: list[str] = []
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names = [node.module]
+        elif isinstance(node, ast.Call) and node.args:
+            func = node.func
+            fname = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
+            arg = node.args[0]
+            if (fname in _IMPORTING_CALLS and isinstance(arg, ast.Constant)
+                    and isinstance(arg.value, str)):
+                names = [arg.value]
+        for name in names:
+            if name.split(".")[0] in BARE_NAMES:
+                hits.append(f"{where}:{node.lineno}: {name}")
+    return hits
+
+
+@pytest.mark.parametrize("line, bad", [
+    ("import trackers.gpf", True),
+    ("import numpy, scenarios", True),
+    ("from scenarios import spec", True),
+    ("from benchmarks.cli import main", True),
+    ("importlib.import_module('benchmarks.cli')", True),
+    ("monkeypatch.setattr('trackers.gpf.np', None)", True),
+    ("from mttbench import trackers", False),
+    ("import mttbench.trackers", False),
+    ("from . import scenarios", False),
+    ("from ..benchmarks import cli", False),
+    ("x = 'import trackers'", False),
+    ("monkeypatch.setattr(trackers, 'x', 1)", False),
+])
+def test_bare_layer_imports_are_detected(line, bad):
+    assert bool(bare_layer_imports(line)) == bad
+
+
+def test_no_absolute_import_of_bare_layer_names():
+    hits = [hit for path in _python_sources()
+            for hit in bare_layer_imports(path.read_text(encoding="utf-8"),
+                                          str(path.relative_to(REPO)))]
+    assert not hits, "absolute imports of a bare layer name:\n  " + "\n  ".join(hits)
