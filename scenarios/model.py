@@ -17,9 +17,6 @@ from typing import Literal
 
 import numpy as np
 
-STATE_DIM = 4
-POS_IDX = (0, 2)  # indices of px and py in the state vector
-
 
 # ----------------------------------------------------------------------------- grid
 @dataclass(frozen=True)

@@ -3,142 +3,60 @@
 Each particle is ``{w_i, N(mu_i, Sigma_i)}``: ``w_i`` is the probability that a target
 with that Gaussian exists, and the estimated count is ``sum_i w_i`` (paper Section IV).
 Arrays: ``w (K,)``, ``means (K, 4)``, ``covs (K, 4, 4)``; states ``[px, vx, py, vy]``.
+The measurements behind the defaults, with commands that repeat them: docs/gpf.md.
 
 Step (the harness calls predict, then update, then estimate):
 
-* **Predict**: ``mu <- F mu``, ``Sigma <- F Sigma F^T + Q``, ``w <- p_s w``. Boundary
-  "reflect": a mean that left the workspace is mirrored back (its velocity and the
-  covariance's sign pattern flipped with it). Boundary "die": ``w`` is also multiplied by
-  the probability that the position stays in the workspace (product of the marginal
-  masses; the Gaussian itself is not truncated).
-* **Death floor** (``death_probability``): the filter predicts with the survival
-  probability ``min(p_s, 1 - death_probability)``, for the weights and the birth field
-  alike. ``None`` (default) means ``DEFAULT_DEATH_FLOOR = 0.003`` on the grid sensor with
-  births, and the model's ``p_s`` otherwise: without births (the exact reductions, e.g. the
-  Kalman test) and on the superposition sensor, whose count lives in the prior weights and
-  would only decay (no return re-confirms it). ``0`` is the model exactly. Why a floor: with
-  ``p_s = 1`` the Bernoulli update ``w' = w L / (w L + 1 - w)`` raises the log-odds by
-  ``log l(1) = 6.9`` per detection, so ``w`` rounds to exactly 1.0 after a few detections
-  and then no negative look can lower it; a lost track keeps ``w = 1`` while its covariance
-  grows. With the floor ``f`` the log-odds after every predict are at most ``log((1 - f) /
-  f)`` (5.8 at 0.003) and every look without a return lowers them. Keeping the weights as
-  log-odds instead (no rounding to 1) is not enough: the exact log-odds after tens of
-  detections are in the hundreds, and a broad particle loses only ~0.1 per step; ``f =
-  1e-15`` (weights just below 1, i.e. that numerical fix) measured no different from
-  ``0``. Measured (``mttbench run``, raster 24 looks, 20 seeds; ``paper`` 50 steps, the
-  others 100; differences to ``f = 0`` paired by seed, mean +- 95% half-width), OSPA /
-  GOSPA / count error:
-
-  - ``default`` (0.000: 1.394 / 2.091 / 0.820): 0.003 +0.005+-0.026 / -0.004+-0.026 /
-    +0.059+-0.059; 0.01 +0.024+-0.032 / -0.044+-0.046 / +0.222+-0.072; 0.03
-    +0.110+-0.044 / -0.057+-0.076 / +0.569+-0.091.
-  - ``crossing`` (1.037 / 1.884 / 0.628): 0.003 -0.025+-0.045 / -0.091+-0.060 /
-    +0.086+-0.124; 0.01 +0.035+-0.072 / -0.118+-0.106 / +0.357+-0.201; 0.03
-    +0.209+-0.095 / -0.001+-0.171 / +0.842+-0.221.
-  - ``paper`` (1.940 / 2.675 / 2.062): OSPA and GOSPA unchanged (+-0.005); count error
-    +0.007+-0.001, +0.023+-0.004, +0.072+-0.014. ``births`` (``p_s = 0.98``): unchanged up to
-    0.01; 0.03 count error +0.041+-0.020.
-
-  Fraction of steps holding a particle with ``w > 0.9`` and position sd ``> 2`` cells
-  (raster, 20 seeds; f = 0 / 0.003 / 0.01 / 0.03): ``default`` 0.36 / 0.30 / 0.13 / 0.03,
-  ``crossing`` 0.19 / 0.12 / 0.01 / 0.00, ``births`` 0.005 at all up to 0.01, ``paper``
-  0.91 / 0.91 / 0.89 / 0.64 (there every undetected target has sd ~4.5 cells after a
-  predict, so this counts the process noise, not lost tracks). So a floor removes the lost
-  confident tracks but does not improve OSPA, and it costs count accuracy: with ``p_d =
-  0.5`` and each cell looked at every 6 steps, runs of misses on a tracked target are common,
-  and a floored weight drops during them (``sum w`` undercounts). 0.003 is the smallest
-  floor tried: no weight is stuck at 1 across steps, crossing GOSPA improves, and the count
-  cost is within noise on ``default`` and ``crossing``; larger floors buy fewer lost tracks
-  with count error.
-* **Update**: superposition sensor -- :mod:`trackers.gpf_linear` (the paper's combinations
-  ``E``, the appendix's gain, groups folded back by moment matching); grid sensor --
-  :mod:`trackers.gpf_grid` (Gaussians truncated to the looked cells, exact Bernoulli
-  weight update, combinations enumerated per cluster of particles sharing a cell).
-* **Combinations** (``epsilon``, ``max_combinations``): as the paper says, combinations
-  are cut on their *prior* probability ``<= epsilon``, then at most ``max_combinations``
-  (the most probable) are kept, and the rest renormalised. A sharp likelihood (detections)
-  can make a cut combination matter, so the default ``epsilon = 1e-4`` (was ``1e-3``) was
-  chosen by measurement: on the 1000 grid updates of 5 seeds each of ``default`` and
-  ``crossing`` (raster, 24 looks), against ``epsilon = 0`` with a cap of 20000, the largest
-  weight error per update averaged 4.1e-3 (99th percentile 0.062, worst 0.29) at ``1e-3``,
-  1.6e-3 (0.041, 0.12) at ``1e-4``, 6.5e-4 (0.0087, 0.12) at ``1e-5`` and 3.9e-4 at
-  ``0`` with the cap 512, for 1.52, 1.53, 1.82 and 2.29 ms per update. The closed-loop
-  scores (20 seeds, paired by seed) did not move beyond noise for any of them (OSPA
-  differences <= 0.02 with 95% half-widths ~0.04), so ``1e-4`` takes the smaller error at
-  no cost.
-* **Merge** (the paper's Mahalanobis rule): greedily from the heaviest particle ``i``,
-  particles ``j`` with ``(mu_i - mu_j)^T (Sigma_i + Sigma_j)^-1 (mu_i - mu_j) <
-  merge_threshold`` join its group; the group becomes one moment-matched Gaussian (the paper
-  sums the covariances, which ignores the spread of the means and inflates them; we
-  moment-match instead). The paper sets the merged weight to the sum of the weights, which
-  keeps the count but can exceed 1. Rules (``merge_weight``):
-
-  - ``"bounded_sum"``: the paper's sum, kept a probability by admitting a particle to the
-    group (nearest first) only while the sum stays ``<= 1``; the count ``sum w`` is kept
-    exactly, and two particles that both surely exist are never merged.
-  - ``"capped_sum"``: everything within the threshold merges, weight ``min(1, sum w)``; the
-    excess over 1 is lost (read as duplicates of one target).
-  - ``"union"``: ``1 - prod(1 - w)``, "at least one exists" for independent particles.
-  - ``"auto"`` (default): ``"bounded_sum"`` on the superposition sensor, ``"capped_sum"`` on
-    the grid. Why, measured (20 seeds, raster 24 looks, ``epsilon = 1e-3``): on
-    ``superposition`` the data say almost nothing about the count (``z`` is a mean), so the
-    weights must keep the prior's; ``capped_sum`` merged the two broad starting particles
-    (with ``Sigma_i + Sigma_j`` of 24 cells^2 per axis everything is "close") into one of
-    weight 1: count error 0.60 -> 0.00 and OSPA 1.91 -> 1.65..1.75 with ``bounded_sum`` (the
-    OSPA depends on the randomly drawn starting means). On the grid a target whose particle
-    was lost (a broad particle of weight ~1: with ``p_s = 1`` and no death floor nothing
-    lowers it; measured before the floor) is found again by a birth, and ``capped_sum`` folds
-    the two into one; ``bounded_sum`` keeps both,
-    which measured better count error on ``default`` (0.54 vs 0.84) but worse GOSPA (2.25 vs
-    2.10), slightly worse ``crossing`` (OSPA 1.07 vs 1.05) and an overcount on ``paper`` (4.4
-    for 3 targets). Lattice starting priors (``L x L`` particles of weight ``n0 / L^2``) were
-    worse on ``superposition``: the likelihood of a mean favours *more* particles whose mean
-    matches ``z`` (it shrinks the predicted spread), so the count drifted up (3.98 with L = 2,
-    8.2 with L = 3, truth 2).
+* **Predict**: ``mu <- F mu``, ``Sigma <- F Sigma F^T + Q``, ``w <- p w`` with the survival
+  ``p = min(p_s, 1 - death_probability)``. Boundary "reflect" mirrors a mean that left the
+  workspace (velocity and covariance signs flipped); "die" also multiplies ``w`` by the mass
+  inside the workspace (product of the marginal masses; the Gaussian is not truncated).
+* **Death floor** (not in the paper): ``death_probability=None`` is ``DEFAULT_DEATH_FLOOR``
+  on the grid sensor with births, else ``0`` (the model's ``p_s``). With ``p_s = 1`` each
+  detection adds ``log l(1) = 6.9`` to the log-odds, ``w`` rounds to 1.0 and a lost track
+  keeps ``w = 1`` while its covariance grows; the floor ``f`` caps the log-odds after each
+  predict at ``log((1 - f) / f)``, so negative looks lower them again. 0.003, the smallest
+  floor tried, frees such weights at no OSPA cost and a count cost within noise (``default``,
+  ``crossing``); larger floors remove more lost tracks for more count error; ``1e-15`` is no
+  fix (docs/gpf.md).
+* **Update**: :mod:`trackers.gpf_linear` (superposition: the paper's combinations ``E`` and
+  appendix gain, moment-matched fold-back) or :mod:`trackers.gpf_grid` (grid: truncated
+  Gaussians, exact Bernoulli weights, combinations per cluster sharing a looked cell).
+* **Combinations**: as in the paper, cut on their *prior* probability ``<= epsilon``, at most
+  ``max_combinations`` (the most probable) kept, renormalised. ``epsilon = 1e-4`` (was
+  ``1e-3``): 2.5x smaller weight error per update at the same cost, closed-loop scores
+  unchanged within noise (docs/gpf.md).
+* **Merge** (the paper's Mahalanobis rule): greedily from the heaviest particle ``i``, those
+  ``j`` with ``(mu_i - mu_j)^T (Sigma_i + Sigma_j)^-1 (mu_i - mu_j) < merge_threshold``
+  join it; a group becomes one moment-matched Gaussian (the paper sums the covariances). The
+  paper's merged weight, the sum, can exceed 1; ``merge_weight``: ``"bounded_sum"`` admits
+  members (nearest first) while the sum stays ``<= 1`` (``sum w`` kept exactly);
+  ``"capped_sum"`` takes all, weight ``min(1, sum w)``; ``"union"`` ``1 - prod(1 - w)``.
+  ``"auto"`` (default): ``"bounded_sum"`` on the superposition sensor, which hardly informs
+  the count; ``"capped_sum"`` on the grid (better GOSPA, no overcount on ``paper``)
+  (docs/gpf.md).
 * **Prune**: drop ``w < prune_threshold``; keep at most ``max_particles`` (the heaviest).
 
-Births and the initial prior (``births=True``):
+Births and the initial prior (``births=False``: empty prior, no births, for reduction tests):
 
-* Grid sensor: an *undetected-target field* ``u (n_cells,)`` holds, per cell, the
-  probability that an as yet unseen target is there (start: ``initial_count_mean /
-  n_cells``; each predict: ``u <- 1 - (1 - p_s u)(1 - birth_rate / n_cells)``, floored at
-  ``birth_floor`` so a filter whose prior is wrong can still recover). At an update every
-  looked cell with ``u_c > 0`` contributes a *candidate*: a particle with weight ``u_c``,
-  uniform on the cell, that goes through the same update as the other particles (so a
-  return that an existing particle explains gives it little weight). A candidate whose
-  cell returned a detection becomes a Gaussian particle (cell centre, position variance
-  ``cell^2/12``, velocity ``N(0, birth_velocity_std^2)``); the others give their posterior
-  weight back to the field (``u_c <- w'``, which drops after negative looks). The field does
-  not move with the targets: it is a per-cell probability without a velocity, and its
-  predict only adds births (no diffusion with ``F``, ``Q``). That is an approximation for
-  slow targets: on ``default`` (~0.1 cell/step, a raster revisits a cell every 6 steps) an
-  undetected target stays near the cells that hold its mass; on ``paper`` (jumps of ~4.5
-  cells/step) the field lags the targets and negative looks empty it where they were.
-* Superposition sensor: the initial prior is ``ceil(n0)`` broad particles (uniform-matched
-  position covariance over the workspace, means drawn uniformly with the run's
-  generator), each with weight ``n0 / ceil(n0)``; each step with ``birth_rate > 0`` adds
-  one such particle with weight ``min(birth_rate, 0.5)``.
+* Grid: an undetected-target field ``u (n_cells,)`` (per cell, the probability of an unseen
+  target): ``initial_count_mean / n_cells`` at first, ``u <- 1 - (1 - p u)(1 - birth_rate /
+  n_cells)`` at each predict, floored at ``birth_floor``. Each looked cell with ``u_c > 0``
+  adds a candidate (weight ``u_c``, uniform on the cell) to the update; after it, a candidate
+  whose cell returned a detection becomes a Gaussian (cell centre, position variance
+  ``cell^2 / 12``, velocity sd ``birth_velocity_std``), the others go back to ``u_c``. The
+  field does not move with the targets: fine for slow ones, lagging on ``paper``.
+* Superposition: ``ceil(n0)`` broad particles (uniform-matched covariance, means drawn with
+  the tracker's generator) of weight ``n0 / ceil(n0)``; with ``birth_rate > 0`` one more each step
+  (weight ``min(birth_rate, 0.5)``). Lattice priors drift the count up (docs/gpf.md). ``z``
+  is a mean: the update pins the targets' mean, not their differences, the fold-back drops
+  the cross-covariance (over-confident particles), and the count rests on the prior weights.
 
-What the paper's method can and cannot do on the superposition sensor: the data are the
-mean of the positions, so (i) with the number of present particles fixed, the update is the
-exact Kalman update of the stacked state and it pins the *mean* of the targets, but the
-differences between targets are unobservable, so individual states stay wrong by about half
-the targets' separation unless the prior places them (the broad starting particles do not);
-folding each combination back into one Gaussian per particle also drops the cross-covariance
-the update creates, so each particle's covariance shrinks as if its own position were
-measured (over-confident). (ii) The count enters the likelihood only through ``1/n`` and
-the predicted spread, which favours *any* set of particles whose mean matches ``z`` -- the
-count is not identifiable from the data and is carried by the prior weights; the filter's
-job is to not lose it (hence ``bounded_sum`` there).
-
-``births=False`` turns all of that off (empty prior, no births), for reduction tests.
-
-Estimate (``extraction``): ``"round_sum"`` reports the ``round(sum w)`` heaviest
-particles; ``"threshold"`` those with ``w > extraction_threshold``. The count is ``sum w``.
-
-``P_c(t)``: independent Bernoullis per cell -- particle ``i`` in cell ``c`` with probability
-``w_i m_ic`` (product-of-marginals cell mass, :func:`trackers.cells.gaussian_cell_mass`) and
-the field's ``u_c`` -- summed by :func:`trackers.cells.poisson_binomial`.
+Estimate (``extraction``): ``"round_sum"`` reports the ``round(sum w)`` heaviest particles,
+``"threshold"`` those with ``w > extraction_threshold``; the count is ``sum w``. ``P_c(t)``:
+per cell, independent Bernoullis -- particle ``i`` with ``w_i m_ic``
+(:func:`trackers.cells.gaussian_cell_mass`) and the field's ``u_c`` -- summed by
+:func:`trackers.cells.poisson_binomial`.
 """
 
 from __future__ import annotations
@@ -156,7 +74,6 @@ from .cells import gaussian_cell_mass, poisson_binomial
 from .gpf_grid import grid_update
 from .gpf_linear import superposition_update
 
-_POS = np.array([0, 2])
 _MERGE_RULES = ("bounded_sum", "capped_sum", "union")
 _MERGE_CHOICES = _MERGE_RULES + ("auto",)
 #: slack on "the group's weight sum stays <= 1" (float round-off of weights that are 1)
@@ -310,7 +227,6 @@ class GaussianParticleFilter(Tracker):
         n0 = bd.initial_count_mean
         n_cells = model.grid.n_cells
         self._u = np.zeros(n_cells)
-        self.last_dropped = 0.0
         if not self.births:
             return
         if model.is_grid:
@@ -337,10 +253,10 @@ class GaussianParticleFilter(Tracker):
 
     def _add_broad(self, n: int, weight: float) -> None:
         width, height = self._grid.extent
-        m = np.zeros((n, 4))
-        m[:, 0] = self._rng.uniform(0.0, width, n)
-        m[:, 2] = self._rng.uniform(0.0, height, n)
-        self._append(np.full(n, weight), m, np.repeat(self._broad_cov()[None], n, axis=0))
+        # x before y: the order of the draws is part of the results
+        xy = np.column_stack([self._rng.uniform(0.0, width, n), self._rng.uniform(0.0, height, n)])
+        self._append(np.full(n, weight), kalman.at_rest(xy),
+                     np.repeat(self._broad_cov()[None], n, axis=0))
 
     def _append(self, w: np.ndarray, m: np.ndarray, P: np.ndarray) -> None:
         self._w = np.concatenate([self._w, w])
@@ -391,8 +307,7 @@ class GaussianParticleFilter(Tracker):
     def cell_count_distribution(self) -> np.ndarray:
         probs = np.zeros((0, self._grid.n_cells))
         if len(self._w):
-            mass = gaussian_cell_mass(self._grid, self._m[:, _POS],
-                                      self._P[:, _POS][:, :, _POS])
+            mass = gaussian_cell_mass(self._grid, *kalman.position_marginal(self._m, self._P))
             probs = self._w[:, None] * mass
         if np.any(self._u > 0):
             probs = np.concatenate([probs, self._u[None]])
@@ -408,7 +323,6 @@ class GaussianParticleFilter(Tracker):
             res = superposition_update(self._w, self._m, self._P, np.asarray(looks.z, float),
                                        sensor.H, sensor.R, self.epsilon, self.max_combinations)
             self._w, self._m, self._P = res.weights, res.means, res.covs
-            self.last_dropped = res.dropped
         self._merge_and_prune()
 
     def _update_grid(self, looks: Looks, sensor: RayleighGridSensor) -> None:
@@ -417,10 +331,8 @@ class GaussianParticleFilter(Tracker):
         cand = looked[self._u[looked] > 0.0] if self.births else looked[:0]
         n_c = len(cand)
         s = self._grid.cell_size
-        centres = self._grid.cell_centers(cand)
+        cm = kalman.at_rest(self._grid.cell_centers(cand))
         vs = self._model.birth_death.birth_velocity_std ** 2
-        cm = np.zeros((n_c, 4))
-        cm[:, 0], cm[:, 2] = centres[:, 0], centres[:, 1]
         cP = np.repeat(np.diag([s * s / 12.0, vs, s * s / 12.0, vs])[None], n_c, axis=0)
         w = np.concatenate([self._w, self._u[cand]])
         m = np.concatenate([self._m, cm])
@@ -428,7 +340,6 @@ class GaussianParticleFilter(Tracker):
         ucell = np.concatenate([np.full(K, -1, dtype=np.int64), cand])
         res = grid_update(w, m, P, ucell, looks.cells, looks.returns, self._grid, sensor,
                           self.epsilon, self.max_combinations, self.interaction_threshold)
-        self.last_dropped = res.dropped
         wc = res.weights[K:]
         detected = np.zeros(self._grid.n_cells, dtype=bool)
         detected[looks.cells[looks.returns]] = True

@@ -1,12 +1,30 @@
 """Kalman filter steps batched over a leading axis of components.
 
 Means ``m (K, d)``, covariances ``P (K, d, d)``. Used by KF-NN and the GPF; the
-equations are the textbook ones (paper Section III-B), written once here.
+equations are the textbook ones (paper Section III-B), written once here, with the
+two helpers both trackers need for the state layout ``[px, vx, py, vy]``.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+#: indices of ``px``, ``py`` in the state ``[px, vx, py, vy]``
+POSITION = np.array([0, 2])
+POSITION.flags.writeable = False
+
+
+def position_marginal(m: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The position part of each state: means ``(K, 2)`` and covariances ``(K, 2, 2)`` (copies)."""
+    return m[:, POSITION], P[:, POSITION[:, None], POSITION[None, :]]
+
+
+def at_rest(positions: np.ndarray) -> np.ndarray:
+    """States ``(n, 4)`` at ``positions (n, 2)`` (rows ``(px, py)``) with zero velocity."""
+    positions = np.asarray(positions, dtype=float).reshape(-1, 2)
+    m = np.zeros((len(positions), 4))
+    m[:, POSITION] = positions
+    return m
 
 
 def predict(m: np.ndarray, P: np.ndarray, F: np.ndarray, Q: np.ndarray
