@@ -6,9 +6,10 @@ import itertools
 
 import numpy as np
 import pytest
+from scipy import integrate, stats
+
 from mttbench.scenarios.model import Grid
 from mttbench.trackers.cells import gaussian_cell_mass, poisson_binomial
-from scipy import integrate, stats
 
 #: one tolerance for quadrature comparisons (dblquad/quad absolute error ~1e-10)
 QUAD_ATOL = 1e-8

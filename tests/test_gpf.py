@@ -7,12 +7,12 @@ import math
 
 import numpy as np
 import pytest
+
+from mttbench import scenarios, trackers
 from mttbench.scenarios.model import Dynamics, Looks
 from mttbench.scenarios.simulator import simulate
 from mttbench.trackers.cells import gaussian_cell_mass
 from mttbench.trackers.gpf import DEFAULT_DEATH_FLOOR, merge_particles
-
-from mttbench import scenarios, trackers
 
 
 def _cov(s=0.3, v=0.05):

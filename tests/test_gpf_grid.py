@@ -12,9 +12,10 @@ import itertools
 
 import numpy as np
 import pytest
+from scipy.stats import multivariate_normal
+
 from mttbench.scenarios.model import Grid, RayleighGridSensor
 from mttbench.trackers.gpf_grid import grid_update, rect_position_moments
-from scipy.stats import multivariate_normal
 
 GRID = Grid(6, 5, cell_size=1.0)
 SENSOR = RayleighGridSensor(p_d=0.5, snr=10.0, looks_per_step=10)
@@ -198,9 +199,10 @@ def test_uniform_candidate_alone_gets_the_bernoulli_posterior():
 
 def test_cluster_components_equal_scipy_connected_components():
     """The particle -- cell clustering gives the same partition as scipy's graph components."""
-    from mttbench.trackers.gpf_grid import _components
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
+
+    from mttbench.trackers.gpf_grid import _components
 
     rng = np.random.default_rng(11)
     for _ in range(200):

@@ -13,11 +13,11 @@ import itertools
 import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
-from mttbench.scenarios.model import Grid, Looks
-from mttbench.trackers.gpf_linear import enumerate_combinations, superposition_update
 from scipy.stats import multivariate_normal
 
 from mttbench import scenarios, trackers
+from mttbench.scenarios.model import Grid, Looks
+from mttbench.trackers.gpf_linear import enumerate_combinations, superposition_update
 
 TOL = dict(rtol=1e-10, atol=1e-10)
 

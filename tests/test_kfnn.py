@@ -7,6 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
+from scipy import stats
+
+from mttbench import scenarios
 from mttbench.benchmarks.metrics import ospa
 from mttbench.scenarios.model import (
     BirthDeath,
@@ -20,9 +23,6 @@ from mttbench.scenarios.simulator import simulate
 from mttbench.scenarios.spec import Scenario
 from mttbench.trackers.cells import poisson_binomial
 from mttbench.trackers.kfnn import KFNNTracker, associate
-from scipy import stats
-
-from mttbench import scenarios
 
 #: one tolerance for "equal to the reference Kalman filter"
 KF_TOL = 1e-10
