@@ -8,12 +8,16 @@ from __future__ import annotations
 
 import itertools
 import math
+from typing import ClassVar, Literal
 
 import filterpy.monte_carlo.resampling as fp_resampling
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from scipy.optimize import linear_sum_assignment
+
+from mttbench import scenarios, trackers
 from mttbench.scenarios.model import (
     BirthDeath,
     Dynamics,
@@ -23,38 +27,58 @@ from mttbench.scenarios.model import (
     SuperpositionSensor,
     TrackingModel,
 )
+from mttbench.testing import INTERFACE_CHECKS
 from mttbench.trackers import kalman
 from mttbench.trackers.jmpd import (
     JMPDTracker,
+    align_slots,
     align_square,
+    apply_boundary,
     cell_count_distribution_from,
+    flat_cells,
+    fold,
+    gather_mask,
     grid_log_likelihood,
     grid_log_likelihood_tables,
     superposition_log_likelihood,
     systematic_resample,
+    use_backend,
 )
-from scipy.optimize import linear_sum_assignment
-
-from mttbench import scenarios, trackers
 
 EXACT = 1e-12  # sums of a few dozen logs of O(1..10): round-off only
-# the backend fixture's monkeypatch holds for every hypothesis example
+# the backend fixture's choice holds for every hypothesis example
 FIXTURE_OK = [HealthCheck.function_scoped_fixture]
 
 
 @pytest.fixture(params=["numpy", "compiled"])
-def backend(request, monkeypatch):
+def backend(request):
     """Run a test with the numpy forms and again with the numba kernels
-    (``trackers.kernels``); both must give the same answers."""
-    import mttbench.trackers.jmpd as jmpd_module
-    if request.param == "numpy":
-        monkeypatch.setattr(jmpd_module, "_KERNELS", None)
-    else:
-        monkeypatch.setattr(jmpd_module, "_KERNELS", False)  # look it up afresh
-        monkeypatch.delenv("MTTBENCH_NO_NUMBA", raising=False)
-        if jmpd_module.compiled_kernels() is None:
-            pytest.skip("numba is not installed")
-    return request.param
+    (``mttbench.trackers.jmpd.kernels``); both must give the same answers."""
+    if request.param == "compiled":
+        pytest.importorskip("numba", reason="numba is not installed")
+    with use_backend(request.param):
+        yield request.param
+
+
+class ZeroNoise(np.random.Generator):
+    """A generator whose standard normals are all zero (the process noise ``e`` of
+    ``x <- F x + L e``), every other draw as ``np.random.Generator``: a noise-free
+    predict that keeps targets with zero velocity exactly where they are."""
+
+    def standard_normal(self, size=None, dtype=np.float64, out=None):
+        if out is None:
+            return np.zeros(size, dtype)
+        out[...] = 0.0
+        return out
+
+
+def _floor_cells(px, py, grid):
+    """The tracker's cell rule computed independently: ``floor(p * (1 / s))`` per axis,
+    clamped to the grid (DESIGN's ``floor(p / s)`` when ``s = 1``; with other sizes a
+    position a hair below a cell edge may round up), row-major."""
+    inv = 1.0 / grid.cell_size
+    return (np.minimum(np.floor(py * inv), grid.ny - 1) * grid.nx
+            + np.minimum(np.floor(px * inv), grid.nx - 1)).astype(np.int64)
 
 
 def _random_particles(rng, n, t_max, n_cells):
@@ -147,7 +171,10 @@ def test_tracker_update_weights_equal_loop(backend):
     tr = JMPDTracker(n_particles=300, t_max=4, resample_threshold=0.0)
     tr.reset(model, np.random.default_rng(3))
     tr.predict()
-    cells = tr._cells.T.copy()
+    cells = tr.cells  # (N, t_max), a new array
+    X = tr.states
+    assert np.array_equal(cells, np.where(tr.mask, _floor_cells(X[..., 0], X[..., 2],
+                                                                model.grid), 6))
     look_cells = np.array([0, 0, 1, 4, 5, 5, 5])
     returns = np.array([True, False, True, False, True, True, False])
     before = tr.log_weights.copy()
@@ -261,66 +288,84 @@ def test_systematic_offspring_between_floor_and_ceil(backend, raw, u):
 def _reference_boundary(X, valid, width, height, boundary):
     """The plain rule: every slot outside [0, length) folds back (or dies, parked at
     the centre), found by exact comparisons."""
-    from mttbench.trackers.jmpd import _fold
     X, valid = X.copy(), valid.copy()
     for p_row, v_row, length in ((0, 1, width), (2, 3, height)):
         out = (X[p_row] < 0.0) | (X[p_row] >= length)
         if boundary == "reflect":
-            X[p_row][out], X[v_row][out] = _fold(X[p_row][out], X[v_row][out], length)
+            X[p_row][out], X[v_row][out] = fold(X[p_row][out], X[v_row][out], length)
         else:
             valid[out] = False
             X[p_row][out] = 0.5 * length
     return X, valid
 
 
+def _edge_particles(tr, grid, edges, seed=9):
+    """Component-major copies ``(4, t_max, N)`` of the tracker's states and ``(t_max,
+    N)`` of its mask, positions spread over twice the workspace, with ``edges`` in
+    slot 0 (x) and slot 1 (y)."""
+    width, height = grid.extent
+    rng = np.random.default_rng(seed)
+    X = tr.states.transpose(2, 1, 0).copy()
+    X[0] = rng.uniform(-0.5 * width, 1.5 * width, X[0].shape)
+    X[2] = rng.uniform(-0.5 * height, 1.5 * height, X[2].shape)
+    X[0, 0, :len(edges)] = edges
+    X[2, 1, :len(edges)] = [min(e, height) if e > 0 else e for e in edges]
+    return X, tr.mask.T.copy()
+
+
 @pytest.mark.parametrize("boundary", ["reflect", "die"])
 @pytest.mark.parametrize("cell_size", [1.0, 0.7])
-def test_boundary_and_cells_equal_plain_rules(boundary, cell_size):
-    """``_apply_boundary`` (unsigned-bits candidates) equals exact comparisons, edge
+def test_boundary_and_cells_equal_plain_rules(boundary, cell_size, backend):
+    """``apply_boundary`` (unsigned-bits candidates) equals exact comparisons, edge
     values included (0, -0.0, the length, just below it, tiny negatives, far out);
-    ``_update_cells`` equals ``Grid.cell_of`` for every slot afterwards."""
+    ``flat_cells`` equals the floor rule (and ``Grid.cell_of``) for every slot
+    afterwards. The tracker's predict (the compiled pass or these numpy forms) does the
+    same on the same positions, and its ``cells`` masks the empty slots."""
     grid = Grid(7, 5, cell_size)
     model = TrackingModel(grid, Dynamics(wna_intensity=1e-3),
                           BirthDeath(n_random_initial=2, boundary=boundary), RayleighGridSensor())
-    tr = JMPDTracker(n_particles=400, t_max=3)
-    tr.reset(model, np.random.default_rng(8))
+    tr = JMPDTracker(n_particles=400, t_max=3, birth_rate=0.0, death_probability=0.0)
+    tr.reset(model, ZeroNoise(np.random.PCG64(8)))
     width, height = grid.extent
-    rng = np.random.default_rng(9)
-    X = tr._X
-    X[0] = rng.uniform(-0.5 * width, 1.5 * width, X[0].shape)
-    X[2] = rng.uniform(-0.5 * height, 1.5 * height, X[2].shape)
     edges = [0.0, -0.0, width, np.nextafter(width, 0.0), -1e-300, -5e-324, 3 * width,
              np.nextafter(0.0, 1.0)]
-    X[0, 0, :len(edges)] = edges
-    X[2, 1, :len(edges)] = [min(e, height) if e > 0 else e for e in edges]
-    want_X, want_valid = _reference_boundary(X, tr._valid, width, height, boundary)
-    tr._apply_boundary()
-    assert np.array_equal(tr._X.view(np.uint64), want_X.view(np.uint64))  # bit for bit
-    assert np.array_equal(tr._valid, want_valid)
-    tr._update_cells()
-    # the tracker's rule floor(p * (1 / s)) (DESIGN's floor(p / s) when s = 1; with
-    # other sizes a position a hair below a cell edge may round up: clamped to the grid)
-    inv = 1.0 / cell_size
-    want_cells = (np.minimum(np.floor(tr._X[2] * inv), grid.ny - 1) * grid.nx
-                  + np.minimum(np.floor(tr._X[0] * inv), grid.nx - 1))
-    assert np.array_equal(tr._raw_cells, want_cells)
-    assert np.array_equal(tr._cells, np.where(tr._valid, want_cells, grid.n_cells))
+    X, valid = _edge_particles(tr, grid, edges)
+    want_X, want_valid = _reference_boundary(X, valid, width, height, boundary)
+    apply_boundary(X, valid, width, height, boundary == "reflect")
+    assert np.array_equal(X.view(np.uint64), want_X.view(np.uint64))  # bit for bit
+    assert np.array_equal(valid, want_valid)
+    cells = flat_cells(X[0], X[2], grid)
+    assert cells.dtype == np.int32
+    assert np.array_equal(cells, _floor_cells(X[0], X[2], grid))
     if cell_size == 1.0:
-        assert np.array_equal(tr._raw_cells, grid.cell_of(tr._X[0], tr._X[2]))
+        assert np.array_equal(cells, grid.cell_of(X[0], X[2]))
+
+    # the tracker on the same positions, velocities 0 and no noise, so that the move
+    # keeps them (except -0.0, which x + 0 * v turns into +0.0: left out here)
+    positive_zero_only = [e for e in edges if e != 0.0 or math.copysign(1.0, e) > 0]
+    X, valid = _edge_particles(tr, grid, positive_zero_only)
+    X[1] = X[3] = 0.0
+    tr.states[:] = X.transpose(2, 1, 0)
+    want_X, want_valid = _reference_boundary(X, valid, width, height, boundary)
+    tr.predict()
+    assert np.array_equal(tr.states.view(np.uint64), want_X.transpose(2, 1, 0).view(np.uint64))
+    assert np.array_equal(tr.mask, want_valid.T)
+    X = tr.states
+    want_cells = _floor_cells(X[..., 0], X[..., 2], grid)
+    assert np.array_equal(tr.slot_cells, want_cells)
+    assert np.array_equal(tr.cells, np.where(tr.mask, want_cells, grid.n_cells))
 
 
-def test_gather_valid_equals_take():
-    model = TrackingModel(Grid(12, 12), Dynamics(wna_intensity=5e-4),
-                          BirthDeath(n_random_initial=3), RayleighGridSensor())
-    for t_max in (1, 5, 8, 9):
-        tr = JMPDTracker(n_particles=300, t_max=t_max)
-        tr.reset(model, np.random.default_rng(t_max))
-        rng = np.random.default_rng(0)
-        tr._valid[:] = rng.random(tr._valid.shape) < 0.5
-        idx = np.sort(rng.integers(0, 300, 300))
-        out = np.empty_like(tr._valid)
-        tr._gather_valid(idx, out)
-        assert np.array_equal(out, tr._valid[:, idx])
+@pytest.mark.parametrize("t_max", [1, 5, 8, 9])
+def test_gather_mask_equals_take(t_max):
+    """The bit-packed gather (up to 8 slots) and the plain one (more) equal fancy
+    indexing."""
+    rng = np.random.default_rng(0)
+    valid = rng.random((t_max, 300)) < 0.5
+    idx = np.sort(rng.integers(0, 300, 300))
+    out = np.empty_like(valid)
+    gather_mask(valid, idx, out)
+    assert np.array_equal(out, valid[:, idx])
 
 
 # ------------------------------------------------------------------ alignment
@@ -341,23 +386,35 @@ def test_align_square_is_optimal_assignment():
 
 
 def test_ip_alignment_keeps_targets_and_puts_matches_in_place():
+    """``align_slots`` (the IP proposal's first step) on the particles after a predict:
+    every particle keeps its targets, a particle with at least 3 holds one in each
+    reference slot, and the cells travel with their targets (they equal the cells of
+    the aligned positions)."""
     model = TrackingModel(Grid(12, 12), Dynamics(wna_intensity=5e-4),
                           BirthDeath(n_random_initial=3), RayleighGridSensor())
     tr = JMPDTracker(n_particles=500, t_max=5, proposal="ip")
     tr.reset(model, np.random.default_rng(4))
     tr.predict()
     ref = np.array([[2.0, 0, 2.0, 0], [9.0, 0, 9.0, 0], [2.0, 0, 9.0, 0]])
-    tr._ref = ref
     before_X, before_valid = tr.states.copy(), tr.mask.copy()
-    tr._align_to_reference()
-    X, valid = tr.states, tr.mask
+    X, valid, cells = align_slots(tr.states.transpose(2, 1, 0), tr.mask.T,
+                                  tr.slot_cells.T, ref)
+    X, valid, cells = X.transpose(2, 1, 0), valid.T, cells.T  # (N, t_max, ...)
+    moved = 0
     for i in range(500):
         old = sorted(map(tuple, before_X[i][before_valid[i]]))
         assert sorted(map(tuple, X[i][valid[i]])) == old
         k = min(valid[i].sum(), 3)
         # every particle with >= 3 targets holds a target in each reference slot
         assert valid[i, :k].all() if valid[i].sum() >= 3 else True
-    assert np.array_equal(tr._cells.T, np.where(valid, tr._cells.T, 144))
+        moved += not np.array_equal(X[i], before_X[i])
+    assert moved > 100  # the alignment reorders many particles
+    assert np.array_equal(cells, model.grid.cell_of(X[..., 0], X[..., 2]))
+    # nothing to align to: the arrays themselves come back
+    same = align_slots(tr.states.transpose(2, 1, 0), tr.mask.T, tr.slot_cells.T,
+                       np.zeros((0, 4)))
+    assert all(np.shares_memory(a, b) for a, b in zip(
+        same, (tr.states, tr.mask, tr.slot_cells), strict=True))
 
 
 # ------------------------------------------------------------------ filter vs exact
@@ -477,10 +534,12 @@ def test_moves_after_resampling_reach_the_particles():
         X, valid = tr.states, tr.mask
         assert np.all((X[..., 0] >= 0) & (X[..., 0] < width))
         assert np.all((X[..., 2] >= 0) & (X[..., 2] < height))
-        assert np.array_equal(tr._cells.T < sc.model.grid.n_cells, valid)
+        assert np.array_equal(tr.cells < sc.model.grid.n_cells, valid)
+        # the cells moved with the resampled states: the rule applied to them now
+        assert np.array_equal(tr.slot_cells, sc.model.grid.cell_of(X[..., 0], X[..., 2]))
         tr.update(Looks(np.arange(24) + 24 * (k % 6), np.zeros(24, bool)))
     assert tr.n_resamples >= 5
-    tr._p_death = 1.0
+    tr.prior.p_death = 1.0
     tr.predict()
     assert not tr.mask.any() and tr.estimate().count == 0
 
@@ -495,7 +554,8 @@ def test_ip_update_when_no_particle_occupies_a_looked_cell():
     tr.update(Looks(np.array([0]), np.array([True])))
     tr.estimate()
     tr.predict()
-    free = np.setdiff1d(np.arange(144), tr._cells[tr._cells < 144])[:1]
+    cells = tr.cells
+    free = np.setdiff1d(np.arange(144), cells[cells < 144])[:1]
     tr.update(Looks(free, np.array([False])))
     assert tr.log_weights.dtype == np.float64 and np.all(np.isfinite(tr.log_weights))
 
@@ -517,8 +577,8 @@ def _move(tr, looks):
     """Weigh (no resampling: threshold 0), then run the tracker's MH sweeps on the
     equally weighted prior draws: a start that is far from the target distribution."""
     tr.update(looks)
-    cells = np.where(tr.mask.T, tr._cells, tr._n_cells)
-    tr._resample_move(tr._log_likelihood(tr._X, cells))
+    assert tr.n_resamples == 0
+    tr.move()
 
 
 def _gaussian_conditional(model, x0, z):
@@ -564,9 +624,11 @@ def test_move_converges_to_the_gaussian_conditional():
     _assert_gaussian_moments(tr.states[:, 0, :], m, S)
     assert 0.2 < tr.move_acceptance < 0.95
     assert np.all(np.isfinite(tr.states)) and np.all(np.isfinite(tr.log_weights))
-    # the stored noise still rebuilds the state: x = F x0 + L e
-    e = tr._parents[4:, 0, :]
-    assert np.allclose(tr._F @ _X0[:, None] + tr._L @ e, tr._X[:, 0, :], atol=1e-12)
+    # the stored parent and noise still rebuild the state: x = F x0 + L e
+    assert np.array_equal(tr.parent_states[:, 0, :], np.broadcast_to(_X0, (n, 4)))
+    e = tr.process_noises[:, 0, :].T
+    x = _LG_MODEL.dynamics.F @ _X0[:, None] + tr.prior.L @ e
+    assert np.allclose(x, tr.states[:, 0, :].T, atol=1e-12)
 
 
 def test_move_leaves_exact_conditional_draws_invariant():
@@ -578,10 +640,10 @@ def test_move_leaves_exact_conditional_draws_invariant():
     m, S = _gaussian_conditional(_LG_MODEL, _X0, _Z)
     start = np.random.default_rng(1).multivariate_normal(m, S, n)
     tr.update(Looks(np.zeros(0, np.int64), np.zeros(0, bool), _Z))
-    tr._X[:, 0, :] = start.T
-    tr._parents[4:, 0, :] = np.linalg.solve(tr._L, start.T - (tr._F @ _X0)[:, None])
-    cells = np.where(tr.mask.T, tr._cells, tr._n_cells)
-    tr._resample_move(tr._log_likelihood(tr._X, cells))
+    tr.states[:, 0, :] = start
+    F = _LG_MODEL.dynamics.F
+    tr.process_noises[:, 0, :] = np.linalg.solve(tr.prior.L, start.T - (F @ _X0)[:, None]).T
+    tr.move()
     out = tr.states[:, 0, :]
     _assert_gaussian_moments(out, m, S)
     assert np.mean(np.any(out != start, axis=1)) > 0.9
@@ -647,26 +709,40 @@ def test_move_matches_exact_cell_posterior_on_the_grid(boundary):
     assert 0.0 < tr.move_acceptance < 1.0
 
 
-def _conformance_checks():
-    import test_conformance  # the suite's own checks, run here with the move switched on
-    return [c for c in test_conformance.CHECKS if c.__name__ != "check_params"]
+class JMPDWithMove(JMPDTracker):
+    """``jmpd`` with one resample-move sweep by default (not registered); every
+    instance is recorded in ``made`` so that a test can look at the trackers a check
+    built."""
+
+    name = "jmpd-move"
+    summary = "JMPD, bootstrap proposal, one resample-move sweep (tests only)"
+    made: ClassVar[list[JMPDTracker]] = []
+
+    def __init__(self, n_particles: int = 2000, t_max: int = 5,
+                 birth_rate: float | None = None, death_probability: float | None = None,
+                 resample_threshold: float = 0.5,
+                 proposal: Literal["bootstrap", "ip"] = "bootstrap",
+                 initial_count: int | None = None, move_steps: int = 1,
+                 move_scale: float = 1.0) -> None:
+        super().__init__(n_particles=n_particles, t_max=t_max, birth_rate=birth_rate,
+                         death_probability=death_probability,
+                         resample_threshold=resample_threshold, proposal=proposal,
+                         initial_count=initial_count, move_steps=move_steps,
+                         move_scale=move_scale)
+        JMPDWithMove.made.append(self)
 
 
-@pytest.mark.parametrize("check", _conformance_checks(), ids=lambda c: c.__name__)
-def test_conformance_with_move(check, monkeypatch):
-    """The conformance checks (all but the parameter check, whose defaults this
-    changes) with ``move_steps=1``: 200 steps without NaN, determinism, zero
-    targets, steps without looks, P_c on ``large``, the superposition sensor."""
-    make = trackers.make
-    made = []
-
-    def make_with_move(name, **params):
-        tr = make(name, **{"move_steps": 1, **params})
-        made.append(tr)
-        return tr
-    monkeypatch.setattr(trackers, "make", make_with_move)
-    check("jmpd")
-    assert made and all(t.move_steps == 1 for t in made)
+@pytest.mark.parametrize("check", INTERFACE_CHECKS, ids=lambda c: c.__name__)
+def test_conformance_with_move(check):
+    """The conformance kit's interface checks (:mod:`mttbench.testing`) with
+    ``move_steps=1``: declarations, parameters, 200 steps without NaN, determinism, no
+    state leak across reset, zero targets, steps without looks, P_c on ``large``, the
+    superposition sensor."""
+    JMPDWithMove.made.clear()
+    check(JMPDWithMove)
+    made = JMPDWithMove.made
+    if check.__name__ != "check_declarations":  # the only check that builds no tracker
+        assert made and all(t.move_steps == 1 for t in made)
     if check.__name__ in ("check_runs_200_steps", "check_superposition_or_reason"):
         assert 0.0 < made[0].move_acceptance < 1.0
 
@@ -677,6 +753,23 @@ def test_move_needs_the_bootstrap_proposal():
         JMPDTracker(proposal="ip", move_steps=1).reset(model, np.random.default_rng(0))
     with pytest.raises(ValueError, match="move_scale"):
         JMPDTracker(move_steps=1, move_scale=0.0).reset(model, np.random.default_rng(0))
+
+
+def test_move_bookkeeping_only_with_move_steps():
+    """Without ``move_steps`` no parents or noises are kept and ``move()`` refuses; with
+    it, the views appear after the first predict (not before)."""
+    model = scenarios.get("default").model
+    tr = JMPDTracker(n_particles=50)
+    tr.reset(model, np.random.default_rng(0))
+    tr.predict()
+    assert tr.parent_states is None and tr.process_noises is None
+    with pytest.raises(RuntimeError, match="move_steps"):
+        tr.move()
+    tr = JMPDTracker(n_particles=50, move_steps=1)
+    tr.reset(model, np.random.default_rng(0))
+    assert tr.parent_states is None
+    tr.predict()
+    assert tr.parent_states.shape == tr.process_noises.shape == (50, 5, 4)
 
 
 def test_move_off_draws_nothing_extra():

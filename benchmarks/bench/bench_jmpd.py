@@ -8,6 +8,10 @@ floor of any bootstrap step. Goal: step / baseline <= 1.5 at N = 1e5.
 
 Also one resampling step with and without a resample-move sweep.
 
+The step runs the numba kernels (``mttbench.trackers.jmpd.kernels``) when numba is
+installed (``extra_info["compiled_kernels"]``); ``MTTBENCH_NO_NUMBA=1`` times the
+numpy forms, which give the same numbers.
+
 Run: ``pytest benchmarks/bench/bench_jmpd.py --benchmark-only``; the paired ratios
 (``extra_info["paired_ratio"]``, see ``test_jmpd_bootstrap_step``) are listed at the
 end of the terminal output and kept in the saved JSON.
@@ -19,10 +23,10 @@ import time
 
 import numpy as np
 import pytest
-from mttbench.scenarios.simulator import simulate
-from mttbench.trackers.jmpd import JMPDTracker
 
 from mttbench import scenarios
+from mttbench.scenarios.simulator import simulate
+from mttbench.trackers.jmpd import JMPDTracker
 
 T_MAX = 5
 SIZES = [10_000, 100_000]

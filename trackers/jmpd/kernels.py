@@ -1,5 +1,5 @@
 """Compiled (numba) kernels for the JMPD's per-slot passes, each equal bit for bit
-to a numpy form in :mod:`trackers.jmpd`.
+to a numpy form in this package.
 
 Why: a bootstrap step is ``N * t_max`` slots of a few operations each. In numpy every
 operation is its own pass over ``(t_max, N)`` arrays (about 0.3 ms per pass at
@@ -14,13 +14,10 @@ Exactness: every kernel performs the same IEEE operations, in the same order, as
 numpy form (the tests compare both on random and edge inputs, and whole tracker runs
 with and without the kernels), so results never depend on whether numba is present.
 
-Importing this module imports numba (about 0.5 s, and loading the cached kernels
-about 2 s more on the reference machine), so :func:`trackers.jmpd.compiled_kernels`
-imports it on first use only; it returns None, and the tracker runs its numpy forms,
-when numba is missing or the environment variable ``MTTBENCH_NO_NUMBA`` is set to
-anything but ``0`` or the empty string. Kernels compile on first call and are cached
-on disk (``cache=True``); :func:`warm_up` does that on tiny inputs so that no timed
-step pays for it.
+Importing this module imports numba, so :func:`.backend.compiled_kernels` imports it
+on first use only (and not at all without numba or with ``MTTBENCH_NO_NUMBA`` set).
+Kernels compile on first call and are cached on disk (``cache=True``); :func:`warm_up`
+does that on tiny inputs so that no timed step pays for it.
 """
 
 from __future__ import annotations
@@ -33,7 +30,7 @@ from numba import njit
 def _outside(p: float, v: float, length: float, cap: float,
              reflect: bool) -> tuple[float, float, bool]:
     """A position ``p`` outside ``[0, length)`` with velocity ``v``: ``(p, v, alive)``
-    after the boundary rule. Reflect is one value of ``trackers.jmpd._fold``:
+    after the boundary rule. Reflect is one value of :func:`.state.fold`:
     ``np.mod(p, 2 L)`` (fmod, then the sign fix of numpy's remainder), mirrored above
     ``L`` with the velocity, capped at ``cap`` (``np.minimum``, which keeps a NaN). Die
     parks the position at ``L / 2``."""
@@ -68,10 +65,10 @@ def boundary_cells_counts(px: np.ndarray, vx: np.ndarray, py: np.ndarray, vy: np
     ``reflect`` the boundary rule (else ``die``). Writes ``cells (T, N)`` int32 and
     ``counts (N,)`` (valid slots per particle).
 
-    Numpy forms: ``JMPDTracker._apply_boundary`` (a position outside ``[0, L)`` is
+    Numpy forms: :func:`.state.apply_boundary` (a position outside ``[0, L)`` is
     folded back with its velocity mirrored, or its slot dies and the position is
-    parked at ``L / 2``), ``JMPDTracker._update_cells`` (``trunc(p / s)``, clamped to
-    the grid when ``s != 1``, row-major) and the column sums of ``valid``.
+    parked at ``L / 2``), :func:`.state.flat_cells` (``trunc(p / s)``, clamped to the
+    grid when ``s != 1``, row-major) and the column sums of ``valid``.
     """
     T, N = valid.shape
     counts[:] = 0
@@ -103,7 +100,7 @@ def boundary_cells_counts(px: np.ndarray, vx: np.ndarray, py: np.ndarray, vy: np
 def grid_log_likelihood_dense(cells: np.ndarray, valid: np.ndarray, use_valid: bool,
                               inc_cell: np.ndarray, n_counts: int, key: np.ndarray,
                               count: np.ndarray, out: np.ndarray) -> None:
-    """The dense path of ``trackers.jmpd.grid_log_likelihood`` with its passes fused.
+    """The dense path of :func:`.likelihood.grid_log_likelihood`, its passes fused.
 
     ``cells (T, N)`` integers, ``valid (T, N)`` bool (read only when ``use_valid``;
     otherwise every slot counts as valid), ``inc_cell`` the flat per-cell increment
@@ -149,8 +146,9 @@ def grid_log_likelihood_dense(cells: np.ndarray, valid: np.ndarray, use_valid: b
 @njit(cache=True)
 def systematic_indices(weights: np.ndarray, u: float) -> np.ndarray:
     """``searchsorted(cumsum(weights), (u + arange(n)) / n, side="right")`` clipped to
-    ``n - 1``, by one merge of the two sorted sequences (the cumulative sum is the
-    sequential one of ``np.cumsum``). Finite weights only."""
+    ``n - 1`` (:func:`.resampling.systematic_resample`), by one merge of the two sorted
+    sequences (the cumulative sum is the sequential one of ``np.cumsum``). Finite
+    weights only."""
     n = weights.shape[0]
     cumulative = np.empty(n)
     s = 0.0

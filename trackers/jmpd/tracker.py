@@ -1,0 +1,252 @@
+"""The JMPD trackers ("jmpd", "jmpd-ip"): the :class:`~..base.Tracker` life cycle
+composed from the particle storage (:mod:`.state`), the proposals (:mod:`.proposals`),
+the likelihood (:mod:`.likelihood`), the resampling (:mod:`.resampling`) and the
+estimates (:mod:`.estimation`). The method is described in the package docstring.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+
+from ...scenarios.model import Looks, TrackingModel
+from ..base import Estimate, Tracker, register
+from .backend import compiled_kernels
+from .estimation import cell_count_distribution_from, estimate_targets
+from .likelihood import GridLikelihood, SuperpositionLikelihood, step_likelihood
+from .proposals import BootstrapPrior, bootstrap_predict, ip_exchange, resample_move
+from .resampling import effective_sample_size, systematic_resample
+from .state import ParticleState, flat_cells
+
+
+@register
+class JMPDTracker(Tracker):
+    """JMPD particle filter, bootstrap (kinematic prior) proposal by default.
+
+    Parameters: ``n_particles`` N; ``t_max`` largest count a particle can hold;
+    ``birth_rate`` (per particle and step, None: the model's rate or
+    ``DEFAULT_BIRTH_RATE``); ``death_probability`` (per target and step, None:
+    ``1 - p_s`` or ``DEFAULT_DEATH_PROBABILITY``); ``resample_threshold`` (resample
+    when ESS < threshold * N); ``proposal`` "bootstrap" or "ip"; ``initial_count``
+    (None: Poisson prior; an int: every particle starts with that many targets);
+    ``move_steps`` Metropolis-Hastings sweeps after each resampling (0: none, the
+    plain bootstrap; bootstrap proposal only) with proposal covariance
+    ``move_scale^2 Q`` (package docstring, "Resample-move").
+
+    After ``reset``: ``count_mean`` and ``count_probabilities`` (the count posterior of
+    the last estimate), ``n_resamples``, ``move_proposed``/``move_accepted``
+    (:attr:`move_acceptance`), ``uses_compiled_kernels`` (whether predict runs the numba
+    pass; same results either way), and the read-only views below.
+    """
+
+    name = "jmpd"
+    summary = "JMPD particle filter (Kreucher et al. 2005), bootstrap proposal"
+
+    def __init__(self, n_particles: int = 2000, t_max: int = 5,
+                 birth_rate: float | None = None, death_probability: float | None = None,
+                 resample_threshold: float = 0.5,
+                 proposal: Literal["bootstrap", "ip"] = "bootstrap",
+                 initial_count: int | None = None, move_steps: int = 0,
+                 move_scale: float = 1.0) -> None:
+        self.n_particles = n_particles
+        self.t_max = t_max
+        self.birth_rate = birth_rate
+        self.death_probability = death_probability
+        self.resample_threshold = resample_threshold
+        self.proposal = proposal
+        self.initial_count = initial_count
+        self.move_steps = move_steps
+        self.move_scale = move_scale
+
+    # ------------------------------------------------------------- views
+    @property
+    def states(self) -> np.ndarray:
+        """Target states ``(N, t_max, 4)`` (a view; empty slots hold junk). Writes reach
+        the tracker (tests set start states this way); the cells follow at the next
+        predict."""
+        return self._particles.X.transpose(2, 1, 0)
+
+    @property
+    def mask(self) -> np.ndarray:
+        """Slot validity ``(N, t_max)`` bool (a view)."""
+        return self._particles.valid.T
+
+    @property
+    def log_weights(self) -> np.ndarray:
+        """Normalised log-weights ``(N,)``."""
+        return self._particles.logw
+
+    @property
+    def slot_cells(self) -> np.ndarray:
+        """Flat cell of every slot's position, valid or not, ``(N, t_max)`` int32 (the
+        grid rule of :func:`.state.flat_cells`; empty slots hold positions inside the
+        workspace too). As computed by the last predict; recomputed from the positions
+        when a resampling has made those stale. Read only."""
+        return self._particles.slot_cells().T
+
+    @property
+    def cells(self) -> np.ndarray:
+        """Flat cells ``(N, t_max)`` int64 with ``n_cells`` for empty slots (a new
+        array): :attr:`slot_cells` where :attr:`mask`."""
+        return self._particles.cells().T
+
+    @property
+    def prior(self) -> BootstrapPrior:
+        """The kinematic prior in use (:class:`.proposals.BootstrapPrior`): ``F``, ``L``
+        (``L L^T = Q``), ``p_death``, ``p_birth``, ... resolved at reset. ``p_death``
+        and ``p_birth`` may be changed between steps."""
+        return self._prior
+
+    @property
+    def parent_states(self) -> np.ndarray | None:
+        """Resample-move bookkeeping: the states ``x_{k-1}`` ``(N, t_max, 4)`` that the
+        current states were predicted from (a view); None unless ``move_steps > 0`` and
+        predict has run."""
+        parents = self._particles.parents
+        return None if parents is None else parents[:4].transpose(2, 1, 0)
+
+    @property
+    def process_noises(self) -> np.ndarray | None:
+        """Resample-move bookkeeping: the standard normals ``e`` ``(N, t_max, 4)`` with
+        ``x = b(F x_{k-1} + L e)`` for the slots that survived the last predict (a view:
+        writes reach the tracker, so a test can start the sweeps from chosen draws);
+        None unless ``move_steps > 0`` and predict has run."""
+        parents = self._particles.parents
+        return None if parents is None else parents[4:].transpose(2, 1, 0)
+
+    @property
+    def move_acceptance(self) -> float:
+        """Fraction of accepted resample-move proposals so far (NaN before any)."""
+        if self.move_proposed == 0:
+            return math.nan
+        return self.move_accepted / self.move_proposed
+
+    # ------------------------------------------------------------- life cycle
+    def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
+        if self.proposal not in ("bootstrap", "ip"):
+            raise ValueError(f"proposal must be 'bootstrap' or 'ip', got {self.proposal!r}")
+        if int(self.n_particles) < 1 or int(self.t_max) < 1:
+            raise ValueError("n_particles and t_max must be >= 1")
+        if int(self.move_steps) < 0 or not float(self.move_scale) > 0.0:
+            raise ValueError("move_steps must be >= 0 and move_scale > 0")
+        if int(self.move_steps) > 0 and self.proposal != "bootstrap":
+            raise ValueError("move_steps > 0 needs proposal='bootstrap' (the IP exchange "
+                             "does not keep each slot's parent state)")
+        N, T = int(self.n_particles), int(self.t_max)
+        kernels = compiled_kernels()
+        self.uses_compiled_kernels = kernels is not None
+        if kernels is not None:
+            kernels.warm_up()  # compile (or load) them now, not in a timed step
+        self._model, self._rng = model, rng
+        self._prior = BootstrapPrior.from_model(model, self.birth_rate, self.death_probability)
+        p = self._particles = ParticleState(N, T, model.grid)
+        # prior before step 0: T_i ~ Poisson clipped to t_max (or initial_count),
+        # positions uniform, velocities N(0, birth_velocity_std^2)
+        if self.initial_count is None:
+            counts = np.minimum(rng.poisson(model.birth_death.initial_count_mean, size=N), T)
+        else:
+            counts = np.full(N, min(int(self.initial_count), T))
+        p.valid[:] = np.arange(T)[:, None] < counts[None, :]
+        X, bv = p.X, self._prior.birth_velocity_std
+        X[0] = rng.uniform(0.0, p.width, (T, N))
+        X[2] = rng.uniform(0.0, p.height, (T, N))
+        X[1] = rng.normal(0.0, bv, (T, N))
+        X[3] = rng.normal(0.0, bv, (T, N))
+        p.counts = counts.astype(np.int64)
+        p.update_cells()
+        self._ref: np.ndarray | None = None  # the last estimate, predicted to this step
+        self._lik: GridLikelihood | SuperpositionLikelihood | None = None  # last update's
+        self.count_mean = float(counts.mean())
+        self.count_probabilities = np.bincount(counts, minlength=T + 1) / N
+        self.n_resamples = 0
+        self.move_proposed = 0
+        self.move_accepted = 0
+
+    def predict(self) -> None:
+        kernels = compiled_kernels() if self.uses_compiled_kernels else None
+        bootstrap_predict(self._particles, self._prior, self._rng, kernels,
+                          keep_parents=self.move_steps > 0)
+        if self._ref is not None and len(self._ref):
+            self._ref = self._ref @ self._prior.F.T
+
+    def cell_count_distribution(self) -> np.ndarray:
+        p = self._particles
+        return cell_count_distribution_from(p.cells().T, p.w, p.grid.n_cells, p.t_max + 1)
+
+    def update(self, looks: Looks) -> None:
+        p = self._particles
+        lik = step_likelihood(self._model.sensor, looks, p.grid.n_cells, p.t_max)
+        if lik is None:
+            return
+        self._lik = lik
+        ip = self.proposal == "ip" and isinstance(lik, GridLikelihood)
+        if ip:
+            correction = ip_exchange(p, self._ref, lik, self._rng)
+        ll = lik(p.X, p.valid, p.raw_cells, key_buffer=p.key_buf)
+        if ip:
+            ll -= correction
+        logw, w = p.logw, p.w
+        logw += ll
+        # normalise: w = exp(logw - max) / sum, logw -= max + log(sum) (= logsumexp)
+        top = logw.max()
+        np.subtract(logw, top, out=w)
+        np.exp(w, out=w)
+        total = w.sum()
+        w /= total
+        logw -= top + math.log(total)
+        # systematic resampling when the effective sample size is low; the
+        # resample-move sweeps (when on) start from the survivors' log-likelihoods
+        if effective_sample_size(w) >= self.resample_threshold * p.n:
+            return
+        idx = systematic_resample(w, self._rng.random())
+        p.resample(idx)
+        self.n_resamples += 1
+        if p.parents is not None:
+            self._sweep(ll[idx])
+
+    def move(self) -> None:
+        """Run the ``move_steps`` resample-move sweeps now, on the current particles, with
+        the last update's measurement, as after a resampling (which normally triggers
+        them). The particles should be equally weighted; the weights are not changed.
+        For tests that start the sweeps from chosen draws (set :attr:`states` and
+        :attr:`process_noises` first)."""
+        p = self._particles
+        if p.parents is None or self._lik is None:
+            raise RuntimeError("move() needs move_steps > 0, a predict and an update "
+                               "with a measurement")
+        self._sweep(self._lik(p.X, p.valid, flat_cells(p.X[0], p.X[2], p.grid)))
+
+    def _sweep(self, ll: np.ndarray) -> None:
+        proposed, accepted = resample_move(self._particles, self._prior, self._lik, ll,
+                                           self._rng, self.move_steps, self.move_scale)
+        self.move_proposed += proposed
+        self.move_accepted += accepted
+
+    def estimate(self) -> Estimate:
+        p = self._particles
+        out = estimate_targets(p.X, p.valid, p.counts, p.w, self._ref)
+        self.count_probabilities, self.count_mean = out.count_probabilities, out.count_mean
+        self._ref = out.reference
+        return out.estimate
+
+
+@register
+class JMPDIPTracker(JMPDTracker):
+    """JMPD with Kreucher's independent-partition proposal (``proposal="ip"``)."""
+
+    name = "jmpd-ip"
+    summary = "JMPD particle filter (Kreucher et al. 2005), independent-partition proposal"
+
+    def __init__(self, n_particles: int = 2000, t_max: int = 5,
+                 birth_rate: float | None = None, death_probability: float | None = None,
+                 resample_threshold: float = 0.5,
+                 proposal: Literal["bootstrap", "ip"] = "ip",
+                 initial_count: int | None = None, move_steps: int = 0,
+                 move_scale: float = 1.0) -> None:
+        super().__init__(n_particles=n_particles, t_max=t_max, birth_rate=birth_rate,
+                         death_probability=death_probability,
+                         resample_threshold=resample_threshold, proposal=proposal,
+                         initial_count=initial_count, move_steps=move_steps,
+                         move_scale=move_scale)
