@@ -28,24 +28,11 @@ from mttbench.trackers.base import Estimate
 from mttbench.trackers.kfnn import KFNNTracker
 from mttbench.trackers.null import NullTracker
 
-#: measured failures of shipped trackers that their class does not declare yet:
-#: (tracker, check) -> reason. Strict xfail, so a fix (or the declaration, which
-#: turns the item into a skip) shows up; remove the entry then.
-UNDECLARED_FAILURES = {
-    ("jmpd", "check_tracks_two_targets"): (
-        "bootstrap JMPD (2000 particles) does not hold two separated targets: mean OSPA "
-        "1.0-1.25 over 8-seed blocks (bound 1.0); JMPDTracker should declare it in "
-        "conformance_exceptions (and JMPDIPTracker, which passes, override it with {})"),
-}
-
 REGISTERED = [trackers.get_class(name) for name in trackers.available()]
 
 
 @parametrize_with_checks(REGISTERED)
-def test_conformance(tracker_class, check, request):
-    reason = UNDECLARED_FAILURES.get((tracker_class.name, check.name))
-    if reason is not None:
-        request.applymarker(pytest.mark.xfail(reason=reason, strict=True, raises=AssertionError))
+def test_conformance(tracker_class, check):
     check(tracker_class)
 
 

@@ -7,7 +7,7 @@ estimates (:mod:`.estimation`). The method is described in the package docstring
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 
@@ -43,6 +43,13 @@ class JMPDTracker(Tracker):
 
     name = "jmpd"
     summary = "JMPD particle filter (Kreucher et al. 2005), bootstrap proposal"
+    conformance_exceptions = {
+        "check_tracks_two_targets": (
+            "the bootstrap proposal over the joint density loses one of two separated "
+            "targets even with every cell looked at (mean OSPA 1.0-1.25 over 8-seed blocks "
+            "at N = 2000, 0.80 at N = 20000; bound 1.0); the IP proposal (jmpd-ip) holds "
+            "them (docs/jmpd.md)"),
+    }
 
     def __init__(self, n_particles: int = 2000, t_max: int = 5,
                  birth_rate: float | None = None, death_probability: float | None = None,
@@ -238,6 +245,7 @@ class JMPDIPTracker(JMPDTracker):
 
     name = "jmpd-ip"
     summary = "JMPD particle filter (Kreucher et al. 2005), independent-partition proposal"
+    conformance_exceptions: ClassVar[dict[str, str]] = {}  # passes every check
 
     def __init__(self, n_particles: int = 2000, t_max: int = 5,
                  birth_rate: float | None = None, death_probability: float | None = None,
