@@ -333,10 +333,15 @@ def check_superposition_or_reason(cls: type[Tracker]) -> None:
 
 
 # ======================================================================== tracking
-def _track_scores(cls: type[Tracker], sc: Scenario, seeds: Iterable[int],
-                  burn_in: int) -> tuple[float, float]:
-    """Mean OSPA (``c = 2, p = 2``, positions) and mean count error over steps
-    ``k >= burn_in`` of the runs of ``seeds`` (every cell looked at every step)."""
+def _assert_tracks(cls: type[Tracker], what: str, scenario_name: str, initial_states: tuple, *,
+                   seeds: tuple, n_steps: int, burn_in: int, max_ospa: float,
+                   max_count_error: float) -> None:
+    """Run ``cls`` on ``default`` with fixed ``initial_states`` (no births, ``p_s = 1``,
+    every cell looked at every step; ``scenario_name`` seeds its worlds) and assert mean
+    OSPA (``c = 2, p = 2``, positions) and mean count error over steps ``k >= burn_in``
+    of ``seeds`` below the bounds."""
+    sc = _scenario("default", scenario_name, n_steps=n_steps,
+                   initial_states=initial_states)
     ospa, count_err = [], []
     for seed in seeds:
         records = _run(cls(), sc, seed, policy=_AllCellsWithPrediction())
@@ -347,7 +352,12 @@ def _track_scores(cls: type[Tracker], sc: Scenario, seeds: Iterable[int],
                              c=OSPA_C, p=OSPA_P)
             ospa.append(m["ospa"])
             count_err.append(m["count_error"])
-    return float(np.mean(ospa)), float(np.mean(count_err))
+    mean_ospa, mean_count = float(np.mean(ospa)), float(np.mean(count_err))
+    assert mean_ospa < max_ospa and mean_count < max_count_error, (
+        f"{what} (every cell looked at every step): mean OSPA {mean_ospa:.3f} (bound "
+        f"{max_ospa}; reporting nothing scores {OSPA_C}) and mean count error "
+        f"{mean_count:.3f} (bound {max_count_error}; nothing scores {len(initial_states)}) "
+        f"over steps {burn_in}..{n_steps - 1} of seeds {seeds}")
 
 
 #: one target in mid-grid, starting at ~0.06 cells/step (the ``default`` preset's speed)
@@ -381,14 +391,9 @@ def check_tracks_one_target(cls: type[Tracker]) -> None:
     twice: at most 0.56 / 0.11), so the bounds sit about 2x (OSPA) and 4x (count)
     above the worst shipped tracker, and 2x below ``null``.
     """
-    sc = _scenario("default", "check-one-target", n_steps=ONE_TARGET_STEPS,
-                   initial_states=ONE_TARGET)
-    ospa, count_err = _track_scores(cls, sc, ONE_TARGET_SEEDS, ONE_TARGET_BURN_IN)
-    assert ospa < ONE_TARGET_MAX_OSPA and count_err < ONE_TARGET_MAX_COUNT_ERROR, (
-        f"one easy target (every cell looked at every step): mean OSPA {ospa:.3f} "
-        f"(bound {ONE_TARGET_MAX_OSPA}; reporting nothing scores {OSPA_C}) and mean count "
-        f"error {count_err:.3f} (bound {ONE_TARGET_MAX_COUNT_ERROR}; nothing scores 1) over "
-        f"steps {ONE_TARGET_BURN_IN}..{ONE_TARGET_STEPS - 1} of seeds {ONE_TARGET_SEEDS}")
+    _assert_tracks(cls, "one easy target", "check-one-target", ONE_TARGET,
+                   seeds=ONE_TARGET_SEEDS, n_steps=ONE_TARGET_STEPS, burn_in=ONE_TARGET_BURN_IN,
+                   max_ospa=ONE_TARGET_MAX_OSPA, max_count_error=ONE_TARGET_MAX_COUNT_ERROR)
 
 
 #: two targets in opposite quarters of the grid, ~8 cells apart, moving slowly
@@ -420,15 +425,9 @@ def check_tracks_two_targets(cls: type[Tracker]) -> None:
     particles); its partitioned-proposal
     variant ``jmpd-ip`` passes.
     """
-    sc = _scenario("default", "check-two-targets", n_steps=TWO_TARGETS_STEPS,
-                   initial_states=TWO_TARGETS)
-    ospa, count_err = _track_scores(cls, sc, TWO_TARGETS_SEEDS, TWO_TARGETS_BURN_IN)
-    assert ospa < TWO_TARGETS_MAX_OSPA and count_err < TWO_TARGETS_MAX_COUNT_ERROR, (
-        f"two separated targets (every cell looked at every step): mean OSPA {ospa:.3f} "
-        f"(bound {TWO_TARGETS_MAX_OSPA}; reporting nothing scores {OSPA_C}) and mean count "
-        f"error {count_err:.3f} (bound {TWO_TARGETS_MAX_COUNT_ERROR}; nothing scores 2) "
-        f"over steps {TWO_TARGETS_BURN_IN}..{TWO_TARGETS_STEPS - 1} of seeds "
-        f"{TWO_TARGETS_SEEDS}")
+    _assert_tracks(cls, "two separated targets", "check-two-targets", TWO_TARGETS,
+                   seeds=TWO_TARGETS_SEEDS, n_steps=TWO_TARGETS_STEPS, burn_in=TWO_TARGETS_BURN_IN,
+                   max_ospa=TWO_TARGETS_MAX_OSPA, max_count_error=TWO_TARGETS_MAX_COUNT_ERROR)
 
 
 # ===================================================================== running them
