@@ -119,24 +119,33 @@ def _fmt_params(params: dict) -> str:
     return ", ".join(f"{k}={v!r}" for k, v in params.items()) or "(no parameters)"
 
 
-def _print_entry(name: str, summary: str, params: dict) -> None:
-    print(f"  {name:<8} {summary}")
-    print(textwrap.fill(_fmt_params(params), width=96, initial_indent=" " * 11,
-                        subsequent_indent=" " * 11))
+def _print_entry(name: str, cls: type) -> None:
+    """A tracker or policy: its summary, then one line per parameter with its default and
+    what it accepts (the class's declaration, :mod:`mttbench.trackers.params`)."""
+    from ..trackers.params import describe
+
+    print(f"  {name:<8} {cls.summary}")
+    rows = describe(cls)
+    if not rows:
+        print(" " * 11 + "(no parameters)")
+    for key, default, allowed in rows:
+        head = f"{key}={default}"
+        print(textwrap.fill(allowed, width=100, initial_indent=" " * 11 + f"{head:<28} ",
+                            subsequent_indent=" " * 40))
 
 
 def cmd_trackers(args: argparse.Namespace) -> int:
     print("Trackers (use as NAME or NAME:key=value,key=value; a tracker from elsewhere as "
           "package.module:ClassName):")
+    print("Each parameter: NAME=DEFAULT and what it accepts; bad values are refused before "
+          "any run.")
     for name in trackers.available():
-        cls = trackers.get_class(name)
-        _print_entry(name, cls.summary, cls.param_defaults())
+        _print_entry(name, trackers.get_class(name))
     for name, why in trackers.broken_plugins().items():
         print(f"  {name:<8} NOT LOADED (entry point failed): {why}")
     print("\nCell-selection policies (--policy NAME or NAME:key=value,...):")
     for name in policies.available_policies():
-        cls = policies.get_policy_class(name)
-        _print_entry(name, cls.summary, cls.param_defaults())
+        _print_entry(name, policies.get_policy_class(name))
     for name, why in policies.broken_plugins().items():
         print(f"  {name:<8} NOT LOADED (entry point failed): {why}")
     return 0

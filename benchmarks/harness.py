@@ -7,8 +7,8 @@ of the runtime benchmarks and the conformance kit all come from it); it yields a
 :class:`StepRecord` per step::
 
     run = simulate(scenario, seed)          # the world: depends on (scenario, seed) only
-    tracker.reset(model, rng_tracker)       # rng from (scenario, seed, tracker label)
-    policy.reset(model, looks, rng_policy)  # rng from (scenario, seed, "policy:" + label)
+    tracker.reset(model, rng_tracker)       # rng from (scenario, seed, tracker config)
+    policy.reset(model, looks, rng_policy)  # rng from (scenario, seed, policy config)
     for k in range(n_steps):
         tracker.predict()                                   # timed (tracker)
         P = tracker.cell_count_distribution()               # timed (selection), if needed
@@ -250,7 +250,10 @@ class Playback:
 
     ``world`` is the simulated run (truth and sensor randomness); ``step`` is the
     step being computed (-1 before the first), so a caller that catches a failure
-    knows where it happened.
+    knows where it happened. ``tracker_config`` and ``policy_config`` (None without
+    cells) are the canonical configurations that seeded the tracker's and the policy's
+    generators; ``tracker_label`` and ``policy_label`` name the run (messages) and
+    change no number.
     """
 
     def __init__(self, scenario: Scenario, tracker: Tracker, seed: int, policy: Policy | None,
@@ -259,23 +262,30 @@ class Playback:
         model = scenario.model
         reason = tracker.unsupported_reason(model)
         if reason:
-            raise ValueError(f"tracker {tracker.name or type(tracker).__name__!r} cannot run "
-                             f"{scenario.name!r}: {reason}")
+            who = tracker_label or tracker.name or type(tracker).__name__
+            raise ValueError(f"tracker {who!r} cannot run {scenario.name!r}: {reason}")
         grid_sensor = isinstance(model.sensor, RayleighGridSensor)
         if grid_sensor and policy is None:
-            policy, policy_label = Raster(), "raster"
+            policy = Raster()
         self.scenario, self.tracker = scenario, tracker
         self.policy = policy if grid_sensor else None
+        self.tracker_label = tracker_label or tracker.name or type(tracker).__name__
+        self.policy_label = (None if self.policy is None else
+                             policy_label or self.policy.name or type(self.policy).__name__)
         self.step = -1
+        # seeds from the canonical resolved configurations (implementation and every
+        # parameter, validated here), never from a label's spelling
+        self.tracker_config = type(tracker).canonical_config(tracker.get_params())
+        self.policy_config = (None if self.policy is None else
+                              type(self.policy).canonical_config(self.policy.get_params()))
         self.world = simulate(scenario, int(seed))
-        label = tracker.name if tracker_label is None else tracker_label
-        tracker.reset(model, np.random.default_rng(tracker_seed(scenario.name, seed, label)))
+        tracker.reset(model, np.random.default_rng(
+            tracker_seed(scenario.name, seed, self.tracker_config)))
         if self.policy is not None:
             m = int(model.sensor.looks_per_step if looks_per_step is None else looks_per_step)
-            plabel = self.policy.name if policy_label is None else policy_label
             # the policy's stream ignores the tracker: every tracker sees the same random cells
             self.policy.reset(model, m, np.random.default_rng(
-                tracker_seed(scenario.name, seed, "policy:" + plabel)))
+                tracker_seed(scenario.name, seed, self.policy_config)))
         n = self.world.n_steps
         self.n_steps = n if n_steps is None else min(int(n_steps), n)
 
@@ -323,9 +333,17 @@ def play(scenario: Scenario, tracker: Tracker, seed: int, *, policy: Policy | No
 
     The world (truth and the uniforms behind every look) depends only on
     ``(scenario, seed)``. The tracker's generator is seeded from ``(scenario.name,
-    seed, tracker_label)`` (default ``tracker.name``) and the policy's from
-    ``(scenario.name, seed, "policy:" + policy_label)`` (default ``policy.name``), so a
-    random policy looks at the same cells for every tracker. On a grid sensor the
+    seed, tracker configuration)`` and the policy's from ``(scenario.name, seed, policy
+    configuration)``: the canonical resolved configuration
+    (:meth:`~mttbench.trackers.params.Configurable.canonical_config`: implementation and
+    every parameter, defaults filled in, validated; kept as
+    :attr:`Playback.tracker_config` / :attr:`Playback.policy_config`), so equal
+    configurations give equal numbers however they are spelled (``jmpd-ip``,
+    ``jmpd:proposal=ip``), and a random policy looks at the same cells for every
+    tracker. ``tracker_label`` and ``policy_label`` only name the run (messages,
+    :class:`Playback` attributes); they change no number. Parameters the declaration
+    refuses raise :class:`~mttbench.trackers.params.ParameterError` (a ``ValueError``).
+    On a grid sensor the
     policy defaults to :class:`~mttbench.benchmarks.policies.Raster` and
     ``looks_per_step`` to the sensor's budget; the superposition sensor takes
     neither. ``n_steps`` stops early (default: the scenario's length). The tracker is

@@ -12,37 +12,35 @@ it; ``truth_cells`` (flat cells of the true targets) only to policies with
 
 from __future__ import annotations
 
-import inspect
 from abc import ABC, abstractmethod
 from typing import Any, ClassVar
 
 import numpy as np
 
 from ..scenarios.model import RayleighGridSensor, TrackingModel
+from ..trackers.params import Configurable, Param
 from ..trackers.registry import Registry
 from .information import greedy_looks
 
 
-class Policy(ABC):
-    """Chooses the looks of each step. Constructors store parameters only."""
+class Policy(Configurable, ABC):
+    """Chooses the looks of each step. Constructors store parameters only.
 
+    Parameters are declared as for trackers (:attr:`parameters`, ``{name: Param}``,
+    :mod:`~mttbench.trackers.params`); :func:`make_policy` and the spec resolution check
+    values against the declaration before any run.
+    """
+
+    kind: ClassVar[str] = "policy"
     name: ClassVar[str] = ""
     summary: ClassVar[str] = ""
     uses_prediction: ClassVar[bool] = False
     uses_truth: ClassVar[bool] = False
 
-    @classmethod
-    def param_defaults(cls) -> dict[str, Any]:
-        """Constructor parameters and their defaults (empty when it takes none)."""
-        if cls.__init__ is object.__init__:
-            return {}
-        sig = inspect.signature(cls.__init__)
-        return {n: p.default for n, p in sig.parameters.items()
-                if n != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
-
     def get_params(self) -> dict[str, Any]:
-        """Constructor parameters (public attributes)."""
-        return {k: v for k, v in vars(self).items() if not k.startswith("_")}
+        """Constructor parameters, as stored under their own names (scikit-learn's rule;
+        one not stored that way is left out). They seed the policy's generator."""
+        return {n: getattr(self, n) for n in self.param_names() if hasattr(self, n)}
 
     def reset(self, model: TrackingModel, n_looks: int, rng: np.random.Generator) -> None:
         """Start a run: ``n_looks`` looks per step on ``model.grid``."""
@@ -68,8 +66,11 @@ broken_plugins = _POLICIES.broken
 
 
 def make_policy(name: str, **params: Any) -> Policy:
-    """Build a registered policy; unknown parameters are refused."""
-    return _POLICIES.get(name)(**params)
+    """Build a registered policy from checked parameters: unknown names raise
+    ``TypeError``, values its declaration refuses raise
+    :class:`~mttbench.trackers.params.ParameterError` (a ``ValueError``)."""
+    cls = _POLICIES.get(name)
+    return cls(**cls.validate_params(params, name=name))
 
 
 @register_policy
@@ -78,6 +79,7 @@ class AllCells(Policy):
 
     name = "all"
     summary = "look at every cell once per step (ignores the look budget)"
+    parameters: ClassVar[dict[str, Param]] = {}
 
     def select(self, k, counts=None, truth_cells=None):
         return np.arange(self._n_cells, dtype=np.int64)
@@ -89,6 +91,7 @@ class RandomCells(Policy):
 
     name = "random"
     summary = "M distinct cells drawn uniformly at random each step"
+    parameters: ClassVar[dict[str, Param]] = {}
 
     def select(self, k, counts=None, truth_cells=None):
         m = min(self._n_looks, self._n_cells)
@@ -101,6 +104,7 @@ class Raster(Policy):
 
     name = "raster"
     summary = "raster sweep: M consecutive cells per step, wrapping around the grid"
+    parameters: ClassVar[dict[str, Param]] = {}
 
     def select(self, k, counts=None, truth_cells=None):
         m = min(self._n_looks, self._n_cells)
@@ -121,6 +125,7 @@ class Oracle(Policy):
     name = "oracle"
     summary = "REFERENCE, USES THE TRUTH: cells of the true targets, then random cells"
     uses_truth = True
+    parameters: ClassVar[dict[str, Param]] = {}
 
     def select(self, k, counts=None, truth_cells=None):
         if truth_cells is None:
@@ -152,6 +157,10 @@ class RenyiGain(Policy):
     name = "renyi"
     summary = "expected Renyi alpha-divergence gain of each cell's count (tracker's prediction)"
     uses_prediction = True
+    parameters: ClassVar[dict[str, Param]] = {
+        "alpha": Param(float, 0, low_open=True, doc="order of the Renyi divergence"),
+        "repeats": Param(bool, doc="greedy by marginal gain, a cell may get several looks"),
+    }
 
     def __init__(self, alpha: float = 0.5, repeats: bool = False) -> None:
         self.alpha = alpha
@@ -161,8 +170,7 @@ class RenyiGain(Policy):
         super().reset(model, n_looks, rng)
         if not isinstance(model.sensor, RayleighGridSensor):
             raise TypeError("the renyi policy needs a grid (Rayleigh) sensor")
-        if not self.alpha > 0:
-            raise ValueError(f"alpha must be > 0, got {self.alpha}")
+        self.validate_params(self.get_params())  # the declaration above (built directly)
         self._pd_cache: dict[int, np.ndarray] = {}
         self._tables: dict[int, dict[int, np.ndarray]] = {}  # by n_counts, then by n
 

@@ -11,7 +11,12 @@ Spec text: ``name`` or ``name:key=val,key=val``. ``name`` is a registered name
 ``package.module:ClassName``, the class name capitalised (then
 ``package.module:ClassName:key=val,...``). Each
 value is parsed as ``true``/``false`` (bool, case-insensitive), then ``int``, then
-``float``, otherwise kept as a string.
+``float``, otherwise kept as a string. Resolution (:func:`resolve_trackers`,
+:func:`resolve_policies`, used by every command) then checks each value against the
+class's declared parameters (:mod:`mttbench.trackers.params`: type, range, choices,
+``none``/``None`` where allowed, rules between parameters) before any run, and keeps
+the values in their canonical types (``n_particles=1e3`` -> ``1000``, so the label
+reads ``jmpd(n_particles=1000)``).
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from typing import Any, ClassVar, Self
 
 from .. import scenarios, trackers
 from ..scenarios.spec import Scenario
+from ..trackers.params import Configurable, ParameterError
 from . import policies
 
 
@@ -129,11 +135,29 @@ class Spec:
         """From ``name`` or ``name:key=val,key=val`` (values as :func:`parse_value`)."""
         return cls(*parse_spec(text, cls.kind))
 
+    def target(self) -> type[Configurable]:
+        """The class the spec names (``KeyError`` if none)."""
+        raise NotImplementedError
+
+    def validated(self) -> Self:
+        """The same spec with each value checked against the class's declaration and in
+        its canonical type; raises ``TypeError``/:class:`ParameterError` in one line."""
+        return type(self)(self.name, self.target().validate_params(self.params, name=self.name))
+
+    @property
+    def config(self) -> str:
+        """The canonical configuration (implementation and every resolved parameter, as
+        JSON): equal for equal configurations however spelled; it seeds the runs."""
+        return self.target().canonical_config(self.params)
+
 
 class TrackerSpec(Spec):
     """A tracker and its parameters."""
 
     kind = "tracker"
+
+    def target(self) -> type[trackers.Tracker]:
+        return trackers.get_class(self.name)
 
     def make(self) -> trackers.Tracker:
         return trackers.make(self.name, **self.params)
@@ -143,6 +167,9 @@ class PolicySpec(Spec):
     """A cell-selection policy and its parameters."""
 
     kind = "policy"
+
+    def target(self) -> type[policies.Policy]:
+        return policies.get_policy_class(self.name)
 
     def make(self) -> policies.Policy:
         return policies.make_policy(self.name, **self.params)
@@ -168,11 +195,20 @@ def resolve_scenarios(names: Sequence[str], steps: int | None = None) -> list[Sc
 
 
 def _resolve(texts: Sequence[str], spec_type: type[Spec]) -> list:
-    """Specs checked by building each one once (unknown names and parameters refused)."""
+    """Specs checked against the declarations and by building each one once (unknown
+    names, unknown parameters and refused values give one line)."""
     specs = []
     for text in split_specs(list(texts)):
         try:
             spec = spec_type.parse(text)
+            spec.target()
+        except (ValueError, KeyError, TypeError, ImportError, AttributeError) as exc:
+            raise UsageError(f"{spec_type.kind} {text!r}: {first_line(exc)}") from None
+        try:  # these messages name the tracker or policy, the parameter and the value
+            spec = spec.validated()
+        except (ParameterError, TypeError) as exc:
+            raise UsageError(first_line(exc)) from None
+        try:
             spec.make()
         except (ValueError, KeyError, TypeError, ImportError, AttributeError) as exc:
             raise UsageError(f"{spec_type.kind} {text!r}: {first_line(exc)}") from None

@@ -12,6 +12,7 @@ looks. Every tracker and every cell-selection policy therefore sees the same wor
 
 from __future__ import annotations
 
+import hashlib
 import zlib
 from dataclasses import dataclass, field
 
@@ -35,11 +36,14 @@ def world_seed(scenario_name: str, seed: int, *tags: int) -> np.random.SeedSeque
     return np.random.SeedSequence(seed, spawn_key=(stable_hash(scenario_name), *tags))
 
 
-def tracker_seed(scenario_name: str, seed: int, tracker_name: str) -> np.random.SeedSequence:
-    """Seed of a tracker's own randomness: depends on (scenario, seed, tracker name)."""
-    return np.random.SeedSequence(
-        seed, spawn_key=(stable_hash(scenario_name), TRACKER_TAG, stable_hash(tracker_name))
-    )
+def tracker_seed(scenario_name: str, seed: int, identity: str) -> np.random.SeedSequence:
+    """Seed of a tracker's or a policy's own randomness: depends on (scenario, seed,
+    identity). The harness passes the canonical configuration
+    (:meth:`mttbench.trackers.params.Configurable.canonical_config`: kind, implementation,
+    every resolved parameter), so equal configurations draw equal numbers; the identity
+    enters as a 128-bit SHA-256 prefix (no practical collision between configurations)."""
+    key = int.from_bytes(hashlib.sha256(identity.encode("utf-8")).digest()[:16], "little")
+    return np.random.SeedSequence(seed, spawn_key=(stable_hash(scenario_name), TRACKER_TAG, key))
 
 
 # ----------------------------------------------------------------------- dynamics

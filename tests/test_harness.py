@@ -213,7 +213,7 @@ def test_policy_randomness_is_shared_by_trackers_and_tracker_randomness_is_not(t
     for a, b in zip(cells1, cells2, strict=True):
         np.testing.assert_array_equal(a, b)
     assert len({tuple(c) for c in cells1}) > 1
-    # the trackers' own streams differ (seeded from their labels)
+    # the trackers' own streams differ (seeded from their configurations: tag 1 vs 2)
     assert Recorder.draws[k1] != Recorder.draws[k2]
 
 

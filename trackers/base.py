@@ -18,7 +18,6 @@ update, including the first.
 from __future__ import annotations
 
 import importlib
-import inspect
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -26,6 +25,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..scenarios.model import Looks, TrackingModel
+from .params import Configurable
 from .registry import Registry
 
 
@@ -49,14 +49,20 @@ class Estimate:
         return Estimate(0.0, np.zeros((0, 4)))
 
 
-class Tracker(ABC):
+class Tracker(Configurable, ABC):
     """Base class of all trackers.
 
     Subclasses declare their parameters as keyword arguments of ``__init__`` with
     defaults and store each one, unchanged, under the same attribute name
     (scikit-learn's rule); :meth:`get_params` reads them back for the results table.
+    What each parameter accepts is declared once in :attr:`parameters`
+    (``{name: Param}``, :mod:`~mttbench.trackers.params`), rules between parameters in
+    :meth:`param_conflict`; :func:`make`, the command line and the harness check values
+    against them before any run. A subclass that only changes defaults sets
+    ``defaults_only = True`` and shares its parent's random numbers (``jmpd-ip``).
     """
 
+    kind: ClassVar[str] = "tracker"
     name: ClassVar[str] = ""
     #: one line for ``mttbench trackers``
     summary: ClassVar[str] = ""
@@ -67,17 +73,8 @@ class Tracker(ABC):
     conformance_exceptions: ClassVar[dict[str, str]] = {}
 
     # ------------------------------------------------------------------ params
-    @classmethod
-    def param_names(cls) -> list[str]:
-        sig = inspect.signature(cls.__init__)
-        kinds = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
-        return [p.name for p in sig.parameters.values() if p.name != "self" and p.kind in kinds]
-
-    @classmethod
-    def param_defaults(cls) -> dict[str, Any]:
-        sig = inspect.signature(cls.__init__)
-        return {n: sig.parameters[n].default for n in cls.param_names()}
-
+    # param_names, param_defaults, validate_params, resolved_params, param_conflict,
+    # implementation and canonical_config come from Configurable (trackers/params.py)
     def get_params(self) -> dict[str, Any]:
         """The constructor parameters, as stored."""
         return {n: getattr(self, n) for n in self.param_names()}
@@ -145,10 +142,11 @@ def get_class(name: str) -> type[Tracker]:
 
 
 def make(name: str, **params: Any) -> Tracker:
-    """Build a tracker by name (see :func:`get_class`); unknown parameters are refused."""
+    """Build a tracker by name (see :func:`get_class`) from checked parameters.
+
+    Unknown parameter names raise ``TypeError``; values its declaration refuses raise
+    :class:`~mttbench.trackers.params.ParameterError` (a ``ValueError``), in one line.
+    The tracker gets the values in their canonical types (``n_particles=1000.0`` is
+    stored as ``1000``)."""
     cls = get_class(name)
-    unknown = set(params) - set(cls.param_names())
-    if unknown:
-        raise TypeError(f"tracker {name!r} has no parameter(s) {sorted(unknown)}; "
-                        f"its parameters are {cls.param_defaults()}")
-    return cls(**params)
+    return cls(**cls.validate_params(params, name=name))

@@ -63,6 +63,7 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import ClassVar
 
 import numpy as np
 from scipy.special import ndtr
@@ -73,6 +74,7 @@ from .base import Estimate, Tracker, register
 from .cells import gaussian_cell_mass, poisson_binomial
 from .gpf_grid import grid_update
 from .gpf_linear import superposition_update
+from .params import Param
 
 _MERGE_RULES = ("bounded_sum", "capped_sum", "union")
 _MERGE_CHOICES = _MERGE_RULES + ("auto",)
@@ -178,6 +180,26 @@ class GaussianParticleFilter(Tracker):
 
     name = "gpf"
     summary = "Gaussian particle filter (paper): existence-weighted Gaussians, combinations E"
+    parameters: ClassVar[dict[str, Param]] = {
+        "epsilon": Param(float, 0, 1, high_open=True,
+                         doc="combinations with prior probability <= epsilon are cut"),
+        "max_combinations": Param(int, 1, doc="at most this many combinations kept"),
+        "interaction_threshold": Param(float, 0, 1, high_open=True,
+                                       doc="w m_c above it: the particle takes part in a cell"),
+        "merge_threshold": Param(float, 0, doc="squared Mahalanobis distance; 0: no merging"),
+        "merge_weight": Param(choices=_MERGE_CHOICES, doc="merged weight rule"),
+        "prune_threshold": Param(float, 0, 1, high_open=True, doc="drop w below it"),
+        "max_particles": Param(int, 1, doc="keep at most this many (the heaviest)"),
+        "births": Param(bool, doc="False: empty prior, no births"),
+        "birth_floor": Param(float, 0, 1, doc="floor of the undetected-target field u"),
+        "extraction": Param(choices=("round_sum", "threshold"), doc="which particles are "
+                            "reported"),
+        "extraction_threshold": Param(float, 0, 1, doc="w above it is reported (threshold)"),
+        "n_counts": Param(int, 2, doc="count columns of P_c(t)"),
+        "death_probability": Param(float, 0, 1, allow_none=True,
+                                   none="DEFAULT_DEATH_FLOOR on the grid with births, else 0",
+                                   doc="per-step death floor"),
+    }
 
     def __init__(self, epsilon: float = 1e-4, max_combinations: int = 512,
                  interaction_threshold: float = 1e-3, merge_threshold: float = 4.0,
@@ -201,12 +223,7 @@ class GaussianParticleFilter(Tracker):
 
     # ------------------------------------------------------------------ state
     def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
-        if self.merge_weight not in _MERGE_CHOICES:
-            raise ValueError(f"merge_weight must be one of {_MERGE_CHOICES}, "
-                             f"got {self.merge_weight!r}")
-        if self.extraction not in ("round_sum", "threshold"):
-            raise ValueError(f"extraction must be 'round_sum' or 'threshold', "
-                             f"got {self.extraction!r}")
+        self.validate_params(self.get_params())  # the declaration above (built directly)
         self._model = model
         self._rng = rng
         self._F, self._Q = model.dynamics.F, model.dynamics.Q
@@ -216,8 +233,6 @@ class GaussianParticleFilter(Tracker):
         floor = self.death_probability
         if floor is None:
             floor = DEFAULT_DEATH_FLOOR if (self.births and model.is_grid) else 0.0
-        if not 0.0 <= floor <= 1.0:
-            raise ValueError(f"death_probability must be in [0, 1], got {floor!r}")
         #: the survival probability the filter predicts with: min(p_s, 1 - floor)
         self._survival = min(model.birth_death.survival_probability, 1.0 - floor)
         self._w = np.zeros(0)

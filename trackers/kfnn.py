@@ -80,6 +80,8 @@ Predicted count distribution ``P_c(t)`` (for sensor management)
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.stats import chi2
@@ -88,6 +90,7 @@ from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
 from . import kalman
 from .base import Estimate, Tracker, register
 from .cells import gaussian_cell_mass, poisson_binomial
+from .params import Param
 
 #: count columns of P_c: 0, 1, 2 and "3 or more"
 N_COUNTS = 4
@@ -149,6 +152,19 @@ class KFNNTracker(Tracker):
     name = "kfnn"
     summary = ("Kalman filter per track, gated nearest-neighbour association of cell "
                "detections, M-of-N confirmation")
+    parameters: ClassVar[dict[str, Param]] = {
+        "gate_probability": Param(float, 0, 1, low_open=True, high_open=True,
+                                  doc="gate d^2 < chi2.ppf(gate_probability, 2)"),
+        "association": Param(choices=("global", "greedy")),
+        "confirm_m": Param(int, 1, doc="hits needed among the first confirm_n chances"),
+        "confirm_n": Param(int, 1, doc="chances of a tentative track"),
+        "max_misses": Param(int, 1, doc="consecutive misses that delete a confirmed track"),
+        "birth_velocity_std": Param(float, 0, allow_none=True,
+                                    none="the model's birth velocity sd",
+                                    doc="velocity sd of a new track"),
+        "existence_confirmed": Param(float, 0, 1, doc="P_c(t): existence of a confirmed track"),
+        "existence_tentative": Param(float, 0, 1, doc="P_c(t): existence of a tentative track"),
+    }
 
     def __init__(
         self,
@@ -177,21 +193,12 @@ class KFNNTracker(Tracker):
                     "reports only the mean of all targets, so there is nothing to associate")
         return None
 
-    def _check_params(self) -> None:
-        if not 0.0 < self.gate_probability < 1.0:
-            raise ValueError(f"gate_probability must be in (0, 1), got {self.gate_probability}")
-        if self.association not in ("global", "greedy"):
-            raise ValueError(f"association must be 'global' or 'greedy', got {self.association!r}")
-        if not 1 <= self.confirm_m <= self.confirm_n:
-            raise ValueError(f"need 1 <= confirm_m <= confirm_n, got {self.confirm_m}, "
-                             f"{self.confirm_n}")
-        if self.max_misses < 1:
-            raise ValueError(f"max_misses must be >= 1, got {self.max_misses}")
-        if self.birth_velocity_std is not None and self.birth_velocity_std < 0:
-            raise ValueError(f"birth_velocity_std must be >= 0, got {self.birth_velocity_std}")
-        for n in ("existence_confirmed", "existence_tentative"):
-            if not 0.0 <= getattr(self, n) <= 1.0:
-                raise ValueError(f"{n} must be in [0, 1], got {getattr(self, n)}")
+    @classmethod
+    def param_conflict(cls, params):
+        m, n = params["confirm_m"], params["confirm_n"]
+        if m > n:
+            return f"confirm_m={m} with confirm_n={n}: need confirm_m <= confirm_n (M of N)"
+        return None
 
     # ------------------------------------------------------------- life cycle
     def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
@@ -199,7 +206,7 @@ class KFNNTracker(Tracker):
         reason = self.unsupported_reason(model)
         if reason:
             raise ValueError(reason)
-        self._check_params()
+        self.validate_params(self.get_params())  # the declaration above (built directly)
         self._model = model
         self._rng = rng  # unused: the tracker is deterministic
         self._grid = model.grid

@@ -6,10 +6,13 @@ target exists. Its ``P_c(t)`` puts every target prior in no cell.
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 
 from ..scenarios.model import Looks, TrackingModel
 from .base import Estimate, Tracker, register
+from .params import Param
 
 
 @register
@@ -17,6 +20,7 @@ class NullTracker(Tracker):
     name = "null"
     summary = "baseline that always reports zero targets"
     baseline = True
+    parameters: ClassVar[dict[str, Param]] = {}
 
     def __init__(self) -> None:
         pass

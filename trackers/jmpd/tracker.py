@@ -13,6 +13,7 @@ import numpy as np
 
 from ...scenarios.model import Looks, TrackingModel
 from ..base import Estimate, Tracker, register
+from ..params import Param
 from .backend import compiled_kernels
 from .estimation import cell_count_distribution_from, estimate_targets
 from .likelihood import GridLikelihood, SuperpositionLikelihood, step_likelihood
@@ -50,6 +51,30 @@ class JMPDTracker(Tracker):
             "at N = 2000, 0.80 at N = 20000; bound 1.0); the IP proposal (jmpd-ip) holds "
             "them (docs/jmpd.md)"),
     }
+    parameters: ClassVar[dict[str, Param]] = {
+        "n_particles": Param(int, 1, doc="particles N"),
+        "t_max": Param(int, 1, doc="largest count a particle can hold"),
+        "birth_rate": Param(float, 0, allow_none=True,
+                            none="the model's rate, or DEFAULT_BIRTH_RATE",
+                            doc="births per particle and step"),
+        "death_probability": Param(float, 0, 1, allow_none=True,
+                                   none="1 - p_s, or DEFAULT_DEATH_PROBABILITY",
+                                   doc="per target and step"),
+        "resample_threshold": Param(float, 0, 1, doc="resample when ESS < threshold * N"),
+        "proposal": Param(choices=("bootstrap", "ip")),
+        "initial_count": Param(int, 0, allow_none=True, none="Poisson prior",
+                               doc="targets in every particle at first"),
+        "move_steps": Param(int, 0, doc="resample-move sweeps (bootstrap proposal only)"),
+        "move_scale": Param(float, 0, low_open=True, doc="move proposal covariance scale^2 Q"),
+    }
+
+    @classmethod
+    def param_conflict(cls, params):
+        if params["move_steps"] > 0 and params["proposal"] != "bootstrap":
+            return (f"move_steps={params['move_steps']} with proposal={params['proposal']!r}: "
+                    "need proposal='bootstrap' when move_steps > 0 (the IP exchange does not "
+                    "keep each slot's parent state)")
+        return None
 
     def __init__(self, n_particles: int = 2000, t_max: int = 5,
                  birth_rate: float | None = None, death_probability: float | None = None,
@@ -132,15 +157,7 @@ class JMPDTracker(Tracker):
 
     # ------------------------------------------------------------- life cycle
     def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
-        if self.proposal not in ("bootstrap", "ip"):
-            raise ValueError(f"proposal must be 'bootstrap' or 'ip', got {self.proposal!r}")
-        if int(self.n_particles) < 1 or int(self.t_max) < 1:
-            raise ValueError("n_particles and t_max must be >= 1")
-        if int(self.move_steps) < 0 or not float(self.move_scale) > 0.0:
-            raise ValueError("move_steps must be >= 0 and move_scale > 0")
-        if int(self.move_steps) > 0 and self.proposal != "bootstrap":
-            raise ValueError("move_steps > 0 needs proposal='bootstrap' (the IP exchange "
-                             "does not keep each slot's parent state)")
+        self.validate_params(self.get_params())  # the declaration above (built directly)
         N, T = int(self.n_particles), int(self.t_max)
         kernels = compiled_kernels()
         self.uses_compiled_kernels = kernels is not None
@@ -246,6 +263,9 @@ class JMPDIPTracker(JMPDTracker):
     name = "jmpd-ip"
     summary = "JMPD particle filter (Kreucher et al. 2005), independent-partition proposal"
     conformance_exceptions: ClassVar[dict[str, str]] = {}  # passes every check
+    #: only the default of ``proposal`` differs: ``jmpd-ip`` and ``jmpd:proposal=ip`` are
+    #: one configuration and draw the same random numbers
+    defaults_only = True
 
     def __init__(self, n_particles: int = 2000, t_max: int = 5,
                  birth_rate: float | None = None, death_probability: float | None = None,
