@@ -156,6 +156,42 @@ class JMPDTracker(Tracker):
         return self.move_accepted / self.move_proposed
 
     # ------------------------------------------------------------- life cycle
+    def unsupported_reason(self, model: TrackingModel) -> str | None:
+        """Refuses a scenario whose expected target count exceeds ``t_max`` (a particle
+        holds at most ``t_max`` targets, so it could not represent the truth).
+
+        The expected count of the model's existence process (``BirthDeath``: ``n0``
+        initial targets, survival ``p_s``, Poisson births ``b`` per step) after ``k``
+        steps is ``m(k) = n0 p_s^k + b (1 - p_s^k) / (1 - p_s)`` (``n0 + b k`` when
+        ``p_s = 1``). The rule compares its peak with ``t_max``:
+
+        * ``p_s < 1``: ``m(k)`` moves monotonically from ``n0`` to the stationary mean
+          ``b / (1 - p_s)``, so the peak is ``max(n0, b / (1 - p_s))``;
+        * ``p_s = 1`` and ``b > 0``: ``m(k)`` grows without bound; the rule takes it at a
+          horizon of 100 steps (the shipped presets' length), ``n0 + 100 b`` (a longer
+          run can outgrow ``t_max``);
+        * ``p_s = 1`` and ``b = 0``: ``n0``.
+
+        Targets that die at a ``die`` boundary only lower the count, so the rule is an
+        upper bound there. Refused when the peak is more than ``t_max`` (beyond rounding:
+        ``1e-9``).
+        """
+        horizon = 100  # steps (see the docstring)
+        bd = model.birth_death
+        n0 = float(len(bd.initial_states) + bd.n_random_initial)
+        p_s, b = float(bd.survival_probability), float(bd.birth_rate)
+        if p_s < 1.0:
+            peak, how = max(n0, b / (1.0 - p_s)), f", stationary mean {b / (1.0 - p_s):.3g}"
+        elif b > 0.0:
+            peak, how = n0 + horizon * b, f", {horizon * b:.3g} more births in {horizon} steps"
+        else:
+            peak, how = n0, ""
+        need = math.ceil(peak - 1e-9)  # 0.5 / (1 - 0.9) is 5.000000000000001
+        if need <= int(self.t_max):
+            return None
+        return (f"expected target count {peak:.3g} (initial {n0:.0f}{how}) exceeds "
+                f"t_max = {int(self.t_max)}: use t_max >= {need}")
+
     def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
         self.validate_params(self.get_params())  # the declaration above (built directly)
         N, T = int(self.n_particles), int(self.t_max)
