@@ -125,6 +125,23 @@ def _scenario(preset: str, name: str, *, n_steps: int | None = None,
                                n_steps=sc.n_steps if n_steps is None else n_steps)
 
 
+#: targets of the 50x50 stand-in for trackers that declare ``large`` (25 targets)
+#: unsupported, e.g. a JMPD whose ``t_max`` is below 25
+LARGE_FEW_TARGETS = 3
+
+
+def _large_scenario(cls: type[Tracker], n_steps: int | None = None) -> Scenario:
+    """The 50x50 ``large`` preset, or, when ``cls`` declares it unsupported, the same
+    grid, sensor and looks with :data:`LARGE_FEW_TARGETS` random targets (so state and
+    ``P_c(t)`` sized by a large grid are still exercised)."""
+    sc = _scenario("large", "check-large", n_steps=n_steps)
+    if cls().unsupported_reason(sc.model) is None:
+        return sc
+    bd = dataclasses.replace(sc.model.birth_death, n_random_initial=LARGE_FEW_TARGETS)
+    return dataclasses.replace(sc, name="check-large-few",
+                               model=dataclasses.replace(sc.model, birth_death=bd))
+
+
 def _run(tracker: Tracker, scenario: Scenario, seed: int, *, policy=None,
          n_steps: int | None = None) -> list[StepRecord]:
     """All steps of one run through the harness's step loop (:func:`play`)."""
@@ -216,7 +233,10 @@ def check_params(cls: type[Tracker]) -> None:
     default; an unknown keyword is refused with ``TypeError`` (by the constructor, and
     by ``mttbench.trackers.make`` when the class is registered); ``cls()`` stores each
     parameter unchanged (equal value, same type) under its own name and sets no other
-    public attribute; ``get_params()`` is JSON-able and rebuilds an equal tracker."""
+    public attribute; ``get_params()`` is JSON-able and rebuilds an equal tracker. A
+    class that declares its parameters (``parameters = {name: Param(...)}``,
+    :mod:`mttbench.trackers.params`) declares exactly its constructor's, and every
+    default passes its own declaration unchanged."""
     names = cls.param_names()
     defaults = cls.param_defaults()
     missing = [n for n, v in defaults.items() if v is inspect.Parameter.empty]
@@ -253,6 +273,14 @@ def check_params(cls: type[Tracker]) -> None:
         raise AssertionError(f"get_params() is not JSON-able: {exc}") from None
     rebuilt = cls(**params).get_params()
     assert rebuilt == params, f"cls(**get_params()).get_params() = {rebuilt} != {params}"
+    problem = cls.declaration_problem()
+    assert problem is None, problem
+    declared = cls.declared_parameters()
+    if declared is not None:
+        checked = cls.validate_params(defaults)
+        for n, v in defaults.items():
+            assert checked[n] == v and type(checked[n]) is type(v), (
+                f"default {n}={v!r} is not allowed by its declaration ({declared[n].allowed()})")
 
 
 def check_runs_200_steps(cls: type[Tracker]) -> None:
@@ -278,11 +306,12 @@ def check_deterministic(cls: type[Tracker]) -> None:
 
 def check_reset_no_state_leak(cls: type[Tracker]) -> None:
     """``reset`` starts afresh: a tracker that has run the 50x50 ``large`` preset (3
-    steps) and then another world of ``births`` (20 steps) gives, after ``reset``, the
-    same outputs as a fresh tracker (40 steps of ``births``, seed 3)."""
+    steps; see :func:`_large_scenario`) and then another world of ``births`` (20 steps)
+    gives, after ``reset``, the same outputs as a fresh tracker (40 steps of ``births``,
+    seed 3)."""
     sc = _scenario("births", "check-births", n_steps=40)
     used = cls()
-    _run(used, _scenario("large", "check-large"), 1, n_steps=3)
+    _run(used, _large_scenario(cls), 1, n_steps=3)
     _run(used, sc, 7, n_steps=20)
     again = _run(used, sc, 3, policy=_RasterWithPrediction())
     fresh = _run(cls(), sc, 3, policy=_RasterWithPrediction())
@@ -312,9 +341,10 @@ def check_step_without_looks(cls: type[Tracker]) -> None:
 
 
 def check_count_distribution_on_large(cls: type[Tracker]) -> None:
-    """The ``large`` preset (50x50 cells, 25 targets, 250 looks), 5 steps: valid
-    estimates and ``P_c(t)`` of 2500 rows at every step."""
-    sc = _scenario("large", "check-large", n_steps=5)
+    """The ``large`` preset (50x50 cells, 25 targets, 250 looks; see
+    :func:`_large_scenario`), 5 steps: valid estimates and ``P_c(t)`` of 2500 rows at
+    every step."""
+    sc = _large_scenario(cls, n_steps=5)
     _assert_records_valid(_run(cls(), sc, 0, policy=_RasterWithPrediction()), sc)
 
 
