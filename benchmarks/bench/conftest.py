@@ -35,6 +35,8 @@ its last three runs and the stored ratio is their median.
 from __future__ import annotations
 
 import fnmatch
+import json
+import os
 import platform
 import time
 import tomllib
@@ -44,7 +46,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-import tomli_w
 
 from mttbench.benchmarks.harness import play
 from mttbench.benchmarks.metrics import step_metrics
@@ -334,28 +335,43 @@ def pytest_runtest_call(item):
     return result
 
 
+def _cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def pytest_sessionfinish(session):
+    """``--record-ratios``: merge this run's ratios into ``ratios.toml``."""
     if not session.config.getoption("--record-ratios", default=False) or not _GATED:
         return
     stored = _stored_ratios()
-    ratios = stored.setdefault("ratios", {})
+    ratios = stored.get("ratios", {})
     for key, ratio, _, _ in _GATED:
         runs = [*ratios.get(key, {}).get("runs", []), round(ratio, 6)][-RECORD_KEEP:]
         ratios[key] = {"ratio": round(float(np.median(runs)), 6), "runs": runs}
     refs = [ref for *_, ref in _GATED]
-    stored["recorded"] = {
-        "machine": f"{platform.machine()} {platform.processor() or platform.platform()}",
-        "python": platform.python_version(), "numpy": np.__version__,
-        "last_reference_ms": round(float(np.median(refs)) * 1e3, 4)}
-    header = (
-        "# Runtime benchmark gate (benchmarks/bench/conftest.py): for each benchmark, its\n"
-        "# fastest round divided by the fastest run of a fixed numpy reference workload\n"
-        "# timed around it in the same run. A timed run fails a benchmark whose ratio is\n"
-        "# above `tolerance` times `ratio`. `ratio` is the median of `runs` (the last runs\n"
-        "# recorded with `pytest benchmarks/bench --benchmark-only --record-ratios`).\n")
-    body = {"tolerance": stored.get("tolerance", 2.0), "recorded": stored["recorded"],
-            "ratios": dict(sorted(ratios.items()))}
-    RATIOS_FILE.write_text(header + tomli_w.dumps(body))
+    recorded = {"cpu": _cpu_name(), "cores": os.cpu_count() or 0,
+                "python": platform.python_version(), "numpy": np.__version__,
+                "reference_ms": round(float(np.median(refs)) * 1e3, 3)}
+    lines = [
+        "# Runtime benchmark gate (benchmarks/bench/conftest.py): for each benchmark, its",
+        "# fastest round divided by the fastest run of a fixed numpy reference workload",
+        "# timed around it in the same run. A timed run fails a benchmark whose ratio is",
+        "# above `tolerance` times `ratio`; `ratio` is the median of `runs`, the last runs",
+        "# recorded with `pytest benchmarks/bench --benchmark-only --record-ratios`.",
+        f"tolerance = {float(stored.get('tolerance', 2.0))}", "",
+        "# the machine of the last recording (the reference workload's median time)",
+        "[recorded]", *(f"{k} = {json.dumps(v)}" for k, v in recorded.items()), "",
+        "[ratios]"]
+    for key, entry in sorted(ratios.items()):
+        runs = ", ".join(f"{r:.6g}" for r in entry["runs"])
+        lines.append(f"{json.dumps(key)} = {{ ratio = {entry['ratio']:.6g}, runs = [{runs}] }}")
+    RATIOS_FILE.write_text("\n".join(lines) + "\n")
 
 
 def pytest_terminal_summary(terminalreporter):
