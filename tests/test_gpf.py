@@ -3,16 +3,28 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from mttbench import scenarios, trackers
-from mttbench.scenarios.model import Dynamics, Looks
+from mttbench.scenarios.model import (
+    BirthDeath,
+    Dynamics,
+    Grid,
+    Looks,
+    RayleighGridSensor,
+    TrackingModel,
+)
 from mttbench.scenarios.simulator import simulate
 from mttbench.trackers.cells import gaussian_cell_mass
 from mttbench.trackers.gpf import DEFAULT_DEATH_FLOOR, merge_particles
+
+#: round-off only (a few products and sums of O(1) numbers)
+EXACT = 1e-12
 
 
 def _cov(s=0.3, v=0.05):
@@ -89,19 +101,117 @@ def test_prune_cap_and_extraction_rules():
     assert len(t.estimate().states) == 3
 
 
-def test_cell_count_distribution_is_poisson_binomial_of_particles_and_field():
-    sc = scenarios.get("default")
-    t = trackers.make("gpf", n_counts=8)
-    t.reset(sc.model, np.random.default_rng(0))
-    m = np.array([[3.2, 0.0, 4.7, 0.0], [3.6, 0.0, 4.4, 0.0]])
-    t.set_particles([0.8, 0.6], m, np.stack([_cov(0.4), _cov(0.5)]))
-    Pc = t.cell_count_distribution()
-    np.testing.assert_allclose(Pc.sum(axis=1), 1.0, atol=1e-12)
-    mass = gaussian_cell_mass(sc.grid, m[:, [0, 2]], np.stack([_cov(0.4), _cov(0.5)])[:, [0, 2]]
-                              [:, :, [0, 2]])
-    u0 = sc.model.birth_death.initial_count_mean / sc.grid.n_cells  # the undetected field
-    expected_count = np.array([0.8, 0.6]) @ mass + u0
-    np.testing.assert_allclose(Pc @ np.arange(8), expected_count, atol=1e-9)
+def _cell_masses_diagonal(grid, mean_xy, sd_xy):
+    """Mass of ``N(mean, diag(sd^2))`` in every cell, ``(n_cells,)`` row-major in y: a
+    product of one-dimensional normal CDF differences (exact for a diagonal covariance)."""
+    cells = np.arange(grid.n_cells)
+    x0, x1, y0, y1 = grid.cell_bounds(cells)
+    fx, fy = stats.norm(mean_xy[0], sd_xy[0]), stats.norm(mean_xy[1], sd_xy[1])
+    return (fx.cdf(x1) - fx.cdf(x0)) * (fy.cdf(y1) - fy.cdf(y0))
+
+
+def test_cell_count_distribution_equals_enumeration_of_particles_and_field():
+    """The whole per-cell count distribution P_c(t), not only its mean, on a 3 x 2 grid.
+
+    Independent reference: enumerate every joint outcome of the two particles (each absent,
+    in one of the six cells or outside the workspace, with probabilities ``1 - w``,
+    ``w m_c``, ``w (1 - sum m)``; ``m_c`` from scipy's normal CDF) and of cell c's
+    undetected-field variable (present with ``u_c``); P_c(t) sums the outcomes with t in
+    c. Both particles overlap in several cells, so P_c(2) > 0 and P_c(3) > 0 there:
+    merging a cell's Bernoulli variables into one keeps the mean and loses those. Exact up
+    to round-off (1e-12)."""
+    grid = Grid(3, 2, 1.0)
+    model = TrackingModel(grid, Dynamics(wna_intensity=1e-3),
+                          BirthDeath(initial_states=((1.5, 0.0, 1.0, 0.0),)),
+                          RayleighGridSensor())
+    t = trackers.make("gpf", n_counts=4)
+    t.reset(model, np.random.default_rng(0))
+    w = np.array([0.8, 0.6])
+    m = np.array([[1.2, 0.0, 0.9, 0.0], [1.6, 0.0, 1.1, 0.0]])
+    sd = np.array([[0.5, 0.4], [0.6, 0.7]])
+    P = np.stack([np.diag([sx * sx, 0.01, sy * sy, 0.01]) for sx, sy in sd])
+    t.set_particles(w, m, P)
+    got = t.cell_count_distribution()
+    # the field at reset: initial_count_mean / n_cells = 1/6 in every cell
+    u = np.full(grid.n_cells, 1.0 / 6.0)
+    mass = np.stack([_cell_masses_diagonal(grid, m[i, [0, 2]], sd[i]) for i in range(2)])
+    options = [np.concatenate([[1.0 - w[i], w[i] * (1.0 - mass[i].sum())], w[i] * mass[i]])
+               for i in range(2)]  # option 0 absent, 1 outside, 2 + c in cell c
+    want = np.zeros((grid.n_cells, 4))
+    for a, b in itertools.product(range(grid.n_cells + 2), repeat=2):
+        p_ab = options[0][a] * options[1][b]
+        for c in range(grid.n_cells):
+            in_c = (a == 2 + c) + (b == 2 + c)
+            want[c, in_c] += p_ab * (1.0 - u[c])
+            want[c, in_c + 1] += p_ab * u[c]
+    assert want[:, 2:].max() > 0.05  # overlaps matter: P_c(2) is not small
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+def _predict_one_step(boundary: str, w, m, P):
+    """A GPF without births on a 5 x 4 workspace (survival 1, no death floor), one predict;
+    returns the particles and the model."""
+    model = TrackingModel(Grid(5, 4, 1.0), Dynamics(wna_intensity=2e-3),
+                          BirthDeath(boundary=boundary), RayleighGridSensor())
+    t = trackers.make("gpf", births=False, death_probability=0.0)
+    t.reset(model, np.random.default_rng(0))
+    t.set_particles(w, m, P)
+    t.predict()
+    return t.particles, model
+
+
+#: one mean crossing each wall (+x, -x, +y, -y) in the predict, one staying inside
+_CROSSING_MEANS = np.array([[4.8, 0.5, 2.0, 0.1], [0.2, -0.45, 1.5, 0.0],
+                            [2.5, 0.05, 3.9, 0.3], [1.0, 0.0, 0.1, -0.35],
+                            [2.5, 0.1, 2.0, -0.1]])
+
+
+def test_predict_reflect_mirrors_mean_velocity_and_covariance():
+    """Boundary "reflect": a predicted mean ``F m`` outside the workspace is mirrored in
+    the wall it crossed (``-p`` or ``2 L - p``), that axis's velocity changes sign, and
+    the covariance becomes ``J (F P F^T + Q) J`` with ``J`` negating that axis's position
+    and velocity; a mean inside is only predicted. Weights keep survival 1. Exact up to
+    round-off."""
+    rng = np.random.default_rng(2)
+    A = rng.normal(0.0, 0.1, (5, 4, 4))
+    P = A @ np.swapaxes(A, -1, -2) + 0.01 * np.eye(4)
+    w = np.array([0.9, 0.8, 0.7, 0.6, 0.5])
+    (w1, m1, P1), model = _predict_one_step("reflect", w, _CROSSING_MEANS, P)
+    F, Q = model.dynamics.F, model.dynamics.Q
+    width, height = model.grid.extent
+    for i in range(5):
+        mean, cov = F @ _CROSSING_MEANS[i], F @ P[i] @ F.T + Q
+        J = np.ones(4)
+        for axis, length in ((0, width), (2, height)):
+            if mean[axis] < 0.0 or mean[axis] >= length:
+                mean[axis] = -mean[axis] if mean[axis] < 0.0 else 2.0 * length - mean[axis]
+                mean[axis + 1] = -mean[axis + 1]
+                J[axis:axis + 2] = -1.0
+        np.testing.assert_allclose(m1[i], mean, atol=EXACT)
+        np.testing.assert_allclose(P1[i], cov * J[:, None] * J[None, :], atol=EXACT)
+        assert np.all((m1[i, [0, 2]] >= 0.0) & (m1[i, [0, 2]] < [width, height]))
+    assert (m1[:4, [1, 3]] * (F @ _CROSSING_MEANS[:4].T).T[:, [1, 3]] < 0).any(axis=1).all()
+    np.testing.assert_allclose(w1, w, atol=0)
+
+
+def test_predict_die_weights_by_the_mass_inside():
+    """Boundary "die": means are only predicted, and each weight is multiplied by the
+    predicted Gaussian's mass inside the workspace, the product of its marginal masses
+    (normal CDFs from scipy)."""
+    P = np.stack([np.diag([0.09, 0.01, 0.04, 0.01])] * 5)
+    w = np.array([0.9, 0.8, 0.7, 0.6, 0.5])
+    (w1, m1, P1), model = _predict_one_step("die", w, _CROSSING_MEANS, P)
+    F, Q = model.dynamics.F, model.dynamics.Q
+    width, height = model.grid.extent
+    for i in range(5):
+        mean, cov = F @ _CROSSING_MEANS[i], F @ P[i] @ F.T + Q
+        fx = stats.norm(mean[0], np.sqrt(cov[0, 0]))
+        fy = stats.norm(mean[2], np.sqrt(cov[2, 2]))
+        inside = (fx.cdf(width) - fx.cdf(0.0)) * (fy.cdf(height) - fy.cdf(0.0))
+        assert w1[i] == pytest.approx(w[i] * inside, rel=1e-12, abs=1e-15)
+        np.testing.assert_allclose(m1[i], mean, atol=EXACT)
+        np.testing.assert_allclose(P1[i], cov, atol=EXACT)
+    assert w1[0] < 0.5 * w[0] and w1[4] == pytest.approx(w[4], rel=1e-6)
 
 
 def test_without_births_an_empty_filter_stays_empty():
