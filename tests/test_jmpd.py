@@ -36,7 +36,6 @@ from mttbench.trackers.jmpd import (
     apply_boundary,
     cell_count_distribution_from,
     flat_cells,
-    fold,
     gather_mask,
     grid_log_likelihood,
     grid_log_likelihood_tables,
@@ -285,18 +284,47 @@ def test_systematic_offspring_between_floor_and_ceil(backend, raw, u):
 
 
 # ------------------------------------------------------------------ step kernels
+def _bounce_loop(p, v, length):
+    """One position and velocity reflected wall by wall (plain floats, no folding formula):
+    below 0 mirror in 0, above the length mirror in it, flipping the velocity each time;
+    an exact hit on the far wall is a bounce there, kept just inside (half-open
+    workspace)."""
+    while p < 0.0 or p > length:
+        p, v = (-p, -v) if p < 0.0 else (2.0 * length - p, -v)
+    if p == length:
+        p, v = math.nextafter(length, 0.0), -v
+    return p, v
+
+
 def _reference_boundary(X, valid, width, height, boundary):
-    """The plain rule: every slot outside [0, length) folds back (or dies, parked at
-    the centre), found by exact comparisons."""
+    """The plain rule, slot by slot: a position outside [0, length) (exact comparisons;
+    -0.0 is inside) bounces back (:func:`_bounce_loop`) or dies, parked at the centre."""
     X, valid = X.copy(), valid.copy()
     for p_row, v_row, length in ((0, 1, width), (2, 3, height)):
-        out = (X[p_row] < 0.0) | (X[p_row] >= length)
-        if boundary == "reflect":
-            X[p_row][out], X[v_row][out] = fold(X[p_row][out], X[v_row][out], length)
-        else:
-            valid[out] = False
-            X[p_row][out] = 0.5 * length
+        for s, i in zip(*np.nonzero((X[p_row] < 0.0) | (X[p_row] >= length)), strict=True):
+            if boundary == "reflect":
+                X[p_row, s, i], X[v_row, s, i] = _bounce_loop(float(X[p_row, s, i]),
+                                                              float(X[v_row, s, i]), length)
+            else:
+                valid[s, i] = False
+                X[p_row, s, i] = 0.5 * length
     return X, valid
+
+
+#: the reflection folds with ``mod(p, 2 L)`` and mirrors ``2 L - folded``: each rounds once
+#: at the scale of 2 L, so positions agree with the wall-by-wall reference to a few ulp of
+#: 2 L (a tiny negative such as -1e-300 folds to 0.0 instead of 1e-300); the velocities,
+#: the validity and everything inside the workspace agree exactly
+BOUNCE_ULPS = 4
+
+
+def _assert_boundary_equal(X, valid, want_X, want_valid, width, height):
+    assert np.array_equal(valid, want_valid)
+    for p_row, v_row, length in ((0, 1, width), (2, 3, height)):
+        np.testing.assert_allclose(X[p_row], want_X[p_row], rtol=0,
+                                   atol=BOUNCE_ULPS * np.spacing(2.0 * length))
+        assert np.array_equal(X[v_row].view(np.uint64), want_X[v_row].view(np.uint64))
+        assert np.all((X[p_row] >= 0.0) & (X[p_row] < length))
 
 
 def _edge_particles(tr, grid, edges, seed=9):
@@ -316,8 +344,9 @@ def _edge_particles(tr, grid, edges, seed=9):
 @pytest.mark.parametrize("boundary", ["reflect", "die"])
 @pytest.mark.parametrize("cell_size", [1.0, 0.7])
 def test_boundary_and_cells_equal_plain_rules(boundary, cell_size, backend):
-    """``apply_boundary`` (unsigned-bits candidates) equals exact comparisons, edge
-    values included (0, -0.0, the length, just below it, tiny negatives, far out);
+    """``apply_boundary`` (unsigned-bits candidates) equals an independent wall-by-wall
+    bounce (exact comparisons; positions to BOUNCE_ULPS, velocities and validity exactly),
+    edge values included (0, -0.0, the length, just below it, tiny negatives, far out);
     ``flat_cells`` equals the floor rule (and ``Grid.cell_of``) for every slot
     afterwards. The tracker's predict (the compiled pass or these numpy forms) does the
     same on the same positions, and its ``cells`` masks the empty slots."""
@@ -331,9 +360,12 @@ def test_boundary_and_cells_equal_plain_rules(boundary, cell_size, backend):
              np.nextafter(0.0, 1.0)]
     X, valid = _edge_particles(tr, grid, edges)
     want_X, want_valid = _reference_boundary(X, valid, width, height, boundary)
+    inside = (X[0] >= 0.0) & (X[0] < width) & (X[2] >= 0.0) & (X[2] < height)
+    before = X.copy()
     apply_boundary(X, valid, width, height, boundary == "reflect")
-    assert np.array_equal(X.view(np.uint64), want_X.view(np.uint64))  # bit for bit
-    assert np.array_equal(valid, want_valid)
+    _assert_boundary_equal(X, valid, want_X, want_valid, width, height)
+    # slots inside the workspace (-0.0 included) are not touched at all
+    assert np.array_equal(X[:, inside].view(np.uint64), before[:, inside].view(np.uint64))
     cells = flat_cells(X[0], X[2], grid)
     assert cells.dtype == np.int32
     assert np.array_equal(cells, _floor_cells(X[0], X[2], grid))
@@ -347,9 +379,14 @@ def test_boundary_and_cells_equal_plain_rules(boundary, cell_size, backend):
     X[1] = X[3] = 0.0
     tr.states[:] = X.transpose(2, 1, 0)
     want_X, want_valid = _reference_boundary(X, valid, width, height, boundary)
+    same_X, same_valid = X.copy(), valid.copy()
+    apply_boundary(same_X, same_valid, width, height, boundary == "reflect")
     tr.predict()
-    assert np.array_equal(tr.states.view(np.uint64), want_X.transpose(2, 1, 0).view(np.uint64))
-    assert np.array_equal(tr.mask, want_valid.T)
+    _assert_boundary_equal(tr.states.transpose(2, 1, 0), tr.mask.T, want_X, want_valid,
+                           width, height)
+    # and bit for bit the numpy form's answer (the compiled pass must equal it exactly)
+    assert np.array_equal(tr.states.view(np.uint64), same_X.transpose(2, 1, 0).view(np.uint64))
+    assert np.array_equal(tr.mask, same_valid.T)
     X = tr.states
     want_cells = _floor_cells(X[..., 0], X[..., 2], grid)
     assert np.array_equal(tr.slot_cells, want_cells)
@@ -388,7 +425,9 @@ def test_align_square_is_optimal_assignment():
 def test_ip_alignment_keeps_targets_and_puts_matches_in_place():
     """``align_slots`` (the IP proposal's first step) on the particles after a predict:
     every particle keeps its targets, a particle with at least 3 holds one in each
-    reference slot, and the cells travel with their targets (they equal the cells of
+    reference slot, the closest (target, reference) pair is always matched (the greedy
+    rule's first pick; tests/test_alignment.py checks the whole layout against plain loops
+    and brute force), and the cells travel with their targets (they equal the cells of
     the aligned positions)."""
     model = TrackingModel(Grid(12, 12), Dynamics(wna_intensity=5e-4),
                           BirthDeath(n_random_initial=3), RayleighGridSensor())
@@ -408,6 +447,14 @@ def test_ip_alignment_keeps_targets_and_puts_matches_in_place():
         # every particle with >= 3 targets holds a target in each reference slot
         assert valid[i, :k].all() if valid[i].sum() >= 3 else True
         moved += not np.array_equal(X[i], before_X[i])
+        # nearest first: the closest (target, reference) pair of the particle, found by
+        # scanning all pairs, sits in place (slot b holds the target nearest ref b)
+        if valid[i].any():
+            targets = before_X[i][before_valid[i]][:, [0, 2]]
+            d2 = ((targets[:, None, :] - ref[None, :, [0, 2]]) ** 2).sum(-1)
+            t_best, b_best = np.unravel_index(np.argmin(d2), d2.shape)
+            assert valid[i, b_best]
+            np.testing.assert_array_equal(X[i, b_best, [0, 2]], targets[t_best])
     assert moved > 100  # the alignment reorders many particles
     assert np.array_equal(cells, model.grid.cell_of(X[..., 0], X[..., 2]))
     # nothing to align to: the arrays themselves come back
