@@ -6,7 +6,7 @@ VENV   ?= .venv
 BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.installed
 
-.PHONY: test compare bench bench-check reproduce lint clean
+.PHONY: test compare bench bench-check reproduce lint clean mutants
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -34,6 +34,11 @@ reproduce: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
+
+# the mutation sample (tests/mutation/mutants.toml): does the suite catch each one-line
+# change? Runs on a throwaway installed copy, never on the checkout (about 4 minutes)
+mutants: $(STAMP)
+	$(BIN)/python tests/mutation/run_mutants.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info
