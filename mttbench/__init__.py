@@ -33,6 +33,8 @@ _API = {
     "Tracker": ("mttbench.trackers.base", "Tracker"),
     "Estimate": ("mttbench.trackers.base", "Estimate"),
     "register": ("mttbench.trackers.base", "register"),
+    "Param": ("mttbench.trackers.params", "Param"),
+    "ParameterError": ("mttbench.trackers.params", "ParameterError"),
     "make_tracker": ("mttbench.trackers.base", "make"),
     "available_trackers": ("mttbench.trackers.base", "available"),
     "Scenario": ("mttbench.scenarios.spec", "Scenario"),

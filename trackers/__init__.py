@@ -16,6 +16,7 @@ from .base import (
     register,
     unregister,
 )
+from .params import Param, ParameterError
 
-__all__ = ["Estimate", "Tracker", "available", "broken_plugins", "get_class", "make", "register",
-           "unregister"]
+__all__ = ["Estimate", "Param", "ParameterError", "Tracker", "available", "broken_plugins",
+           "get_class", "make", "register", "unregister"]
