@@ -18,11 +18,19 @@ File layout (every key is checked; unknown keys are refused)::
                 boundary ("reflect" | "die")
     [sensor]    kind = "rayleigh": p_d, snr (linear) or snr_db, looks_per_step
                 kind = "superposition": h_matrix (m x 4), r_matrix (m x m)
+
+Files are UTF-8 (a byte-order mark is accepted). Beyond the per-field ranges, values
+whose arithmetic overflows are refused: the workspace ``nx * cell_size`` and ``Q``
+must be finite, ``snr_db`` must give a finite linear ``snr``, and the false-alarm
+probability ``p_f = p_d ** (1 + snr)`` must not underflow to 0 (``snr <= log(tiny) /
+log(p_d) - 1`` with ``tiny`` the smallest normal double, e.g. ``snr <= 1021`` at
+``p_d = 0.5``). Names are one line: no control characters.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 import tomllib
 from dataclasses import asdict, dataclass
 from importlib import resources
@@ -129,8 +137,8 @@ def from_dict(data: dict, *, default_name: str | None = None) -> Scenario:
     if unknown:
         raise ScenarioError(f"unknown top-level key(s) {sorted(unknown)}: allowed {sorted(_TOP)}")
     name = data.get("name", default_name)
-    if not isinstance(name, str) or not name:
-        raise _fail("name", name, "a non-empty string")
+    if not isinstance(name, str) or not name.strip() or not name.isprintable():
+        raise _fail("name", name, "a non-empty string of printable characters (one line)")
     description = data.get("description", "")
     if not isinstance(description, str):
         raise _fail("description", description, "a string")
@@ -144,6 +152,10 @@ def from_dict(data: dict, *, default_name: str | None = None) -> Scenario:
         ny=_number("[grid].ny", g["ny"], lo=1, integer=True),
         cell_size=_number("[grid].cell_size", g.get("cell_size", 1.0), lo=0, lo_open=True),
     )
+    if not all(math.isfinite(v) for v in grid.extent):
+        raise ScenarioError(f"[grid] nx = {grid.nx}, ny = {grid.ny}, cell_size = "
+                            f"{grid.cell_size!r} is not allowed: the workspace nx * cell_size "
+                            "by ny * cell_size must be finite")
 
     d = _section(data, "dynamics", {"tau", "q_matrix", "wna_intensity"}, set())
     tau = _number("[dynamics].tau", d.get("tau", 1.0), lo=0, lo_open=True)
@@ -156,6 +168,14 @@ def from_dict(data: dict, *, default_name: str | None = None) -> Scenario:
     else:
         dynamics = Dynamics(tau=tau, wna_intensity=_number("[dynamics].wna_intensity",
                                                            d["wna_intensity"], lo=0))
+    try:
+        finite = bool(np.isfinite(dynamics.Q).all() and np.isfinite(dynamics.F).all())
+    except OverflowError:
+        finite = False
+    if not finite:
+        raise ScenarioError(f"[dynamics] tau = {tau!r} is not allowed with this noise: the "
+                            "process noise Q overflows (expected tau and the noise small "
+                            "enough for Q to be finite)")
 
     t = _section(
         data,
@@ -195,11 +215,27 @@ def from_dict(data: dict, *, default_name: str | None = None) -> Scenario:
             raise ScenarioError(f"key(s) {sorted(extra)} do not apply to a rayleigh [sensor]")
         if ("snr" in s) == ("snr_db" in s):
             raise ScenarioError("[sensor] needs exactly one of snr (linear) and snr_db")
-        snr = (_number("[sensor].snr", s["snr"], lo=0, lo_open=True) if "snr" in s
-               else 10.0 ** (_number("[sensor].snr_db", s["snr_db"]) / 10.0))  # dB -> linear
+        p_d = _number("[sensor].p_d", s.get("p_d", 0.5), lo=0, hi=1, lo_open=True,
+                      hi_open=True)
+        # p_f = p_d ** (1 + snr) must stay a normal double (log(p_f) finite)
+        snr_max = math.log(sys.float_info.min) / math.log(p_d) - 1.0
+        why = (f"with p_d = {p_d!r} (the false-alarm probability p_d ** (1 + snr) "
+               "underflows to 0 beyond it)")
+        if "snr" in s:
+            snr = _number("[sensor].snr", s["snr"], lo=0, lo_open=True)
+            if snr > snr_max:
+                raise _fail("[sensor].snr", s["snr"], f"a number > 0 and <= {snr_max:.4g} {why}")
+        else:  # dB -> linear, compared in dB first: 10 ** (x / 10) overflows above ~3082 dB
+            db_max = math.floor(10.0 * math.log10(snr_max) * 100) / 100
+            snr_db = _number("[sensor].snr_db", s["snr_db"])
+            if snr_db > db_max:
+                raise _fail("[sensor].snr_db", s["snr_db"], f"a number <= {db_max:g} {why}")
+            snr = 10.0 ** (snr_db / 10.0)
+            if snr <= 0.0:
+                raise _fail("[sensor].snr_db", s["snr_db"],
+                            "a number > -3000 (the linear snr underflows to 0)")
         sensor: RayleighGridSensor | SuperpositionSensor = RayleighGridSensor(
-            p_d=_number("[sensor].p_d", s.get("p_d", 0.5), lo=0, hi=1, lo_open=True,
-                        hi_open=True),
+            p_d=p_d,
             snr=snr,
             looks_per_step=_number("[sensor].looks_per_step",
                                    s.get("looks_per_step", grid.n_cells), lo=0, integer=True),
@@ -244,8 +280,9 @@ def to_dict(sc: Scenario) -> dict:
 
 
 def loads(text: str, *, default_name: str | None = None) -> Scenario:
+    """Parse and validate TOML text (a leading byte-order mark is ignored)."""
     try:
-        data = tomllib.loads(text)
+        data = tomllib.loads(text.removeprefix("\ufeff"))
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"not valid TOML: {exc}") from exc
     return from_dict(data, default_name=default_name)
@@ -255,11 +292,23 @@ def dumps(sc: Scenario) -> str:
     return tomli_w.dumps(to_dict(sc))
 
 
+def _load(path: Path) -> Scenario:
+    """Load and validate a scenario file; errors name the field, not the file."""
+    try:
+        text = path.read_text(encoding="utf-8-sig")  # -sig: a byte-order mark is fine
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"not UTF-8 text (byte {exc.start}: {exc.reason})") from None
+    except OSError as exc:
+        raise ScenarioError(f"cannot read the file: {exc.strerror or exc}") from None
+    return loads(text, default_name=path.stem)
+
+
 def load(path: str | Path) -> Scenario:
-    """Load and validate a scenario file; errors name the file and the field."""
+    """Load and validate a scenario file; errors (one line) name the file and the field.
+    A file that cannot be read or is not UTF-8 is a :class:`ScenarioError` too."""
     path = Path(path)
     try:
-        return loads(path.read_text(), default_name=path.stem)
+        return _load(path)
     except ScenarioError as exc:
         raise ScenarioError(f"{path}: {exc}") from None
 
@@ -272,12 +321,16 @@ def preset_names() -> list[str]:
 
 
 def get(name_or_path: str) -> Scenario:
-    """A shipped preset by name, or a scenario file by path (anything ending .toml)."""
+    """A shipped preset by name, or a scenario file by path (anything ending .toml).
+
+    The error of a file does not repeat its path (the caller named it): use
+    :func:`load` for messages that name the file."""
     if name_or_path.endswith(".toml"):
-        return load(name_or_path)
+        return _load(Path(name_or_path))
     names = preset_names()
     if name_or_path not in names:
         raise ScenarioError(f"unknown scenario {name_or_path!r}: presets are {names}, "
                             "or give a path to a .toml file")
-    text = resources.files(__package__ + ".presets").joinpath(f"{name_or_path}.toml").read_text()
+    text = resources.files(__package__ + ".presets").joinpath(
+        f"{name_or_path}.toml").read_text(encoding="utf-8")
     return loads(text, default_name=name_or_path)

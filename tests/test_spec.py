@@ -87,6 +87,14 @@ BAD = [
     ("looks_per_step = 5", "looks_per_step = 2.5", r"looks_per_step = 2\.5.*integer"),
     ("[grid]", "[gird]\nnx = 1\n[grid]", r"unknown top-level key.*gird"),
     ("snr = 10.0", "snr = true", r"snr = True.*number"),
+    # overflow and underflow: one line instead of an OverflowError or a p_f of 0
+    ("snr = 10.0", "snr_db = 4000.0", r"snr_db = 4000\.0.*<= 30\.09 with p_d = 0\.5"),
+    ("snr = 10.0", "snr = 2000.0", r"snr = 2000\.0.*<= 1021 with p_d = 0\.5.*underflows"),
+    ("snr = 10.0", "snr_db = -4000.0", r"snr_db = -4000\.0.*underflows to 0"),
+    ("ny = 3", "ny = 3\ncell_size = 1e308", r"cell_size = 1e\+308.*must be finite"),
+    ("wna_intensity = 0.001", "tau = 1e200\nwna_intensity = 0.001",
+     r"tau = 1e\+200.*overflows"),
+    ("description = \"test\"", "name = \"a\\tb\"", r"name = 'a\\tb'.*one line"),
     ("wna_intensity = 0.001",
      "q_matrix = [[1.0, 2.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], "
      "[0.0, 0.0, 0.0, 1.0]]", r"q_matrix.*symmetric positive semi-definite"),
@@ -109,3 +117,43 @@ def test_not_toml_and_unknown_preset():
         loads("n_steps = = 3")
     with pytest.raises(ScenarioError, match="unknown scenario 'nope'.*default"):
         scenarios.get("nope")
+
+
+def test_snr_limits_are_the_float_limits():
+    """At the printed bound p_f = p_d ** (1 + snr) is still a normal double."""
+    import math
+    import sys
+    for p_d in (0.1, 0.5, 0.9, 0.999):
+        snr_max = math.log(sys.float_info.min) / math.log(p_d) - 1.0
+        sc = loads(GOOD.replace("snr = 10.0", f"snr = {snr_max!r}")
+                   .replace("p_d = 0.5", f"p_d = {p_d}"), default_name="x")
+        assert sc.model.sensor.p_f >= sys.float_info.min * (1 - 1e-9)
+        with pytest.raises(ScenarioError, match="underflows"):
+            loads(GOOD.replace("snr = 10.0", f"snr = {snr_max * 1.001!r}")
+                  .replace("p_d = 0.5", f"p_d = {p_d}"), default_name="x")
+
+
+def test_byte_order_mark_is_accepted(tmp_path):
+    path = tmp_path / "bom.toml"
+    path.write_text(GOOD, encoding="utf-8-sig")
+    assert path.read_bytes().startswith(b"\xef\xbb\xbf")
+    assert scenarios.load(path) == loads(GOOD, default_name="bom")
+    assert loads("\ufeff" + GOOD, default_name="bom") == loads(GOOD, default_name="bom")
+
+
+def test_unreadable_files_are_scenario_errors_naming_the_file_once(tmp_path):
+    latin = tmp_path / "latin.toml"
+    latin.write_bytes(GOOD.replace('"test"', '"caf\xe9"').encode("latin-1"))
+    folder = tmp_path / "folder.toml"
+    folder.mkdir()
+    for path, message in ((latin, r"not UTF-8 text \(byte \d+"),
+                          (folder, r"cannot read the file: Is a directory"),
+                          (tmp_path / "none.toml", r"cannot read the file: No such file")):
+        with pytest.raises(ScenarioError, match=message) as err:
+            scenarios.load(path)
+        assert str(err.value).count(str(path)) == 1, str(err.value)
+        # get() is what the command line calls: it names the path itself, so the error
+        # does not repeat it
+        with pytest.raises(ScenarioError, match=message) as err:
+            scenarios.get(str(path))
+        assert str(path) not in str(err.value)
