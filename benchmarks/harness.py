@@ -74,11 +74,14 @@ Tracker and policy specifications are described in :mod:`~mttbench.benchmarks.sp
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
 import os
+import re
 import resource
+import signal
 import sys
 import time
 from collections.abc import Iterator
@@ -96,7 +99,7 @@ from ..scenarios.spec import Scenario, dumps
 from ..trackers.base import Estimate, Tracker
 from .metrics import step_metrics
 from .policies import Policy, Raster
-from .specs import PolicySpec, TrackerSpec
+from .specs import PolicySpec, TrackerSpec, UsageError
 
 METRIC_COLUMNS = [
     "count_error", "ospa", "ospa_loc", "ospa_card", "gospa", "gospa_loc", "gospa_missed",
@@ -433,11 +436,124 @@ def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
 
 
 # -------------------------------------------------------------------------- sweeps
+#: temporary file of :func:`_write_parquet`: ``.<name>.<pid of the writer>.tmp``
+_TEMP_FILE = re.compile(r"^\..+\.(\d+)\.tmp$")
+
+
 def _write_parquet(df: pd.DataFrame, path: Path) -> None:
-    """Write atomically: a temp file in the same folder, then ``os.replace``."""
+    """Write atomically: a temp file ``.<name>.<pid>.tmp`` in the same folder, then
+    ``os.replace``. On any failure (disk full, read-only folder, an interrupt) the temp
+    file is removed and ``path`` is left as it was; an ``OSError`` is re-raised naming
+    ``path`` (``exc.filename``)."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    df.to_parquet(tmp, index=False)
-    os.replace(tmp, path)
+    try:
+        df.to_parquet(tmp, index=False)
+        os.replace(tmp, path)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
+        raise
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write a text file (UTF-8) like :func:`_write_parquet`: all or nothing."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, path)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
+        raise
+
+
+def prepare_out_dir(out_dir: str | Path) -> Path:
+    """Create the output folder and its ``parts/`` and check that files can be written
+    there, before any run; a problem (the path is a file, a parent is a file, no
+    permission, a read-only file system) raises
+    :class:`~mttbench.benchmarks.specs.UsageError` in one line."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"output folder {out} exists and is not a folder")
+    for folder in (out, out / "parts"):
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UsageError(f"cannot create the output folder {folder}: "
+                             f"{exc.strerror or exc}") from None
+        probe = folder / f".write-test.{os.getpid()}.tmp"
+        try:
+            probe.write_bytes(b"")
+            probe.unlink()
+        except OSError as exc:
+            raise UsageError(f"cannot write into the output folder {folder}: "
+                             f"{exc.strerror or exc}") from None
+    return out
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return False  # this process writes nothing before the sweep starts
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # e.g. another user's process
+        return True
+    return True
+
+
+def remove_stale_temp_files(folder: Path) -> list[Path]:
+    """Remove the temp files of :func:`_write_parquet` left in ``folder`` by processes
+    that are gone (a killed sweep); returns them. A live process's file is kept."""
+    removed = []
+    try:
+        candidates = [p for p in folder.iterdir() if _TEMP_FILE.match(p.name)]
+    except OSError:
+        return removed
+    for path in candidates:
+        if not _pid_alive(int(_TEMP_FILE.match(path.name).group(1))):
+            with contextlib.suppress(OSError):
+                path.unlink()
+                removed.append(path)
+    return removed
+
+
+def _read_part(path: Path) -> pd.DataFrame:
+    """A part file as a table; ``ValueError`` (one line) if it is damaged or not a part."""
+    try:
+        df = pd.read_parquet(path)
+    except Exception as exc:  # noqa: BLE001 - pyarrow raises many types for a bad file
+        first = (str(exc).strip().splitlines() or [""])[0].replace(f" '{path}'", "")
+        raise ValueError(f"{type(exc).__name__}: {first}") from None
+    missing = [c for c in (*RUN_KEYS, "step", "status") if c not in df.columns]
+    if df.empty or missing:
+        raise ValueError("no rows" if df.empty else f"not a results part (no {missing[0]})")
+    return df
+
+
+def _ignore_sigint() -> None:
+    """Worker initializer: Ctrl-C is the main process's to handle (it stops the pool)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Drop the queued runs and end the running ones now (an interrupt or a write error)."""
+    # the worker processes, read before shutdown() forgets them (a private attribute of
+    # ProcessPoolExecutor; without it the running and already queued runs would finish)
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in procs:
+        with contextlib.suppress(Exception):
+            proc.terminate()
+    for proc in procs:
+        with contextlib.suppress(Exception):
+            proc.join(timeout=5)
 
 
 def _run_and_save(job: Job, part: Path, c: float, p: float) -> Path:
@@ -474,13 +590,32 @@ def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1, progress: 
     processes; the results do not depend on ``workers`` (timings aside). If a worker
     process dies, its jobs get an error row that is not saved as a part, so a
     resumed sweep runs them again.
+
+    On resume a part that cannot be read (damaged, empty, not a part) is reported in
+    one line on stderr and recomputed. Temp files left by a killed earlier sweep are
+    removed at the start. Ctrl-C (``KeyboardInterrupt``) drops the queued runs, ends the
+    running ones and propagates; finished parts stay. A part that cannot be written
+    (disk full, read-only) raises ``OSError`` naming the file, and stops the sweep.
     """
     out_dir = Path(out_dir)
     parts_dir = out_dir / "parts"
     parts_dir.mkdir(parents=True, exist_ok=True)
+    remove_stale_temp_files(out_dir)
+    remove_stale_temp_files(parts_dir)
     paths = [parts_dir / f"{job.key(c, p)}.parquet" for job in jobs]
-    todo = [(job, path) for job, path in zip(jobs, paths, strict=True)
-            if not (resume and path.exists())]
+    done: dict[Path, pd.DataFrame] = {}
+    damaged: list[str] = []
+    if resume:
+        for path in dict.fromkeys(paths):
+            if path.exists():
+                try:
+                    done[path] = _read_part(path)
+                except ValueError as exc:
+                    damaged.append(f"{path}: {exc}")
+    if damaged:
+        print(f"{len(damaged)} damaged part file(s) will be recomputed (first: {damaged[0]})",
+              file=sys.stderr)
+    todo = [(job, path) for job, path in zip(jobs, paths, strict=True) if path not in done]
     lost: dict[Path, pd.DataFrame] = {}
 
     from tqdm.auto import tqdm
@@ -495,7 +630,8 @@ def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1, progress: 
                 _run_and_save(job, path, c, p)
                 bar.update()
         else:
-            pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)))
+            pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)),
+                                       initializer=_ignore_sigint)
             try:
                 futures = {pool.submit(_run_and_save, job, path, c, p): (job, path)
                            for job, path in todo}
@@ -503,20 +639,24 @@ def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1, progress: 
                     job, path = futures[fut]
                     try:
                         fut.result()
+                    except OSError:  # the part could not be written: stop the sweep
+                        raise
                     except Exception as exc:  # noqa: BLE001 - e.g. a worker killed
                         msg = f"worker failed: {type(exc).__name__}: {exc}".replace("\n", " ")
                         lost[path] = _lost_job_frame(job, msg, c, p)
                     bar.update()
             except BaseException:
-                # Ctrl-C: drop the queued runs instead of waiting for all of them; the
-                # finished parts stay on disk for --resume
-                pool.shutdown(wait=False, cancel_futures=True)
+                # Ctrl-C or a write error: drop the queued runs and end the running ones
+                # instead of waiting for them; the finished parts stay for --resume
+                _stop_pool(pool)
+                remove_stale_temp_files(parts_dir)  # what the ended workers were writing
                 raise
             pool.shutdown()
     finally:
         bar.close()
 
-    frames = [lost[path] if path in lost else pd.read_parquet(path) for path in paths]
+    frames = [lost[path] if path in lost else done[path] if path in done
+              else pd.read_parquet(path) for path in paths]
     df = _concat(frames) if frames else pd.DataFrame(columns=COLUMNS)
     _write_parquet(df, out_dir / "results.parquet")
     return df

@@ -36,7 +36,9 @@ from typing import Any
 
 import pandas as pd
 
+from .. import trackers
 from . import figures, summary
+from .harness import write_text_atomic
 
 #: (column stem, header, scale, format) of the accuracy table
 ACCURACY_COLUMNS = [
@@ -100,6 +102,12 @@ def summary_table(summ: pd.DataFrame, columns: list[tuple[str, str, float, str]]
     ``seeds`` and one ``mean ± half-width`` text column per ``columns`` entry."""
     keys = _keys(summ)
     out = summ[keys].rename(columns=_KEY_HEADERS).copy()
+    if "looks_per_step" in keys and "looks_made" in summ.columns:
+        # the budget, with the looks made per step where they differ ("200 (144 made)")
+        out["looks"] = [
+            "–" if pol == "none" else summary.looks_text(lk, made)
+            for lk, made, pol in zip(summ["looks_per_step"], summ["looks_made"],
+                                     summ.get("policy_label", [""] * len(summ)), strict=True)]
     out["seeds"] = summ["n_seeds"].astype(int)
     for stem, head, scale, fmt in columns:
         if f"{stem}_mean" in summ.columns:
@@ -226,11 +234,66 @@ def _inline(text: str) -> str:
 def _md_table(df: pd.DataFrame) -> str:
     if df.empty:
         return "*(no rows)*"
-    head = [str(c) for c in df.columns]
+    head = [summary.md_cell(c) for c in df.columns]
     lines = ["| " + " | ".join(head) + " |", "|" + "|".join("---" for _ in head) + "|"]
     for _, r in df.iterrows():
-        lines.append("| " + " | ".join(str(v).replace("|", "/") for v in r) + " |")
+        lines.append("| " + " | ".join(summary.md_cell(v) for v in r) + " |")
     return "\n".join(lines)
+
+
+# ------------------------------------------------- metrics a scenario cannot rank
+#: (metric, name in the text) checked by :func:`baseline_notes`; lower is better
+RANKED_METRICS = [("ospa", "OSPA"), ("gospa", "GOSPA"), ("count_error", "count error")]
+
+
+def _is_baseline(name: str) -> bool:
+    try:
+        return bool(trackers.get_class(name).baseline)
+    except Exception:  # noqa: BLE001 - a tracker unknown here is not a baseline
+        return False
+
+
+def baseline_notes(summ: pd.DataFrame) -> list[str]:
+    """Sentences for every scenario (x policy x looks) and metric of
+    :data:`RANKED_METRICS` on which a baseline tracker (``Tracker.baseline``, the
+    ``null`` tracker that reports nothing) is best, or within the 95% interval of the
+    best: such a scenario cannot rank the trackers on that metric (e.g. on ``paper``,
+    whose targets jump ~4.5 cells per step, reporting nothing scores as well as tracking
+    on GOSPA)."""
+    if summ.empty or "tracker" not in summ.columns:
+        return []
+    baseline = summ["tracker"].astype(str).map(_is_baseline)
+    if not baseline.any():
+        return []
+    notes = []
+    group = [k for k in ("scenario", "policy_label", "looks_per_step") if k in summ.columns]
+    for key, g in summ.groupby(group, sort=True):
+        key = key if isinstance(key, tuple) else (key,)
+        where = f"`{key[0]}`" + (f" ({', '.join(map(str, key[1:]))} looks)"
+                                 if len(key) == 3 else "")
+        for metric, text in RANKED_METRICS:
+            col = f"{metric}_mean"
+            if col not in g.columns or len(g) < 2:
+                continue
+            rows = g[g[col].notna()]
+            base = rows[baseline.loc[rows.index]]
+            if base.empty or len(rows) < 2:
+                continue
+            best = rows.loc[rows[col].idxmin()]
+            b = base.loc[base[col].idxmin()]
+            half = best[f"{metric}_ci95"]
+            if b.name == best.name:
+                notes.append(
+                    f"On {where} the baseline `{b.tracker_label}` has the "
+                    f"best {text}, {fmt_pm(b[col], b[f'{metric}_ci95'])}: this scenario cannot "
+                    f"rank trackers on {text}.")
+            elif not math.isnan(half) and b[col] <= best[col] + half:
+                notes.append(
+                    f"On {where} the baseline `{b.tracker_label}` scores "
+                    f"{text} {fmt_pm(b[col], b[f'{metric}_ci95'])}, within the 95% interval "
+                    f"of the best, `{best.tracker_label}` ({fmt_pm(best[col], half)}): this "
+                    f"scenario cannot rank trackers on {text}.")
+    return notes
 
 
 # ----------------------------------------------------------------------- report
@@ -270,6 +333,14 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
     if settings:
         doc.add("h2", "Settings")
         doc.add("list", [f"{k}: {v}" for k, v in settings.items()])
+    unranked = baseline_notes(summ)
+    if unranked:
+        doc.add("h2", "Where the baseline is not beaten")
+        doc.add("p", "A tracker that reports nothing is the floor every tracker must beat. "
+                     "Where it is best, or inside the best tracker's 95% interval, the "
+                     "scenario does not separate the trackers on that metric, and the ranking "
+                     "below says nothing about them there:")
+        doc.add("list", unranked)
     doc.add("h2", "Accuracy")
     doc.add("p", "Mean over seeds of each run's mean over steps, ± half-width of the 95% "
                  "Student-t interval over seeds. OSPA, its localisation and cardinality parts "
@@ -317,9 +388,9 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
         doc.add("p", para)
 
     md_path = out_dir / "report.md"
-    md_path.write_text(doc.markdown(out_dir), encoding="utf-8")
+    write_text_atomic(md_path, doc.markdown(out_dir))
     html_path = out_dir / "report.html"
-    html_path.write_text(doc.html(title), encoding="utf-8")
+    write_text_atomic(html_path, doc.html(title))
     return ReportFiles(md_path, html_path, figs)
 
 

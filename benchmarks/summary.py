@@ -14,6 +14,11 @@ first (:func:`per_run`), so the interval reflects run-to-run variation only.
 Only runs whose every step has ``status == "ok"`` enter the means; runs that
 failed or were unsupported are counted in ``n_errors`` / ``n_unsupported`` and
 described in ``note``.
+
+``looks_per_step`` is the look budget asked for; ``looks_made`` the mean number of
+looks actually made per step (``n_looks``): a policy makes fewer when the budget
+exceeds the grid's cells, and ``all`` looks at every cell whatever the budget. The
+Markdown table shows the budget as ``200 (144 made)`` where the two differ.
 """
 
 from __future__ import annotations
@@ -52,7 +57,9 @@ def per_run(results: pd.DataFrame) -> pd.DataFrame:
     ``tracker_wall_s`` and ``tracker_cpu_s`` are the median per-step times,
     ``select_wall_s`` the mean per-step selection time, ``peak_rss_mb`` the maximum.
     ``status`` is ``"ok"`` if every step was ok, else ``"unsupported"`` or
-    ``"error"``; ``error`` holds the first message; ``n_steps`` counts ok steps.
+    ``"error"``; ``error`` holds the first message; ``n_steps`` counts ok steps;
+    ``looks_made`` is the mean number of looks made per ok step (when the table has
+    ``n_looks``).
     """
     carry = [c for c in _CARRY if c in results.columns]
     out = []
@@ -73,8 +80,11 @@ def per_run(results: pd.DataFrame) -> pd.DataFrame:
         row["tracker_cpu_s"] = float(ok["tracker_cpu_s"].median()) if len(ok) else math.nan
         row["select_wall_s"] = float(ok["select_wall_s"].mean()) if len(ok) else math.nan
         row["peak_rss_mb"] = float(g["peak_rss_mb"].max())
+        if "n_looks" in g.columns:
+            row["looks_made"] = _nanmean(ok["n_looks"]) if len(ok) else math.nan
         out.append(row)
     cols = [*RUN_KEYS, *carry, "status", "error", "n_steps", *RUN_METRICS]
+    cols += ["looks_made"] if "n_looks" in results.columns else []
     return pd.DataFrame(out, columns=cols)
 
 
@@ -101,8 +111,9 @@ def summarize(results: pd.DataFrame, by: Sequence[str] = DEFAULT_BY,
 
     ``results`` is the step-level table (or the output of :func:`per_run`).
     Columns: ``by``, the carried descriptive columns, ``n_seeds`` (ok runs),
-    ``n_errors``, ``n_unsupported``, ``note``, then ``<m>_mean`` and ``<m>_ci95``
-    for each metric.
+    ``n_errors``, ``n_unsupported``, ``note``, ``looks_made`` (mean looks made per
+    step over the ok runs, when known), then ``<m>_mean`` and ``<m>_ci95`` for each
+    metric.
     """
     runs = _as_runs(results)
     by = list(by)
@@ -124,10 +135,13 @@ def summarize(results: pd.DataFrame, by: Sequence[str] = DEFAULT_BY,
             first = g.loc[g["status"] == "error", "error"].iloc[0]
             notes.append(f"failed in {row['n_errors']} of {len(g)} runs: {first}")
         row["note"] = "; ".join(notes)
+        if "looks_made" in runs.columns:
+            row["looks_made"] = _nanmean(ok["looks_made"]) if len(ok) else math.nan
         for m in metrics:
             row[f"{m}_mean"], row[f"{m}_ci95"] = mean_ci95(ok[m].to_numpy(dtype=float))
         out.append(row)
     cols = [*by, *carry, "n_seeds", "n_errors", "n_unsupported", "note"]
+    cols += ["looks_made"] if "looks_made" in runs.columns else []
     cols += [f"{m}_{s}" for m in metrics for s in ("mean", "ci95")]
     return pd.DataFrame(out, columns=cols)
 
@@ -162,7 +176,48 @@ def paired_difference(results: pd.DataFrame, reference_label: str,
                                       "diff_mean", "diff_ci95", "n_seeds"])
 
 
+def run_failures(results: pd.DataFrame) -> tuple[int, int, str]:
+    """``(k, n, first)``: ``k`` runs of ``n`` failed (a row with ``status == "error"``);
+    ``first`` describes the first failed run in the table's order as
+    ``scenario/tracker/seed S: message (step k)`` (policy and looks added when the
+    table has several), ``""`` if none failed."""
+    if results.empty:
+        return 0, 0, ""
+    n = len(results.drop_duplicates(RUN_KEYS))
+    bad = results[results["status"] == "error"].drop_duplicates(RUN_KEYS)
+    if bad.empty:
+        return 0, n, ""
+    r = bad.iloc[0]
+    where = f"{r['scenario']}/{r['tracker_label']}"
+    if results["policy_label"].nunique() > 1 or results["looks_per_step"].nunique() > 1:
+        where += f"/{r['policy_label']}/{r['looks_per_step']} looks"
+    where += f"/seed {r['seed']}"
+    step = int(r["step"]) if "step" in r.index else -1
+    message = str(r["error"]) + (f" (step {step})" if step >= 0 else "")
+    return len(bad), n, f"{where}: {message}"
+
+
 # ------------------------------------------------------------------------ markdown
+def md_cell(value: object) -> str:
+    """Text of one Markdown table cell: ``|`` escaped, line breaks as spaces."""
+    text = str(value).replace("\r", " ").replace("\n", " ")
+    return text.replace("|", "\\|")
+
+
+def looks_text(budget: object, made: object) -> str:
+    """The looks cell: the budget, with the looks made per step when they differ
+    (``200 (144 made)``)."""
+    text = str(budget)
+    try:
+        m = float(made)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return text
+    if math.isnan(m) or abs(m - float(budget)) < 1e-9:  # type: ignore[arg-type]
+        return text
+    return f"{text} ({m:.4g} made)"
+
+
+
 #: (column stem, header, scale, format) of the default markdown table
 MARKDOWN_METRICS = [
     ("ospa", "OSPA", 1.0, ".3f"),
@@ -207,11 +262,15 @@ def to_markdown(summary: pd.DataFrame,
             cells[keys.index("policy_label")] += " (uses truth)"
         if "looks_per_step" in keys and r.get("policy_label") == "none":
             cells[keys.index("looks_per_step")] = "–"  # superposition: no looks
+        elif "looks_per_step" in keys and "looks_made" in summary.columns:
+            cells[keys.index("looks_per_step")] = looks_text(r["looks_per_step"],
+                                                             r["looks_made"])
         cells += [_pm(r[f"{s}_mean"], r[f"{s}_ci95"], scale, fmt) for s, _, scale, fmt in shown]
         if with_note:
-            cells.append(str(r["note"]).replace("|", "/"))
-        lines.append("| " + " | ".join(cells) + " |")
+            cells.append(str(r["note"]))
+        lines.append("| " + " | ".join(md_cell(c) for c in cells) + " |")
     lines.append("")
     lines.append("Mean over seeds ± half-width of the 95% Student-t interval; "
-                 "ms/step = median tracker time per step (predict + update + estimate).")
+                 "ms/step = median tracker time per step (predict + update + estimate); "
+                 "looks = the budget per step, with the looks made when fewer or more.")
     return "\n".join(lines) + "\n"

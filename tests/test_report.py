@@ -195,3 +195,52 @@ def test_html_report_renders_in_headless_chromium(built):
     png = report.screenshot(files.html, out / "screenshot.png", height=1500)
     data = png.read_bytes()
     assert data[:4] == b"\x89PNG" and len(data) > 20000
+
+
+# ------------------------------------------- the baseline and the displayed tables
+def _summary_rows(values: dict[str, tuple[float, float]], metric: str = "gospa") -> pd.DataFrame:
+    """A summarize()-shaped table for one scenario: tracker -> (mean, ci95) of ``metric``."""
+    return pd.DataFrame([{
+        "scenario": "paper", "tracker_label": t, "policy_label": "raster", "looks_per_step": 24,
+        "tracker": t, "n_seeds": 10, "note": "", f"{metric}_mean": m, f"{metric}_ci95": h}
+        for t, (m, h) in values.items()])
+
+
+def test_baseline_best_or_inside_the_best_interval_is_flagged():
+    best = report.baseline_notes(_summary_rows({"null": (2.0, 0.1), "kfnn": (2.3, 0.1)}))
+    assert best == ["On `paper` (raster, 24 looks) the baseline `null` has the best GOSPA, "
+                    "2.000 ± 0.100: this scenario cannot rank trackers on GOSPA."]
+    inside = report.baseline_notes(_summary_rows({"null": (2.05, 0.0), "gpf": (2.0, 0.06),
+                                                  "kfnn": (2.5, 0.1)}))
+    assert len(inside) == 1 and "within the 95% interval of the best, `gpf`" in inside[0]
+    # just outside the best's interval, or no baseline at all: nothing to say
+    assert report.baseline_notes(_summary_rows({"null": (2.07, 0.0), "gpf": (2.0, 0.06)})) == []
+    assert report.baseline_notes(_summary_rows({"kfnn": (2.0, 0.1), "gpf": (2.3, 0.1)})) == []
+
+
+def test_report_flags_the_baseline_in_its_own_section(tmp_path):
+    results = synthetic_results()
+    null = results[results["tracker_label"] == "third"].copy()
+    null[["tracker", "tracker_label"]] = "null"
+    null["ospa"] = 0.01  # the baseline "wins" OSPA on both scenarios
+    md = report.build_report(pd.concat([results, null], ignore_index=True), tmp_path,
+                             reference="kfnn", draw=False).markdown.read_text()
+    section = md.split("## Where the baseline is not beaten", 1)[1].split("## ", 1)[0]
+    assert section.count("cannot rank trackers on OSPA") == len(SCENARIOS)
+    assert md.index("Where the baseline") < md.index("## Accuracy")
+
+
+def test_markdown_tables_escape_pipes_and_show_the_looks_made():
+    from mttbench.benchmarks import summary
+    summ = summary.summarize(synthetic_results())
+    summ["looks_made"] = np.where(summ["tracker_label"] == "kfnn", 144.0, 24.0)
+    summ.loc[summ["tracker_label"] == "other", "scenario"] = "a|b"
+    table = report.summary_table(summ, report.ACCURACY_COLUMNS)
+    assert set(table.loc[table["tracker"] == "kfnn", "looks"]) == {"24 (144 made)"}
+    assert set(table.loc[table["tracker"] != "kfnn", "looks"]) == {"24"}
+    md = report._md_table(table)
+    rows = md.splitlines()
+    assert {len(re.split(r"(?<!\\)\|", r)) for r in rows} == {len(table.columns) + 2}
+    assert sum(r.startswith("| a\\|b |") for r in rows) == len(SCENARIOS)
+    text = summary.to_markdown(summ)
+    assert "| a\\|b |" in text and "| 24 (144 made) |" in text
