@@ -9,15 +9,27 @@
     mttbench compare                        # the main job: head-to-head report
     mttbench reproduce paper [--reduced] [--check]   # the paper's figures, checked
 
-Bad input (an unknown tracker, parameter, scenario or policy, a bad scenario
-file) ends with exit status 2 and a one-line message, never a traceback.
+Exit status, always with at most one line on stderr saying why (never a traceback):
+
+* 0: every run finished (``ok`` or ``unsupported``);
+* 1: a run failed (``k of n runs failed; first error: ...; see <out>/summary.csv``;
+  every other run's rows are kept), or a file could not be written mid-sweep (disk
+  full: the line names the file; nothing finished is lost);
+* 2: bad input, refused before any run and before the output folder is touched: an
+  unknown tracker, parameter, scenario or policy, a bad value or scenario file, a run
+  that cannot fit in memory (:mod:`~mttbench.benchmarks.resources`), an output folder
+  that cannot be created or written;
+* 130: interrupted (Ctrl-C): the queued runs are dropped, finished runs kept, and the
+  line gives the exact command that resumes.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
+import shlex
 import shutil
 import sys
 import textwrap
@@ -28,9 +40,15 @@ from pathlib import Path
 import pandas as pd
 
 from .. import scenarios, trackers
-from . import policies
-from .compare import COMPARE_REFERENCE, COMPARE_SCENARIOS, COMPARE_SEEDS
-from .harness import build_jobs, run_sweep
+from . import policies, resources
+from .compare import (
+    COMPARE_REFERENCE,
+    COMPARE_SCENARIOS,
+    COMPARE_SEEDS,
+    OUTPUT_FILES,
+    is_finished,
+)
+from .harness import build_jobs, prepare_out_dir, run_sweep, write_text_atomic
 from .specs import (
     UsageError,
     resolve_policies,
@@ -38,10 +56,17 @@ from .specs import (
     resolve_trackers,
     split_specs,
 )
-from .summary import summarize, to_markdown
-
+from .summary import run_failures, summarize, to_markdown
 
 # ------------------------------------------------------------------ validation
+#: largest seed (and look budget): the results table stores them as int64
+MAX_INT64 = 2**63 - 1
+#: most seeds one sweep may ask for with --seeds (a larger sweep: several folders)
+MAX_SEEDS = 1_000_000
+#: exit status after Ctrl-C (128 + SIGINT, as a shell reports it)
+EXIT_INTERRUPTED = 130
+
+
 def _int_list(texts: Sequence[str] | None, what: str, lo: int) -> list[int] | None:
     if not texts:
         return None
@@ -51,8 +76,9 @@ def _int_list(texts: Sequence[str] | None, what: str, lo: int) -> list[int] | No
             v = int(piece)
         except ValueError:
             raise UsageError(f"{what} {piece!r} is not an integer") from None
-        if v < lo:
-            raise UsageError(f"{what} {v} is not allowed: expected an integer >= {lo}")
+        if v < lo or v > MAX_INT64:
+            raise UsageError(f"{what} {v} is not allowed: expected an integer >= {lo} "
+                             f"and <= {MAX_INT64} (2**63 - 1)")
         out.append(v)
     return sorted(set(out))
 
@@ -61,8 +87,9 @@ def _seeds(args: argparse.Namespace, default: int) -> list[int]:
     if args.seed_list:
         return _int_list(args.seed_list, "seed", 0) or []
     n = default if args.seeds is None else args.seeds
-    if n < 1:
-        raise UsageError(f"--seeds {n} is not allowed: expected at least 1")
+    if not 1 <= n <= MAX_SEEDS:
+        raise UsageError(f"--seeds {n} is not allowed: expected an integer from 1 to "
+                         f"{MAX_SEEDS}")
     return list(range(n))
 
 
@@ -71,37 +98,108 @@ def _check_common(args: argparse.Namespace) -> None:
         raise UsageError(f"--steps {args.steps} is not allowed: expected an integer >= 1")
     if args.workers is not None and args.workers < 1:
         raise UsageError(f"--workers {args.workers} is not allowed: expected an integer >= 1")
-    if not args.c > 0:
-        raise UsageError(f"--c {args.c} is not allowed: the OSPA cut-off must be > 0")
-    if not args.p >= 1:
-        raise UsageError(f"--p {args.p} is not allowed: the OSPA order must be >= 1")
+    if not (math.isfinite(args.c) and args.c > 0):
+        raise UsageError(f"--c {args.c} is not allowed: the OSPA cut-off must be a finite "
+                         "number > 0")
+    if not (math.isfinite(args.p) and args.p >= 1):
+        raise UsageError(f"--p {args.p} is not allowed: the OSPA order must be a finite "
+                         "number >= 1")
 
 
 def _timestamp() -> str:
     return datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
 
 
+# ------------------------------------------------------------- output folders
+REPORTS = Path("reports")
+
+
+def _run_finished(folder: Path) -> bool:
+    return (folder / "summary.md").is_file()
+
+
+def _latest_unfinished(prefix: str, finished) -> Path | None:
+    """The most recent ``reports/<prefix><UTC timestamp>`` folder that is not finished."""
+    try:
+        folders = sorted((p for p in REPORTS.glob(prefix + "*") if p.is_dir()),
+                         key=lambda p: p.name, reverse=True)
+    except OSError:
+        return None
+    return next((p for p in folders if not finished(p)), None)
+
+
+def _out_dir(args: argparse.Namespace, prefix: str, finished) -> Path:
+    """``--out``, or with ``--resume`` alone the most recent unfinished folder of this
+    command under ``reports/`` (said on stderr), else a new timestamped folder."""
+    if args.out:
+        return Path(args.out)
+    if args.resume:
+        found = _latest_unfinished(prefix, finished)
+        if found is None:
+            raise UsageError(f"--resume without --out: no unfinished {REPORTS}/{prefix}* "
+                             "folder to resume; name the folder with --out DIR")
+        parts = found / "parts"
+        n_parts = len(list(parts.glob("*.parquet"))) if parts.is_dir() else 0
+        print(f"resuming {found} (the most recent unfinished {args.command}; {n_parts} "
+              "runs already saved)", file=sys.stderr)
+        return found
+    return REPORTS / f"{prefix}{_timestamp()}"
+
+
+def _resume_command(args: argparse.Namespace, out_dir: Path) -> str:
+    """The exact command that resumes this one: its arguments with ``--out`` and
+    ``--resume`` added where missing."""
+    first = Path(sys.argv[0]) if sys.argv and sys.argv[0] else Path()
+    if first.name == "mttbench" and os.sep in sys.argv[0]:  # e.g. .venv/bin/mttbench
+        prog = shlex.quote(sys.argv[0])
+    elif first.name == "__main__.py" and first.parent.name == "mttbench":  # python -m
+        prog = f"{shlex.quote(sys.executable)} -m mttbench"
+    else:
+        prog = "mttbench"
+    words = list(args.argv[1:])
+    if not args.out:
+        words += ["--out", str(out_dir)]
+    if not args.resume:
+        words.append("--resume")
+    return prog + " " + shlex.join(words)
+
+
+def _failure_line(results: pd.DataFrame, out_dir: Path) -> str | None:
+    """``k of n runs failed; first error: ...; see <out>/summary.csv``, or None."""
+    k, n, first = run_failures(results)
+    if not k:
+        return None
+    return f"{k} of {n} runs failed; first error: {first}; see {out_dir / 'summary.csv'}"
+
+
 # ---------------------------------------------------------------------- outputs
 def write_outputs(results: pd.DataFrame, out_dir: Path, title: str) -> str:
-    """Write ``summary.csv`` and ``summary.md`` next to ``results.parquet``; return the
-    Markdown text."""
+    """Write ``summary.csv`` and ``summary.md`` next to ``results.parquet`` (each all or
+    nothing); return the Markdown text."""
     summary = summarize(results)
-    summary.to_csv(out_dir / "summary.csv", index=False)
+    write_text_atomic(out_dir / "summary.csv", summary.to_csv(index=False))
     text = f"# {title}\n\n" + to_markdown(summary)
-    (out_dir / "summary.md").write_text(text)
+    write_text_atomic(out_dir / "summary.md", text)
     return text
 
 
 def _sweep(args: argparse.Namespace, scs, tracker_specs, policy_specs, looks, seeds,
            out_dir: Path, workers: int, title: str) -> int:
     jobs = build_jobs(scs, tracker_specs, policy_specs, looks, seeds)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    print(f"{len(jobs)} runs -> {out_dir}", file=sys.stderr)
+    for line in resources.check_jobs(jobs, workers):
+        print(line, file=sys.stderr)
+    prepare_out_dir(out_dir)
+    print(f"{len(jobs)} runs on {min(workers, len(jobs))} worker(s) -> {out_dir}",
+          file=sys.stderr)
     results = run_sweep(jobs, out_dir, workers=workers, progress=not args.no_progress,
                         resume=getattr(args, "resume", False), c=args.c, p=args.p)
     text = write_outputs(results, out_dir, title)
     print(text)
-    print(f"wrote {out_dir / 'results.parquet'}, summary.csv, summary.md")
+    print(f"wrote {out_dir}/: results.parquet, summary.csv, summary.md")
+    failed = _failure_line(results, out_dir)
+    if failed:
+        print(failed, file=sys.stderr)
+        return 1
     return 0
 
 
@@ -158,9 +256,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     policy_specs = resolve_policies(args.policy)
     looks = _int_list(args.looks, "--looks value", 0)
     seeds = _seeds(args, default=10)
-    out_dir = Path(args.out) if args.out else Path("reports") / f"run-{_timestamp()}"
+    out_dir = _out_dir(args, "run-", _run_finished)
+    args.out_dir = out_dir  # for the resume line after Ctrl-C
     return _sweep(args, scs, tracker_specs, policy_specs, looks, seeds, out_dir,
-                  args.workers or 1, "mttbench run")
+                  args.workers or os.cpu_count() or 1, "mttbench run")
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -169,13 +268,22 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     _check_common(args)
     seeds = _seeds(args, default=COMPARE_SEEDS)
-    res = run_compare(args.scenarios, args.trackers, seeds, args.steps, args.workers, args.out,
+    out_dir = _out_dir(args, "compare-", is_finished)
+    args.out_dir = out_dir  # for the resume line after Ctrl-C
+    res = run_compare(args.scenarios, args.trackers, seeds, args.steps, args.workers, out_dir,
                       reference=args.reference, progress=not args.no_progress,
                       resume=args.resume, c=args.c, p=args.p,
                       argv=args.argv)
-    print((res.out_dir / "summary.md").read_text())
-    print(f"wrote {res.out_dir}/: results.parquet, report.md, report.html, figures/, "
-          f"manifest.json ({res.manifest['wall_time_s']:.0f} s)")
+    print((res.out_dir / "summary.md").read_text(encoding="utf-8"))
+    man = res.manifest
+    wall = f"{man['wall_time_s']:.0f} s"
+    if len(man["sessions"]) > 1:
+        wall += f" over {len(man['sessions'])} sessions"
+    print(f"wrote {res.out_dir}/: {', '.join(OUTPUT_FILES)} ({wall})")
+    failed = _failure_line(res.results, res.out_dir)
+    if failed:
+        print(failed, file=sys.stderr)
+        return 1
     return 0
 
 
@@ -256,14 +364,17 @@ def _add_sweep_options(p: argparse.ArgumentParser, *, seeds_default: int,
                         + ("" if trackers_required else "; default: every registered tracker"))
     g = p.add_mutually_exclusive_group()
     g.add_argument("--seeds", type=int, metavar="N",
-                   help=f"run seeds 0..N-1 (default {seeds_default})")
+                   help=f"run seeds 0..N-1 (default {seeds_default}; N <= {MAX_SEEDS})")
     g.add_argument("--seed-list", nargs="+", metavar="SEED",
                    help="explicit seeds, space or comma separated")
     p.add_argument("--steps", type=int, metavar="K",
                    help="override every scenario's n_steps (default: the scenario's)")
-    p.add_argument("--out", metavar="DIR", help="output folder")
+    p.add_argument("--out", metavar="DIR",
+                   help="output folder (default reports/<command>-<UTC timestamp>)")
     p.add_argument("--resume", action="store_true",
-                   help="skip runs already saved in DIR/parts (an interrupted sweep)")
+                   help="skip runs already saved in DIR/parts (an interrupted sweep; damaged "
+                        "parts are recomputed); without --out: the most recent unfinished "
+                        "folder of this command under reports/")
     p.add_argument("--c", type=float, default=2.0, help="OSPA/GOSPA cut-off c (default 2)")
     p.add_argument("--p", type=float, default=2.0, help="OSPA/GOSPA order p (default 2)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -311,8 +422,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--looks", nargs="+", metavar="M",
                    help="looks per step, comma or space separated "
                         "(default: each scenario's looks_per_step)")
-    p.add_argument("--workers", type=int, default=1, metavar="N",
-                   help="parallel worker processes (default 1)")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="parallel worker processes (default: the number of CPUs)")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser(
@@ -389,8 +500,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _os_error_text(exc: OSError) -> str:
+    what = exc.strerror or str(exc)
+    return f"{exc.filename}: {what}" if exc.filename else what
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit status (0 ok, 2 bad input)."""
+    """Entry point; returns the exit status (0 ok, 1 a run or a write failed, 2 bad input,
+    130 interrupted; see the module docstring)."""
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -400,11 +517,30 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
+    who = f"mttbench {args.command}"
     try:
         return args.func(args)
     except UsageError as exc:
-        print(f"mttbench {args.command}: error: {exc}", file=sys.stderr)
+        print(f"{who}: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        out_dir = getattr(args, "out_dir", None)
+        if out_dir is not None and (Path(out_dir) / "parts").is_dir():
+            print(f"{who}: interrupted; finished runs are kept in {out_dir}/parts; resume "
+                  f"with: {_resume_command(args, Path(out_dir))}", file=sys.stderr)
+        else:
+            print(f"{who}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except BrokenPipeError:  # output piped into `head` and the like: not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except OSError as exc:  # disk full, a folder removed mid-sweep, ...
+        out_dir = getattr(args, "out_dir", None)
+        kept = (f"; finished runs are kept in {out_dir}/parts (--resume)"
+                if out_dir is not None and (Path(out_dir) / "parts").is_dir() else "")
+        print(f"{who}: error: {_os_error_text(exc)}{kept}", file=sys.stderr)
+        return 1
+    except MemoryError:
+        print(f"{who}: error: out of memory (the estimate of mttbench.benchmarks.resources "
+              "was too low: run fewer --workers or a smaller scenario)", file=sys.stderr)
+        return 1

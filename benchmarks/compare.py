@@ -13,6 +13,14 @@ workers, timings aside), and writes a report folder::
         figures/*.png       error over time, runtime, accuracy vs runtime, snapshot
         manifest.json       command line, versions, git commit, seeds, wall time
 
+``manifest.json`` is written when the comparison starts (``"status": "running"``) and
+rewritten when it ends: ``"finished"``, or ``"interrupted"`` (Ctrl-C) / ``"failed"``. A
+folder is *unfinished* when it has no manifest or its status is not ``"finished"``;
+``mttbench compare --resume`` without ``--out`` picks the most recent unfinished one.
+``sessions`` lists every session that worked on the folder (a first run and its
+resumes) with its wall time, and ``wall_time_s`` is their sum (a session killed
+without a chance to write, e.g. by SIGKILL, counts as 0).
+
 Default budget: the settings below are chosen so that the default command finishes
 in about one to two minutes on a 2-core machine: 10 seeds, each scenario's own
 length, the raster policy at each scenario's look budget, and JMPD at 1000 particles
@@ -23,6 +31,7 @@ runtime figure shows the particle-count trade-off. ``--seeds``, ``--steps``,
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import platform
@@ -39,8 +48,8 @@ from typing import TYPE_CHECKING, Any
 import pandas as pd
 
 from .. import trackers
-from . import summary
-from .harness import build_jobs, run_sweep
+from . import resources, summary
+from .harness import build_jobs, prepare_out_dir, run_sweep, write_text_atomic
 from .specs import PolicySpec, TrackerSpec, UsageError, resolve_scenarios, resolve_trackers
 
 if TYPE_CHECKING:
@@ -59,6 +68,9 @@ SNAPSHOT_PREFERENCE = ("gpf", "jmpd", "kfnn")
 #: distributions whose versions go into the manifest
 VERSIONED = ("mttbench", "numpy", "scipy", "pandas", "pyarrow", "matplotlib", "filterpy", "tqdm",
              "numba")
+#: every file and folder a finished comparison leaves in its folder (``parts/`` aside)
+OUTPUT_FILES = ("results.parquet", "summary.csv", "summary.md", "report.md", "report.html",
+                "figures/", "manifest.json")
 
 
 def default_tracker_texts() -> list[str]:
@@ -82,6 +94,22 @@ def package_versions() -> dict[str, str]:
         except metadata.PackageNotFoundError:
             out[dist] = "not installed"
     return out
+
+
+def read_manifest(folder: str | Path) -> dict[str, Any] | None:
+    """The folder's ``manifest.json``, or None if it has none (or an unreadable one)."""
+    try:
+        data = json.loads((Path(folder) / "manifest.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def is_finished(folder: str | Path) -> bool:
+    """True if ``folder`` holds a finished comparison (manifest status ``"finished"``;
+    manifests written before the status existed count as finished)."""
+    man = read_manifest(folder)
+    return man is not None and man.get("status", "finished") == "finished"
 
 
 def git_commit(where: Path | None = None) -> dict[str, Any]:
@@ -118,7 +146,12 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
     ``0..COMPARE_SEEDS-1``; ``workers`` None means the number of CPUs. ``reference`` is
     a tracker label (``name`` or ``name(k=v)``; a bare name matches that tracker's first
     setting); None means ``kfnn`` when it runs, else the first tracker. Raises
-    :class:`~mttbench.benchmarks.specs.UsageError` on bad names, including an unknown reference.
+    :class:`~mttbench.benchmarks.specs.UsageError` on bad names, including an unknown
+    reference, on runs that cannot fit in memory
+    (:func:`~mttbench.benchmarks.resources.check_jobs`) and on an output folder that
+    cannot be written, all before any run and before the folder is touched.
+    ``resume=True`` keeps the parts already in the folder and adds this session to the
+    manifest's ``sessions``.
     """
     t0 = time.perf_counter()
     started = datetime.now(UTC)
@@ -135,48 +168,27 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
     seeds = list(range(COMPARE_SEEDS)) if seeds is None else [int(s) for s in seeds]
     workers = workers or os.cpu_count() or 1
     out = Path(out_dir) if out_dir else Path("reports") / f"compare-{started:%Y%m%dT%H%M%SZ}"
-    out.mkdir(parents=True, exist_ok=True)
 
     jobs = build_jobs(scs, specs, [PolicySpec("raster")], None, seeds)
-    print(f"{len(jobs)} runs ({len(scs)} scenarios x {len(specs)} trackers x {len(seeds)} "
-          f"seeds) on {workers} worker(s) -> {out}", file=sys.stderr)
-    results = run_sweep(jobs, out, workers=workers, progress=progress, resume=resume, c=c, p=p)
-    t_runs = time.perf_counter() - t0
+    for line in resources.check_jobs(jobs, workers):
+        print(line, file=sys.stderr)
+    prepare_out_dir(out)
 
-    summ = summary.summarize(results)
-    summ.to_csv(out / "summary.csv", index=False)
-    (out / "summary.md").write_text("# mttbench compare\n\n" + summary.to_markdown(summ))
-
-    trace = _snapshot_trace(scs, specs, seeds) if snapshot else None
-    settings = {
-        "scenarios": ", ".join(f"{sc.name} ({sc.n_steps} steps)" for sc in scs),
-        "trackers": ", ".join(s.label for s in specs),
-        "seeds": _seed_text(seeds),
-        "policy": "raster sweep at each scenario's looks_per_step (the same cells for every "
-                  "tracker, so differences are the trackers')",
-        "metrics": f"OSPA/GOSPA cut-off c = {c:g}, order p = {p:g}; positions only",
-        "reference for paired differences": reference,
-        "workers": str(workers),
-        "wall time of the runs": f"{t_runs:.1f} s",
-    }
-    intro = [
-        "Every tracker on the same simulated worlds (common random numbers: truth and sensor "
-        "returns depend only on scenario and seed); the settings of this report are listed "
-        "below. Without options `mttbench compare` runs a budget chosen to take about one to "
-        "two minutes on two cores: 10 seeds, each scenario's own length, JMPD at 1000 "
-        "particles (plus a 250-particle setting). Narrow the intervals with `--seeds`, lengthen "
-        "runs with `--steps`, choose trackers and parameters with `--trackers name:key=value`.",
-    ]
-    from . import report  # matplotlib: imported only when a report is drawn
-
-    files = report.build_report(results, out, reference=reference, intro=intro,
-                                settings=settings, trace=trace)
-    wall = time.perf_counter() - t0
-    manifest = {
-        "command": list(argv) if argv is not None else sys.argv,
+    command = list(argv) if argv is not None else list(sys.argv)
+    previous = read_manifest(out) if resume else None
+    sessions: list[dict[str, Any]] = [
+        s for s in (previous or {}).get("sessions", []) if isinstance(s, dict)]
+    session = {"started_utc": started.isoformat(), "command": command, "wall_time_s": None,
+               "status": "running"}
+    sessions.append(session)
+    manifest: dict[str, Any] = {
+        "status": "running",
+        "command": command,
         "started_utc": started.isoformat(),
-        "wall_time_s": round(wall, 3),
-        "runs_wall_time_s": round(t_runs, 3),
+        "wall_time_s": None,
+        "session_wall_time_s": None,
+        "runs_wall_time_s": None,
+        "sessions": sessions,
         "workers": workers,
         "cpu_count": os.cpu_count(),
         "platform": platform.platform(),
@@ -190,9 +202,67 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
         "ospa_c": c,
         "ospa_p": p,
         "n_runs": len(jobs),
-        "n_rows": len(results),
+        "n_rows": None,
     }
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+
+    def save_manifest(status: str) -> None:
+        wall = round(time.perf_counter() - t0, 3)
+        session.update(wall_time_s=wall, status=status)
+        manifest.update(status=status, session_wall_time_s=wall, wall_time_s=round(
+            sum(float(s.get("wall_time_s") or 0.0) for s in sessions), 3))
+        write_text_atomic(out / "manifest.json", json.dumps(manifest, indent=2) + "\n")
+
+    save_manifest("running")
+    print(f"{len(jobs)} runs ({len(scs)} scenarios x {len(specs)} trackers x {len(seeds)} "
+          f"seeds) on {workers} worker(s) -> {out}", file=sys.stderr)
+    try:
+        results = run_sweep(jobs, out, workers=workers, progress=progress, resume=resume,
+                            c=c, p=p)
+        t_runs = time.perf_counter() - t0
+        manifest["runs_wall_time_s"] = round(t_runs, 3)
+        manifest["n_rows"] = len(results)
+
+        summ = summary.summarize(results)
+        write_text_atomic(out / "summary.csv", summ.to_csv(index=False))
+        write_text_atomic(out / "summary.md",
+                          "# mttbench compare\n\n" + summary.to_markdown(summ))
+
+        trace = _snapshot_trace(scs, specs, seeds) if snapshot else None
+        earlier = sum(float(s.get("wall_time_s") or 0.0) for s in sessions[:-1])
+        wall_text = f"{t_runs:.1f} s"
+        if len(sessions) > 1:
+            wall_text += (f" in this session; {earlier + t_runs:.1f} s over {len(sessions)} "
+                          "sessions (resumed after an interruption)")
+        settings = {
+            "scenarios": ", ".join(f"{sc.name} ({sc.n_steps} steps)" for sc in scs),
+            "trackers": ", ".join(s.label for s in specs),
+            "seeds": _seed_text(seeds),
+            "policy": "raster sweep at each scenario's looks_per_step (the same cells for "
+                      "every tracker, so differences are the trackers')",
+            "metrics": f"OSPA/GOSPA cut-off c = {c:g}, order p = {p:g}; positions only",
+            "reference for paired differences": reference,
+            "workers": str(workers),
+            "wall time of the runs": wall_text,
+        }
+        intro = [
+            "Every tracker on the same simulated worlds (common random numbers: truth and "
+            "sensor returns depend only on scenario and seed); the settings of this report "
+            "are listed below. Without options `mttbench compare` runs a budget chosen to "
+            "take about one to two minutes on two cores: 10 seeds, each scenario's own "
+            "length, JMPD at 1000 particles (plus a 250-particle setting). Narrow the "
+            "intervals with `--seeds`, lengthen runs with `--steps`, choose trackers and "
+            "parameters with `--trackers name:key=value`.",
+        ]
+        from . import report  # matplotlib: imported only when a report is drawn
+
+        files = report.build_report(results, out, reference=reference, intro=intro,
+                                    settings=settings, trace=trace)
+    except BaseException as exc:
+        status = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
+        with contextlib.suppress(OSError):
+            save_manifest(status)
+        raise
+    save_manifest("finished")
     return CompareOutput(results, out, files, manifest)
 
 

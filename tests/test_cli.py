@@ -135,3 +135,12 @@ def test_argparse_errors_exit_2(capsys):
     assert "--scenarios" in capsys.readouterr().err
     assert main(["run", "--scenarios", "default", "--trackers", "null", "--seeds", "x"]) == 2
     assert main(["frobnicate"]) == 2
+
+
+def test_run_uses_one_worker_per_cpu_by_default(tmp_path, capsys):
+    import os
+    rc = main(["run", "--scenarios", "default", "--trackers", "null", "--seeds", "8", "--steps",
+               "2", "--out", str(tmp_path), "--no-progress"])
+    assert rc == 0
+    workers = min(os.cpu_count() or 1, 8)
+    assert f"8 runs on {workers} worker(s) -> {tmp_path}" in capsys.readouterr().err

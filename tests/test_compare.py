@@ -6,6 +6,7 @@ import json
 import re
 
 import pandas as pd
+import pytest
 
 from mttbench import trackers
 from mttbench.benchmarks import compare
@@ -29,6 +30,17 @@ def test_compare_writes_the_report_folder(tmp_path, capsys):
     assert man["seeds"] == [0, 1, 2] and sorted(man["trackers"]) == ["kfnn", "null"]
     assert man["reference"] == "kfnn" and man["wall_time_s"] > 0
     assert man["versions"]["numpy"] and "commit" in man["git"]
+    # one finished session; the total wall time is its wall time
+    assert man["status"] == "finished" and man["n_rows"] == len(df) and man["n_runs"] == 6
+    (session,) = man["sessions"]
+    assert session["status"] == "finished" and session["command"] == man["command"]
+    assert man["wall_time_s"] == session["wall_time_s"] == man["session_wall_time_s"]
+    assert man["runs_wall_time_s"] <= man["wall_time_s"]
+    printed = capsys.readouterr().out.strip().splitlines()[-1]
+    assert printed == (f"wrote {out}/: results.parquet, summary.csv, summary.md, report.md, "
+                       f"report.html, figures/, manifest.json ({man['wall_time_s']:.0f} s)")
+    for name in compare.OUTPUT_FILES:
+        assert (out / name).exists(), name
     md = (out / "report.md").read_text()
     # paired table: null against the kfnn reference, 3 pairs
     assert re.search(r"\| default \| raster \| 24 \| null \| 3 \|", md), md
@@ -66,3 +78,20 @@ def test_reference_defaults_to_the_first_tracker_without_kfnn(tmp_path):
     res = compare.run_compare(["default"], ["null"], [0, 1], steps=2, workers=1,
                               out_dir=tmp_path, progress=False, snapshot=False, argv=["x"])
     assert res.manifest["reference"] == "null"
+
+
+def test_a_failed_compare_is_marked_in_its_manifest(tmp_path, monkeypatch):
+    """A comparison that stops (here the report cannot be drawn) leaves a manifest with
+    status "failed" and its session's wall time, so the folder counts as unfinished."""
+    from mttbench.benchmarks import report
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("no figures today")
+
+    monkeypatch.setattr(report, "build_report", broken)
+    with pytest.raises(RuntimeError, match="no figures today"):
+        compare.run_compare(["default"], ["null"], [0], steps=2, workers=1, out_dir=tmp_path,
+                            progress=False, snapshot=False, argv=["x"])
+    man = compare.read_manifest(tmp_path)
+    assert man["status"] == "failed" and man["sessions"][0]["wall_time_s"] > 0
+    assert not compare.is_finished(tmp_path) and compare.is_finished(tmp_path / "nothing") is False

@@ -1,0 +1,63 @@
+"""Trackers for the command-line tests, named by class path (``crashing_tracker:Crash``).
+
+Importable in-process (pytest puts ``tests/`` on ``sys.path``) and in subprocesses that
+get ``tests/`` on ``PYTHONPATH``.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from mttbench import Estimate, Tracker
+
+#: the step at which :class:`Crash` raises (0-based, counted by ``predict``)
+CRASH_STEP = 3
+#: seconds :class:`Slow` sleeps per step
+SLOW_STEP_S = 0.05
+
+
+class _Nothing(Tracker):
+    """Reports no target; counts its steps."""
+
+    def reset(self, model, rng):
+        self._n_cells = model.grid.n_cells if model.is_grid else 1
+        self._k = -1
+
+    def predict(self):
+        self._k += 1
+
+    def cell_count_distribution(self):
+        P = np.zeros((self._n_cells, 2))
+        P[:, 0] = 1.0
+        return P
+
+    def update(self, looks):
+        pass
+
+    def estimate(self):
+        return Estimate.empty()
+
+
+class Crash(_Nothing):
+    """Raises ``RuntimeError`` at step :data:`CRASH_STEP` of every run."""
+
+    name = "crash"
+    summary = "test tracker: raises at step 3"
+
+    def predict(self):
+        super().predict()
+        if self._k == CRASH_STEP:
+            raise RuntimeError(f"deliberate failure at step {self._k}")
+
+
+class Slow(_Nothing):
+    """Reports nothing, slowly: sleeps :data:`SLOW_STEP_S` per step (interrupt tests)."""
+
+    name = "slow"
+    summary = "test tracker: sleeps every step"
+
+    def predict(self):
+        super().predict()
+        time.sleep(SLOW_STEP_S)

@@ -1,0 +1,132 @@
+"""Ctrl-C on ``mttbench compare`` (a real SIGINT to a subprocess), then the printed resume
+command: the same report, finished parts not recomputed.
+
+The sweep includes ``crashing_tracker:Slow`` (reports nothing, sleeps 0.05 s per step,
+so each of its runs takes about a second): when the first part appears the slow runs
+cannot all be done, so the interrupt always lands mid-sweep.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shlex
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+
+from mttbench.benchmarks.cli import EXIT_INTERRUPTED, main
+
+TESTS = Path(__file__).resolve().parent
+ARGS = ["compare", "--scenarios", "default", "--trackers", "null", "kfnn",
+        "crashing_tracker:Slow", "--seeds", "4", "--steps", "20", "--workers", "2",
+        "--no-progress"]
+TIMING = ["tracker_wall_s", "tracker_cpu_s", "select_wall_s", "select_cpu_s", "peak_rss_mb"]
+#: generous: the subprocess imports numpy, pandas, scipy and numba before its first run
+START_TIMEOUT_S = 120
+
+
+def _env() -> dict[str, str]:
+    path = os.pathsep.join(p for p in (str(TESTS), os.environ.get("PYTHONPATH", "")) if p)
+    return {**os.environ, "PYTHONPATH": path}
+
+
+def _lines(text: str) -> list[str]:
+    return [x for x in text.splitlines() if x.strip()]
+
+
+def _results(folder: Path) -> pd.DataFrame:
+    return pd.read_parquet(folder / "results.parquet").drop(columns=TIMING)
+
+
+def test_ctrl_c_then_the_printed_command_finishes_the_same_report(monkeypatch, tmp_path,
+                                                                  capsys):
+    # ---- interrupt: no --out, so the folder is reports/compare-<timestamp> under cwd
+    proc = subprocess.Popen([sys.executable, "-m", "mttbench", *ARGS], cwd=tmp_path,
+                            env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    deadline = time.monotonic() + START_TIMEOUT_S
+    parts: list[Path] = []
+    while not parts:
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "no part written"
+        time.sleep(0.01)
+        parts = list(tmp_path.glob("reports/compare-*/parts/*.parquet"))
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == EXIT_INTERRUPTED, err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    interrupted = [x for x in _lines(err) if "interrupted" in x]
+    assert len(interrupted) == 1 and _lines(err)[-1] == interrupted[0], err
+    (folder,) = tmp_path.glob("reports/compare-*")
+    folder = folder.relative_to(tmp_path)  # as printed; cwd is tmp_path from here on
+    monkeypatch.chdir(tmp_path)
+    assert f"finished runs are kept in {folder}/parts" in interrupted[0]
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert manifest["status"] == "interrupted" and len(manifest["sessions"]) == 1
+    done = {p: p.stat().st_mtime_ns for p in (folder / "parts").glob("*.parquet")}
+    assert 1 <= len(done) < 12, len(done)
+    assert not list(folder.rglob("*.tmp"))
+
+    # ---- the printed command, exactly
+    command = interrupted[0].split("resume with: ", 1)[1]
+    words = shlex.split(command)
+    assert words[:3] == [sys.executable, "-m", "mttbench"]
+    assert words[3:] == [*ARGS, "--out", str(folder), "--resume"]
+    # run in-process (the same arguments; saves a second interpreter start)
+    capsys.readouterr()
+    assert main(words[3:]) == 0
+    again = capsys.readouterr()
+    assert "Traceback" not in again.err
+    assert {p: p.stat().st_mtime_ns for p in done} == done  # not recomputed
+    assert len(list((folder / "parts").glob("*.parquet"))) == 12
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert manifest["status"] == "finished"
+    walls = [s["wall_time_s"] for s in manifest["sessions"]]
+    assert [s["status"] for s in manifest["sessions"]] == ["interrupted", "finished"]
+    assert all(w > 0 for w in walls) and abs(manifest["wall_time_s"] - sum(walls)) < 2e-3
+    assert "over 2 sessions" in (folder / "report.md").read_text()
+    assert f"({manifest['wall_time_s']:.0f} s over 2 sessions)" in again.out
+    for name in ("results.parquet", "summary.csv", "summary.md", "report.md", "report.html",
+                 "figures", "manifest.json"):
+        assert (folder / name).exists(), name
+
+    # ---- the same numbers as an uninterrupted sweep of the same runs (in-process: tests/
+    # is on sys.path; `run` makes compare's jobs without drawing the report)
+    whole = Path("whole")
+    assert main(["run", *ARGS[1:], "--out", str(whole)]) == 0
+    pd.testing.assert_frame_equal(_results(folder), _results(whole))
+
+
+def test_compare_resume_without_out_picks_the_latest_unfinished(monkeypatch, tmp_path, capsys):
+    """Three folders as a Ctrl-C and a finished compare leave them (built cheaply: the
+    parts by ``run``, which makes the same jobs, and a manifest)."""
+    monkeypatch.chdir(tmp_path)
+    sweep = ["--scenarios", "default", "--trackers", "null", "--seeds", "2", "--steps", "2",
+             "--workers", "1", "--no-progress"]
+    reports = tmp_path / "reports"
+    folders = {status: reports / f"compare-2000010{i}T000000Z"
+               for i, status in enumerate(("interrupted", "running", "finished"), 1)}
+    for status, folder in folders.items():
+        assert main(["run", *sweep, "--out", str(folder)]) == 0
+        (folder / "manifest.json").write_text(json.dumps({"status": status, "sessions": [
+            {"status": status, "wall_time_s": 1.5}]}))
+    # the newest unfinished one: "running" (a session killed without a chance to write)
+    target = folders["running"]
+    mtimes = {p: p.stat().st_mtime_ns for p in (target / "parts").glob("*.parquet")}
+    capsys.readouterr()
+    assert main(["compare", *sweep, "--resume"]) == 0
+    err = capsys.readouterr().err
+    assert (f"resuming {target.relative_to(tmp_path)} (the most recent unfinished compare; "
+            "2 runs already saved)") in err, err
+    assert {p: p.stat().st_mtime_ns for p in mtimes} == mtimes
+    man = json.loads((target / "manifest.json").read_text())
+    assert man["status"] == "finished" and len(man["sessions"]) == 2
+    assert man["wall_time_s"] == round(1.5 + man["sessions"][1]["wall_time_s"], 3)
+    assert (target / "report.md").is_file()
+    assert not (folders["interrupted"] / "report.md").exists()
+    assert sorted(reports.iterdir()) == sorted(folders.values())
