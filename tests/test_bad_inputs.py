@@ -14,6 +14,7 @@ import os
 import re
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pandas as pd
@@ -174,17 +175,12 @@ def _folder(path: Path) -> Path:
 
 
 def _ids() -> list[str]:
-    # ids only: build the cases in a throwaway folder
-    import tempfile
-
+    """The case ids (the cases themselves are built per test, in its tmp_path)."""
     with tempfile.TemporaryDirectory() as d:
         return [c[0] for c in refused_cases(Path(d))]
 
 
 CASE_IDS = _ids()
-#: parameter declarations are validated by another change; until it lands these cases
-#: run (and fail) instead of being refused
-PENDING = {f"tracker-{t}" for t, _ in PARAMETER_CASES} | {f"policy-{t}" for t, _ in POLICY_CASES}
 
 
 @pytest.mark.parametrize("case_id", CASE_IDS)

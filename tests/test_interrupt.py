@@ -130,3 +130,23 @@ def test_compare_resume_without_out_picks_the_latest_unfinished(monkeypatch, tmp
     assert (target / "report.md").is_file()
     assert not (folders["interrupted"] / "report.md").exists()
     assert sorted(reports.iterdir()) == sorted(folders.values())
+
+
+def test_run_resume_without_out_picks_the_latest_unfinished_run(monkeypatch, tmp_path, capsys):
+    """``run`` folders are finished when they hold summary.md (written last)."""
+    monkeypatch.chdir(tmp_path)
+    sweep = ["run", "--scenarios", "default", "--trackers", "null", "--seeds", "3", "--steps",
+             "2", "--workers", "1", "--no-progress"]
+    finished = Path("reports/run-20000102T000000Z")
+    cut = Path("reports/run-20000101T000000Z")
+    for folder in (cut, finished):
+        assert main([*sweep, "--out", str(folder)]) == 0
+    for name in ("summary.md", "summary.csv", "results.parquet"):
+        (cut / name).unlink()
+    next(iter((cut / "parts").glob("*.parquet"))).unlink()  # one run never finished
+    capsys.readouterr()
+    assert main([*sweep, "--resume"]) == 0
+    err = capsys.readouterr().err
+    assert f"resuming {cut} (the most recent unfinished run; 2 runs already saved)" in err, err
+    assert len(pd.read_parquet(cut / "results.parquet")) == 3 * 2
+    assert sorted(Path("reports").iterdir()) == [cut, finished]
