@@ -57,7 +57,7 @@ class Policy(Configurable, ABC):
 
 #: policies by name; other packages add theirs through this entry-point group
 ENTRY_POINT_GROUP = "mttbench.policies"
-_POLICIES: Registry[type[Policy]] = Registry("policy", Policy, ENTRY_POINT_GROUP)
+_POLICIES: Registry[type[Policy]] = Registry("policy", Policy, ENTRY_POINT_GROUP, plural="policies")
 
 register_policy = _POLICIES.register
 available_policies = _POLICIES.names

@@ -19,8 +19,9 @@ T = TypeVar("T", bound=type)
 class Registry(Generic[T]):
     """Classes of ``kind`` (subclasses of ``base``) by their ``name`` attribute."""
 
-    def __init__(self, kind: str, base: type, group: str) -> None:
+    def __init__(self, kind: str, base: type, group: str, plural: str | None = None) -> None:
         self.kind, self.base, self.group = kind, base, group
+        self.plural = plural or kind + "s"
         self._classes: dict[str, T] = {}
         self._broken: dict[str, str] = {}
         self._plugins_loaded = False
@@ -74,7 +75,7 @@ class Registry(Generic[T]):
         if name in self._classes:
             return self._classes[name]
         why = f" failed to load: {self._broken[name]}" if name in self._broken else ""
-        raise KeyError(f"unknown {self.kind} {name!r}{why}: the {self.kind}s are {self.names()}")
+        raise KeyError(f"unknown {self.kind} {name!r}{why}: the {self.plural} are {self.names()}")
 
     def __contains__(self, name: str) -> bool:
         self.load_plugins()
