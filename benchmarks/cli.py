@@ -30,7 +30,6 @@ import json
 import math
 import os
 import shlex
-import shutil
 import sys
 import textwrap
 from collections.abc import Sequence
@@ -294,6 +293,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     if args.workers is not None and args.workers < 1:
         raise UsageError(f"--workers {args.workers} is not allowed: expected an integer >= 1")
+    if args.exact and not args.check:
+        raise UsageError("--exact only applies with --check")
     setting = reproduce.SETTINGS["reduced" if args.reduced else "full"]
     out = Path(args.out) if args.out else Path("reports") / "paper"
     cache = Path(args.cache_dir) if args.cache_dir else Path(".cache") / "reproduce"
@@ -307,36 +308,36 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
           f"{'from the cache' if res.cached else 'computed'})")
     ref_path = (Path(args.reference_csv) if args.reference_csv
                 else reproduce.REFERENCE_DIR / f"paper_{setting.name}.csv")
-    versions_path = ref_path.with_suffix(".versions.json")
+    versions_path = reproduce.versions_path(ref_path)
     if args.update_reference:
-        ref_path.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(res.numbers_csv, ref_path)
-        versions_path.write_text(json.dumps(reproduce.package_versions(), indent=2) + "\n")
+        written = reproduce.write_reference(res.numbers_csv, ref_path)
         print(f"reference updated: {ref_path} ({len(res.numbers)} numbers; versions in "
-              f"{versions_path.name})")
+              f"{written.name})")
         return 0
     if not args.check:
         return 0
     if not ref_path.exists():
         raise UsageError(f"--check: no reference {ref_path}")
-    moved = reproduce.check_numbers(res.numbers, reproduce.read_numbers(ref_path))
-    tol = f"rtol {reproduce.RTOL:g}, atol {reproduce.ATOL:g}"
-    if not moved:
-        print(f"check passed: {len(res.numbers)} numbers match {ref_path} ({tol})")
+    check = reproduce.check_numbers(res.numbers, reproduce.read_numbers(ref_path),
+                                    exact=args.exact)
+    if check.passed:
+        print(f"check passed: {check.n_compared} numbers agree with {ref_path} "
+              f"({check.criterion})")
         return 0
-    print(f"check FAILED: {len(moved)} number(s) differ from {ref_path} beyond {tol}:",
-          file=sys.stderr)
+    print(f"check FAILED: {check.n_moved} number(s) differ from {ref_path} beyond "
+          f"{check.criterion}:", file=sys.stderr)
     limit = reproduce.MAX_REPORTED
-    for line in moved[:limit]:
+    for line in check.lines[:limit]:
         print("  " + line, file=sys.stderr)
-    if len(moved) > limit:
-        print(f"  ... and {len(moved) - limit} more", file=sys.stderr)
+    if len(check.lines) > limit:
+        print(f"  ... and {len(check.lines) - limit} more lines", file=sys.stderr)
     if versions_path.exists():
         changed = reproduce.changed_versions(json.loads(versions_path.read_text()))
         if changed:
-            print("  note: the reference was made with other versions: " + ", ".join(changed)
-                  + " (a different numpy/scipy can change results beyond the tolerance)",
-                  file=sys.stderr)
+            print("  note: the reference was made in another environment: " + ", ".join(changed)
+                  + (" (another numpy, scipy or CPU dispatch can change the last bits, and a "
+                     "particle filter's run then diverges: --check without --exact allows "
+                     "for that)" if args.exact else ""), file=sys.stderr)
     return 1
 
 
@@ -460,22 +461,32 @@ def build_parser() -> argparse.ArgumentParser:
                     "state and count error over time) for the GPF with the other trackers "
                     "overlaid, from pinned seeds, into --out (default reports/paper), with "
                     "the numbers behind each figure as CSV. Runs are cached by their "
-                    "configuration (.cache/reproduce); figures only plot. --check compares "
-                    "the numbers with the checked-in reference and exits 1 naming every "
-                    "number that moved.",
+                    "configuration, code, package versions, platform and numpy CPU dispatch "
+                    "(.cache/reproduce); figures only plot. --check compares the curves "
+                    "with the checked-in reference within their Monte Carlo error, so it "
+                    "holds on any CPU; --check --exact compares every number bit for bit "
+                    "(same machine). Either exits 1 naming every number that moved.",
         epilog=textwrap.dedent("""\
             examples:
               mttbench reproduce paper                    # full setting
               mttbench reproduce paper --reduced --check  # what CI runs
+              mttbench reproduce paper --reduced --check --exact  # same machine, bit for bit
               mttbench reproduce paper --reduced --update-reference  # after a change"""))
     p.add_argument("target", choices=["paper"], help="what to reproduce")
     p.add_argument("--reduced", action="store_true",
                    help="the reduced setting (fewer seeds and steps; what CI checks)")
     p.add_argument("--check", action="store_true",
-                   help="compare the numbers with the reference CSV; exit 1 if any moved")
+                   help="compare the numbers with the reference CSV within their Monte Carlo "
+                        "error (holds on any CPU): each curve's mean |now - ref| / (95%% band "
+                        "+ floor) over its steps <= 1 and every step <= 4; truth and seed "
+                        "counts exact; exit 1 naming every number that moved")
+    p.add_argument("--exact", action="store_true",
+                   help="with --check: bit-for-bit mode for the same machine (every number "
+                        "within rtol 1e-9, intervals and snapshot included)")
     p.add_argument("--update-reference", action="store_true",
-                   help="write the numbers as the new reference (after a deliberate change "
-                        "of a tracker or of the setting; commit the CSV)")
+                   help="write the numbers as the new reference with its versions file "
+                        "(after a deliberate change of a tracker or of the setting; commit "
+                        "both)")
     p.add_argument("--reference-csv", metavar="CSV",
                    help="reference to check against (default "
                         "reports/reference/paper_<setting>.csv)")
@@ -484,7 +495,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "those registered)")
     p.add_argument("--out", metavar="DIR", help="output folder (default reports/paper)")
     p.add_argument("--cache-dir", metavar="DIR", help="run cache (default .cache/reproduce)")
-    p.add_argument("--no-cache", action="store_true", help="recompute even if cached")
+    p.add_argument("--no-cache", action="store_true",
+                   help="recompute, neither reading nor writing the cache")
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel worker processes (default: the number of CPUs)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
