@@ -212,10 +212,6 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
     return 0
 
 
-def _fmt_params(params: dict) -> str:
-    return ", ".join(f"{k}={v!r}" for k, v in params.items()) or "(no parameters)"
-
-
 def _print_entry(name: str, cls: type) -> None:
     """A tracker or policy: its summary, then one line per parameter with its default and
     what it accepts (the class's declaration, :mod:`mttbench.trackers.params`)."""
@@ -288,7 +284,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
     """Reviewer reproduction of the paper's figures (:mod:`~mttbench.benchmarks.reproduce`):
-    exit 0, or 1 when ``--check`` finds moved numbers."""
+    exit 0; 1 when ``--check`` finds moved numbers or a run failed; 2 for bad input."""
     from . import reproduce
 
     if args.workers is not None and args.workers < 1:
@@ -301,11 +297,20 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     tracker_texts = tuple(split_specs(args.trackers)) if args.trackers else None
     if tracker_texts:
         resolve_trackers(tracker_texts)
+    specs, _ = reproduce.available_trackers(tracker_texts or setting.trackers)
+    for warning in resources.check_jobs(reproduce.setting_jobs(setting, specs),
+                                        args.workers or 1):
+        print(warning, file=sys.stderr)
+    prepare_out_dir(out)
     res = reproduce.reproduce_paper(setting, out, cache, tracker_texts=tracker_texts,
                                     workers=args.workers or 1, progress=not args.no_progress,
                                     use_cache=not args.no_cache)
     print(f"wrote {out}/ (figures, CSVs, report.md, report.html; runs "
           f"{'from the cache' if res.cached else 'computed'})")
+    failed = _failure_line(res.results, out)
+    if failed:
+        print(failed.replace(str(out / "summary.csv"), str(out / "report.md")), file=sys.stderr)
+        return 1
     ref_path = (Path(args.reference_csv) if args.reference_csv
                 else reproduce.REFERENCE_DIR / f"paper_{setting.name}.csv")
     versions_path = reproduce.versions_path(ref_path)

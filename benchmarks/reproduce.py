@@ -141,7 +141,7 @@ from .. import reference, scenarios, trackers
 from ..scenarios.spec import dumps
 from . import figures
 from .compare import package_versions
-from .harness import build_jobs, run_sweep
+from .harness import build_jobs, run_sweep, write_text_atomic
 from .report import Document
 from .snapshot import trace_run
 from .specs import PolicySpec, TrackerSpec
@@ -235,14 +235,17 @@ SETTINGS = {
 
 
 def available_trackers(texts: tuple[str, ...]) -> tuple[list[TrackerSpec], list[str]]:
-    """The specs whose tracker is registered, and the names that are not."""
+    """The specs whose tracker can be made (registered, or a class path that imports),
+    and the names that cannot (a pinned tracker of the setting that is not installed)."""
     specs, missing = [], []
     for text in texts:
         spec = TrackerSpec.parse(text)
-        if spec.name in trackers.available():
-            specs.append(spec)
-        else:
+        try:
+            trackers.get_class(spec.name)
+        except KeyError:
             missing.append(spec.name)
+        else:
+            specs.append(spec)
     return specs, missing
 
 
@@ -352,13 +355,20 @@ def run_or_load(setting: Setting, specs: list[TrackerSpec], cache_dir: Path, *,
     return results, traces, False
 
 
+def setting_jobs(setting: Setting, specs: list[TrackerSpec]) -> list:
+    """The harness jobs of ``setting`` with trackers ``specs`` (its runs, without traces)."""
+    scs = [dataclasses.replace(scenarios.get(n), n_steps=setting.n_steps)
+           for n in setting.scenarios]
+    return build_jobs(scs, specs, [PolicySpec(setting.policy)], None, list(setting.seeds))
+
+
 def _run(setting: Setting, specs: list[TrackerSpec], policy: PolicySpec, folder: Path,
          workers: int, progress: bool, save_traces: bool
          ) -> tuple[pd.DataFrame, dict[str, dict[str, pd.DataFrame]]]:
     """Run the sweep into ``folder`` and trace the highlight tracker's snapshot runs."""
+    jobs = setting_jobs(setting, specs)
     scs = [dataclasses.replace(scenarios.get(n), n_steps=setting.n_steps)
            for n in setting.scenarios]
-    jobs = build_jobs(scs, specs, [policy], None, list(setting.seeds))
     results = run_sweep(jobs, folder, workers=workers, progress=progress, resume=False,
                         c=setting.c, p=setting.p)
     shutil.rmtree(folder / "parts", ignore_errors=True)
@@ -626,6 +636,7 @@ class Reproduction:
     numbers: pd.DataFrame
     numbers_csv: Path
     cached: bool
+    results: pd.DataFrame  # the sweep's rows (failed runs have status "error")
 
 
 def reproduce_paper(setting: Setting, out_dir: str | Path, cache_dir: str | Path, *,
@@ -674,7 +685,7 @@ def reproduce_paper(setting: Setting, out_dir: str | Path, cache_dir: str | Path
     failures = sorted({f"{r.scenario} / {r.tracker_label} seed {r.seed}: {r.error}"
                        for r in bad.itertuples()})
     _write_report(out, setting, specs, missing, figs, failures, cached)
-    return Reproduction(out, numbers, csv, cached)
+    return Reproduction(out, numbers, csv, cached, results)
 
 
 def reference_versions() -> dict[str, str]:
@@ -693,7 +704,7 @@ def write_reference(numbers_csv: str | Path, ref_path: str | Path) -> Path:
     file next to it (:func:`versions_path`); returns the versions file."""
     ref_path = Path(ref_path)
     ref_path.parent.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(numbers_csv, ref_path)
+    write_text_atomic(ref_path, Path(numbers_csv).read_text(encoding="utf-8"))
     return write_versions(versions_path(ref_path))
 
 
@@ -705,7 +716,7 @@ def versions_path(ref_path: str | Path) -> Path:
 def write_versions(path: str | Path) -> Path:
     """Write :func:`reference_versions` as JSON to ``path``."""
     path = Path(path)
-    path.write_text(json.dumps(reference_versions(), indent=2) + "\n", encoding="utf-8")
+    write_text_atomic(path, json.dumps(reference_versions(), indent=2) + "\n")
     return path
 
 

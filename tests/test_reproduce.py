@@ -350,3 +350,17 @@ def test_no_cache_neither_reads_nor_writes_the_cache(tmp_path):
 def test_exact_without_check_is_refused(capsys):
     assert main(["reproduce", "paper", "--reduced", "--exact"]) == 2
     assert "--exact only applies with --check" in capsys.readouterr().err
+
+
+def test_a_failing_run_exits_1_with_one_line(tmp_path, capsys):
+    """A tracker that raises at step 3 (tests/crashing_tracker.py) makes the reproduction
+    exit 1 with the "k of n runs failed" line, after writing what it could."""
+    rc = main(["reproduce", "paper", "--reduced", "--no-progress", "--no-cache", "--workers",
+               "1", "--trackers", "null", "crashing_tracker:Crash", "--out",
+               str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert rc == 1
+    lines = [line for line in err.splitlines() if "runs failed" in line]
+    assert len(lines) == 1 and lines[0].startswith("6 of 12 runs failed; first error: "), err
+    assert "crashing_tracker:Crash" in lines[0] and "Traceback" not in err
+    assert (tmp_path / "out" / "report.md").is_file()
