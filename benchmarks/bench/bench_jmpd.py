@@ -59,7 +59,10 @@ WARM_STEPS = {"default": 3, "large": 1}
 #: (rounds, warm-up rounds) of the advancing benchmarks
 ROUNDS = {"default": (15, 2), "large": (10, 1)}
 ROUNDS_HUGE = (4, 1)  # large at N = 1e5: ~4 s per step
-#: OSPA (c = 2; null scores 2) of the first timed step must stay below this
+#: OSPA (c = 2; null scores 2) of the first timed step must stay below this. Measured,
+#: world 0 (the benchmark's) and the worst of worlds 0-9: default N = 1e4 0.17/0.18,
+#: N = 1e5 0.17/0.18; large (t_max = 30) N = 1e4 0.47/0.58; resample-move (default,
+#: N = 1e4, one sweep) 0.17/1.02
 OSPA_BOUND = 1.0
 T_MAX_DRAW = 5  # test_draw_process_noise_only: the goal's t_max
 
