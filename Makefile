@@ -6,7 +6,7 @@ VENV   ?= .venv
 BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.installed
 
-.PHONY: test compare bench bench-check reproduce lint clean mutants
+.PHONY: test compare bench bench-check bench-ratios bench-compare reproduce lint clean mutants
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,7 +24,18 @@ compare: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python -m pytest benchmarks/bench --benchmark-only
 
+# time every benchmark and gate each on its ratio to a reference workload timed in the
+# same run (benchmarks/bench/ratios.toml): the gate means the same on any machine
 bench-check: $(STAMP)
+	$(BIN)/python -m pytest benchmarks/bench --benchmark-only --benchmark-timer=time.process_time
+
+# re-record the stored ratios (run three times: each keeps the median of its last 3 runs)
+bench-ratios: $(STAMP)
+	$(BIN)/python -m pytest benchmarks/bench --benchmark-only \
+	    --benchmark-timer=time.process_time --record-ratios
+
+# pytest-benchmark's own wall-clock comparison with the stored baseline (same machine only)
+bench-compare: $(STAMP)
 	$(BIN)/python -m pytest benchmarks/bench --benchmark-only \
 	    --benchmark-storage=.benchmarks/baseline --benchmark-compare=0001 \
 	    --benchmark-compare-fail=min:150%
