@@ -84,7 +84,7 @@ import resource
 import signal
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
@@ -445,24 +445,20 @@ def _write_parquet(df: pd.DataFrame, path: Path) -> None:
     ``os.replace``. On any failure (disk full, read-only folder, an interrupt) the temp
     file is removed and ``path`` is left as it was; an ``OSError`` is re-raised naming
     ``path`` (``exc.filename``)."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        df.to_parquet(tmp, index=False)
-        os.replace(tmp, path)
-    except BaseException as exc:
-        with contextlib.suppress(OSError):
-            tmp.unlink(missing_ok=True)
-        if isinstance(exc, OSError):
-            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
-        raise
+    _write_atomic(path, lambda tmp: df.to_parquet(tmp, index=False))
 
 
 def write_text_atomic(path: Path, text: str) -> None:
     """Write a text file (UTF-8) like :func:`_write_parquet`: all or nothing."""
-    path = Path(path)
+    _write_atomic(Path(path), lambda tmp: tmp.write_text(text, encoding="utf-8"))
+
+
+def _write_atomic(path: Path, write: Callable[[Path], object]) -> None:
+    """``write`` a temp file in the same folder, then ``os.replace`` it onto ``path``;
+    on any failure remove the temp file and re-raise (an ``OSError`` naming ``path``)."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
-        tmp.write_text(text, encoding="utf-8")
+        write(tmp)
         os.replace(tmp, path)
     except BaseException as exc:
         with contextlib.suppress(OSError):

@@ -30,7 +30,8 @@ Truncated moments: the position density is written ``p(px) p(py | px)`` (exact f
 covariance); the ``py`` integral over ``[y0, y1)`` is closed form and the ``px`` integral is
 24-point Gauss-Legendre over the cell's x-range clipped to ``mu_x +- 7 sigma_x`` (mass
 error ~1e-11 for ``sigma_x >= 0.1`` cell; below that, with a wide, strongly correlated
-``py``, up to 2e-5 for ``sigma_x >= 0.08`` and 2e-3 at ``sigma_x = 0.056``; docs/gpf.md). Velocities follow from the linear regression on position,
+``py``, up to 2e-5 for ``sigma_x >= 0.08`` and 2e-3 at ``sigma_x = 0.056``; docs/gpf.md).
+Velocities follow from the linear regression on position,
 ``v = m_v + B (p - m_p) + e``, ``B = S_vp S_pp^-1``, ``e ~ N(0, S_vv - B S_pv)`` independent
 of ``p``.
 
