@@ -6,7 +6,9 @@ get ``tests/`` on ``PYTHONPATH``.
 
 from __future__ import annotations
 
+import os
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -16,6 +18,12 @@ from mttbench import Estimate, Tracker
 CRASH_STEP = 3
 #: seconds :class:`Slow` sleeps per step
 SLOW_STEP_S = 0.05
+#: environment variable naming a gate file: while it is set and the file does not exist,
+#: :class:`Slow` waits at its first step, so a sweep cannot finish before the test that
+#: interrupts it has sent its signal (however slow the machine)
+SLOW_GATE_ENV = "MTTBENCH_TEST_SLOW_GATE"
+#: the longest :class:`Slow` waits for its gate
+SLOW_GATE_TIMEOUT_S = 120.0
 
 
 class _Nothing(Tracker):
@@ -60,4 +68,9 @@ class Slow(_Nothing):
 
     def predict(self):
         super().predict()
+        gate = os.environ.get(SLOW_GATE_ENV)
+        if gate and self._k == 0:
+            deadline = time.monotonic() + SLOW_GATE_TIMEOUT_S
+            while not Path(gate).exists() and time.monotonic() < deadline:
+                time.sleep(0.01)
         time.sleep(SLOW_STEP_S)

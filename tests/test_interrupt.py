@@ -1,9 +1,10 @@
 """Ctrl-C on ``mttbench compare`` (a real SIGINT to a subprocess), then the printed resume
 command: the same report, finished parts not recomputed.
 
-The sweep includes ``crashing_tracker:Slow`` (reports nothing, sleeps 0.05 s per step,
-so each of its runs takes about a second): when the first part appears the slow runs
-cannot all be done, so the interrupt always lands mid-sweep.
+The sweep includes ``crashing_tracker:Slow`` (reports nothing, sleeps 0.05 s per step),
+whose runs wait at their first step until the test creates a gate file, which it does
+only after the signal: so the interrupt lands mid-sweep however slow the machine (a
+timing window alone once let a loaded CI machine finish the sweep first).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import time
 from pathlib import Path
 
 import pandas as pd
+from crashing_tracker import SLOW_GATE_ENV
 
 from mttbench.benchmarks.cli import EXIT_INTERRUPTED, main
 
@@ -46,9 +48,10 @@ def _results(folder: Path) -> pd.DataFrame:
 def test_ctrl_c_then_the_printed_command_finishes_the_same_report(monkeypatch, tmp_path,
                                                                   capsys):
     # ---- interrupt: no --out, so the folder is reports/compare-<timestamp> under cwd
+    gate = tmp_path / "gate"  # the slow runs wait for it: the sweep cannot finish first
     proc = subprocess.Popen([sys.executable, "-m", "mttbench", *ARGS], cwd=tmp_path,
-                            env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+                            env={**_env(), SLOW_GATE_ENV: str(gate)},
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + START_TIMEOUT_S
     parts: list[Path] = []
     while not parts:
@@ -58,6 +61,8 @@ def test_ctrl_c_then_the_printed_command_finishes_the_same_report(monkeypatch, t
         parts = list(tmp_path.glob("reports/compare-*/parts/*.parquet"))
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
+    gate.touch()  # from here on the slow runs run (the resume and the whole sweep below)
+    monkeypatch.setenv(SLOW_GATE_ENV, str(gate))
     assert proc.returncode == EXIT_INTERRUPTED, err
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
     interrupted = [x for x in _lines(err) if "interrupted" in x]
