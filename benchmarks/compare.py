@@ -22,7 +22,7 @@ resumes) with its wall time, and ``wall_time_s`` is their sum (a session killed
 without a chance to write, e.g. by SIGKILL, counts as 0).
 
 Default budget: the settings below are chosen so that the default command finishes
-in about one to two minutes on a 2-core machine: 10 seeds, each scenario's own
+in well under a minute on a 2-core machine: 10 seeds, each scenario's own
 length, the raster policy at each scenario's look budget, and JMPD at 1000 particles
 (its own default is 2000), plus a 250-particle JMPD setting so the accuracy-against-
 runtime figure shows the particle-count trade-off. ``--seeds``, ``--steps``,
@@ -248,7 +248,7 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
             "Every tracker on the same simulated worlds (common random numbers: truth and "
             "sensor returns depend only on scenario and seed); the settings of this report "
             "are listed below. Without options `mttbench compare` runs a budget chosen to "
-            "take about one to two minutes on two cores: 10 seeds, each scenario's own "
+            "take well under a minute on two cores: 10 seeds, each scenario's own "
             "length, JMPD at 1000 particles (plus a 250-particle setting). Narrow the "
             "intervals with `--seeds`, lengthen runs with `--steps`, choose trackers and "
             "parameters with `--trackers name:key=value`.",
