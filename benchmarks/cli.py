@@ -298,12 +298,16 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     if tracker_texts:
         resolve_trackers(tracker_texts)
     specs, _ = reproduce.available_trackers(tracker_texts or setting.trackers)
-    for warning in resources.check_jobs(reproduce.setting_jobs(setting, specs),
-                                        args.workers or 1):
+    workers = args.workers or os.cpu_count() or 1
+    ref_path = (Path(args.reference_csv) if args.reference_csv
+                else reproduce.REFERENCE_DIR / f"paper_{setting.name}.csv")
+    if args.check and not ref_path.is_file():
+        raise UsageError(f"--check: no reference {ref_path}")
+    for warning in resources.check_jobs(reproduce.setting_jobs(setting, specs), workers):
         print(warning, file=sys.stderr)
-    prepare_out_dir(out)
+    prepare_out_dir(out, parts=False)
     res = reproduce.reproduce_paper(setting, out, cache, tracker_texts=tracker_texts,
-                                    workers=args.workers or 1, progress=not args.no_progress,
+                                    workers=workers, progress=not args.no_progress,
                                     use_cache=not args.no_cache)
     print(f"wrote {out}/ (figures, CSVs, report.md, report.html; runs "
           f"{'from the cache' if res.cached else 'computed'})")
@@ -311,8 +315,6 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     if failed:
         print(failed.replace(str(out / "summary.csv"), str(out / "report.md")), file=sys.stderr)
         return 1
-    ref_path = (Path(args.reference_csv) if args.reference_csv
-                else reproduce.REFERENCE_DIR / f"paper_{setting.name}.csv")
     versions_path = reproduce.versions_path(ref_path)
     if args.update_reference:
         written = reproduce.write_reference(res.numbers_csv, ref_path)
@@ -321,8 +323,6 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         return 0
     if not args.check:
         return 0
-    if not ref_path.exists():
-        raise UsageError(f"--check: no reference {ref_path}")
     check = reproduce.check_numbers(res.numbers, reproduce.read_numbers(ref_path),
                                     exact=args.exact)
     if check.passed:

@@ -468,15 +468,15 @@ def _write_atomic(path: Path, write: Callable[[Path], object]) -> None:
         raise
 
 
-def prepare_out_dir(out_dir: str | Path) -> Path:
-    """Create the output folder and its ``parts/`` and check that files can be written
-    there, before any run; a problem (the path is a file, a parent is a file, no
-    permission, a read-only file system) raises
+def prepare_out_dir(out_dir: str | Path, parts: bool = True) -> Path:
+    """Create the output folder (and its ``parts/`` unless ``parts=False``) and check
+    that files can be written there, before any run; a problem (the path is a file, a
+    parent is a file, no permission, a read-only file system) raises
     :class:`~mttbench.benchmarks.specs.UsageError` in one line."""
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise UsageError(f"output folder {out} exists and is not a folder")
-    for folder in (out, out / "parts"):
+    for folder in (out, out / "parts") if parts else (out,):
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -584,8 +584,10 @@ def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1, progress: 
     so an interrupted sweep keeps what it finished; with ``resume=True`` the jobs
     whose part exists are not run again. ``workers > 1`` runs jobs in separate
     processes; the results do not depend on ``workers`` (timings aside). If a worker
-    process dies, its jobs get an error row that is not saved as a part, so a
-    resumed sweep runs them again.
+    process dies, the process pool breaks and every run not finished by then (the dead
+    worker's and the queued ones, whatever their tracker) gets an error row that is not
+    saved as a part, so ``--resume`` runs them again; finished parts are kept. (Retrying
+    on a fresh pool is left to the executor work of issue 16.)
 
     On resume a part that cannot be read (damaged, empty, not a part) is reported in
     one line on stderr and recomputed. Temp files left by a killed earlier sweep are

@@ -245,7 +245,7 @@ def available_trackers(texts: tuple[str, ...]) -> tuple[list[TrackerSpec], list[
         except KeyError:
             missing.append(spec.name)
         else:
-            specs.append(spec)
+            specs.append(spec.validated())  # checked values: `1e3` and `1000` are one label
     return specs, missing
 
 
@@ -351,6 +351,8 @@ def run_or_load(setting: Setting, specs: list[TrackerSpec], cache_dir: Path, *,
         shutil.rmtree(folder)
     folder.mkdir(parents=True)
     results, traces = _run(setting, specs, policy, folder, workers, progress, save_traces=True)
+    if (results["status"] == "error").any():
+        return results, traces, False  # not marked done: the next call reruns the failures
     done.write_text(json.dumps({"traces": sorted(traces), "setting": setting.name}))
     return results, traces, False
 

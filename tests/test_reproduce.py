@@ -354,9 +354,11 @@ def test_exact_without_check_is_refused(capsys):
 
 def test_a_failing_run_exits_1_with_one_line(tmp_path, capsys):
     """A tracker that raises at step 3 (tests/crashing_tracker.py) makes the reproduction
-    exit 1 with the "k of n runs failed" line, after writing what it could."""
-    rc = main(["reproduce", "paper", "--reduced", "--no-progress", "--no-cache", "--workers",
-               "1", "--trackers", "null", "crashing_tracker:Crash", "--out",
+    exit 1 with the "k of n runs failed" line, after writing what it could, and the
+    failed sweep is not cached as done."""
+    cache = tmp_path / "cache"
+    rc = main(["reproduce", "paper", "--reduced", "--no-progress", "--cache-dir", str(cache),
+               "--workers", "1", "--trackers", "null", "crashing_tracker:Crash", "--out",
                str(tmp_path / "out")])
     err = capsys.readouterr().err
     assert rc == 1
@@ -364,3 +366,24 @@ def test_a_failing_run_exits_1_with_one_line(tmp_path, capsys):
     assert len(lines) == 1 and lines[0].startswith("6 of 12 runs failed; first error: "), err
     assert "crashing_tracker:Crash" in lines[0] and "Traceback" not in err
     assert (tmp_path / "out" / "report.md").is_file()
+    # a sweep with failed runs is not marked done in the cache: the next call reruns them
+    assert list(cache.rglob("results.parquet")) and not list(cache.rglob("done.json"))
+
+
+def test_check_without_a_reference_is_refused_before_any_run(tmp_path, capsys):
+    out = tmp_path / "out"
+    rc = main(["reproduce", "paper", "--reduced", "--check", "--no-progress", "--no-cache",
+               "--reference-csv", str(tmp_path / "missing.csv"), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2 and len([x for x in err.splitlines() if x.strip()]) == 1, err
+    assert "no reference" in err and not out.exists()
+
+
+def test_spelled_values_give_the_labels_of_the_checked_values():
+    """`1e3` and `1000` are one configuration: one label, one cache key, one reference row."""
+    (a,), _ = reproduce.available_trackers(("jmpd:n_particles=1e3",))
+    (b,), _ = reproduce.available_trackers(("jmpd:n_particles=1000",))
+    assert a.label == b.label == "jmpd(n_particles=1000)"
+    setting = reproduce.SETTINGS["reduced"]
+    policy = PolicySpec(setting.policy)
+    assert reproduce.cache_key(setting, [a], policy) == reproduce.cache_key(setting, [b], policy)

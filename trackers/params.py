@@ -132,7 +132,10 @@ class Param:
         # numbers: never a bool (True is an int to Python, not to a user)
         if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Real):
             raise ValueError(self.allowed())
-        x = float(value)
+        try:
+            x = float(value)
+        except OverflowError:  # an int beyond the float range: out of any range we declare
+            raise ValueError(self.allowed()) from None
         if not math.isfinite(x):
             raise ValueError(self.allowed())
         if self.kind is int:
