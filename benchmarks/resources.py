@@ -42,8 +42,8 @@ refused.
 
 Wall time of one job, in seconds: ``S * (STEP_S + C * R * CELL_S + prediction +
 tracker)``, with ``C * n_counts * PREDICTION_CELL_S`` per step for a policy that uses
-the prediction, ``N * t_max * JMPD_SLOT_S`` (twice for the IP proposal, times ``1 +
-move_steps``) for the JMPD and ``max_particles * GPF_PARTICLE_S`` for the GPF.
+the prediction, ``N * t_max * JMPD_SLOT_S`` (``JMPD_IP_FACTOR`` times that for the IP
+proposal, times ``1 + move_steps``) for the JMPD and ``max_particles * GPF_PARTICLE_S`` for the GPF.
 """
 
 from __future__ import annotations
@@ -68,8 +68,10 @@ RUN_BASE = 32 * 2**20
 CELL_BYTES = 16
 #: copies of ``P_c(t)``-sized arrays alive while a policy uses the prediction
 PREDICTION_COPIES = 16
-#: bytes per JMPD particle slot (states, their move and resampling buffers, cells, keys)
-JMPD_SLOT_BYTES = 256
+#: bytes per JMPD particle slot (states, their move and resampling buffers, cells, keys,
+#: the estimate's alignment work): peaks of ~800 B per slot measured on ``large`` with
+#: t_max = 30 (jmpd-ip, N = 2e4: 901 MB; jmpd, N = 1e5: 2.3 GB)
+JMPD_SLOT_BYTES = 1024
 #: bytes per GPF particle (mean, covariance and their working copies)
 GPF_PARTICLE_BYTES = 2048
 #: one step's result row inside the worker (a dict of ~45 entries, then a DataFrame row)
@@ -81,7 +83,10 @@ RESULT_ROW_BYTES = 4096
 STEP_S = 1e-3
 CELL_S = 1e-7
 PREDICTION_CELL_S = 3e-7
-JMPD_SLOT_S = 2e-7
+#: seconds per JMPD slot and step (bootstrap; measured 0.22 s at N = 2e4, t_max = 30)
+JMPD_SLOT_S = 4e-7
+#: the IP proposal's cost relative to the bootstrap (measured 0.9 s against 0.22 s there)
+JMPD_IP_FACTOR = 4.0
 GPF_PARTICLE_S = 1e-4
 KFNN_STEP_S = 5e-4
 #: a sweep estimated to take longer than this on its workers gets a warning
@@ -152,7 +157,7 @@ def estimate_job(job: Any) -> Estimate:
     if tname.startswith("jmpd"):
         slots = _number(tparams, "n_particles", 2000) * _number(tparams, "t_max", 5)
         parts["tracker"] = slots * JMPD_SLOT_BYTES
-        factor = 2.0 if tparams.get("proposal") == "ip" else 1.0
+        factor = JMPD_IP_FACTOR if tparams.get("proposal") == "ip" else 1.0
         seconds_per_step += slots * JMPD_SLOT_S * factor * (1 + _number(tparams, "move_steps", 0))
     elif tname == "gpf":
         n = _number(tparams, "max_particles", 100)
