@@ -22,6 +22,7 @@ reads ``jmpd(n_particles=1000)``).
 from __future__ import annotations
 
 import dataclasses
+import json
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -127,8 +128,16 @@ class Spec:
         """``name`` without parameters, else ``name(k=v,...)`` with sorted keys."""
         return label(self.name, self.params)
 
+    def _key(self) -> tuple[str, str, str]:
+        # parameters by their JSON text, so True and 1 (equal to Python) stay apart
+        return (self.kind, self.name,
+                json.dumps(self.params, sort_keys=True, default=repr, allow_nan=True))
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Spec) and self._key() == other._key()
+
     def __hash__(self) -> int:
-        return hash((self.kind, self.label))
+        return hash(self._key())
 
     @classmethod
     def parse(cls, text: str) -> Self:
@@ -157,9 +166,11 @@ class TrackerSpec(Spec):
     kind = "tracker"
 
     def target(self) -> type[trackers.Tracker]:
+        """The tracker class (registered name or class path)."""
         return trackers.get_class(self.name)
 
     def make(self) -> trackers.Tracker:
+        """A new tracker with these parameters (checked against its declaration)."""
         return trackers.make(self.name, **self.params)
 
 
@@ -169,9 +180,11 @@ class PolicySpec(Spec):
     kind = "policy"
 
     def target(self) -> type[policies.Policy]:
+        """The policy class (registered name or class path)."""
         return policies.get_policy_class(self.name)
 
     def make(self) -> policies.Policy:
+        """A new policy with these parameters (checked against its declaration)."""
         return policies.make_policy(self.name, **self.params)
 
 

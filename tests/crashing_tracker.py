@@ -9,10 +9,11 @@ from __future__ import annotations
 import os
 import time
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
-from mttbench import Estimate, Tracker
+from mttbench import Estimate, Policy, Tracker
 
 #: the step at which :class:`Crash` raises (0-based, counted by ``predict``)
 CRASH_STEP = 3
@@ -74,3 +75,14 @@ class Slow(_Nothing):
             while not Path(gate).exists() and time.monotonic() < deadline:
                 time.sleep(0.01)
         time.sleep(SLOW_STEP_S)
+
+
+class FirstCells(Policy):
+    """Looks at the first ``M`` cells every step (a policy named by class path)."""
+
+    name = "first-cells"
+    summary = "test policy: the first M cells"
+    parameters: ClassVar[dict] = {}
+
+    def select(self, k, counts=None, truth_cells=None):
+        return np.arange(min(self._n_looks, self._n_cells), dtype=np.int64)

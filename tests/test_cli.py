@@ -144,3 +144,16 @@ def test_run_uses_one_worker_per_cpu_by_default(tmp_path, capsys):
     assert rc == 0
     workers = min(os.cpu_count() or 1, 8)
     assert f"8 runs on {workers} worker(s) -> {tmp_path}" in capsys.readouterr().err
+
+
+def test_a_policy_named_by_class_path_runs(tmp_path):
+    """``--policy package.module:Class`` works like ``--trackers`` does (one registry
+    mechanism serves both)."""
+    out = tmp_path / "out"
+    rc = main(["run", "--scenarios", "default", "--trackers", "null", "--policy",
+               "crashing_tracker:FirstCells", "--seeds", "1", "--steps", "3", "--workers", "1",
+               "--no-progress", "--out", str(out)])
+    assert rc == 0
+    df = pd.read_parquet(out / "results.parquet")
+    assert set(df["policy"]) == {"crashing_tracker:FirstCells"}
+    assert (df["status"] == "ok").all() and (df["n_looks"] == 24).all()

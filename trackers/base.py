@@ -17,7 +17,6 @@ update, including the first.
 
 from __future__ import annotations
 
-import importlib
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -129,16 +128,7 @@ broken_plugins = _TRACKERS.broken
 def get_class(name: str) -> type[Tracker]:
     """The tracker class of a registered name (shipped or from an entry point), or of a
     class path ``package.module:Class`` (a tracker written elsewhere, not registered)."""
-    if name in _TRACKERS or ":" not in name:
-        return _TRACKERS.get(name)
-    module, _, attr = name.partition(":")
-    try:
-        cls = getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError) as exc:
-        raise KeyError(f"cannot import tracker {name!r}: {exc}") from None
-    if not (isinstance(cls, type) and issubclass(cls, Tracker)):
-        raise KeyError(f"{name!r} is not a subclass of mttbench.trackers.Tracker")
-    return cls
+    return _TRACKERS.get(name)
 
 
 def make(name: str, **params: Any) -> Tracker:

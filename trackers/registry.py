@@ -10,6 +10,7 @@ the first look-up, once per process. One that fails to load is kept with its rea
 
 from __future__ import annotations
 
+import importlib
 from importlib import metadata
 from typing import Generic, TypeVar
 
@@ -70,12 +71,27 @@ class Registry(Generic[T]):
         return dict(self._broken)
 
     def get(self, name: str) -> T:
-        """The class registered as ``name``; ``KeyError`` naming the choices otherwise."""
+        """The class registered as ``name``, or named by a class path
+        ``package.module:Class`` (a class written elsewhere, used without registering
+        it); ``KeyError`` naming the choices otherwise."""
         self.load_plugins()
         if name in self._classes:
             return self._classes[name]
+        if ":" in name and name not in self._broken:
+            return self._import(name)
         why = f" failed to load: {self._broken[name]}" if name in self._broken else ""
-        raise KeyError(f"unknown {self.kind} {name!r}{why}: the {self.plural} are {self.names()}")
+        raise KeyError(f"unknown {self.kind} {name!r}{why}: the {self.plural} are {self.names()}"
+                       "; one from elsewhere is named package.module:ClassName")
+
+    def _import(self, path: str) -> T:
+        module, _, attr = path.partition(":")
+        try:
+            cls = getattr(importlib.import_module(module), attr)
+        except (ImportError, AttributeError) as exc:
+            raise KeyError(f"cannot import {self.kind} {path!r}: {exc}") from None
+        if not (isinstance(cls, type) and issubclass(cls, self.base)):
+            raise KeyError(f"{path!r} is not a subclass of {self.base.__qualname__}")
+        return cls
 
     def __contains__(self, name: str) -> bool:
         self.load_plugins()
