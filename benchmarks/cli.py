@@ -47,7 +47,7 @@ from .compare import (
     OUTPUT_FILES,
     is_finished,
 )
-from .harness import build_jobs, prepare_out_dir, run_sweep, write_text_atomic
+from .harness import build_jobs, prepare_out_dir, run_sweep
 from .specs import (
     UsageError,
     resolve_policies,
@@ -55,7 +55,7 @@ from .specs import (
     resolve_trackers,
     split_specs,
 )
-from .summary import run_failures, summarize, to_markdown
+from .summary import run_failures, write_summary
 
 # ------------------------------------------------------------------ validation
 #: largest seed (and look budget): the results table stores them as int64
@@ -172,16 +172,6 @@ def _failure_line(results: pd.DataFrame, out_dir: Path) -> str | None:
 
 
 # ---------------------------------------------------------------------- outputs
-def write_outputs(results: pd.DataFrame, out_dir: Path, title: str) -> str:
-    """Write ``summary.csv`` and ``summary.md`` next to ``results.parquet`` (each all or
-    nothing); return the Markdown text."""
-    summary = summarize(results)
-    write_text_atomic(out_dir / "summary.csv", summary.to_csv(index=False))
-    text = f"# {title}\n\n" + to_markdown(summary)
-    write_text_atomic(out_dir / "summary.md", text)
-    return text
-
-
 def _sweep(args: argparse.Namespace, scs, tracker_specs, policy_specs, looks, seeds,
            out_dir: Path, workers: int, title: str) -> int:
     jobs = build_jobs(scs, tracker_specs, policy_specs, looks, seeds)
@@ -192,7 +182,7 @@ def _sweep(args: argparse.Namespace, scs, tracker_specs, policy_specs, looks, se
           file=sys.stderr)
     results = run_sweep(jobs, out_dir, workers=workers, progress=not args.no_progress,
                         resume=getattr(args, "resume", False), c=args.c, p=args.p)
-    text = write_outputs(results, out_dir, title)
+    text = write_summary(results, out_dir, title)
     print(text)
     print(f"wrote {out_dir}/: results.parquet, summary.csv, summary.md")
     failed = _failure_line(results, out_dir)

@@ -222,10 +222,7 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
         manifest["runs_wall_time_s"] = round(t_runs, 3)
         manifest["n_rows"] = len(results)
 
-        summ = summary.summarize(results)
-        write_text_atomic(out / "summary.csv", summ.to_csv(index=False))
-        write_text_atomic(out / "summary.md",
-                          "# mttbench compare\n\n" + summary.to_markdown(summ))
+        summary.write_summary(results, out, "mttbench compare")
 
         trace = _snapshot_trace(scs, specs, seeds) if snapshot else None
         earlier = sum(float(s.get("wall_time_s") or 0.0) for s in sessions[:-1])

@@ -360,15 +360,11 @@ def play(scenario: Scenario, tracker: Tracker, seed: int, *, policy: Policy | No
                     policy_label, n_steps)
 
 
-def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
-    """Play one job (:func:`play`); returns its rows (see the module docstring).
-
-    Never raises for a failing tracker or policy: the failure becomes a row with
-    ``status = "error"``. An unsupported scenario gives one row with ``step = -1``.
-    """
-    sc, model = job.scenario, job.scenario.model
-    base: dict[str, Any] = {
-        "scenario": sc.name,
+def _base_row(job: Job, c: float, p: float) -> dict[str, Any]:
+    """The columns that identify a job's rows (tracker and policy parameters as given;
+    :func:`run_job` replaces them with the resolved ones once the objects are built)."""
+    return {
+        "scenario": job.scenario.name,
         "tracker": job.tracker.name,
         "tracker_label": job.tracker.label,
         "tracker_params": _params_json(job.tracker.params),
@@ -381,12 +377,25 @@ def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
         "ospa_c": float(c),
         "ospa_p": float(p),
     }
-    rows: list[dict[str, Any]] = []
 
-    def special_row(step: int, status: str, message: str, true_count: float) -> dict[str, Any]:
-        return {**base, "step": step, "true_count": true_count, "est_count": math.nan,
-                **_nan_metrics(), "n_looks": 0, "n_positive": 0,
-                **dict.fromkeys(TIMING_COLUMNS, math.nan), "status": status, "error": message}
+
+def _special_row(base: dict[str, Any], step: int, status: str, message: str,
+                 true_count: float) -> dict[str, Any]:
+    """A row without metrics: an unsupported job (step -1) or the step that failed."""
+    return {**base, "step": step, "true_count": true_count, "est_count": math.nan,
+            **_nan_metrics(), "n_looks": 0, "n_positive": 0,
+            **dict.fromkeys(TIMING_COLUMNS, math.nan), "status": status, "error": message}
+
+
+def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
+    """Play one job (:func:`play`); returns its rows (see the module docstring).
+
+    Never raises for a failing tracker or policy: the failure becomes a row with
+    ``status = "error"``. An unsupported scenario gives one row with ``step = -1``.
+    """
+    sc, model = job.scenario, job.scenario.model
+    base = _base_row(job, c, p)
+    rows: list[dict[str, Any]] = []
 
     def finish() -> pd.DataFrame:
         rss = _peak_rss_mb()
@@ -407,7 +416,7 @@ def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
 
         reason = tracker.unsupported_reason(model)
         if reason:
-            rows.append(special_row(-1, "unsupported", str(reason), math.nan))
+            rows.append(_special_row(base, -1, "unsupported", str(reason), math.nan))
             return finish()
 
         playback = play(sc, tracker, job.seed, policy=policy,
@@ -431,7 +440,7 @@ def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
         message = f"{type(exc).__name__}: {exc}".replace("\n", " ")
         k = playback.step if playback is not None else -1
         true_count = float(len(playback.world.states[k])) if k >= 0 else math.nan
-        rows.append(special_row(k, "error", message, true_count))
+        rows.append(_special_row(base, k, "error", message, true_count))
     return finish()
 
 
@@ -661,14 +670,6 @@ def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1, progress: 
 
 
 def _lost_job_frame(job: Job, message: str, c: float, p: float) -> pd.DataFrame:
-    row = {
-        "scenario": job.scenario.name, "tracker": job.tracker.name,
-        "tracker_label": job.tracker.label, "tracker_params": _params_json(job.tracker.params),
-        "policy": job.policy.name if job.policy is not None else NO_POLICY,
-        "policy_label": job.policy_label, "policy_params": "{}", "uses_truth": False,
-        "looks_per_step": job.looks_per_step or 0, "seed": int(job.seed), "step": -1,
-        "true_count": math.nan, "est_count": math.nan, **_nan_metrics(), "n_looks": 0,
-        "n_positive": 0, **dict.fromkeys(TIMING_COLUMNS, math.nan), "status": "error",
-        "error": message, "ospa_c": float(c), "ospa_p": float(p), "peak_rss_mb": math.nan,
-    }
-    return _frame([row])
+    """The one error row of a job whose worker process died (not saved as a part)."""
+    row = _special_row(_base_row(job, c, p), -1, "error", message, math.nan)
+    return _frame([{**row, "peak_rss_mb": math.nan}])

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -274,3 +275,16 @@ def to_markdown(summary: pd.DataFrame,
                  "ms/step = median tracker time per step (predict + update + estimate); "
                  "looks = the budget per step, with the looks made when fewer or more.")
     return "\n".join(lines) + "\n"
+
+
+def write_summary(results: pd.DataFrame, out_dir: str | Path, title: str) -> str:
+    """Write ``summary.csv`` and ``summary.md`` (headed ``title``) of ``results`` into
+    ``out_dir``, each all or nothing; return the Markdown text."""
+    from .harness import write_text_atomic
+
+    out_dir = Path(out_dir)
+    table = summarize(results)
+    write_text_atomic(out_dir / "summary.csv", table.to_csv(index=False))
+    text = f"# {title}\n\n" + to_markdown(table)
+    write_text_atomic(out_dir / "summary.md", text)
+    return text
