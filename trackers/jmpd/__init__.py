@@ -51,6 +51,7 @@ truth; the IP proposal helps (``default``, N = 2000, every cell looked at, 20 se
 OSPA 1.41 -> 0.87); resample-move shows no measurable gain, so it stays opt-in.
 """
 
+from .ap import JMPDAPTracker
 from .backend import compiled_kernels, use_backend
 from .estimation import (
     EXACT_ALIGN_MAX,
@@ -78,7 +79,7 @@ from .tracker import JMPDIPTracker, JMPDTracker
 
 __all__ = [
     "DEFAULT_BIRTH_RATE", "DEFAULT_DEATH_PROBABILITY", "EXACT_ALIGN_MAX", "BootstrapPrior",
-    "JMPDIPTracker", "JMPDTracker", "ParticleState", "align_slots", "align_square",
+    "JMPDAPTracker", "JMPDIPTracker", "JMPDTracker", "ParticleState", "align_slots", "align_square",
     "apply_boundary", "bernoulli_indices", "cell_count_distribution_from",
     "compiled_kernels", "effective_sample_size", "estimate_targets", "flat_cells", "fold",
     "gather_mask", "greedy_assignment", "grid_log_likelihood", "grid_log_likelihood_tables",

@@ -187,7 +187,7 @@ def cell_count_distribution_from(cells: np.ndarray, weights: np.ndarray, n_cells
     slot, particle = np.nonzero(keep)
     key = c[slot, particle] * n_counts + np.minimum(n_in[slot, particle], n_counts - 1)
     P = np.bincount(key, weights=weights[particle], minlength=n_cells * n_counts)
-    P = P.reshape(n_cells, n_counts)
+    P = P.reshape(n_cells, n_counts).astype(np.float64, copy=False)  # int when no target
     P[:, 0] = np.maximum(1.0 - P[:, 1:].sum(axis=1), 0.0)
     P /= P.sum(axis=1, keepdims=True)
     return P

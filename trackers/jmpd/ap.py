@@ -1,0 +1,541 @@
+"""``jmpd-ap``: the JMPD particle filter at the strength its authors report.
+
+Kreucher, Kastella and Hero (IEEE TAES 2005, Signal Processing 2005), Kreucher,
+Morelande, Kastella and Hero (IEEE Aerospace 2005), Morelande, Kreucher and Kastella
+(IEEE TSP 2007); the brief with sources is docs/literature/jmpd.md, the measurements
+docs/jmpd-ap.md. A particle holds ``T_max`` slots (partitions); slot ``t`` means the
+same target in every particle. Per slot: the position ``rho`` (a sample) and a Gaussian
+velocity ``N(m, s)`` per axis given the position's past (Rao-Blackwellised, TSP 2007
+Sec. IV-A; the measurements depend on positions only). With the model's per-axis noise
+``[[q11, q12], [q12, q22]]`` the predictive and the velocity update are, per axis::
+
+    rho_k ~ N(rho + tau m, Psi),  Psi = tau^2 s + q11
+    m <- m + K (rho_k - rho - tau m),  K = (tau s + q12) / Psi
+    s <- s + q22 - (tau s + q12)^2 / Psi
+
+One update (every step; ``Lambda_c(n)`` is the product over this step's looks at cell
+``c`` of ``p(z | n) / p(z | 0)``, 1 for unlooked cells):
+
+1. **Partitions** (AP, TAES Table V with Morelande's closure): slot centres are the
+   predicted positions averaged over the particles holding the slot; slots closer than
+   ``cluster_distance`` cells, or whose particles' positions overlap, are one cluster
+   (:func:`.partitions.cluster_slots`). A cluster of one slot is sampled alone (IP), a
+   larger one jointly.
+2. **Persistent targets**: every particle draws its clusters' targets one after another
+   from the locally optimal proposal given those already placed: slot ``t`` dies with
+   weight ``beta + (1 - beta) m_out`` (removal, or leaving the workspace under ``die``)
+   or moves to cell ``c`` of a window around its predictive mean with weight
+   ``(1 - beta) gamma_c Lambda_c(n_c + 1) / Lambda_c(n_c)`` (``gamma_c`` the
+   predictive's mass in ``c``, ``n_c`` the cluster's targets already in ``c``); inside
+   the cell the position is the predictive truncated to it (TSP eqs. 26-31, the mixture
+   of truncated Gaussians, drawn sequentially instead of over all cell combinations so
+   that the cost is linear in the cluster size). ``Z_t`` is the sum of the weights;
+   ``prod_t Z_t`` is the draw's importance weight (exactly the predictive likelihood
+   for a single target).
+3. **Recombination** (IP, TAES Table III; Morelande's per-cluster first stage): receiver
+   ``i`` takes cluster ``l``'s draw from particle ``a`` picked ``∝ prod_{t in l} Z_t(a)``
+   (systematic, shuffled), independently per cluster.
+4. **Births** at detected cells (``Lambda_c(1) > 1``) not occupied by the particle:
+   with ``pi_c`` the probability of an undetected target in ``c`` (below), born with
+   ``b_c = pi_c Lambda_c(1) / (1 - pi_c + pi_c Lambda_c(1))``, uniform in the cell,
+   velocity from the model's birth law. All particles born in ``c`` this step share a
+   slot (TSP p. 1600): the slot whose centre is in ``c`` where the particle has it
+   empty, else a fresh slot.
+5. **Weights** (TSP eq. 58, whose correction multiplies; the Aerospace and dissertation
+   tables divide by it)::
+
+       log w_i = log p(z | X_i) - sum_l log pi_l(z | X_il)     (clusters sharing a cell)
+                 + sum_{c born} log(pi_c / b_c) + sum_{c not born} log((1-pi_c)/(1-b_c))
+
+   (a particle with more targets than a fixed-count model allows gets weight 0), then
+   systematic resampling every step, K-means sorting of the slots within clusters
+   (:func:`.partitions.sort_slots`) and merging of slots that hold one target
+   (:func:`.partitions.merge_slots`).
+6. **Undetected targets** (the existence grid of Aerospace 2005 eqs. 22-23, in a
+   Poisson-binomial form): the initial ones, ``r_i = max(n0 p_s^(k+1) - T_i, 0)`` not held
+   by particle ``i``, each in cell ``c`` with probability ``v_c / sum v`` (``v <- v
+   (1 - p_d)`` per look); and arrivals with intensity ``u_c`` (``u <- p_s u + alpha_c`` per step,
+   ``u <- u (1 - p_d)`` per look), kept lazily (value and step of each cell's last
+   look), so a step costs the looks, not the cells. ``pi_c = 1 - (1 - v_c / sum v)^r_i
+   exp(-u_c)``.
+
+Estimate: count ``E[T]``; states: the ``round(E[T])`` slots of largest existence mass,
+each averaged over the particles holding it (positions, velocity means).
+
+Rates: the model's (``alpha_c`` = birth rate / cells, ``beta = 1 - p_s``). Where the
+model never removes a target (``p_s = 1``) the filter uses Kreucher's removal 0.005 per
+target and step, so that a track it lost can be dropped and the target found again
+(a dropped target returns to the undetected initial targets).
+
+Departures from the papers: recombination by the draws' weights (draw first, then
+pick, as a bootstrap filter per cluster) rather than by a first-stage estimate;
+births only at detected cells (an undetected target is
+instantiated at its first detection; births elsewhere have posterior probability below
+``alpha_c`` and are left to the intensity); no birth in a cell the particle occupies;
+the predictive is truncated to the workspace under ``reflect`` (renormalised, not
+folded) and to a window of ``2 H + 1`` cells per axis, ``H = ceil(4 sd / cell)`` capped
+at ``max_window``; the undetected intensity ignores motion (as Kreucher's grid).
+Grid sensor only.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import numpy as np
+
+from ...scenarios.model import Looks, RayleighGridSensor, TrackingModel
+from ..base import Estimate, Tracker, register
+from ..params import Param
+from .cell_proposal import axis_window, truncated_normal
+from .estimation import cell_count_distribution_from
+from .likelihood import grid_log_likelihood, grid_log_likelihood_tables
+from .partitions import cluster_slots, merge_slots, sort_slots
+from .resampling import effective_sample_size, systematic_resample
+from .state import fold
+
+#: Kreucher's removal probability per target and step, used when the model has none
+#: (docs/literature/jmpd.md Sec. 2.6)
+KREUCHER_REMOVAL = 0.005
+
+
+def _boxes(pos: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Extent ``(T, 4)`` (``x0, x1, y0, y1``) of the positions ``(N, T, 2)`` held in
+    each slot (empty boxes, ``+inf, -inf``, for slots held nowhere)."""
+    inf = np.inf
+    x, y = pos[..., 0], pos[..., 1]
+    return np.stack([np.where(valid, x, inf).min(axis=0), np.where(valid, x, -inf).max(axis=0),
+                     np.where(valid, y, inf).min(axis=0), np.where(valid, y, -inf).max(axis=0)],
+                    axis=1)
+
+
+def _auto_slots(model: TrackingModel) -> int:
+    """Slots for the model: twice the expected peak count plus 4 (ghost and birth slots
+    live a few steps before they are freed)."""
+    bd = model.birth_death
+    n0 = bd.initial_count_mean
+    p_s, b = bd.survival_probability, bd.birth_rate
+    peak = max(n0, b / (1.0 - p_s)) if p_s < 1.0 else n0 + 100.0 * b
+    return int(2 * math.ceil(peak) + 4)
+
+
+@register
+class JMPDAPTracker(Tracker):
+    """JMPD with measurement-directed births and deaths, adaptive partitions, partition
+    sorting and Rao-Blackwellised velocities (the module docstring).
+
+    After ``reset``: ``count_mean`` (``E[T]`` of the last estimate), ``ess`` (effective
+    sample size before the last resampling), ``n_clusters`` and ``largest_cluster`` of
+    the last update, ``undetected_mass`` (the expected number of undetected targets).
+    """
+
+    name = "jmpd-ap"
+    summary = ("JMPD at literature strength: measurement-directed births/deaths, adaptive "
+               "partitions, sorting (Kreucher, Morelande et al.)")
+    parameters: ClassVar[dict[str, Param]] = {
+        "n_particles": Param(int, 1, doc="particles N"),
+        "t_max": Param(int, 1, allow_none=True, none="twice the expected peak count + 4",
+                       doc="slots per particle"),
+        "arrival_rate": Param(float, 0, allow_none=True, none="the model's birth rate",
+                              doc="expected arrivals per step over the workspace "
+                                  "(Kreucher: 0.02)"),
+        "removal_probability": Param(float, 0, 1, allow_none=True, none="1 - p_s",
+                                     doc="per target and step (Kreucher: 0.005)"),
+        "cluster_distance": Param(float, 0, doc="AP threshold, in cells (Morelande: 2.5)"),
+        "max_window": Param(int, 1, doc="largest half-width of the proposal window, cells"),
+        "sort_iterations": Param(int, 0, doc="K-means sweeps per step"),
+        "merge_distance": Param(float, 0, doc="slots whose means are closer (cells) merge"),
+        "undetected_in_policy": Param(bool, doc="add the undetected intensity to P_c(t)"),
+    }
+
+    def __init__(self, n_particles: int = 500, t_max: int | None = None,
+                 arrival_rate: float | None = None,
+                 removal_probability: float | None = None,
+                 cluster_distance: float = 2.5, max_window: int = 6,
+                 sort_iterations: int = 2, merge_distance: float = 0.5,
+                 undetected_in_policy: bool = True) -> None:
+        self.n_particles = n_particles
+        self.t_max = t_max
+        self.arrival_rate = arrival_rate
+        self.removal_probability = removal_probability
+        self.cluster_distance = cluster_distance
+        self.max_window = max_window
+        self.sort_iterations = sort_iterations
+        self.merge_distance = merge_distance
+        self.undetected_in_policy = undetected_in_policy
+
+    # ------------------------------------------------------------- life cycle
+    def unsupported_reason(self, model: TrackingModel) -> str | None:
+        if not isinstance(model.sensor, RayleighGridSensor):
+            return "grid sensor only (the proposal is built from per-cell likelihoods)"
+        Q = model.dynamics.Q
+        if np.any(Q[0:2, 2:4] != 0.0):
+            return "process noise couples the x and y axes (the proposal factorises per axis)"
+        if self.t_max is not None and _auto_slots(model) - 4 > 2 * int(self.t_max):
+            return (f"t_max = {self.t_max} is less than half the expected peak count; "
+                    f"use t_max >= {(_auto_slots(model) - 4) // 2}")
+        return None
+
+    def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
+        self.validate_params(self.get_params())
+        self._model, self._rng = model, rng
+        grid, bd, dyn = model.grid, model.birth_death, model.dynamics
+        N = int(self.n_particles)
+        T = int(self.t_max) if self.t_max is not None else _auto_slots(model)
+        self._N, self._T = N, T
+        Q = dyn.Q
+        self._tau = float(dyn.tau)
+        self._q11 = np.array([Q[0, 0], Q[2, 2]])
+        self._q12 = np.array([Q[0, 1], Q[2, 3]])
+        self._q22 = np.array([Q[1, 1], Q[3, 3]])
+        self._reflect = bd.boundary == "reflect"
+        J = grid.n_cells
+        self._arrivals = float(bd.birth_rate if self.arrival_rate is None
+                               else self.arrival_rate)
+        self._alpha = self._arrivals / J  # per cell and step
+        if self.removal_probability is not None:
+            self._beta = float(self.removal_probability)
+        elif bd.survival_probability < 1.0:
+            self._beta = 1.0 - float(bd.survival_probability)
+        else:  # the model never removes a target; the filter must drop tracks it lost
+            self._beta = KREUCHER_REMOVAL
+        self._p_s = float(bd.survival_probability)
+        fixed = self._p_s == 1.0 and self._arrivals == 0.0
+        self._fixed_count = int(round(bd.initial_count_mean)) if fixed else None
+        self._birth_var = float(bd.birth_velocity_std) ** 2
+        # slots: positions, velocity means and variances per axis, validity
+        self.pos = np.zeros((N, T, 2))
+        self.vel = np.zeros((N, T, 2))
+        self.vvar = np.ones((N, T, 2))
+        self.valid = np.zeros((N, T), dtype=bool)
+        # undetected targets (module docstring, 6): the initial ones, n0 p_s^(k+1) alive
+        # less the particle's targets, spread over the cells in proportion to v (v <- v
+        # (1 - p_d) per look); and the arrivals' intensity u, kept lazily as the value at
+        # each cell's last look and its step
+        self._n0 = float(bd.initial_count_mean)
+        self._v = np.full(J, 1.0 / J)
+        self._v_total = 1.0
+        self._u = np.zeros(J)
+        self._u_step = np.full(J, -1, dtype=np.int64)
+        self._k = -1
+        self._pred: tuple[np.ndarray, np.ndarray] | None = None
+        self.count_mean = 0.0
+        self.ess = float(N)
+        self.n_clusters = 0
+        self.largest_cluster = 0
+
+    # ------------------------------------------------------------- helpers
+    def _arrival_intensity(self, cells: np.ndarray) -> np.ndarray:
+        """Intensity of undetected arrivals in the given cells at the current step
+        (after this step's arrivals, before its looks): ``u <- p_s u + alpha`` per step."""
+        gap = self._k - self._u_step[cells]
+        p_s, a = self._p_s, self._alpha
+        if p_s == 1.0:
+            return self._u[cells] + a * gap
+        keep = p_s ** gap
+        return self._u[cells] * keep + a * (1.0 - keep) / (1.0 - p_s)
+
+    def _remaining(self) -> np.ndarray:
+        """Initial targets not held, per particle: ``max(n0 p_s^(k+1) - T_i, 0)``
+        (exact when the count is fixed; a particle that dropped a lost track may find
+        it again)."""
+        alive = self._n0 * self._p_s ** (self._k + 1)
+        return np.maximum(alive - self.valid.sum(axis=1), 0.0)
+
+    def _undetected_probability(self, cells: np.ndarray, remaining: np.ndarray
+                                ) -> tuple[np.ndarray, np.ndarray]:
+        """``(pi_initial, pi_arrival)`` of an undetected target in each cell, for
+        particles with ``remaining`` initial targets not found; shapes ``remaining.shape
+        + cells.shape``."""
+        share = self._v[cells] / self._v_total
+        pi_init = -np.expm1(remaining[..., None] * np.log1p(-np.minimum(share, 1.0 - 1e-16)))
+        pi_arr = -np.expm1(-self._arrival_intensity(cells))
+        return pi_init, np.broadcast_to(pi_arr, pi_init.shape)
+
+    @property
+    def undetected_mass(self) -> float:
+        """Expected number of undetected targets now (an O(cells) diagnostic)."""
+        remaining = self._remaining().mean()
+        arrivals = self._arrival_intensity(np.arange(self._model.grid.n_cells)).sum()
+        return float(remaining + arrivals)
+
+    def predict(self) -> None:
+        self._k += 1
+        rhohat = self.pos + self._tau * self.vel
+        psi = self._tau ** 2 * self.vvar + self._q11
+        self._pred = (rhohat, psi)
+        self._kp_cells = None
+
+    def _kinematic_cells(self) -> np.ndarray:
+        """Flat cells ``(N, T)`` of one draw from the predictive (kinematic prior),
+        ``n_cells`` for empty slots and targets that left under ``die``."""
+        if self._kp_cells is None:
+            rhohat, psi = self._pred
+            grid = self._model.grid
+            x = rhohat + np.sqrt(psi) * self._rng.standard_normal(rhohat.shape)
+            width, height = grid.extent
+            ok = self.valid.copy()
+            if self._reflect:
+                x[..., 0], _ = fold(x[..., 0], np.zeros_like(x[..., 0]), width)
+                x[..., 1], _ = fold(x[..., 1], np.zeros_like(x[..., 1]), height)
+            else:
+                ok &= (x[..., 0] >= 0) & (x[..., 0] < width) & (x[..., 1] >= 0) \
+                    & (x[..., 1] < height)
+            cells = grid.cell_of(x[..., 0], x[..., 1])
+            self._kp_cells = np.where(ok & (cells >= 0), cells, grid.n_cells)
+        return self._kp_cells
+
+    def cell_count_distribution(self) -> np.ndarray:
+        grid = self._model.grid
+        n_counts = min(self._T, 4) + 1
+        w = np.full(self._N, 1.0 / self._N)
+        P = cell_count_distribution_from(self._kinematic_cells(), w, grid.n_cells, n_counts)
+        if self.undetected_in_policy:
+            remaining = np.array([self._remaining().mean()])
+            pi_init, pi_arr = self._undetected_probability(np.arange(grid.n_cells), remaining)
+            pi = (1.0 - (1.0 - pi_init[0]) * (1.0 - pi_arr[0]))[:, None]
+            shifted = np.zeros_like(P)
+            shifted[:, 1:] = P[:, :-1]
+            shifted[:, -1] += P[:, -1]
+            P = P * (1.0 - pi) + shifted * pi
+        return P
+
+    # ------------------------------------------------------------- update
+    def update(self, looks: Looks) -> None:
+        model, rng = self._model, self._rng
+        grid = model.grid
+        N, T, J = self._N, self._T, grid.n_cells
+        rhohat, psi = self._pred
+        sd = np.sqrt(psi)
+        slot_of_cell, table = grid_log_likelihood_tables(
+            model.sensor, np.asarray(looks.cells, dtype=np.int64),
+            np.asarray(looks.returns, dtype=bool), J, T)
+        beta = self._beta
+
+        # 1. partitions from the predicted centres
+        held = self.valid.sum(axis=0)
+        active = held > 0
+        centres = (rhohat * self.valid[..., None]).sum(axis=0) / np.maximum(held, 1)[:, None]
+        clusters = cluster_slots(centres, active, self.cluster_distance * grid.cell_size,
+                                 _boxes(rhohat, self.valid))
+        self.n_clusters = len(clusters)
+        self.largest_cluster = max((len(c) for c in clusters), default=0)
+
+        log_w = np.zeros(N)
+        if clusters:
+            log_w += self._move_persistent(clusters, rhohat, psi, sd, slot_of_cell, table,
+                                           beta)
+        log_w += self._births(centres, active, slot_of_cell, table)
+
+        # full likelihood (all targets, newborns included)
+        cells = grid.cell_of(self.pos[..., 0], self.pos[..., 1])
+        cells = np.where(self.valid & (cells >= 0), cells, J)
+        log_w += grid_log_likelihood(cells, slot_of_cell, table)
+
+        # weights, resampling every step
+        if self._fixed_count is not None:
+            # recombining clusters from different ancestors can give a particle more
+            # targets than the model allows; their prior probability is 0
+            over = self.valid.sum(axis=1) > self._fixed_count
+            if over.any() and not over.all():
+                log_w[over] = -np.inf
+        log_w -= log_w.max()
+        w = np.exp(log_w)
+        w /= w.sum()
+        self.ess = float(effective_sample_size(w))
+        idx = systematic_resample(w, rng.random())
+        for name in ("pos", "vel", "vvar", "valid"):
+            setattr(self, name, getattr(self, name)[idx])
+
+        # undetected targets after this step's looks: u, v <- (u, v) (1 - p_d)^(looks)
+        if len(looks):
+            lc, n_looks = np.unique(np.asarray(looks.cells, dtype=np.int64),
+                                    return_counts=True)
+            miss = (1.0 - model.sensor.p_d) ** n_looks
+            self._u[lc] = self._arrival_intensity(lc) * miss
+            self._u_step[lc] = self._k
+            v_new = self._v[lc] * miss
+            self._v_total += float((v_new - self._v[lc]).sum())
+            self._v[lc] = v_new
+            if self._v_total < 1e-100:  # only ratios matter; keep them representable
+                self._v /= self._v_total
+                self._v_total = float(self._v.sum())
+
+        # K-means partition sorting within clusters (after resampling, before estimation)
+        if self.sort_iterations > 0:
+            held = self.valid.sum(axis=0)
+            mean_pos = (self.pos * self.valid[..., None]).sum(axis=0) / \
+                np.maximum(held, 1)[:, None]
+            now = cluster_slots(mean_pos, held > 0, self.cluster_distance * grid.cell_size,
+                                _boxes(self.pos, self.valid))
+            arrays = [self.pos, self.vel, self.vvar, self.valid]
+            sort_slots(self.pos, self.valid, now, arrays, self.sort_iterations)
+            merge_slots(self.pos, self.valid, arrays, self.merge_distance * grid.cell_size)
+
+    def _move_persistent(self, clusters, rhohat, psi, sd, slot_of_cell, table, beta):
+        """Steps 2-3 of the module docstring for every cluster at once, in place; returns
+        the per-particle ``-sum_l log pi_l(z | X_il)``."""
+        rng, grid = self._rng, self._model.grid
+        N = self._N
+        tau, q12, q22 = self._tau, self._q12, self._q22
+        n_counts = table.shape[1]
+        sizes = np.array([len(c) for c in clusters])
+        h_max = int(sizes.max())
+        members = np.full((len(clusters), h_max), -1, dtype=np.int64)
+        for i, c in enumerate(clusters):
+            members[i, :len(c)] = c
+        slots = members[members >= 0]  # every active slot once
+        cluster_of = np.repeat(np.arange(len(clusters)), sizes)
+
+        # proposal windows of every active slot of every particle (as an ancestor)
+        big = float(np.max(np.where(self.valid[:, slots][..., None], sd[:, slots], 0.0)))
+        half = int(min(max(math.ceil(4.0 * big / grid.cell_size), 1), self.max_window))
+        mu, s = rhohat[:, slots], sd[:, slots]  # (N, S, 2)
+        ix, gx, in_x = axis_window(mu[..., 0], s[..., 0], grid.nx, grid.cell_size, half)
+        iy, gy, in_y = axis_window(mu[..., 1], s[..., 1], grid.ny, grid.cell_size, half)
+        gamma = (gy[..., :, None] * gx[..., None, :]).reshape(*gx.shape[:2], -1)
+        wcell = (iy[..., :, None] * grid.nx + ix[..., None, :]).reshape(*ix.shape[:2], -1)
+        outside = (iy[..., :, None] < 0) | (ix[..., None, :] < 0)
+        wcell = np.where(outside.reshape(wcell.shape), grid.n_cells, wcell)
+        total = gamma.sum(axis=-1)
+        if self._reflect:  # stays inside: the window's mass renormalised
+            lost = total <= 0.0  # far outside the window's reach: the nearest cell
+            if lost.any():
+                gamma[lost, half * (2 * half + 1) + half] = 1.0
+                total = np.where(lost, 1.0, total)
+            gamma /= total[..., None]
+            m_out = np.zeros(total.shape)
+        else:  # the mass outside the workspace leaves (dies)
+            inside = in_x * in_y
+            gamma *= np.where(total > 0, inside / np.where(total > 0, total, 1.0), 0.0)[..., None]
+            m_out = 1.0 - inside
+        row = slot_of_cell[wcell]  # (N, S, W) table rows
+        dead = beta + (1.0 - beta) * m_out  # (N, S)
+
+        # 3. every particle draws its own clusters, target after target
+        valid_s = self.valid[:, slots]
+        col = {int(t): j for j, t in enumerate(slots)}  # slot -> column in the S arrays
+        new_pos = np.zeros((N, len(slots), 2))
+        new_valid = np.zeros((N, len(slots)), dtype=bool)
+        log_z = np.zeros((N, len(clusters)))  # log prod_t Z_t per particle and cluster
+        log_pi = np.zeros((N, len(clusters)))  # log pi_l(z | x_l) of the draws
+        placed = np.full((N, len(clusters), h_max), -1, dtype=np.int64)
+        for i in range(h_max):
+            live = np.flatnonzero(sizes > i)
+            j = np.array([col[int(t)] for t in members[live, i]])
+            g, cells, r = gamma[:, j], wcell[:, j], row[:, j]  # (N, k, W)
+            n_before = (placed[:, live, :i, None] == cells[:, :, None, :]).sum(axis=2)
+            n_before = np.minimum(n_before, n_counts - 2)
+            log_rho = table[r, n_before + 1] - table[r, n_before]
+            weights = (1.0 - beta) * g * np.exp(log_rho)
+            d = dead[:, j]
+            z = d + weights.sum(axis=-1)  # (N, k)
+            # choose: 0 = dies, 1 + w = window cell w
+            cum = np.concatenate([d[..., None], d[..., None] + np.cumsum(weights, axis=-1)],
+                                 axis=-1)
+            u = rng.random(z.shape) * z
+            choice = np.minimum((cum <= u[..., None]).sum(axis=-1), cum.shape[-1] - 1)
+            held = valid_s[:, j]
+            alive = (choice > 0) & held
+            w_idx = np.maximum(choice - 1, 0)
+            cell = np.take_along_axis(cells, w_idx[..., None], axis=-1)[..., 0]
+            lr = np.take_along_axis(log_rho, w_idx[..., None], axis=-1)[..., 0]
+            with np.errstate(divide="ignore"):
+                log_z[:, live] += np.where(held, np.log(z), 0.0)
+            log_pi[:, live] += np.where(alive, lr, 0.0)
+            placed[:, live, i] = np.where(alive, cell, -1)
+            # position inside the chosen cell: the predictive truncated to it, per axis
+            x0, x1, y0, y1 = grid.cell_bounds(np.where(alive, cell, 0))
+            m, sj = mu[:, j], s[:, j]
+            uu = rng.random(m.shape)
+            new_pos[:, j, 0] = truncated_normal(m[..., 0], sj[..., 0], x0, x1, uu[..., 0])
+            new_pos[:, j, 1] = truncated_normal(m[..., 1], sj[..., 1], y0, y1, uu[..., 1])
+            new_valid[:, j] = alive
+
+        # velocity posteriors given the drawn positions (RB update, per axis)
+        psi_s, vel, vvar = psi[:, slots], self.vel[:, slots], self.vvar[:, slots]
+        cross = tau * vvar + q12
+        gain = cross / psi_s
+        new_vel = vel + gain * (new_pos - mu)
+        new_vvar = vvar + q22 - cross * gain
+
+        # 2. recombination: receiver i takes cluster l from particle a drawn
+        # ∝ prod_t Z_t(a) (the draw's importance weight; Z = 1 for an empty slot)
+        anc = np.empty((N, len(clusters)), dtype=np.int64)
+        for c in range(len(clusters)):
+            p = np.exp(log_z[:, c] - log_z[:, c].max())
+            anc[:, c] = rng.permutation(systematic_resample(p / p.sum(), rng.random()))
+        take = (anc[:, cluster_of], np.arange(len(slots))[None, :])
+        self.pos[:, slots] = new_pos[take]
+        self.vel[:, slots] = new_vel[take]
+        self.vvar[:, slots] = new_vvar[take]
+        self.valid[:, slots] = new_valid[take]
+        # the weight keeps p(z | X) / prod_l pi_l: nonzero only where clusters share a cell
+        return -log_pi[anc, np.arange(len(clusters))[None, :]].sum(axis=1)
+
+    def _births(self, centres, active, slot_of_cell, table) -> np.ndarray:
+        """Step 4 of the module docstring; returns the per-particle prior/proposal log
+        ratio of the birth decisions at the detected cells."""
+        grid, rng = self._model.grid, self._rng
+        N = self._N
+        n_u = table.shape[0] - 1
+        looked = np.flatnonzero(slot_of_cell[:-1] != n_u)
+        if looked.size == 0:
+            return np.zeros(N)
+        lam = table[slot_of_cell[looked], 1]
+        det = looked[lam > 0.0]
+        if det.size == 0:
+            return np.zeros(N)
+        lam = np.exp(lam[lam > 0.0])
+        remaining = self._remaining()
+        pi_init, pi_arr = self._undetected_probability(det, remaining)  # (N, D)
+        pi = 1.0 - (1.0 - pi_init) * (1.0 - pi_arr)
+        cells = grid.cell_of(self.pos[..., 0], self.pos[..., 1])
+        cells = np.where(self.valid, cells, -1)
+        occupied = (cells[:, :, None] == det[None, None, :]).any(axis=1)  # (N, D)
+        # the slot each particle's birth in cell d would take
+        centre_cell = grid.cell_of(centres[:, 0], centres[:, 1])
+        free = list(np.flatnonzero(~active)[::-1])
+        slot = np.full((N, det.size), -1, dtype=np.int64)
+        for k, d in enumerate(det):
+            near = np.flatnonzero(active & (centre_cell == d))
+            if near.size:
+                s = near[np.argmax(self.valid[:, near].sum(axis=0))]
+                slot[:, k] = np.where(self.valid[:, s], -1, s)
+            need = slot[:, k] < 0
+            if need.any() and free:
+                slot[need, k] = free.pop()
+        b = np.where(slot >= 0, pi * lam / (1.0 - pi + pi * lam), 0.0)
+        born = (rng.random((N, det.size)) < b) & ~occupied
+        with np.errstate(divide="ignore"):  # log 0 only in the branch not taken
+            log_ratio = np.where(born, np.log(pi) - np.log(np.where(born, b, 1.0)),
+                                 np.log1p(-pi) - np.log1p(-b))
+        log_ratio = np.where(occupied, 0.0, log_ratio).sum(axis=1)
+        p_idx, k_idx = np.nonzero(born)
+        if p_idx.size:
+            s_idx = slot[p_idx, k_idx]
+            x0, x1, y0, y1 = grid.cell_bounds(det[k_idx])
+            u = rng.random((p_idx.size, 2))
+            self.pos[p_idx, s_idx, 0] = x0 + u[:, 0] * (x1 - x0)
+            self.pos[p_idx, s_idx, 1] = y0 + u[:, 1] * (y1 - y0)
+            self.vel[p_idx, s_idx] = 0.0
+            self.vvar[p_idx, s_idx] = self._birth_var
+            self.valid[p_idx, s_idx] = True
+        return log_ratio
+
+    # ------------------------------------------------------------- estimate
+    def estimate(self) -> Estimate:
+        held = self.valid.sum(axis=0)
+        self.count_mean = float(held.sum() / self._N)
+        n_hat = int(round(self.count_mean))
+        if n_hat == 0:
+            return Estimate(self.count_mean, np.zeros((0, 4)))
+        top = np.argsort(-held, kind="stable")[:n_hat]
+        top = top[held[top] > 0]
+        v = self.valid[:, top][..., None]
+        n = held[top][:, None]
+        pos = (self.pos[:, top] * v).sum(axis=0) / n
+        vel = (self.vel[:, top] * v).sum(axis=0) / n
+        states = np.stack([pos[:, 0], vel[:, 0], pos[:, 1], vel[:, 1]], axis=1)
+        return Estimate(self.count_mean, states)
