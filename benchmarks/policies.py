@@ -100,15 +100,28 @@ class RandomCells(Policy):
 
 @register_policy
 class Raster(Policy):
-    """A sweep: step ``k`` looks at cells ``kM, ..., kM + M - 1`` (mod ``n_cells``)."""
+    """Kreucher's periodic scan: step ``k`` looks at cells ``(k M + i) mod n_cells``,
+    ``i = 0, ..., M - 1``.
+
+    A pointer advances ``M`` cells per step through the flat cell order (row by row from
+    the bottom row, :class:`~mttbench.scenarios.model.Grid`) and wraps around, so the
+    sweep continues across steps. ``M`` is not capped at the cell count: with
+    ``M > n_cells`` the pointer wraps within the step and every cell is looked at
+    ``floor(M / n_cells)`` or ``ceil(M / n_cells)`` times (e.g. 312 looks on 144 cells:
+    each cell 2 or 3 times), each repeat an independent look
+    (:class:`~mttbench.scenarios.model.Looks`). That is how periodic scans of more looks
+    than cells (Kreucher's 216 and 312 on 12x12) are run.
+    """
 
     name = "raster"
-    summary = "raster sweep: M consecutive cells per step, wrapping around the grid"
+    summary = ("raster sweep: M consecutive cells per step, wrapping around the grid (more "
+               "looks than cells: some cells are looked at twice or more per step)")
     parameters: ClassVar[dict[str, Param]] = {}
 
     def select(self, k, counts=None, truth_cells=None):
-        m = min(self._n_looks, self._n_cells)
-        return ((k * m + np.arange(m)) % self._n_cells).astype(np.int64)
+        m = self._n_looks
+        start = (k * m) % self._n_cells  # reduced first: k * M stays small
+        return ((start + np.arange(m, dtype=np.int64)) % self._n_cells).astype(np.int64)
 
 
 @register_policy
