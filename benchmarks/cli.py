@@ -8,6 +8,7 @@
                  --seeds 20 --policy raster,renyi --looks 12,24 --workers 2
     mttbench compare                        # the main job: head-to-head report
     mttbench reproduce paper [--reduced] [--check]   # the paper's figures, checked
+    mttbench reproduce kreucher [--reduced] [--check]  # managed against periodic looks
 
 Exit status, always with at most one line on stderr saying why (never a traceback):
 
@@ -273,16 +274,24 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    """Reviewer reproduction of the paper's figures (:mod:`~mttbench.benchmarks.reproduce`):
-    exit 0; 1 when ``--check`` finds moved numbers or a run failed; 2 for bad input."""
+    """Reviewer reproduction (:mod:`~mttbench.benchmarks.reproduce`: the paper's figures;
+    :mod:`~mttbench.benchmarks.reproduce_kreucher`: Kreucher's managed-versus-periodic
+    curve): exit 0; 1 when ``--check`` finds moved numbers or a run failed; 2 for bad
+    input."""
     from . import reproduce
 
     if args.workers is not None and args.workers < 1:
         raise UsageError(f"--workers {args.workers} is not allowed: expected an integer >= 1")
     if args.exact and not args.check:
         raise UsageError("--exact only applies with --check")
-    setting = reproduce.SETTINGS["reduced" if args.reduced else "full"]
-    out = Path(args.out) if args.out else Path("reports") / "paper"
+    if args.target == "kreucher":
+        from . import reproduce_kreucher as target_module
+
+        run = target_module.reproduce_kreucher
+    else:
+        target_module, run = reproduce, reproduce.reproduce_paper
+    setting = target_module.SETTINGS["reduced" if args.reduced else "full"]
+    out = Path(args.out) if args.out else Path("reports") / args.target
     cache = Path(args.cache_dir) if args.cache_dir else Path(".cache") / "reproduce"
     tracker_texts = tuple(split_specs(args.trackers)) if args.trackers else None
     if tracker_texts:
@@ -290,15 +299,14 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     specs, _ = reproduce.available_trackers(tracker_texts or setting.trackers)
     workers = args.workers or os.cpu_count() or 1
     ref_path = (Path(args.reference_csv) if args.reference_csv
-                else reproduce.REFERENCE_DIR / f"paper_{setting.name}.csv")
+                else reproduce.REFERENCE_DIR / f"{args.target}_{setting.name}.csv")
     if args.check and not ref_path.is_file():
         raise UsageError(f"--check: no reference {ref_path}")
-    for warning in resources.check_jobs(reproduce.setting_jobs(setting, specs), workers):
+    for warning in resources.check_jobs(target_module.setting_jobs(setting, specs), workers):
         print(warning, file=sys.stderr)
     prepare_out_dir(out, parts=False)
-    res = reproduce.reproduce_paper(setting, out, cache, tracker_texts=tracker_texts,
-                                    workers=workers, progress=not args.no_progress,
-                                    use_cache=not args.no_cache)
+    res = run(setting, out, cache, tracker_texts=tracker_texts, workers=workers,
+              progress=not args.no_progress, use_cache=not args.no_cache)
     print(f"wrote {out}/ (figures, CSVs, report.md, report.html; runs "
           f"{'from the cache' if res.cached else 'computed'})")
     failed = _failure_line(res.results, out)
@@ -450,12 +458,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser(
-        "reproduce", help="regenerate the paper's figures and check them against the reference",
+        "reproduce", help="regenerate the paper's figures (or Kreucher's managed-versus-periodic "
+                          "curve) and check them against the reference",
         formatter_class=fmt,
-        description="Regenerate the paper's two result figures (snapshot on the 12x12 grid; "
-                    "state and count error over time) for the GPF with the other trackers "
-                    "overlaid, from pinned seeds, into --out (default reports/paper), with "
-                    "the numbers behind each figure as CSV. Runs are cached by their "
+        description="paper: regenerate the paper's two result figures (snapshot on the 12x12 "
+                    "grid; state and count error over time) for the GPF with the other "
+                    "trackers overlaid, from pinned seeds, into --out (default reports/paper), "
+                    "with the numbers behind each figure as CSV. kreucher: Kreucher's "
+                    "managed-versus-periodic result on the `kreucher` preset at snr 2 and 10 "
+                    "(renyi at 24 looks against raster at 24-312 looks, the raster looks that "
+                    "match the managed scan, for the literature-strength JMPD and the GPF) "
+                    "into reports/kreucher (module mttbench.benchmarks.reproduce_kreucher). "
+                    "Runs are cached by their "
                     "configuration, code, package versions, platform and numpy CPU dispatch "
                     "(.cache/reproduce); figures only plot. --check compares the curves "
                     "with the checked-in reference within their Monte Carlo error, so it "
@@ -466,8 +480,11 @@ def build_parser() -> argparse.ArgumentParser:
               mttbench reproduce paper                    # full setting
               mttbench reproduce paper --reduced --check  # what CI runs
               mttbench reproduce paper --reduced --check --exact  # same machine, bit for bit
-              mttbench reproduce paper --reduced --update-reference  # after a change"""))
-    p.add_argument("target", choices=["paper"], help="what to reproduce")
+              mttbench reproduce paper --reduced --update-reference  # after a change
+              mttbench reproduce kreucher --reduced --check  # managed against periodic"""))
+    p.add_argument("target", choices=["paper", "kreucher"],
+                   help="what to reproduce: the paper's figures, or Kreucher's "
+                        "managed-versus-periodic curve")
     p.add_argument("--reduced", action="store_true",
                    help="the reduced setting (fewer seeds and steps; what CI checks)")
     p.add_argument("--check", action="store_true",
@@ -484,11 +501,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "both)")
     p.add_argument("--reference-csv", metavar="CSV",
                    help="reference to check against (default "
-                        "reports/reference/paper_<setting>.csv)")
+                        "reports/reference/<target>_<setting>.csv)")
     p.add_argument("--trackers", nargs="+", metavar="SPEC",
                    help="trackers to overlay (default: the reproduction's pinned list, "
                         "those registered)")
-    p.add_argument("--out", metavar="DIR", help="output folder (default reports/paper)")
+    p.add_argument("--out", metavar="DIR",
+                   help="output folder (default reports/<target>: reports/paper, "
+                        "reports/kreucher)")
     p.add_argument("--cache-dir", metavar="DIR", help="run cache (default .cache/reproduce)")
     p.add_argument("--no-cache", action="store_true",
                    help="recompute, neither reading nor writing the cache")
