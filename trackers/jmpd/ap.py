@@ -62,19 +62,21 @@ One update (every step; ``Lambda_c(n)`` is the product over this step's looks at
 Estimate: count ``E[T]``; states: the ``round(E[T])`` slots of largest existence mass,
 each averaged over the particles holding it (positions, velocity means).
 
-Rates: the model's (``alpha_c`` = birth rate / cells, ``beta = 1 - p_s``). Where the
-model never removes a target (``p_s = 1``) the filter uses Kreucher's removal 0.005 per
-target and step, so that a track it lost can be dropped and the target found again
-(a dropped target returns to the undetected initial targets).
+Rates: the model's (``alpha_c`` = birth rate / cells, ``beta = 1 - p_s``), no floors.
+Kreucher's removal 0.005 (:data:`KREUCHER_REMOVAL`) is an option
+(``removal_probability``): it lets a track the filter lost be dropped and the target be
+found again (a dropped target returns to the undetected initial targets), but with a
+fixed count it also trades a missed target for a false alarm (docs/jmpd-ap.md).
 
 Departures from the papers: recombination by the draws' weights (draw first, then
 pick, as a bootstrap filter per cluster) rather than by a first-stage estimate;
 births only at detected cells (an undetected target is
 instantiated at its first detection; births elsewhere have posterior probability below
 ``alpha_c`` and are left to the intensity); no birth in a cell the particle occupies;
-the predictive is truncated to the workspace under ``reflect`` (renormalised, not
-folded) and to a window of ``2 H + 1`` cells per axis, ``H = ceil(4 sd / cell)`` capped
-at ``max_window``; the undetected intensity ignores motion (as Kreucher's grid).
+under ``reflect`` a predicted mean beyond a wall is folded back with its velocity mean
+mirrored, and the predictive is truncated to the workspace (renormalised, not folded);
+the predictive is truncated to the cells within 4 sd of the mean on each axis (at most
+``2 max_window + 1``); the undetected intensity ignores motion (as Kreucher's grid).
 Grid sensor only.
 """
 
@@ -95,8 +97,8 @@ from .partitions import cluster_slots, merge_slots, sort_slots
 from .resampling import effective_sample_size, systematic_resample
 from .state import fold
 
-#: Kreucher's removal probability per target and step, used when the model has none
-#: (docs/literature/jmpd.md Sec. 2.6)
+#: Kreucher's removal probability per target and step (docs/literature/jmpd.md Sec.
+#: 2.6), for ``removal_probability`` when the model has none and a user wants one
 KREUCHER_REMOVAL = 0.005
 
 
@@ -143,7 +145,8 @@ class JMPDAPTracker(Tracker):
         "removal_probability": Param(float, 0, 1, allow_none=True, none="1 - p_s",
                                      doc="per target and step (Kreucher: 0.005)"),
         "cluster_distance": Param(float, 0, doc="AP threshold, in cells (Morelande: 2.5)"),
-        "max_window": Param(int, 1, doc="largest half-width of the proposal window, cells"),
+        "max_window": Param(int, 1, doc="the proposal window spans at most 2 max_window + 1 "
+                                        "cells per axis"),
         "sort_iterations": Param(int, 0, doc="K-means sweeps per step"),
         "merge_distance": Param(float, 0, doc="slots whose means are closer (cells) merge"),
         "undetected_in_policy": Param(bool, doc="add the undetected intensity to P_c(t)"),
@@ -194,12 +197,8 @@ class JMPDAPTracker(Tracker):
         self._arrivals = float(bd.birth_rate if self.arrival_rate is None
                                else self.arrival_rate)
         self._alpha = self._arrivals / J  # per cell and step
-        if self.removal_probability is not None:
-            self._beta = float(self.removal_probability)
-        elif bd.survival_probability < 1.0:
-            self._beta = 1.0 - float(bd.survival_probability)
-        else:  # the model never removes a target; the filter must drop tracks it lost
-            self._beta = KREUCHER_REMOVAL
+        self._beta = float(1.0 - bd.survival_probability if self.removal_probability is None
+                           else self.removal_probability)
         self._p_s = float(bd.survival_probability)
         fixed = self._p_s == 1.0 and self._arrivals == 0.0
         self._fixed_count = int(round(bd.initial_count_mean)) if fixed else None
@@ -264,6 +263,17 @@ class JMPDAPTracker(Tracker):
         self._k += 1
         rhohat = self.pos + self._tau * self.vel
         psi = self._tau ** 2 * self.vvar + self._q11
+        if self._reflect:
+            # a predicted mean beyond a wall is folded back and its velocity mean
+            # mirrored, as the truth reflects (the predictive's tails are then truncated
+            # to the workspace in the update)
+            for axis, length in enumerate(self._model.grid.extent):
+                out = (rhohat[..., axis] < 0.0) | (rhohat[..., axis] >= length)
+                if out.any():
+                    folded, vel = fold(rhohat[..., axis][out], self.vel[..., axis][out],
+                                       length)
+                    rhohat[..., axis][out] = folded
+                    self.vel[..., axis][out] = vel
         self._pred = (rhohat, psi)
         self._kp_cells = None
 
@@ -390,10 +400,12 @@ class JMPDAPTracker(Tracker):
 
         # proposal windows of every active slot of every particle (as an ancestor)
         big = float(np.max(np.where(self.valid[:, slots][..., None], sd[:, slots], 0.0)))
-        half = int(min(max(math.ceil(4.0 * big / grid.cell_size), 1), self.max_window))
+        # per axis, the cells within 4 sd of every mean: 2 for a narrow predictive
+        width = int(min(math.floor(8.0 * big / grid.cell_size) + 2, 2 * self.max_window + 1))
         mu, s = rhohat[:, slots], sd[:, slots]  # (N, S, 2)
-        ix, gx, in_x = axis_window(mu[..., 0], s[..., 0], grid.nx, grid.cell_size, half)
-        iy, gy, in_y = axis_window(mu[..., 1], s[..., 1], grid.ny, grid.cell_size, half)
+        wx, wy = min(width, grid.nx), min(width, grid.ny)
+        ix, gx, in_x = axis_window(mu[..., 0], s[..., 0], grid.nx, grid.cell_size, 0, width=wx)
+        iy, gy, in_y = axis_window(mu[..., 1], s[..., 1], grid.ny, grid.cell_size, 0, width=wy)
         gamma = (gy[..., :, None] * gx[..., None, :]).reshape(*gx.shape[:2], -1)
         wcell = (iy[..., :, None] * grid.nx + ix[..., None, :]).reshape(*ix.shape[:2], -1)
         outside = (iy[..., :, None] < 0) | (ix[..., None, :] < 0)
@@ -402,7 +414,10 @@ class JMPDAPTracker(Tracker):
         if self._reflect:  # stays inside: the window's mass renormalised
             lost = total <= 0.0  # far outside the window's reach: the nearest cell
             if lost.any():
-                gamma[lost, half * (2 * half + 1) + half] = 1.0
+                near_x = np.clip(np.floor(mu[..., 0] / grid.cell_size), 0, grid.nx - 1) - ix[..., 0]
+                near_y = np.clip(np.floor(mu[..., 1] / grid.cell_size), 0, grid.ny - 1) - iy[..., 0]
+                near = (np.clip(near_y, 0, wy - 1) * wx + np.clip(near_x, 0, wx - 1)).astype(int)
+                gamma[lost, near[lost]] = 1.0
                 total = np.where(lost, 1.0, total)
             gamma /= total[..., None]
             m_out = np.zeros(total.shape)
@@ -416,7 +431,7 @@ class JMPDAPTracker(Tracker):
         # 3. every particle draws its own clusters, target after target
         valid_s = self.valid[:, slots]
         col = {int(t): j for j, t in enumerate(slots)}  # slot -> column in the S arrays
-        new_pos = np.zeros((N, len(slots), 2))
+        new_cell = np.zeros((N, len(slots)), dtype=np.int64)
         new_valid = np.zeros((N, len(slots)), dtype=bool)
         log_z = np.zeros((N, len(clusters)))  # log prod_t Z_t per particle and cluster
         log_pi = np.zeros((N, len(clusters)))  # log pi_l(z | x_l) of the draws
@@ -445,32 +460,32 @@ class JMPDAPTracker(Tracker):
                 log_z[:, live] += np.where(held, np.log(z), 0.0)
             log_pi[:, live] += np.where(alive, lr, 0.0)
             placed[:, live, i] = np.where(alive, cell, -1)
-            # position inside the chosen cell: the predictive truncated to it, per axis
-            x0, x1, y0, y1 = grid.cell_bounds(np.where(alive, cell, 0))
-            m, sj = mu[:, j], s[:, j]
-            uu = rng.random(m.shape)
-            new_pos[:, j, 0] = truncated_normal(m[..., 0], sj[..., 0], x0, x1, uu[..., 0])
-            new_pos[:, j, 1] = truncated_normal(m[..., 1], sj[..., 1], y0, y1, uu[..., 1])
+            new_cell[:, j] = cell
             new_valid[:, j] = alive
 
-        # velocity posteriors given the drawn positions (RB update, per axis)
-        psi_s, vel, vvar = psi[:, slots], self.vel[:, slots], self.vvar[:, slots]
-        cross = tau * vvar + q12
-        gain = cross / psi_s
-        new_vel = vel + gain * (new_pos - mu)
-        new_vvar = vvar + q22 - cross * gain
-
-        # 2. recombination: receiver i takes cluster l from particle a drawn
+        # 2. recombination: receiver i takes cluster l's cells from particle a drawn
         # ∝ prod_t Z_t(a) (the draw's importance weight; Z = 1 for an empty slot)
         anc = np.empty((N, len(clusters)), dtype=np.int64)
         for c in range(len(clusters)):
             p = np.exp(log_z[:, c] - log_z[:, c].max())
             anc[:, c] = rng.permutation(systematic_resample(p / p.sum(), rng.random()))
         take = (anc[:, cluster_of], np.arange(len(slots))[None, :])
-        self.pos[:, slots] = new_pos[take]
-        self.vel[:, slots] = new_vel[take]
-        self.vvar[:, slots] = new_vvar[take]
-        self.valid[:, slots] = new_valid[take]
+        alive, cell = new_valid[take], new_cell[take]
+        mu, s = mu[take], s[take]
+        # the weight depends on the cells only: each receiver draws its own positions
+        # inside them, the ancestor's predictive truncated to the cell, per axis
+        x0, x1, y0, y1 = grid.cell_bounds(np.where(alive, cell, 0))
+        uu = rng.random(mu.shape)
+        pos = np.stack([truncated_normal(mu[..., 0], s[..., 0], x0, x1, uu[..., 0]),
+                        truncated_normal(mu[..., 1], s[..., 1], y0, y1, uu[..., 1])], axis=-1)
+        # velocity posteriors given the drawn positions (RB update, per axis)
+        vel, vvar = self.vel[:, slots][take], self.vvar[:, slots][take]
+        cross = tau * vvar + q12
+        gain = cross / psi[:, slots][take]
+        self.pos[:, slots] = pos
+        self.vel[:, slots] = vel + gain * (pos - mu)
+        self.vvar[:, slots] = vvar + q22 - cross * gain
+        self.valid[:, slots] = alive
         # the weight keeps p(z | X) / prod_l pi_l: nonzero only where clusters share a cell
         return -log_pi[anc, np.arange(len(clusters))[None, :]].sum(axis=1)
 

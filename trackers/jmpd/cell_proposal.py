@@ -48,21 +48,29 @@ def truncated_normal(mean: np.ndarray, sd: np.ndarray, lo: np.ndarray, hi: np.nd
 
 
 def axis_window(mean: np.ndarray, sd: np.ndarray, n_cells_axis: int, cell_size: float,
-                half: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Masses of the ``2 half + 1`` cells around each mean along one axis.
+                half: int, *, width: int | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Masses of a window of cells around each mean along one axis.
 
-    ``mean``, ``sd`` of any shape ``S``. The window is centred on the mean's cell
-    (clipped to the grid). Returns ``index (S + (w,))`` int64 (cell index along the axis,
-    -1 outside the grid), ``mass (S + (w,))`` (0 outside the grid) and ``inside (S)``,
-    the mass inside ``[0, n cell_size)``.
+    ``mean``, ``sd`` of any shape ``S``. By default the window is the ``2 half + 1``
+    cells centred on the mean's cell (clipped to the grid); with ``width``, the
+    ``width`` cells from the one holding ``mean - 4 sd`` (shifted to stay inside the
+    grid), so two cells cover a narrow predictive that straddles a cell edge. Returns
+    ``index (S + (w,))`` int64 (cell index along the axis, -1 outside the grid),
+    ``mass (S + (w,))`` (0 outside the grid) and ``inside (S)``, the mass inside
+    ``[0, n cell_size)``.
     """
-    centre = np.clip(np.floor(mean / cell_size), 0, n_cells_axis - 1).astype(np.int64)
-    offsets = np.arange(-half, half + 1)
-    index = centre[..., None] + offsets
+    if width is None:
+        first = np.clip(np.floor(mean / cell_size), 0, n_cells_axis - 1).astype(np.int64) - half
+        width = 2 * half + 1
+    else:
+        first = np.clip(np.floor((mean - 4.0 * sd) / cell_size), 0,
+                        max(n_cells_axis - width, 0)).astype(np.int64)
+    index = first[..., None] + np.arange(width)
     ok = (index >= 0) & (index < n_cells_axis)
-    # the normal CDF at the window's 2 half + 2 edges, from both tails (each cell's mass
+    # the normal CDF at the window's width + 1 edges, from both tails (each cell's mass
     # is then a difference in the tail that keeps its precision, as in interval_mass)
-    edges = (centre[..., None] + np.arange(-half, half + 2)) * cell_size
+    edges = (first[..., None] + np.arange(width + 1)) * cell_size
     z = (edges - mean[..., None]) / sd[..., None]
     lower, upper = ndtr(z), ndtr(-z)
     mass = np.where(z[..., :-1] > 0.0, upper[..., :-1] - upper[..., 1:],
