@@ -62,6 +62,7 @@ COMPARE_REFERENCE = "kfnn"
 DEFAULT_PARAMS: dict[str, list[dict[str, Any]]] = {
     "jmpd": [{"n_particles": 1000}, {"n_particles": 250}],
     "jmpd-ip": [{"n_particles": 1000}],
+    "jmpd-ap": [{"n_particles": 250}],
 }
 #: tracker drawn in the snapshot figure, first registered one wins
 SNAPSHOT_PREFERENCE = ("gpf", "jmpd", "kfnn")
