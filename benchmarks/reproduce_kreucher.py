@@ -13,13 +13,19 @@ runs that comparison on the ``kreucher`` preset:
   about 0.05 cell of the managed one (jmpd.md Sec. 7.1 and Sec. 9 item 15). The
   simulator keys a world on the scenario's name, so ``kreucher-snr2`` has its own
   trajectories (same design, other noise).
-* **Trackers** :data:`KREUCHER_TRACKERS` (the literature-strength JMPD and the GPF), each
-  under every policy of the setting; ``jmpd-ip`` stands in for ``jmpd-ap`` until that is
-  registered (one edit of the constant).
+* **Trackers** :data:`KREUCHER_TRACKERS`, each under every policy of the setting: the
+  literature-strength JMPD (``jmpd-ap``, 500 particles as in Kreucher's study) from its
+  own prior, the same with Kreucher's start (``init_fraction=0.1``: 10% of the particles
+  hold the preset's declared initial states; the others start from no target), and the
+  GPF from its own prior (it has no such start). Kreucher's 13x was measured with his
+  start; from nothing, at SNR 2 (``p_f = 0.125``) the trackers rarely acquire the
+  targets.
 * **Policies.** The managed scans of :data:`KREUCHER_MANAGED` at
   :data:`MANAGED_LOOKS` = 24 looks: ``renyi`` (the project's default, distinct top-M
-  cells, alpha = 0.5) and Kreucher's own choice ``renyi:alpha=0.99999,repeats=true``
-  (greedy on the marginal gain, repeats allowed; jmpd.md Sec. 9 item 17). The periodic
+  cells, alpha = 0.5), ``renyi:repeats=true`` (greedy on the marginal gain, a cell may
+  get several looks) and Kreucher's own choice ``renyi:alpha=0.99999,repeats=true``
+  (jmpd.md Sec. 9 item 17). At SNR 2 one look says little, and the repeated looks
+  matter. The periodic
   scan ``raster`` at :data:`RASTER_LOOKS` = 24, 48, 72, 144, 216, 312 looks: a pointer
   advancing M cells per step, row by row from the bottom row, wrapping around, so 216 and
   312 looks revisit cells within a step (216: every cell once and 72 twice; 312: every
@@ -96,10 +102,11 @@ from .report import Document
 from .specs import PolicySpec, TrackerSpec
 from .summary import mean_ci95
 
-#: the trackers compared. STAND-IN: ``jmpd-ip`` until the literature-strength ``jmpd-ap``
-#: is registered; then this becomes ("jmpd-ap:n_particles=500", "gpf") (500 particles as
-#: in Kreucher's study; t_max = 6, twice the count, for the stand-in)
-KREUCHER_TRACKERS: tuple[str, ...] = ("jmpd-ip:n_particles=500,t_max=6", "gpf")
+#: the trackers compared: the literature-strength JMPD with Kreucher's 500 particles,
+#: from its own prior (no target) and with Kreucher's start (10% of the particles on the
+#: preset's declared initial states, SP 2005 Sec. 5.1), and the GPF from its own prior
+KREUCHER_TRACKERS: tuple[str, ...] = ("jmpd-ap:n_particles=500",
+                                      "jmpd-ap:n_particles=500,init_fraction=0.1", "gpf")
 #: the steps at which the preset's nominal paths meet in one cell (A-B, then A-C)
 KREUCHER_CROSSINGS: tuple[int, ...] = (30, 70)
 #: the preset whose variants are run
@@ -107,7 +114,8 @@ KREUCHER_PRESET = "kreucher"
 #: linear SNRs; the preset's own (10) keeps its name, others are ``kreucher-snr<v>``
 KREUCHER_SNRS: tuple[float, ...] = (2.0, 10.0)
 #: managed scans (at :data:`MANAGED_LOOKS` looks): the project's default and Kreucher's
-KREUCHER_MANAGED: tuple[str, ...] = ("renyi", "renyi:alpha=0.99999,repeats=true")
+KREUCHER_MANAGED: tuple[str, ...] = ("renyi", "renyi:repeats=true",
+                                     "renyi:alpha=0.99999,repeats=true")
 MANAGED_LOOKS = 24
 #: periodic scans: Kreucher's 24, 72, 216, 312 plus 48 and 144 (every cell once per step)
 RASTER_LOOKS: tuple[int, ...] = (24, 48, 72, 144, 216, 312)

@@ -150,6 +150,9 @@ class JMPDAPTracker(Tracker):
         "sort_iterations": Param(int, 0, doc="K-means sweeps per step"),
         "merge_distance": Param(float, 0, doc="slots whose means are closer (cells) merge"),
         "undetected_in_policy": Param(bool, doc="add the undetected intensity to P_c(t)"),
+        "init_fraction": Param(float, 0, 1,
+                               doc="fraction of particles that start on the model's declared "
+                                   "initial states (Kreucher SP 2005: 0.1); 0: from nothing"),
     }
 
     def __init__(self, n_particles: int = 500, t_max: int | None = None,
@@ -157,7 +160,7 @@ class JMPDAPTracker(Tracker):
                  removal_probability: float | None = None,
                  cluster_distance: float = 2.5, max_window: int = 6,
                  sort_iterations: int = 2, merge_distance: float = 0.5,
-                 undetected_in_policy: bool = True) -> None:
+                 undetected_in_policy: bool = True, init_fraction: float = 0.0) -> None:
         self.n_particles = n_particles
         self.t_max = t_max
         self.arrival_rate = arrival_rate
@@ -167,6 +170,7 @@ class JMPDAPTracker(Tracker):
         self.sort_iterations = sort_iterations
         self.merge_distance = merge_distance
         self.undetected_in_policy = undetected_in_policy
+        self.init_fraction = init_fraction
 
     # ------------------------------------------------------------- life cycle
     def unsupported_reason(self, model: TrackingModel) -> str | None:
@@ -208,6 +212,17 @@ class JMPDAPTracker(Tracker):
         self.vel = np.zeros((N, T, 2))
         self.vvar = np.ones((N, T, 2))
         self.valid = np.zeros((N, T), dtype=bool)
+        declared = np.asarray(bd.initial_states, dtype=float).reshape(-1, 4)
+        n_start = int(round(float(self.init_fraction) * N)) if len(declared) <= T else 0
+        if n_start and len(declared):
+            # Kreucher's start: these particles hold the declared initial states, one
+            # step back so that the first predict brings them to step 0; the velocity is
+            # known to the model's velocity noise
+            back = declared @ np.linalg.inv(dyn.F).T
+            self.pos[:n_start, :len(declared)] = back[:, [0, 2]]
+            self.vel[:n_start, :len(declared)] = back[:, [1, 3]]
+            self.vvar[:n_start, :len(declared)] = self._q22
+            self.valid[:n_start, :len(declared)] = True
         # undetected targets (module docstring, 6): the initial ones, n0 p_s^(k+1) alive
         # less the particle's targets, spread over the cells in proportion to v (v <- v
         # (1 - p_d) per look); and the arrivals' intensity u, kept lazily as the value at
