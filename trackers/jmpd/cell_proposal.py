@@ -28,8 +28,10 @@ def interval_mass(mean: np.ndarray, sd: np.ndarray, lo: np.ndarray, hi: np.ndarr
 def truncated_normal(mean: np.ndarray, sd: np.ndarray, lo: np.ndarray, hi: np.ndarray,
                      u: np.ndarray) -> np.ndarray:
     """Inverse-CDF draws of ``N(mean, sd^2)`` truncated to ``[lo, hi)`` from uniforms
-    ``u`` in ``[0, 1)`` (all broadcast). An interval with no representable mass gets a
-    uniform draw in it (the tail is then flat to double precision)."""
+    ``u`` in ``[0, 1)`` (all broadcast). An interval with no representable mass (beyond
+    about 37.5 sd, where ``ndtr`` underflows) gets a uniform draw in it instead: wrong in
+    shape there (the density still falls by ``e`` every ``1 / z`` sd), reached by the
+    tracker only when a predictive has no mass in any cell of its window."""
     za = (lo - mean) / sd
     zb = (hi - mean) / sd
     upper = za > 0.0
