@@ -792,3 +792,20 @@ def test_estimate_is_the_mean_count_and_holder_averages():
         expected.append([p[0], v[0], p[1], v[1]])
     assert est.states.shape == (n_hat, 4)
     np.testing.assert_allclose(est.states, np.array(expected), rtol=1e-12, atol=1e-12)
+
+
+def test_undetected_share_stays_normalised_over_many_sweeps():
+    """The running total of the undetected initial targets' weights ``v`` (updated by
+    differences, ``v <- v (1 - p_d)`` per look) must stay the exact sum: with every cell
+    looked each step the total halves per step and would lose every digit to
+    cancellation in ~50 steps (the shares ``v_c / sum v`` of the births then meaningless).
+    After 300 sweeps of a 4 x 1 grid, the shares sum to 1 within 1e-9."""
+    nx = 4
+    model = _model(nx, n_random_initial=2)
+    t = _tracker(model, 8, n_particles=50, arrival_rate=0.0)
+    cells = np.arange(nx)
+    for k in range(300):
+        t.predict()
+        t.update(Looks(np.r_[cells, cells[:1]], np.zeros(nx + 1, dtype=bool)))
+        total = t._v.sum()
+        assert abs(t._v_total - total) <= 1e-9 * total, (k, t._v_total, total)

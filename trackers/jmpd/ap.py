@@ -263,7 +263,7 @@ class JMPDAPTracker(Tracker):
         particles with ``remaining`` initial targets not found; shapes ``remaining.shape
         + cells.shape``."""
         share = self._v[cells] / self._v_total
-        pi_init = -np.expm1(remaining[..., None] * np.log1p(-np.minimum(share, 1.0 - 1e-16)))
+        pi_init = -np.expm1(remaining[..., None] * np.log1p(-np.minimum(share, 1.0 - 1e-12)))
         pi_arr = -np.expm1(-self._arrival_intensity(cells))
         return pi_init, np.broadcast_to(pi_arr, pi_init.shape)
 
@@ -383,9 +383,11 @@ class JMPDAPTracker(Tracker):
             v_new = self._v[lc] * miss
             self._v_total += float((v_new - self._v[lc]).sum())
             self._v[lc] = v_new
-            if self._v_total < 1e-100:  # only ratios matter; keep them representable
-                self._v /= self._v_total
-                self._v_total = float(self._v.sum())
+            if self._v_total < 1e-6:
+                # the running total has lost six digits to cancellation: only ratios
+                # matter, so rescale by the exact sum (O(cells), once per ~20 sweeps)
+                self._v /= self._v.sum()
+                self._v_total = 1.0
 
         # K-means partition sorting within clusters (after resampling, before estimation)
         if self.sort_iterations > 0:
@@ -536,11 +538,14 @@ class JMPDAPTracker(Tracker):
             need = slot[:, k] < 0
             if need.any() and free:
                 slot[need, k] = free.pop()
-        b = np.where(slot >= 0, pi * lam / (1.0 - pi + pi * lam), 0.0)
+        z = 1.0 - pi + pi * lam  # the cell's normaliser
+        has_slot = slot >= 0
+        b = np.where(has_slot, pi * lam / z, 0.0)
         born = (rng.random((N, det.size)) < b) & ~occupied
-        with np.errstate(divide="ignore"):  # log 0 only in the branch not taken
-            log_ratio = np.where(born, np.log(pi) - np.log(np.where(born, b, 1.0)),
-                                 np.log1p(-pi) - np.log1p(-b))
+        # prior / proposal: pi / b = z / lam if born, (1 - pi) / (1 - b) = z if not (the
+        # newborn's lam is in the full likelihood); without a free slot b = 0: 1 - pi
+        log_ratio = np.where(has_slot, np.log(z) - np.where(born, np.log(lam), 0.0),
+                             np.log1p(-pi))
         log_ratio = np.where(occupied, 0.0, log_ratio).sum(axis=1)
         p_idx, k_idx = np.nonzero(born)
         if p_idx.size:
