@@ -809,3 +809,18 @@ def test_undetected_share_stays_normalised_over_many_sweeps():
         t.update(Looks(np.r_[cells, cells[:1]], np.zeros(nx + 1, dtype=bool)))
         total = t._v.sum()
         assert abs(t._v_total - total) <= 1e-9 * total, (k, t._v_total, total)
+
+
+@pytest.mark.parametrize("floor", [0.0, 1e-3, 0.05])
+def test_position_noise_floor_sets_the_least_predictive_variance(floor):
+    """The predictive position variance is ``tau^2 s + max(q11, floor cell^2)`` per axis:
+    the model's q11 (1e-6 here) below the floor, unchanged above it (q11 = 0.04 on y)."""
+    model = _model(5, q=(1e-6, 0.0, 1e-6), qy=(0.04, 0.0, 1e-6))
+    t = _tracker(model, 3, n_particles=4, position_noise_floor=floor)
+    t.valid[:, 0] = True
+    t.pos[:, 0] = [2.5, 0.5]
+    t.vvar[:, 0] = [0.01, 0.02]
+    t.predict()
+    _, psi = t._pred
+    np.testing.assert_allclose(psi[:, 0, 0], 0.01 + max(1e-6, floor), rtol=1e-12)
+    np.testing.assert_allclose(psi[:, 0, 1], 0.02 + max(0.04, floor), rtol=1e-12)

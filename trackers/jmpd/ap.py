@@ -76,7 +76,11 @@ instantiated at its first detection; births elsewhere have posterior probability
 under ``reflect`` a predicted mean beyond a wall is folded back with its velocity mean
 mirrored, and the predictive is truncated to the workspace (renormalised, not folded);
 the predictive is truncated to the cells within 4 sd of the mean on each axis (at most
-``2 max_window + 1``); the undetected intensity ignores motion (as Kreucher's grid).
+``2 max_window + 1``); the undetected intensity ignores motion (as Kreucher's grid);
+the position noise variance per step is at least ``position_noise_floor`` (1e-3
+cell^2, 0.03 cell of sd; Kreucher's Q has 2e-3): with the tiny noise of near-straight
+paths, resampling leaves particles that share one velocity and a track a cell off that
+can never move back (``crossing``, every cell looked: OSPA 0.74 without, 0.25 with).
 Grid sensor only.
 """
 
@@ -153,6 +157,10 @@ class JMPDAPTracker(Tracker):
         "init_fraction": Param(float, 0, 1,
                                doc="fraction of particles that start on the model's declared "
                                    "initial states (Kreucher SP 2005: 0.1); 0: from nothing"),
+        "position_noise_floor": Param(float, 0,
+                                      doc="least position noise variance per step, in "
+                                          "cells^2 (the model's q11 when larger); 0: the "
+                                          "model's"),
     }
 
     def __init__(self, n_particles: int = 500, t_max: int | None = None,
@@ -160,7 +168,8 @@ class JMPDAPTracker(Tracker):
                  removal_probability: float | None = None,
                  cluster_distance: float = 2.5, max_window: int = 6,
                  sort_iterations: int = 2, merge_distance: float = 0.5,
-                 undetected_in_policy: bool = True, init_fraction: float = 0.0) -> None:
+                 undetected_in_policy: bool = True, init_fraction: float = 0.0,
+                 position_noise_floor: float = 1e-3) -> None:
         self.n_particles = n_particles
         self.t_max = t_max
         self.arrival_rate = arrival_rate
@@ -171,6 +180,7 @@ class JMPDAPTracker(Tracker):
         self.merge_distance = merge_distance
         self.undetected_in_policy = undetected_in_policy
         self.init_fraction = init_fraction
+        self.position_noise_floor = position_noise_floor
 
     # ------------------------------------------------------------- life cycle
     def unsupported_reason(self, model: TrackingModel) -> str | None:
@@ -193,7 +203,11 @@ class JMPDAPTracker(Tracker):
         self._N, self._T = N, T
         Q = dyn.Q
         self._tau = float(dyn.tau)
-        self._q11 = np.array([Q[0, 0], Q[2, 2]])
+        # the position noise, at least the floor: with a model's tiny q11 the particles'
+        # predictives are far narrower than a cell, and a track that resampling left a
+        # cell off can never move back (docs/jmpd-ap.md)
+        floor = float(self.position_noise_floor) * model.grid.cell_size ** 2
+        self._q11 = np.maximum(np.array([Q[0, 0], Q[2, 2]]), floor)
         self._q12 = np.array([Q[0, 1], Q[2, 3]])
         self._q22 = np.array([Q[1, 1], Q[3, 3]])
         self._reflect = bd.boundary == "reflect"
