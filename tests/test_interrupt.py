@@ -60,7 +60,7 @@ def test_ctrl_c_then_the_printed_command_finishes_the_same_report(monkeypatch, t
         time.sleep(0.01)
         parts = list(tmp_path.glob("reports/compare-*/parts/*.parquet"))
     proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
+    _, err = proc.communicate(timeout=START_TIMEOUT_S)  # a safety net for a loaded machine
     gate.touch()  # from here on the slow runs run (the resume and the whole sweep below)
     monkeypatch.setenv(SLOW_GATE_ENV, str(gate))
     assert proc.returncode == EXIT_INTERRUPTED, err
