@@ -439,7 +439,7 @@ def build_parser() -> argparse.ArgumentParser:
                     f"budget, {COMPARE_SEEDS} seeds, in parallel processes. Writes "
                     "results.parquet, summary.csv/.md, report.md, a self-contained "
                     "report.html, figures/ and manifest.json into --out (default "
-                    "reports/compare-<UTC timestamp>). Defaults take about 20-30 s on 2 "
+                    "reports/compare-<UTC timestamp>). Defaults take about 35 s on 2 "
                     "cores (longer on a busy machine).",
         epilog=textwrap.dedent("""\
             examples:

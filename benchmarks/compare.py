@@ -58,7 +58,7 @@ if TYPE_CHECKING:
 COMPARE_SCENARIOS = ("default", "crossing", "births", "paper")
 COMPARE_SEEDS = 10
 COMPARE_REFERENCE = "kfnn"
-#: parameters used when ``--trackers`` is not given (keeps the default run ~20-30 s)
+#: parameters used when ``--trackers`` is not given (keeps the default run ~35 s)
 DEFAULT_PARAMS: dict[str, list[dict[str, Any]]] = {
     "jmpd": [{"n_particles": 1000}, {"n_particles": 250}],
     "jmpd-ip": [{"n_particles": 1000}],
