@@ -148,12 +148,12 @@ def test_cell_count_distribution_equals_enumeration_of_particles_and_field():
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
 
 
-def _predict_one_step(boundary: str, w, m, P):
+def _predict_one_step(boundary: str, w, m, P, **params):
     """A GPF without births on a 5 x 4 workspace (survival 1, no death floor), one predict;
     returns the particles and the model."""
     model = TrackingModel(Grid(5, 4, 1.0), Dynamics(wna_intensity=2e-3),
                           BirthDeath(boundary=boundary), RayleighGridSensor())
-    t = trackers.make("gpf", births=False, death_probability=0.0)
+    t = trackers.make("gpf", births=False, death_probability=0.0, **params)
     t.reset(model, np.random.default_rng(0))
     t.set_particles(w, m, P)
     t.predict()
@@ -167,16 +167,17 @@ _CROSSING_MEANS = np.array([[4.8, 0.5, 2.0, 0.1], [0.2, -0.45, 1.5, 0.0],
 
 
 def test_predict_reflect_mirrors_mean_velocity_and_covariance():
-    """Boundary "reflect": a predicted mean ``F m`` outside the workspace is mirrored in
-    the wall it crossed (``-p`` or ``2 L - p``), that axis's velocity changes sign, and
-    the covariance becomes ``J (F P F^T + Q) J`` with ``J`` negating that axis's position
-    and velocity; a mean inside is only predicted. Weights keep survival 1. Exact up to
-    round-off."""
+    """Boundary "reflect" with ``truncate=False`` (the rule before issue 14): a predicted
+    mean ``F m`` outside the workspace is mirrored in the wall it crossed (``-p`` or
+    ``2 L - p``), that axis's velocity changes sign, and the covariance becomes ``J (F P
+    F^T + Q) J`` with ``J`` negating that axis's position and velocity; a mean inside is
+    only predicted. Weights keep survival 1. Exact up to round-off. (The default folds
+    the mass beyond the wall: tests/test_gpf_mass.py.)"""
     rng = np.random.default_rng(2)
     A = rng.normal(0.0, 0.1, (5, 4, 4))
     P = A @ np.swapaxes(A, -1, -2) + 0.01 * np.eye(4)
     w = np.array([0.9, 0.8, 0.7, 0.6, 0.5])
-    (w1, m1, P1), model = _predict_one_step("reflect", w, _CROSSING_MEANS, P)
+    (w1, m1, P1), model = _predict_one_step("reflect", w, _CROSSING_MEANS, P, truncate=False)
     F, Q = model.dynamics.F, model.dynamics.Q
     width, height = model.grid.extent
     for i in range(5):
@@ -195,12 +196,13 @@ def test_predict_reflect_mirrors_mean_velocity_and_covariance():
 
 
 def test_predict_die_weights_by_the_mass_inside():
-    """Boundary "die": means are only predicted, and each weight is multiplied by the
-    predicted Gaussian's mass inside the workspace, the product of its marginal masses
-    (normal CDFs from scipy)."""
+    """Boundary "die" with ``truncate=False`` (the rule before issue 14): means are only
+    predicted, and each weight is multiplied by the predicted Gaussian's mass inside the
+    workspace, the product of its marginal masses (normal CDFs from scipy). (The default
+    also truncates the Gaussian to the workspace: tests/test_gpf_mass.py.)"""
     P = np.stack([np.diag([0.09, 0.01, 0.04, 0.01])] * 5)
     w = np.array([0.9, 0.8, 0.7, 0.6, 0.5])
-    (w1, m1, P1), model = _predict_one_step("die", w, _CROSSING_MEANS, P)
+    (w1, m1, P1), model = _predict_one_step("die", w, _CROSSING_MEANS, P, truncate=False)
     F, Q = model.dynamics.F, model.dynamics.Q
     width, height = model.grid.extent
     for i in range(5):
