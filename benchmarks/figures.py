@@ -26,6 +26,8 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Ellipse, Rectangle
 from scipy import stats
 
+from . import summary as _summary
+
 #: chi-square(2) 95% quantile: a 2-D Gaussian puts 95% of its mass inside this ellipse
 ELLIPSE_CHI2 = float(stats.chi2.ppf(0.95, 2))
 DPI = 110
@@ -92,11 +94,13 @@ def metric_over_time(results: pd.DataFrame, metric: str, path: str | Path,
     st = step_stats(results, metric)
     scen = sorted(st["scenario"].unique())
     colors = tracker_colors(list(results["tracker_label"].unique()))
+    truth, _ = _summary.truth_labels(results)
     fig, axes = _grid_of_axes(max(len(scen), 1))
     for ax, sc in zip(axes, scen, strict=False):
         for lab, g in st[st["scenario"] == sc].groupby("tracker_label", sort=True):
             c = colors[lab]
-            ax.plot(g["step"], g["mean"], color=c, lw=1.4, label=lab)
+            ax.plot(g["step"], g["mean"], color=c, lw=1.4, label=_summary.mark_truth(lab, truth),
+                    ls=_line_style(lab))
             lo, hi = g["mean"] - g["ci95"].fillna(0), g["mean"] + g["ci95"].fillna(0)
             ax.fill_between(g["step"], lo, hi, color=c, alpha=0.2, lw=0)
         ax.set_title(sc)
@@ -106,6 +110,12 @@ def metric_over_time(results: pd.DataFrame, metric: str, path: str | Path,
     _legend_below(fig, axes)
     fig.suptitle(f"{ylabel or metric}: mean over seeds, shaded 95% interval", fontsize=10)
     return _save(fig, path)
+
+
+def _line_style(label: str) -> str:
+    """Dashed for the floor (``null``), dotted for the ceiling (``truth-aided``)."""
+    name = _summary.tracker_name(label)
+    return {_summary.FLOOR_TRACKER: "--", _summary.CEILING_TRACKER: ":"}.get(name, "-")
 
 
 def runtime_per_step(runs: pd.DataFrame, path: str | Path) -> Path:
@@ -137,18 +147,29 @@ def runtime_per_step(runs: pd.DataFrame, path: str | Path) -> Path:
 def accuracy_vs_runtime(summary: pd.DataFrame, path: str | Path,
                         metric: str = "ospa") -> Path:
     """Mean ``metric`` against mean ms/step, one point per tracker label (tracker and
-    parameter setting) with 95% error bars on both axes, one panel per scenario."""
+    parameter setting) with 95% error bars on both axes, one panel per scenario. The
+    floor (``null``) and the ceiling (``truth-aided``, which uses the truth) are also
+    drawn as horizontal dashed and dotted lines at their ``metric`` (the first policy
+    and look budget of a panel when there are several)."""
     ok = summary[summary["n_seeds"] > 0]
     scen = sorted(ok["scenario"].unique())
     colors = tracker_colors(list(summary["tracker_label"].unique()))
+    truth, _ = _summary.truth_labels(summary)
     fig, axes = _grid_of_axes(max(len(scen), 1))
     for ax, sc in zip(axes, scen, strict=False):
-        for _, r in ok[ok["scenario"] == sc].iterrows():
+        here = ok[ok["scenario"] == sc]
+        levels: set[str] = set()
+        for _, r in here.iterrows():
             x, xe = r["tracker_wall_s_mean"] * 1e3, r["tracker_wall_s_ci95"] * 1e3
             y, ye = r[f"{metric}_mean"], r[f"{metric}_ci95"]
+            lab = r["tracker_label"]
             ax.errorbar(x, y, xerr=None if np.isnan(xe) else xe,
                         yerr=None if np.isnan(ye) else ye, fmt="o", ms=5, capsize=2,
-                        color=colors[r["tracker_label"]], label=r["tracker_label"])
+                        color=colors[lab], label=_summary.mark_truth(lab, truth))
+            ls = _line_style(lab)
+            if ls != "-" and np.isfinite(y) and lab not in levels:
+                levels.add(lab)  # one line per floor or ceiling and panel
+                ax.axhline(y, color=colors[lab], ls=ls, lw=1.0, alpha=0.8)
         ax.set_xscale("log")
         ax.set_xlabel("ms per step")
         ax.set_ylabel(f"mean {metric}")

@@ -16,6 +16,14 @@ run of each other tracker before averaging (common random numbers make the pairs
 strongly correlated, so paired intervals are much narrower than the difference of
 two unpaired ones).
 
+When the floor ``null`` and the ceiling ``truth-aided`` ran, a section puts them side
+by side with every tracker and gives each tracker's share of the OSPA gap closed,
+``(OSPA_null - OSPA) / (OSPA_null - OSPA_truth-aided)``, with a delta-method 95%
+interval over the paired seeds (:func:`benchmarks.summary.gap_closed`), and flags every
+scenario whose gap is too small to rank trackers (below 0.15, or its interval reaching
+0). Without them the section says which did not run. Trackers and policies given the
+truth are marked `` (uses truth)`` in every table.
+
 Check a report in a real browser (headless Debian chromium; writes ``screenshot.png``
 into the report folder)::
 
@@ -99,9 +107,15 @@ def _keys(df: pd.DataFrame) -> list[str]:
 
 def summary_table(summ: pd.DataFrame, columns: list[tuple[str, str, float, str]]) -> pd.DataFrame:
     """Display table of a :func:`benchmarks.summary.summarize` output: key columns,
-    ``seeds`` and one ``mean ± half-width`` text column per ``columns`` entry."""
+    ``seeds`` and one ``mean ± half-width`` text column per ``columns`` entry. Trackers
+    and policies that use the truth are marked (:func:`benchmarks.summary.truth_labels`)."""
     keys = _keys(summ)
     out = summ[keys].rename(columns=_KEY_HEADERS).copy()
+    truth_trackers, truth_policies = summary.truth_labels(summ)
+    if "tracker" in out.columns:
+        out["tracker"] = [summary.mark_truth(v, truth_trackers) for v in out["tracker"]]
+    if "policy" in out.columns:
+        out["policy"] = [summary.mark_truth(v, truth_policies) for v in out["policy"]]
     if "looks_per_step" in keys and "looks_made" in summ.columns:
         # the budget, with the looks made per step where they differ ("200 (144 made)")
         out["looks"] = [
@@ -135,15 +149,20 @@ def paired_differences(results: pd.DataFrame, reference: str,
     return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
 
 
-def paired_table(paired: pd.DataFrame) -> pd.DataFrame:
+def paired_table(paired: pd.DataFrame,
+                 truth: tuple[set[str], set[str]] = (set(), set())) -> pd.DataFrame:
     """Wide display table of :func:`paired_differences`: one row per scenario x
-    policy x looks x tracker, one ``mean ± half-width`` column per metric."""
+    policy x looks x tracker, one ``mean ± half-width`` column per metric. ``truth``
+    is ``(tracker labels, policy labels)`` that use the truth, marked in their cells
+    (:func:`benchmarks.summary.truth_labels` of the runs)."""
     if paired.empty:
         return pd.DataFrame()
     keys = ["scenario", "policy_label", "looks_per_step", "tracker_label"]
+    marks = {"policy_label": truth[1], "tracker_label": truth[0]}
     rows = []
     for key, g in paired.groupby(keys, sort=True):
-        row = {_KEY_HEADERS[k]: v for k, v in zip(keys, key, strict=True)}
+        row = {_KEY_HEADERS[k]: (summary.mark_truth(v, marks[k]) if k in marks else v)
+               for k, v in zip(keys, key, strict=True)}
         row["pairs"] = int(g["n_seeds"].min())
         by_metric = g.set_index("metric")
         for m, head, scale, fmt in PAIRED_COLUMNS:
@@ -152,6 +171,81 @@ def paired_table(paired: pd.DataFrame) -> pd.DataFrame:
                 row[head] = fmt_pm(r["diff_mean"], r["diff_ci95"], scale, fmt)
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+# --------------------------------------------------------- floor and ceiling
+def gap_table(gc: summary.GapClosed,
+              truth: tuple[set[str], set[str]] = (set(), set())) -> pd.DataFrame:
+    """One row per scenario x policy x looks: floor and ceiling OSPA over the paired
+    seeds, the gap ``floor - ceiling`` (``mean ± 95% t half-width`` of the per-seed
+    differences) and whether it can rank trackers."""
+    if gc.gaps.empty:
+        return pd.DataFrame()
+    name = summary._METRIC_NAMES.get(gc.metric, gc.metric)
+    floor_head = f"floor {gc.floor_label} {name}"
+    ceil_head = f"ceiling {summary.mark_truth(gc.ceiling_label, truth[0])} {name}"
+    rows = []
+    for r in gc.gaps.itertuples(index=False):
+        rows.append({
+            "scenario": r.scenario, "policy": summary.mark_truth(r.policy_label, truth[1]),
+            "looks": "–" if r.policy_label == "none" else r.looks_per_step,
+            "pairs": int(r.n_pairs),
+            floor_head: fmt_pm(r.floor_mean, r.floor_ci95),
+            ceil_head: fmt_pm(r.ceiling_mean, r.ceiling_ci95),
+            "gap": fmt_pm(r.gap_mean, r.gap_ci95),
+            "ranks trackers": "yes" if r.rankable else "no"})
+    return pd.DataFrame(rows)
+
+
+def share_table(gc: summary.GapClosed,
+                truth: tuple[set[str], set[str]] = (set(), set())) -> pd.DataFrame:
+    """Every tracker with the floor (first) and the ceiling (last) of its scenario x
+    policy x looks: OSPA over the seeds it shares with both, and its share of the gap
+    closed, ``mean ± 95% delta-method half-width``; the others in order of OSPA, worst
+    first."""
+    if gc.shares.empty:
+        return pd.DataFrame()
+    name = summary._METRIC_NAMES.get(gc.metric, gc.metric)
+    m = gc.metric
+    order = {"floor": 0, "": 1, "ceiling": 2}
+    sh = gc.shares.assign(_o=gc.shares["role"].map(order), _m=-gc.shares[f"{m}_mean"])
+    sh = sh.sort_values([*summary.GAP_GROUP, "_o", "_m", "tracker_label"], kind="stable")
+    rows = []
+    for r in sh.itertuples(index=False):
+        if r.role:
+            share = f"{1 if r.role == 'ceiling' else 0} ({r.role})"
+        else:
+            share = fmt_pm(r.share_mean, r.share_ci95, 1.0, ".2f")
+        rows.append({
+            "scenario": r.scenario, "policy": summary.mark_truth(r.policy_label, truth[1]),
+            "looks": "–" if r.policy_label == "none" else r.looks_per_step,
+            "tracker": summary.mark_truth(r.tracker_label, truth[0]), "pairs": int(r.n_pairs),
+            name: fmt_pm(getattr(r, f"{m}_mean"), getattr(r, f"{m}_ci95")),
+            "share of gap closed": share})
+    return pd.DataFrame(rows)
+
+
+def _floor_ceiling_section(doc: Document, gc: summary.GapClosed,
+                           truth: tuple[set[str], set[str]]) -> None:
+    doc.add("h2", "Floor and ceiling: share of the gap closed")
+    floor, ceiling = summary.FLOOR_TRACKER, summary.CEILING_TRACKER
+    doc.add("p", f"The floor `{floor}` reports nothing; the ceiling `{ceiling}` is told the "
+                 "number of targets and which look belongs to which target (it uses the truth: "
+                 "a reference, not a competitor). A tracker's share of the gap closed is "
+                 f"(OSPA_{floor} - OSPA) / (OSPA_{floor} - OSPA_{ceiling}) of the per-seed "
+                 "mean OSPA over the seeds where all three runs are ok (the same worlds), "
+                 "± the 95% half-width by the delta method: 1 is as good as the ceiling, 0 "
+                 "no better than reporting nothing. A scenario whose gap is below "
+                 f"{summary.MIN_GAP:g} or whose gap interval reaches 0 cannot rank trackers.")
+    if not gc.available:
+        doc.add("p", gc.absent)
+        return
+    flags = summary.gap_notes(gc)
+    if flags:
+        doc.add("list", flags)
+    doc.add("table", gap_table(gc, truth))
+    if not gc.shares.empty:
+        doc.add("table", share_table(gc, truth))
 
 
 # ------------------------------------------------------------------ the document
@@ -265,6 +359,9 @@ def baseline_notes(summ: pd.DataFrame) -> list[str]:
     baseline = summ["tracker"].astype(str).map(_is_baseline)
     if not baseline.any():
         return []
+    truth_trackers, _ = summary.truth_labels(summ)
+    # a tracker given the truth is a reference, not "the best tracker"
+    competing = ~summ["tracker_label"].astype(str).isin(truth_trackers)
     notes = []
     group = [k for k in ("scenario", "policy_label", "looks_per_step") if k in summ.columns]
     for key, g in summ.groupby(group, sort=True):
@@ -275,7 +372,7 @@ def baseline_notes(summ: pd.DataFrame) -> list[str]:
             col = f"{metric}_mean"
             if col not in g.columns or len(g) < 2:
                 continue
-            rows = g[g[col].notna()]
+            rows = g[g[col].notna() & competing.loc[g.index]]
             base = rows[baseline.loc[rows.index]]
             if base.empty or len(rows) < 2:
                 continue
@@ -312,7 +409,7 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
     """Write ``report.md``, ``report.html`` and ``figures/*.png`` into ``out_dir``.
 
     ``reference`` is the tracker label that paired differences subtract (skipped
-    with a note when absent). ``settings`` is shown as a list (what was run);
+    with a note when absent or None). ``settings`` is shown as a list (what was run);
     ``trace`` a :class:`benchmarks.snapshot.Trace` for the snapshot figure;
     ``notes`` extra paragraphs at the end; ``draw=False`` skips the figures (tables only).
     """
@@ -321,6 +418,8 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
     fig_dir.mkdir(parents=True, exist_ok=True)
     runs = summary.per_run(results)
     summ = summary.summarize(runs)
+    truth = summary.truth_labels(runs)
+    gc = summary.gap_closed(runs)
 
     figs: dict[str, Path] = {}
     if draw:
@@ -333,6 +432,7 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
     if settings:
         doc.add("h2", "Settings")
         doc.add("list", [f"{k}: {v}" for k, v in settings.items()])
+    _floor_ceiling_section(doc, gc, truth)
     unranked = baseline_notes(summ)
     if unranked:
         doc.add("h2", "Where the baseline is not beaten")
@@ -358,16 +458,20 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
                  "choice (with the tracker's predicted cell counts when the policy uses them). "
                  "Peak RSS is the worker's high-water mark, an upper bound.")
     doc.add("table", summary_table(summ, RUNTIME_COLUMNS))
-    doc.add("h2", f"Paired differences against {reference}")
+    doc.add("h2", f"Paired differences against {reference}" if reference
+            else "Paired differences")
     paired = paired_differences(runs, reference) if reference else pd.DataFrame()
-    if paired.empty:
+    if not reference:
+        doc.add("p", "No reference tracker (every tracker that ran uses the truth): no paired "
+                     "differences.")
+    elif paired.empty:
         doc.add("p", f"No ok runs of the reference tracker {reference!r}: no paired differences.")
     else:
         doc.add("p", f"Per seed, the tracker's run minus the {reference} run of the same world "
                      "(same truth and sensor random numbers), then mean ± 95% t half-width over "
                      "the pairs. Negative accuracy differences mean better than the reference; "
                      "an interval that excludes 0 is a difference at the 5% level.")
-        doc.add("table", paired_table(paired))
+        doc.add("table", paired_table(paired, truth))
     doc.add("h2", "Figures")
     captions = {
         "ospa": "OSPA over time: mean over seeds with a shaded 95% band, per tracker.",

@@ -19,12 +19,33 @@ described in ``note``.
 looks actually made per step (``n_looks``): a policy makes fewer when the budget
 exceeds the grid's cells, and ``all`` looks at every cell whatever the budget. The
 Markdown table shows the budget as ``200 (144 made)`` where the two differ.
+
+**Floor, ceiling and the share of the gap closed** (:func:`gap_closed`). In each
+``(scenario, policy_label, looks_per_step)`` the floor is the ``null`` tracker (it
+reports nothing) and the ceiling the ``truth-aided`` tracker (told the count and which
+look belongs to which target: it uses the truth). With ``F_i``, ``C_i`` and ``X_i`` the
+per-run mean OSPA of floor, ceiling and a tracker in seed ``i`` (the seeds are paired:
+the three runs share the world), over the ``n`` seeds where all three runs are ok::
+
+    A_i = F_i - X_i,  B_i = F_i - C_i,  share = mean(A) / mean(B)
+
+a ratio of means (1 = as good as the ceiling, 0 = no better than reporting nothing).
+Its 95% interval is the **delta method** (no resampling, so no random numbers)::
+
+    d_i = (A_i - share * B_i) / mean(B)
+    share_ci95 = t_{0.975, n-1} * sd(d) / sqrt(n)          (sd with ddof = 1)
+
+The gap is ``mean(B)`` with the paired t half-width of the ``B_i``. A scenario whose
+gap is below :data:`MIN_GAP` (0.15 OSPA) or whose gap interval reaches 0 cannot rank
+trackers: its row says so (``rankable``, ``reason``). Rows of trackers or policies that
+use the truth are marked `` (uses truth)`` in the tables (:func:`truth_labels`).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -198,6 +219,240 @@ def run_failures(results: pd.DataFrame) -> tuple[int, int, str]:
     return len(bad), n, f"{where}: {message}"
 
 
+# ------------------------------------------------------------------ uses the truth
+#: appended to a tracker or policy cell whose runs were given the truth
+TRUTH_MARK = " (uses truth)"
+
+
+def tracker_name(label: str) -> str:
+    """The registered name in a tracker label (``gpf(n=3)`` -> ``gpf``)."""
+    return str(label).split("(", 1)[0]
+
+
+def _declares_truth(kind: str, name: str) -> bool | None:
+    """The ``uses_truth`` class attribute of a registered tracker or policy; None if
+    the name is not registered here (e.g. a table read from another installation)."""
+    try:
+        if kind == "tracker":
+            from .. import trackers
+
+            cls: type = trackers.get_class(name)
+        else:
+            from . import policies
+
+            cls = policies.get_policy_class(name)
+    except Exception:  # noqa: BLE001 - unknown here: fall back to the rows' flag
+        return None
+    return bool(getattr(cls, "uses_truth", False))
+
+
+def truth_users(tracker: str, policy: str, uses_truth: bool) -> tuple[bool, bool]:
+    """``(tracker uses truth, policy uses truth)`` for rows of ``tracker`` (name) and
+    ``policy`` (name) whose ``uses_truth`` column is ``uses_truth``.
+
+    The column says only that something in the run saw the truth; the classes say
+    which (``Tracker.uses_truth``, e.g. ``truth-aided``; ``Policy.uses_truth``, the
+    ``oracle``). A name that is not registered here is credited with the flag when the
+    other one does not explain it (the tracker when neither is registered here)."""
+    t = _declares_truth("tracker", str(tracker))
+    p = _declares_truth("policy", str(policy))
+    flag = bool(uses_truth)
+    by_tracker = t is True or (flag and t is None and p is not True)
+    by_policy = p is True or (flag and not by_tracker)
+    return by_tracker, by_policy
+
+
+def truth_labels(table: pd.DataFrame) -> tuple[set[str], set[str]]:
+    """``(tracker labels, policy labels)`` of ``table`` (results, per-run or summary
+    rows) whose tracker or policy uses the truth (:func:`truth_users`)."""
+    if table.empty or "tracker_label" not in table.columns:
+        return set(), set()
+    labels = table["tracker_label"].astype(str)
+    names = (table["tracker"].astype(str) if "tracker" in table.columns
+             else labels.map(tracker_name))
+    pol_labels = (table["policy_label"].astype(str) if "policy_label" in table.columns
+                  else pd.Series("", index=table.index))
+    pols = (table["policy"].astype(str) if "policy" in table.columns
+            else pol_labels.map(tracker_name))
+    flags = (table["uses_truth"].fillna(False).astype(bool) if "uses_truth" in table.columns
+             else pd.Series(False, index=table.index))
+    by_tracker: set[str] = set()
+    by_policy: set[str] = set()
+    combos = pd.DataFrame({"tl": labels, "t": names, "pl": pol_labels, "p": pols, "f": flags})
+    for r in combos.drop_duplicates().itertuples(index=False):
+        t_uses, p_uses = truth_users(r.t, r.p, bool(r.f))
+        if t_uses:
+            by_tracker.add(r.tl)
+        if p_uses:
+            by_policy.add(r.pl)
+    return by_tracker, by_policy
+
+
+def mark_truth(label: object, users: set[str]) -> str:
+    """``label`` with :data:`TRUTH_MARK` appended when it is one of ``users``."""
+    return f"{label}{TRUTH_MARK}" if str(label) in users else str(label)
+
+
+# ------------------------------------------------- floor, ceiling, share of the gap
+#: registered name of the floor: reports nothing
+FLOOR_TRACKER = "null"
+#: registered name of the ceiling: told the count and the association (uses the truth)
+CEILING_TRACKER = "truth-aided"
+#: a floor-to-ceiling gap below this (OSPA, cells) is too small to rank trackers
+MIN_GAP = 0.15
+GAP_GROUP = ["scenario", "policy_label", "looks_per_step"]
+_METRIC_NAMES = {"ospa": "OSPA", "gospa": "GOSPA", "count_error": "count error"}
+
+
+def ratio_ci95(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """``mean(a) / mean(b)`` and its 95% half-width by the delta method, for paired
+    samples ``a, b (n,)``: ``t_{0.975, n-1} * sd(d) / sqrt(n)`` with
+    ``d = (a - r b) / mean(b)``. NaN ratio when ``mean(b) <= 0`` (no gap to share),
+    NaN half-width when ``n < 2``."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    n = a.size
+    if n == 0 or not b.mean() > 0:
+        return math.nan, math.nan
+    r = float(a.mean() / b.mean())
+    if n < 2:
+        return r, math.nan
+    d = (a - r * b) / b.mean()
+    return r, float(stats.t.ppf(0.975, n - 1) * d.std(ddof=1) / math.sqrt(n))
+
+
+@dataclass(frozen=True)
+class GapClosed:
+    """Result of :func:`gap_closed`.
+
+    ``gaps``: one row per ``(scenario, policy_label, looks_per_step)`` with
+    ``floor_label, ceiling_label, n_pairs, floor_mean, floor_ci95, ceiling_mean,
+    ceiling_ci95, gap_mean, gap_ci95, rankable, reason`` (means over the paired seeds;
+    ``reason`` is ``""`` or one line starting "this scenario cannot rank trackers: " or
+    saying why there is no gap there). ``shares``: one row per group and tracker
+    (floor and ceiling included, ``role`` "floor"/"ceiling"/"") with ``n_pairs``,
+    ``<metric>_mean``, ``<metric>_ci95`` over its pairs and ``share_mean``,
+    ``share_ci95``; only groups where floor and ceiling both have ok runs.
+    ``absent`` is ``""`` when floor and ceiling both ran, else the sentence saying
+    which did not (and then both tables are empty)."""
+
+    metric: str
+    floor_label: str | None
+    ceiling_label: str | None
+    gaps: pd.DataFrame
+    shares: pd.DataFrame
+    absent: str
+
+    @property
+    def available(self) -> bool:
+        return not self.absent
+
+
+def _pick_label(runs: pd.DataFrame, name: str) -> str | None:
+    """The label of tracker ``name`` used as floor or ceiling: the bare name (default
+    parameters) if it ran, else the first of its labels in sorted order."""
+    names = (runs["tracker"].astype(str) if "tracker" in runs.columns
+             else runs["tracker_label"].astype(str).map(tracker_name))
+    labels = sorted(set(runs.loc[names == name, "tracker_label"].astype(str)))
+    if not labels:
+        return None
+    return name if name in labels else labels[0]
+
+
+def _gap_reason(gap: float, half: float, n: int, min_gap: float, metric: str) -> str:
+    """``""`` if the gap can rank trackers, else the one-line reason why not."""
+    problems = []
+    if gap < min_gap:
+        problems.append(f"is below {min_gap:g}")
+    if n < 2 or math.isnan(half):
+        problems.append("has no interval (one seed)")
+    elif gap - half <= 0:
+        problems.append("has a 95% interval that reaches 0")
+    if not problems:
+        return ""
+    half_text = "n/a" if math.isnan(half) else f"{half:.3f}"
+    return (f"this scenario cannot rank trackers: the {metric} gap between floor and "
+            f"ceiling, {gap:.3f} ± {half_text}, " + " and ".join(problems) + ".")
+
+
+def gap_closed(results: pd.DataFrame, metric: str = "ospa", floor: str = FLOOR_TRACKER,
+               ceiling: str = CEILING_TRACKER, min_gap: float = MIN_GAP) -> GapClosed:
+    """Floor, ceiling and each tracker's share of the gap closed (see the module
+    docstring): ``(F - X) / (F - C)`` of the per-seed means of ``metric`` (lower is
+    better), paired by seed, with delta-method 95% intervals (:func:`ratio_ci95`).
+
+    ``results`` is the step table or its :func:`per_run` table. ``floor`` and
+    ``ceiling`` are registered tracker names; when one did not run at all, both tables
+    are empty and :attr:`GapClosed.absent` says why; a group where one has no ok run
+    gets a ``gaps`` row with ``n_pairs = 0`` and the reason, and no shares.
+    """
+    runs = _as_runs(results)
+    name = _METRIC_NAMES.get(metric, metric)
+    f_label, c_label = _pick_label(runs, floor), _pick_label(runs, ceiling)
+    missing = [f"the {role} `{n}`" for role, n, lab in (("floor", floor, f_label),
+                                                         ("ceiling", ceiling, c_label))
+               if lab is None]
+    gap_cols = [*GAP_GROUP, "floor_label", "ceiling_label", "n_pairs", "floor_mean",
+                "floor_ci95", "ceiling_mean", "ceiling_ci95", "gap_mean", "gap_ci95",
+                "rankable", "reason"]
+    share_cols = [*GAP_GROUP, "tracker_label", "role", "n_pairs", f"{metric}_mean",
+                  f"{metric}_ci95", "share_mean", "share_ci95"]
+    if missing:
+        absent = (" and ".join(missing) + " did not run, so no tracker's share of the "
+                  f"{name} gap between floor and ceiling can be computed (run `{floor}` and "
+                  f"`{ceiling}` among the trackers to see it).")
+        absent = absent[0].upper() + absent[1:]
+        return GapClosed(metric, f_label, c_label, pd.DataFrame(columns=gap_cols),
+                         pd.DataFrame(columns=share_cols), absent)
+
+    ok = runs[runs["status"] == "ok"]
+    wide_all = ok.pivot_table(index=[*GAP_GROUP, "seed"], columns="tracker_label",
+                              values=metric, aggfunc="first")
+    gaps, shares = [], []
+    for key, g in runs.groupby(GAP_GROUP, sort=True):
+        key_d = dict(zip(GAP_GROUP, key, strict=True))
+        try:
+            wide = wide_all.xs(key, level=GAP_GROUP) if len(wide_all) else pd.DataFrame()
+        except KeyError:
+            wide = pd.DataFrame()
+        row = {**key_d, "floor_label": f_label, "ceiling_label": c_label, "n_pairs": 0,
+               **dict.fromkeys(["floor_mean", "floor_ci95", "ceiling_mean", "ceiling_ci95",
+                                "gap_mean", "gap_ci95"], math.nan), "rankable": False}
+        absent_here = [f"the {role} `{lab}`" for role, lab in (("floor", f_label),
+                                                               ("ceiling", c_label))
+                       if lab not in wide.columns or wide[lab].notna().sum() == 0]
+        if absent_here:
+            row["reason"] = (f"no {name} gap here: " + " and ".join(absent_here)
+                             + (" have" if len(absent_here) > 1 else " has") + " no ok run")
+            gaps.append(row)
+            continue
+        both = wide[[f_label, c_label]].dropna()
+        fl, ce = both[f_label].to_numpy(float), both[c_label].to_numpy(float)
+        n = len(both)
+        row["n_pairs"] = n
+        row["floor_mean"], row["floor_ci95"] = mean_ci95(fl)
+        row["ceiling_mean"], row["ceiling_ci95"] = mean_ci95(ce)
+        row["gap_mean"], row["gap_ci95"] = mean_ci95(fl - ce)
+        row["reason"] = _gap_reason(row["gap_mean"], row["gap_ci95"], n, min_gap, name)
+        row["rankable"] = not row["reason"]
+        gaps.append(row)
+        for lab in sorted(set(g["tracker_label"].astype(str))):
+            if lab not in wide.columns:
+                continue
+            trio = wide[[f_label, c_label]].assign(_x=wide[lab]).dropna()
+            x = trio["_x"].to_numpy(float)
+            a = trio[f_label].to_numpy(float) - x
+            b = trio[f_label].to_numpy(float) - trio[c_label].to_numpy(float)
+            share, half = ratio_ci95(a, b)
+            mean, mhalf = mean_ci95(x)
+            shares.append({**key_d, "tracker_label": lab,
+                           "role": ("floor" if lab == f_label else
+                                    "ceiling" if lab == c_label else ""),
+                           "n_pairs": len(trio), f"{metric}_mean": mean,
+                           f"{metric}_ci95": mhalf, "share_mean": share, "share_ci95": half})
+    return GapClosed(metric, f_label, c_label, pd.DataFrame(gaps, columns=gap_cols),
+                     pd.DataFrame(shares, columns=share_cols), "")
+
+
 # ------------------------------------------------------------------------ markdown
 def md_cell(value: object) -> str:
     """Text of one Markdown table cell: ``|`` escaped, line breaks as spaces."""
@@ -226,6 +481,7 @@ MARKDOWN_METRICS = [
     ("count_error", "count err", 1.0, ".3f"),
     ("rmse", "RMSE", 1.0, ".3f"),
     ("tracker_wall_s", "ms/step", 1e3, ".3g"),
+    ("gap_closed", "gap closed", 1.0, ".2f"),
 ]
 
 
@@ -256,11 +512,13 @@ def to_markdown(summary: pd.DataFrame,
     head += ["note"] if with_note else []
     align = ["---"] * len(keys) + ["---:"] * (1 + len(shown)) + (["---"] if with_note else [])
     lines = ["| " + " | ".join(head) + " |", "|" + "|".join(align) + "|"]
+    truth_trackers, truth_policies = truth_labels(summary)
     for _, r in summary.iterrows():
         cells = [str(r[k]) for k in keys] + [str(r.get("n_seeds", ""))]
-        truth = r.get("uses_truth", False)
-        if "policy_label" in keys and isinstance(truth, bool | np.bool_) and truth:
-            cells[keys.index("policy_label")] += " (uses truth)"
+        if "tracker_label" in keys:
+            cells[keys.index("tracker_label")] = mark_truth(r["tracker_label"], truth_trackers)
+        if "policy_label" in keys:
+            cells[keys.index("policy_label")] = mark_truth(r["policy_label"], truth_policies)
         if "looks_per_step" in keys and r.get("policy_label") == "none":
             cells[keys.index("looks_per_step")] = "–"  # superposition: no looks
         elif "looks_per_step" in keys and "looks_made" in summary.columns:
@@ -274,7 +532,49 @@ def to_markdown(summary: pd.DataFrame,
     lines.append("Mean over seeds ± half-width of the 95% Student-t interval; "
                  "ms/step = median tracker time per step (predict + update + estimate); "
                  "looks = the budget per step, with the looks made when fewer or more.")
+    if any(m[0] == "gap_closed" for m in shown):
+        lines.append(f"gap closed = (OSPA_{FLOOR_TRACKER} - OSPA) / (OSPA_{FLOOR_TRACKER} - "
+                     f"OSPA_{CEILING_TRACKER}) over the seeds where all three runs are ok "
+                     "(1 = as good as the ceiling, 0 = no better than reporting nothing), "
+                     "± its 95% delta-method half-width.")
+    if truth_trackers or truth_policies:
+        lines.append(f"`{TRUTH_MARK.strip()}`: the tracker or policy was given the truth "
+                     "(a reference, not a competitor).")
     return "\n".join(lines) + "\n"
+
+
+def with_gap_closed(summ: pd.DataFrame, gc: GapClosed) -> pd.DataFrame:
+    """``summ`` (a :func:`summarize` output) with ``gap_closed_mean`` and
+    ``gap_closed_ci95`` (each tracker's share of the floor-to-ceiling gap of
+    :func:`gap_closed`) when floor and ceiling ran; unchanged otherwise."""
+    if not gc.available or gc.shares.empty or "tracker_label" not in summ.columns:
+        return summ
+    keys = [*GAP_GROUP, "tracker_label"]
+    if not set(keys) <= set(summ.columns):
+        return summ
+    add = gc.shares[[*keys, "share_mean", "share_ci95"]].rename(
+        columns={"share_mean": "gap_closed_mean", "share_ci95": "gap_closed_ci95"})
+    return summ.merge(add, on=keys, how="left")
+
+
+def group_text(scenario: object, policy: object, looks: object) -> str:
+    """```paper` (raster, 24 looks)``; ```superposition` (no looks)`` without cells."""
+    if str(policy) == "none":
+        return f"`{scenario}` (no looks)"
+    return f"`{scenario}` ({policy}, {looks} looks)"
+
+
+def gap_notes(gc: GapClosed) -> list[str]:
+    """One line per group that cannot rank trackers (or has no gap), or the sentence
+    saying why floor and ceiling are missing."""
+    if not gc.available:
+        return [gc.absent]
+    out = []
+    for r in gc.gaps.itertuples(index=False):
+        if r.reason:
+            out.append(f"{group_text(r.scenario, r.policy_label, r.looks_per_step)}: "
+                       f"{r.reason}")
+    return out
 
 
 def write_summary(results: pd.DataFrame, out_dir: str | Path, title: str) -> str:
@@ -283,8 +583,11 @@ def write_summary(results: pd.DataFrame, out_dir: str | Path, title: str) -> str
     from .harness import write_text_atomic
 
     out_dir = Path(out_dir)
-    table = summarize(results)
+    table = with_gap_closed(summarize(results), gc := gap_closed(results))
     write_text_atomic(out_dir / "summary.csv", table.to_csv(index=False))
     text = f"# {title}\n\n" + to_markdown(table)
+    extra = gap_notes(gc)
+    if extra:
+        text += "\n" + "\n".join(f"- {line}" for line in extra) + "\n"
     write_text_atomic(out_dir / "summary.md", text)
     return text

@@ -44,6 +44,10 @@ def test_compare_writes_the_report_folder(tmp_path, capsys):
     md = (out / "report.md").read_text()
     # paired table: null against the kfnn reference, 3 pairs
     assert re.search(r"\| default \| raster \| 24 \| null \| 3 \|", md), md
+    # the floor ran, the ceiling did not: no shares, and the report says why
+    assert "The ceiling `truth-aided` did not run, so no tracker's share" in md
+    assert "share of gap closed" not in md and "gap_closed_mean" not in (
+        out / "summary.csv").read_text()
     page = (out / "report.html").read_text()
     assert page.count("data:image/png;base64,") == 5
 
@@ -95,3 +99,13 @@ def test_a_failed_compare_is_marked_in_its_manifest(tmp_path, monkeypatch):
     man = compare.read_manifest(tmp_path)
     assert man["status"] == "failed" and man["sessions"][0]["wall_time_s"] > 0
     assert not compare.is_finished(tmp_path) and compare.is_finished(tmp_path / "nothing") is False
+
+
+def test_default_scenarios_can_rank_trackers():
+    """``paper`` at 24 looks cannot rank trackers (every tracker within ~0.2 OSPA of the
+    floor); the default scenarios are presets that can, and the reference stays kfnn."""
+    from mttbench import scenarios
+
+    assert compare.COMPARE_SCENARIOS == ("default", "crossing", "births", "kreucher")
+    assert set(compare.COMPARE_SCENARIOS) <= set(scenarios.preset_names())
+    assert compare.COMPARE_REFERENCE == "kfnn"

@@ -218,6 +218,14 @@ def test_baseline_best_or_inside_the_best_interval_is_flagged():
     assert report.baseline_notes(_summary_rows({"kfnn": (2.0, 0.1), "gpf": (2.3, 0.1)})) == []
 
 
+def test_a_tracker_given_the_truth_is_not_the_best_the_baseline_is_measured_against():
+    rows = _summary_rows({"null": (2.05, 0.0), "truth-aided": (2.0, 0.06),
+                          "kfnn": (2.5, 0.1)})
+    rows["uses_truth"] = rows["tracker"] == "truth-aided"
+    notes = report.baseline_notes(rows)
+    assert len(notes) == 1 and "has the best GOSPA" in notes[0] and "truth-aided" not in notes[0]
+
+
 def test_report_flags_the_baseline_in_its_own_section(tmp_path):
     results = synthetic_results()
     null = results[results["tracker_label"] == "third"].copy()
