@@ -439,7 +439,7 @@ def build_parser() -> argparse.ArgumentParser:
                     f"budget, {COMPARE_SEEDS} seeds, in parallel processes. Writes "
                     "results.parquet, summary.csv/.md, report.md, a self-contained "
                     "report.html, figures/ and manifest.json into --out (default "
-                    "reports/compare-<UTC timestamp>). Defaults take about 35 s on 2 "
+                    "reports/compare-<UTC timestamp>). Defaults take about 40 s on 2 "
                     "cores (longer on a busy machine).",
         epilog=textwrap.dedent("""\
             examples:
@@ -454,7 +454,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="parallel worker processes (default: the number of CPUs)")
     p.add_argument("--reference", default=None, metavar="TRACKER",
                    help="tracker (name or label) that paired differences subtract "
-                        f"(default {COMPARE_REFERENCE}, or the first tracker if it does not run)")
+                        f"(default {COMPARE_REFERENCE}, or the first tracker that does not use "
+                        "the truth if it does not run)")
     p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser(
