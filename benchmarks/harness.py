@@ -11,6 +11,7 @@ of the runtime benchmarks and the conformance kit all come from it); it yields a
     policy.reset(model, looks, rng_policy)  # rng from (scenario, seed, policy config)
     for k in range(n_steps):
         tracker.predict()                                   # timed (tracker)
+        tracker.observe_truth(states, ids)  # untimed; only if tracker.uses_truth
         P = tracker.cell_count_distribution()               # timed (selection), if needed
         cells = policy.select(k, counts=P, truth_cells=...) # timed (selection)
         looks = run.look(k, cells)      # or run.measure(k) for the superposition sensor
@@ -21,7 +22,12 @@ of the runtime benchmarks and the conformance kit all come from it); it yields a
 The policy's generator does not depend on the tracker, so a random policy looks
 at the same cells for every tracker of a run (common random numbers). The
 policy gets ``counts`` only if it ``uses_prediction`` and ``truth_cells`` only
-if it ``uses_truth`` (the oracle); such rows carry ``uses_truth = True``.
+if it ``uses_truth`` (the oracle). A tracker sees the truth only if its class sets
+``uses_truth = True`` (the ``truth-aided`` reference): then, and only then, the loop
+calls its ``observe_truth(states (n, 4), ids (n,))`` with the current step's truth,
+after ``predict`` and before the cell selection and ``update`` (so its ``P_c(t)`` knows
+the count too); that call is in neither timing. Rows of a policy or a tracker that
+uses the truth carry ``uses_truth = True``.
 
 Results table (one row per scenario x tracker x policy x looks x seed x step):
 
@@ -35,7 +41,8 @@ tracker_params     JSON of all constructor parameters (defaults included), sorte
 policy             policy name; ``"none"`` for the superposition sensor (no cells)
 policy_label       like ``tracker_label``; ``"none"`` for the superposition sensor
 policy_params      JSON of the policy's parameters
-uses_truth         True if the policy was given the true target cells (oracle)
+uses_truth         True if the policy (oracle) or the tracker (truth-aided) was given
+                   the truth
 looks_per_step     look budget ``M`` given to the policy; 0 for superposition
 seed               the run's seed
 step               step ``k`` (0-based); -1 on the single row of an unsupported
@@ -295,6 +302,7 @@ class Playback:
     def __iter__(self) -> Iterator[StepRecord]:
         tracker, policy, run = self.tracker, self.policy, self.world
         grid = self.scenario.model.grid
+        given_truth = bool(getattr(tracker, "uses_truth", False))
         for k in range(self.n_steps):
             self.step = k
             truth = run.states[k]
@@ -302,6 +310,11 @@ class Playback:
             w0, c0 = time.perf_counter(), time.process_time()
             tracker.predict()
             w1, c1 = time.perf_counter(), time.process_time()
+            if given_truth:  # a reference told the truth (untimed)
+                tracker.observe_truth(truth.copy(), run.ids[k].copy())
+                w1s, c1s = time.perf_counter(), time.process_time()
+            else:
+                w1s, c1s = w1, c1
             if policy is not None:
                 counts = tracker.cell_count_distribution() if policy.uses_prediction else None
                 truth_cells = None
@@ -312,14 +325,14 @@ class Playback:
                 w2, c2 = time.perf_counter(), time.process_time()
                 looks = run.look(k, cells)
             else:
-                w2, c2 = w1, c1
+                w2, c2 = w1s, c1s
                 looks = run.measure(k)
             w3, c3 = time.perf_counter(), time.process_time()
             tracker.update(looks)
             est = tracker.estimate()
             w4, c4 = time.perf_counter(), time.process_time()
             yield StepRecord(k, truth, run.ids[k], looks, est, counts,
-                             (w1 - w0) + (w4 - w3), (c1 - c0) + (c4 - c3), w2 - w1, c2 - c1)
+                             (w1 - w0) + (w4 - w3), (c1 - c0) + (c4 - c3), w2 - w1s, c2 - c1s)
 
 
 def play(scenario: Scenario, tracker: Tracker, seed: int, *, policy: Policy | None = None,
@@ -329,6 +342,7 @@ def play(scenario: Scenario, tracker: Tracker, seed: int, *, policy: Policy | No
     :class:`StepRecord` per step. The suite's only step loop::
 
         tracker.predict()                                  # timed (tracker)
+        tracker.observe_truth(states, ids)    # untimed, only if tracker.uses_truth
         P = tracker.cell_count_distribution()              # timed (selection), if asked
         cells = policy.select(k, counts=P, truth_cells=...)   # timed (selection)
         looks = world.look(k, cells)       # world.measure(k) on the superposition sensor
@@ -360,6 +374,15 @@ def play(scenario: Scenario, tracker: Tracker, seed: int, *, policy: Policy | No
                     policy_label, n_steps)
 
 
+def _tracker_uses_truth(spec: TrackerSpec) -> bool:
+    """True if the spec's tracker class is a reference given the truth (False if the
+    class cannot be found: that job fails with its own message)."""
+    try:
+        return bool(getattr(spec.target(), "uses_truth", False))
+    except Exception:  # noqa: BLE001 - an unknown tracker is reported by run_job
+        return False
+
+
 def _base_row(job: Job, c: float, p: float) -> dict[str, Any]:
     """The columns that identify a job's rows (tracker and policy parameters as given;
     :func:`run_job` replaces them with the resolved ones once the objects are built)."""
@@ -371,7 +394,7 @@ def _base_row(job: Job, c: float, p: float) -> dict[str, Any]:
         "policy": job.policy.name if job.policy is not None else NO_POLICY,
         "policy_label": job.policy_label,
         "policy_params": "{}",
-        "uses_truth": False,
+        "uses_truth": _tracker_uses_truth(job.tracker),
         "looks_per_step": job.looks_per_step or 0,
         "seed": int(job.seed),
         "ospa_c": float(c),
@@ -410,9 +433,10 @@ def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
         base["tracker_params"] = _params_json(params)
         base.update({f"param_{n}": _param_value(v) for n, v in params.items()})
         policy = job.policy.make() if job.policy is not None else None
+        base["uses_truth"] = bool(getattr(tracker, "uses_truth", False))
         if policy is not None:
             base["policy_params"] = _params_json(policy.get_params())
-            base["uses_truth"] = bool(policy.uses_truth)
+            base["uses_truth"] = base["uses_truth"] or bool(policy.uses_truth)
 
         reason = tracker.unsupported_reason(model)
         if reason:

@@ -70,6 +70,10 @@ class Tracker(Configurable, ABC):
     baseline: ClassVar[bool] = False
     #: checks of the conformance kit this tracker cannot pass: ``{check name: reason}``
     conformance_exceptions: ClassVar[dict[str, str]] = {}
+    #: a reference that is given the truth (``truth-aided``): the harness calls its
+    #: ``observe_truth(states (n, 4), ids (n,))`` each step after ``predict`` (never for
+    #: other trackers) and marks its rows ``uses_truth``
+    uses_truth: ClassVar[bool] = False
 
     # ------------------------------------------------------------------ params
     # param_names, param_defaults, validate_params, resolved_params, param_conflict,

@@ -1,0 +1,432 @@
+"""``truth-aided``: a reference that is told the count and the association (USES THE TRUTH).
+
+It marks the floor of the error a tracker can reach on a scenario: what one filter per
+target achieves when the number of targets, their births and deaths, and which look
+belongs to which target are all known. It is not an estimator anyone could run; the
+harness gives it the truth and marks every one of its rows ``uses_truth`` (like the
+``oracle`` policy). It never returns the truth as its estimate: the states it reports are
+its filters' means, computed from the looks alone once the bookkeeping is known.
+
+Truth it is given (``observe_truth``, called by the harness at every step after
+``predict`` and before the cell selection and ``update``): the true states ``(n, 4)`` and
+ids ``(n,)`` of the current step. It uses only
+
+* the ids: one filter per true id, dropped when the id disappears (death, or leaving the
+  workspace under ``boundary = "die"``); the count it reports is the number of true
+  targets of the step;
+* for ``start = "birth"`` (the default, the one the tables use): the true state at the
+  step the id first appears, as the filter's start ``N(x_true, P0)`` with
+  ``P0 = diag(sp^2, sv^2, sp^2, sv^2)``, ``sp = start_position_std * cell``,
+  ``sv = start_velocity_std * cell / tau`` (defaults 0.1 cell and 0.01 cell per step:
+  a known start, not a perfect one);
+* for ``start = "first_detection"``: the true cell of a target not yet tracked, to know
+  when a positive look at that cell is its first detection; the filter then starts from
+  the cell's uniform moments (mean at the centre, position variance ``cell^2 / 12`` per
+  axis), zero velocity with the model's ``birth_velocity_std``; the detection is used by
+  that start and not applied again. Until then the target has no state (its count is
+  still reported);
+* for ``attribution = "truth"`` (the default): the true cell of each target, only to tell
+  whether a positive look is that target's detection (below).
+
+Update (grid sensor), each target alone, with known existence and known association.
+The position likelihood of one step is piecewise constant over cells: ``g(x) =
+Lambda_c`` for ``x`` in a looked cell ``c``, 1 elsewhere, with ``Lambda_c = prod_{looks at
+c} p(z_i | 1) / p(z_i | 0)`` (one target in the cell, :meth:`~mttbench.scenarios.model.
+RayleighGridSensor.log_likelihood_ratio`) and ``z_i`` the look as target ``i`` alone would
+have produced it. With ``attribution = "truth"`` (the default, the one the tables use):
+a positive look at the cell that truly holds target ``i`` is its detection (a look at a
+cell holding several targets is credited to each, even a false alarm there); a positive
+look anywhere else is another target's detection or a false alarm, known by the
+association, and counts for ``i`` as the miss it is for ``i`` (false alarms and other
+targets' detections are ignored as detections of ``i``); a negative look removes the
+looked cell's share of every target's mass. ``attribution = "overlap"`` applies every
+return as it is to every target whose Gaussian overlaps the cell (no attribution, the
+literal "as if it were the only target"): then another target's detections, with
+``Lambda = p_d / p_f`` ~ 1000 on the default sensor, pull a nearby filter onto that
+target and it can follow it for good (measured on ``default`` with every cell looked,
+seed 2: a filter lost from step 26 on). The target is also known to be inside the
+workspace ``W`` (it exists, and the truth never leaves ``W``), so the posterior of the
+prior ``N(m, P)`` is::
+
+    p(x | z) = N(x; m, P) 1_W(x) g(x) / Z
+
+a mixture, over the looked cells and "the rest of W", of the Gaussian truncated to each
+(weights ``mass_c Lambda_c`` and ``mass_W - sum_c mass_c``). With the centred moments of
+the Gaussian on a rectangle ``R`` (:func:`~mttbench.trackers.gpf_grid.rect_state_moments`:
+``mass_R``, ``M1_R = int_R (x - m) N``, ``M2_R = int_R (x - m)(x - m)^T N``, position and
+velocity jointly)::
+
+    Z  = mass_W + sum_c (Lambda_c - 1) mass_c
+    d  = (M1_W + sum_c (Lambda_c - 1) M1_c) / Z
+    m' = m + d,   P' = (M2_W + sum_c (Lambda_c - 1) M2_c) / Z - d d^T
+
+the exact first two moments of the posterior (the moment match to one Gaussian). Cells
+farther than 6 marginal standard deviations from the mean are left out (mass < 1e-8);
+a Gaussian whose 6-sigma box lies inside ``W`` uses ``mass_W = 1, M1_W = 0, M2_W = P``.
+The ``Lambda`` are scaled by their largest one per target before use (many positive
+repeats cannot overflow).
+
+Prediction: ``m <- F m``, ``P <- F P F^T + Q`` (the model's ``F`` and ``Q``). Under
+``boundary = "die"`` that is the prior, and its restriction to ``W`` above is the
+conditioning on survival. Under ``"reflect"`` the truth is folded back into ``W`` by
+reflection (position mirrored, that velocity negated), so the prior inside ``W`` is the
+sum of the predicted Gaussian's images (:func:`reflection_images`: per axis ``p + 2nL``
+and ``2nL - p`` with the velocity negated on a mirror, ``n`` in ``{-1, 0, 1}``; only the
+images with mass above 1e-9 inside ``W``, so a target far from the walls has just
+itself). The update above then runs on every image (the same ``Lambda``; the mixture has
+one more level, images times cells) and moment-matches the whole posterior once: the
+fold is exact for a Gaussian prior, and nothing is truncated twice. Measured with
+every cell looked, 20 seeds of 100 steps, mean OSPA on ``paper`` / ``default``: this
+fold 1.304 / 0.324; a fold moment-matched in the prediction and truncated again in the
+update 1.366 / 0.326; truncation alone, no fold, 1.318 / 0.824 (a filter runs into the
+wall after its target bounced).
+
+Predicted per-cell count distribution ``P_c(t)``: each tracked target is present with
+probability 1, in cell ``c`` with its predicted Gaussian's mass there (summed over its
+images under ``"reflect"``; :func:`~mttbench.trackers.cells.gaussian_cell_mass`, x-y
+correlation ignored) renormalised to ``W``; a known but not yet detected target
+(``first_detection``) is uniform over the cells; the count is Poisson-binomial
+(:func:`~mttbench.trackers.cells.poisson_binomial`), columns 0, 1, 2 and "3 or more".
+
+Superposition sensor: not supported (the linear update with a known count would need
+the targets' joint covariance; this reference is for the grid sensor).
+
+Driven without ``observe_truth`` (outside the harness), nothing is born or dies: with no
+truth ever given it holds no target and reports none.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+from scipy.special import ndtr
+
+from ..scenarios.model import Grid, Looks, RayleighGridSensor, TrackingModel
+from . import kalman
+from .base import Estimate, Tracker, register
+from .cells import gaussian_cell_mass, poisson_binomial
+from .gpf_grid import rect_state_moments
+from .params import Param
+
+#: count columns of P_c: 0, 1, 2 and "3 or more"
+N_COUNTS = 4
+#: looked cells farther than this many marginal sds from a target's mean are ignored
+RANGE_SIGMAS = 6.0
+#: a reflection image with less mass than this in the workspace is ignored
+IMAGE_MASS_FLOOR = 1e-9
+#: a posterior normaliser below this keeps the prior (mean projected into the workspace)
+_TINY = 1e-300
+
+
+def _axis_images(mean: np.ndarray, sd: np.ndarray, length: float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Reflection images of one axis for ``K`` Gaussians: ``sign (K, 6)`` (+1 translated,
+    -1 mirrored), ``shift (K, 6)`` (image position = ``sign * p + shift``) and ``mass
+    (K, 6)``, each image's mass inside ``[0, length)`` (marginal normal CDF). Column 1 is
+    the Gaussian itself."""
+    n = np.array([-1.0, 0.0, 1.0])
+    sign = np.concatenate([np.ones(3), -np.ones(3)])
+    shift = 2.0 * length * np.concatenate([n, n])
+    mu = sign[None, :] * mean[:, None] + shift[None, :]  # (K, 6)
+    sd = np.maximum(sd, 1e-300)[:, None]
+    mass = ndtr((length - mu) / sd) - ndtr(-mu / sd)
+    K = len(mean)
+    return np.broadcast_to(sign, (K, 6)), np.broadcast_to(shift, (K, 6)), mass
+
+
+def reflection_images(m: np.ndarray, P: np.ndarray, grid: Grid
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The Gaussians whose sum, restricted to the workspace, is the density of the
+    state folded into it by reflection (the simulator's boundary rule).
+
+    Per axis the images of ``N(m, P)`` are ``p + 2nL`` and ``2nL - p`` (that velocity
+    negated on a mirror), ``n`` in ``{-1, 0, 1}``; an image is kept when its mass inside
+    ``W`` (product of its axes' masses, the x-y correlation ignored) exceeds
+    :data:`IMAGE_MASS_FLOOR`, and the Gaussian itself always. ``m (K, 4)``,
+    ``P (K, 4, 4)``. Returns ``owner (J,)`` (the target of each image, non-decreasing),
+    ``means (J, 4)`` and ``covs (J, 4, 4)``; a target far from the walls has exactly one
+    image, itself.
+    """
+    width, height = grid.extent
+    sgx, shx, mx = _axis_images(m[:, 0], np.sqrt(np.maximum(P[:, 0, 0], 0.0)), width)
+    sgy, shy, my = _axis_images(m[:, 2], np.sqrt(np.maximum(P[:, 2, 2], 0.0)), height)
+    keep = mx[:, :, None] * my[:, None, :] > IMAGE_MASS_FLOOR  # (K, 6, 6)
+    keep[:, 1, 1] = True
+    owner, ix, iy = np.nonzero(keep)
+    sign = np.stack([sgx[owner, ix], sgx[owner, ix], sgy[owner, iy], sgy[owner, iy]], axis=1)
+    shift = np.zeros((len(owner), 4))
+    shift[:, 0], shift[:, 2] = shx[owner, ix], shy[owner, iy]
+    means = sign * m[owner] + shift
+    covs = sign[:, :, None] * P[owner] * sign[:, None, :]
+    return owner, means, covs
+
+
+#: how the prior is held to the workspace: folded into it, truncated to it, or not at all
+WORKSPACE_RULES = ("reflect", "truncate", "none")
+
+
+def known_existence_update(m: np.ndarray, P: np.ndarray, cells: np.ndarray,
+                           returns: np.ndarray, grid: Grid,
+                           sensor: RayleighGridSensor | None,
+                           own_cells: np.ndarray | None = None, workspace: str = "truncate",
+                           range_sigmas: float = RANGE_SIGMAS
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """Grid update of ``K`` independent targets that are known to exist.
+
+    ``m (K, 4)``, ``P (K, 4, 4)``: the predicted Gaussians (rows ``[px, vx, py, vy]``,
+    workspace units). ``cells (L,)``, ``returns (L,)``: the looks of the step (repeats
+    allowed: they multiply; ``sensor`` may be None when there is none). ``own_cells
+    (K,)``: each target's true cell (-1: none); given, target ``k`` sees a positive look
+    as positive only at ``own_cells[k]`` and as a miss anywhere else (the detections of
+    other targets and false alarms attributed by the truth); None, every target sees
+    every return as it is. ``workspace``: ``"reflect"``, the prior is ``N(m, P)`` folded
+    into the workspace ``W`` (the sum of :func:`reflection_images` on ``W``);
+    ``"truncate"``, ``N(m, P)`` restricted to ``W``; ``"none"``, ``N(m, P)`` as it is.
+    Each target's posterior, prior times ``g`` (``Lambda_c`` in looked cell ``c``, 1
+    elsewhere), is moment-matched to one Gaussian (equations in the module docstring).
+    Returns the posterior means ``(K, 4)`` and covariances ``(K, 4, 4)`` (new arrays).
+    """
+    if workspace not in WORKSPACE_RULES:
+        raise ValueError(f"workspace must be one of {WORKSPACE_RULES}, got {workspace!r}")
+    m = np.asarray(m, dtype=float).reshape(-1, 4)
+    P = np.asarray(P, dtype=float).reshape(-1, 4, 4)
+    K = len(m)
+    cells = np.asarray(cells, dtype=np.int64).reshape(-1)
+    returns = np.asarray(returns, dtype=bool).reshape(-1)
+    if K == 0:
+        return m.copy(), P.copy()
+    s = grid.cell_size
+    width, height = grid.extent
+    # the prior's components: the images of each target (reflect) or the target itself
+    if workspace == "reflect":
+        owner, cm, cP = reflection_images(m, P, grid)
+    else:
+        owner, cm, cP = np.arange(K), m, P
+    J = len(owner)
+    sx = np.sqrt(np.maximum(cP[:, 0, 0], 0.0))
+    sy = np.sqrt(np.maximum(cP[:, 2, 2], 0.0))
+
+    # ---- the workspace term per component: mass, M1, M2 of N on W (exactly 1, 0, P
+    # when W holds its 6-sigma box, or without a workspace rule)
+    mass_w = np.ones(J)
+    M1_w = np.zeros((J, 4))
+    M2_w = cP.copy()
+    if workspace != "none":
+        edge = ((cm[:, 0] - range_sigmas * sx < 0) | (cm[:, 0] + range_sigmas * sx > width)
+                | (cm[:, 2] - range_sigmas * sy < 0) | (cm[:, 2] + range_sigmas * sy > height))
+        e = np.nonzero(edge)[0]
+        if len(e):
+            zeros, ones = np.zeros(len(e)), np.ones(len(e))
+            mass_w[e], M1_w[e], M2_w[e] = rect_state_moments(
+                cm[e], cP[e], zeros, width * ones, zeros, height * ones)
+
+    # ---- (component, looked cell) pairs within range, log Lambda of each pair
+    if len(cells):
+        U, inv = np.unique(cells, return_inverse=True)
+        n_pos = np.bincount(inv, weights=returns, minlength=len(U))
+        n_all = np.bincount(inv, minlength=len(U)).astype(float)
+        # log Lambda of one positive and of one negative look, one target in the cell
+        ll_pos, ll_neg = sensor.log_likelihood_ratio(np.array([True, False]), np.ones(2))
+        ux, uy = U % grid.nx, U // grid.nx
+        near = ((ux[None] >= np.floor((cm[:, 0] - range_sigmas * sx) / s)[:, None])
+                & (ux[None] <= np.floor((cm[:, 0] + range_sigmas * sx) / s)[:, None])
+                & (uy[None] >= np.floor((cm[:, 2] - range_sigmas * sy) / s)[:, None])
+                & (uy[None] <= np.floor((cm[:, 2] + range_sigmas * sy) / s)[:, None]))
+        pj, pu = np.nonzero(near)
+        seen_pos = n_pos[pu]
+        if own_cells is not None:  # a positive look elsewhere than its own cell is a miss
+            own = np.asarray(own_cells, dtype=np.int64).reshape(-1)
+            seen_pos = np.where(U[pu] == own[owner[pj]], seen_pos, 0.0)
+        log_lam = seen_pos * ll_pos + (n_all[pu] - seen_pos) * ll_neg  # per pair
+    else:
+        log_lam = np.zeros(0)
+        pj = pu = np.zeros(0, dtype=np.int64)
+
+    # scale: every weight of a target divided by exp(top), top = max(0, its largest
+    # log Lambda), so that many positive repeats cannot overflow
+    top = np.zeros(K)
+    if len(pj):
+        np.maximum.at(top, owner[pj], log_lam)
+    base = np.exp(-top)[owner]  # (J,) weight of the workspace term (Lambda = 1)
+    Zc = base * mass_w  # per component: weight, and moments centred on its mean
+    S1 = base[:, None] * M1_w
+    S2 = base[:, None, None] * M2_w
+    if len(pj):
+        x0, x1, y0, y1 = grid.cell_bounds(U[pu])
+        mass_c, M1_c, M2_c = rect_state_moments(cm, cP, x0.astype(float), x1.astype(float),
+                                                y0.astype(float), y1.astype(float), owner=pj)
+        coef = np.exp(log_lam - top[owner[pj]]) - base[pj]  # (Lambda_c - 1) / exp(top)
+        np.add.at(Zc, pj, coef * mass_c)
+        np.add.at(S1, pj, coef[:, None] * M1_c)
+        np.add.at(S2, pj, coef[:, None, None] * M2_c)
+
+    # ---- per target: the moments of the sum of its components
+    Z = np.bincount(owner, weights=Zc, minlength=K)
+    raw1 = np.zeros((K, 4))
+    np.add.at(raw1, owner, Zc[:, None] * cm + S1)
+    ok = Z > _TINY * np.exp(-top)
+    mean = np.where(ok[:, None], raw1 / np.where(ok, Z, 1.0)[:, None], m)
+    delta = cm - mean[owner]  # component mean minus the target's posterior mean
+    second = (S2 + S1[:, :, None] * delta[:, None, :] + delta[:, :, None] * S1[:, None, :]
+              + Zc[:, None, None] * delta[:, :, None] * delta[:, None, :])
+    S = np.zeros((K, 4, 4))
+    np.add.at(S, owner, second)
+    means, covs = m.copy(), P.copy()
+    means[ok] = mean[ok]
+    cv = S[ok] / Z[ok, None, None]
+    covs[ok] = 0.5 * (cv + np.swapaxes(cv, -1, -2))
+    if not np.all(ok) and workspace != "none":
+        # no mass left in W at all (a mean far outside with a tiny covariance): keep the
+        # prior, its position projected onto the workspace
+        bad = ~ok
+        means[bad, 0] = np.clip(m[bad, 0], 0.0, np.nextafter(width, 0.0))
+        means[bad, 2] = np.clip(m[bad, 2], 0.0, np.nextafter(height, 0.0))
+    return means, covs
+
+
+def fold_into_workspace(m: np.ndarray, P: np.ndarray, grid: Grid
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Mean ``(K, 4)`` and covariance ``(K, 4, 4)`` of ``N(m, P)`` folded into the
+    workspace by reflection (:func:`known_existence_update` without looks)."""
+    return known_existence_update(m, P, np.zeros(0, np.int64), np.zeros(0, bool), grid,
+                                  None, workspace="reflect")
+
+
+@register
+class TruthAidedTracker(Tracker):
+    """Known count and association, one moment-matched grid filter per true target
+    (module docstring). A reference that uses the truth, never an estimator."""
+
+    name = "truth-aided"
+    summary = ("REFERENCE, USES THE TRUTH: count and association known, one grid filter "
+               "per true target (every look, positive or negative), the floor of the error")
+    uses_truth = True
+    parameters: ClassVar[dict[str, Param]] = {
+        "start": Param(choices=("birth", "first_detection"),
+                       doc="a filter starts at the target's birth (known start) or at its "
+                           "first detection (cell centre)"),
+        "start_position_std": Param(float, 0, low_open=True,
+                                    doc="known start: position sd, in cells"),
+        "start_velocity_std": Param(float, 0, low_open=True,
+                                    doc="known start: velocity sd, in cells per time unit"),
+        "attribution": Param(choices=("truth", "overlap"),
+                             doc="a positive look counts for the targets in its cell only "
+                                 "(a miss for the others), or for every target"),
+    }
+
+    def __init__(self, start: str = "birth", start_position_std: float = 0.1,
+                 start_velocity_std: float = 0.01, attribution: str = "truth") -> None:
+        self.start = start
+        self.start_position_std = start_position_std
+        self.start_velocity_std = start_velocity_std
+        self.attribution = attribution
+
+    def unsupported_reason(self, model: TrackingModel) -> str | None:
+        if not isinstance(model.sensor, RayleighGridSensor):
+            return ("the truth-aided reference is built for the grid sensor; on the "
+                    "superposition sensor it would need the targets' joint covariance")
+        return None
+
+    # --------------------------------------------------------------- life cycle
+    def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
+        self._model = model
+        self._grid = model.grid
+        self._F, self._Q = model.dynamics.F, model.dynamics.Q
+        self._reflect = model.birth_death.boundary == "reflect"
+        s, tau = model.grid.cell_size, model.dynamics.tau
+        sp = self.start_position_std * s
+        sv = self.start_velocity_std * s / tau
+        self._P0 = np.diag([sp * sp, sv * sv, sp * sp, sv * sv])
+        bv = model.birth_death.birth_velocity_std
+        r = s * s / 12.0
+        self._P_cell = np.diag([r, bv * bv, r, bv * bv])
+        self._ids = np.zeros(0, dtype=np.int64)
+        self._m = np.zeros((0, 4))
+        self._P = np.zeros((0, 4, 4))
+        self._own = np.zeros(0, dtype=np.int64)  # true cell of each filter's target
+        self._fresh = False  # observe_truth was called since the last update
+        self._n_true = 0
+        # first_detection: true ids not yet tracked and their true cells this step
+        self._pending_ids = np.zeros(0, dtype=np.int64)
+        self._pending_cells = np.zeros(0, dtype=np.int64)
+
+    def observe_truth(self, states: np.ndarray, ids: np.ndarray) -> None:
+        """The truth of the current step (the harness calls this after :meth:`predict`):
+        ``states (n, 4)``, ``ids (n,)``. Drops the filters of ids that are gone; under
+        ``start="birth"`` starts one at ``N(state, P0)`` for each new id; under
+        ``"first_detection"`` remembers the true cells of the ids not yet tracked."""
+        states = np.asarray(states, dtype=float).reshape(-1, 4)
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        self._n_true = len(ids)
+        alive = np.isin(self._ids, ids)
+        self._ids, self._m, self._P = self._ids[alive], self._m[alive], self._P[alive]
+        new = ~np.isin(ids, self._ids)
+        if self.start == "birth":
+            n = int(new.sum())
+            self._ids = np.concatenate([self._ids, ids[new]])
+            self._m = np.concatenate([self._m, states[new]])
+            self._P = np.concatenate([self._P, np.broadcast_to(self._P0, (n, 4, 4))])
+            self._pending_ids = np.zeros(0, dtype=np.int64)
+            self._pending_cells = np.zeros(0, dtype=np.int64)
+        else:
+            self._pending_ids = ids[new]
+            self._pending_cells = self._grid.cell_of(states[new, 0], states[new, 2])
+        # true cell of each tracked target (ids are unique, so the lookup is exact)
+        order = np.argsort(ids, kind="stable")
+        row = order[np.searchsorted(ids[order], self._ids)]
+        self._own = self._grid.cell_of(states[row, 0], states[row, 2])
+        self._fresh = True
+
+    def predict(self) -> None:
+        # the fold into the workspace (reflect) is applied by the update, with the looks
+        self._m, self._P = kalman.predict(self._m, self._P, self._F, self._Q)
+
+    def cell_count_distribution(self) -> np.ndarray:
+        grid = self._grid
+        K = len(self._m)
+        if self._reflect:  # the folded prior: the sum of the images' cell masses
+            owner, cm, cP = reflection_images(self._m, self._P, grid)
+        else:
+            owner, cm, cP = np.arange(K), self._m, self._P
+        mass = gaussian_cell_mass(grid, *kalman.position_marginal(cm, cP))  # (J, n_cells)
+        if len(owner) > K:  # sum the images of each target
+            mass = np.add.reduceat(mass, np.searchsorted(owner, np.arange(K)), axis=0)
+        mean_xy = self._m[:, kalman.POSITION]
+        tot = mass.sum(axis=1)
+        empty = tot <= 0.0
+        if np.any(empty):  # no mass on the grid at all: all of it in the nearest cell
+            ix = np.clip(np.floor(mean_xy[empty, 0] / grid.cell_size), 0, grid.nx - 1)
+            iy = np.clip(np.floor(mean_xy[empty, 1] / grid.cell_size), 0, grid.ny - 1)
+            mass[empty] = 0.0
+            mass[np.nonzero(empty)[0], (iy * grid.nx + ix).astype(np.int64)] = 1.0
+            tot[empty] = 1.0
+        probs = mass / tot[:, None]
+        n_pending = len(self._pending_ids)
+        if n_pending:
+            # known targets without a state: each uniform over the cells; together one
+            # Bernoulli "at least one of them" per cell
+            p = 1.0 - (1.0 - 1.0 / grid.n_cells) ** n_pending
+            probs = np.concatenate([probs, np.full((1, grid.n_cells), p)])
+        return poisson_binomial(probs, N_COUNTS)
+
+    def update(self, looks: Looks) -> None:
+        own = self._own if self.attribution == "truth" and self._fresh else None
+        self._fresh = False
+        self._m, self._P = known_existence_update(
+            self._m, self._P, looks.cells, looks.returns, self._grid, self._model.sensor,
+            own_cells=own, workspace="reflect" if self._reflect else "truncate")
+        if self.start == "first_detection" and len(self._pending_ids) and len(looks):
+            detected_cells = np.unique(looks.cells[looks.returns])
+            hit = np.isin(self._pending_cells, detected_cells) & (self._pending_cells >= 0)
+            if np.any(hit):
+                centres = self._grid.cell_centers(self._pending_cells[hit])
+                n = int(hit.sum())
+                self._ids = np.concatenate([self._ids, self._pending_ids[hit]])
+                self._m = np.concatenate([self._m, kalman.at_rest(centres)])
+                self._P = np.concatenate([self._P, np.broadcast_to(self._P_cell, (n, 4, 4))])
+                self._pending_ids = self._pending_ids[~hit]
+                self._pending_cells = self._pending_cells[~hit]
+
+    def estimate(self) -> Estimate:
+        return Estimate(float(self._n_true), self._m.copy(), self._P.copy())
