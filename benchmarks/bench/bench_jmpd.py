@@ -71,24 +71,6 @@ def _ids(configs):
     return [f"{name}-t{t_max}" for name, t_max in configs]
 
 
-def _advance(warm, tracker, n_calls: int, with_estimate: bool = True):
-    """The step function of an advancing benchmark: each of its ``n_calls`` calls is the
-    next step of the warm world with its own looks (precomputed, so the policy is never
-    timed). Returns the step function and the list of ``(step, estimate)`` it fills."""
-    looks = [warm.looks_at(k) for k in range(warm.step, warm.step + n_calls)]
-    done: list = []
-
-    def step():
-        k = warm.step + len(done)
-        tracker.predict()
-        tracker.update(looks[k - warm.step])
-        est = tracker.estimate() if with_estimate else None
-        done.append((k, est))
-        return est
-
-    return step, done
-
-
 def _estimate_first(tracker, done) -> None:
     """For a benchmark that leaves ``estimate()`` out of the timing: estimate the first
     timed step once it has run (called untimed: in the next round's setup, or after the
@@ -124,7 +106,7 @@ def test_jmpd_step(benchmark, warm_up, accuracy, record_ratio, name, t_max, n):
                    timed_policy=Oracle())
     tr = warm.tracker
     rounds, warmup = ROUNDS_HUGE if huge else ROUNDS[name]
-    step, done = _advance(warm, tr, 1 if benchmark.disabled else rounds + warmup)
+    step, done = warm.advance(1 if benchmark.disabled else rounds + warmup)
     rng = np.random.default_rng(1)
     noise = np.empty((8, t_max, n))[4:]  # the tracker's noise rows, same layout
     noise_times: list[float] = []
@@ -176,8 +158,8 @@ def test_jmpd_resample_move_step(benchmark, warm_up, accuracy, name, t_max, move
                    timed_policy=Oracle())
     tr = warm.tracker
     rounds, warmup = ROUNDS[name]
-    step, done = _advance(warm, tr, 1 if benchmark.disabled else rounds + warmup,
-                          with_estimate=False)
+    step, done = warm.advance(1 if benchmark.disabled else rounds + warmup,
+                                 with_estimate=False)
     benchmark.extra_info.update(scenario=name, n_particles=n, t_max=t_max,
                                 move_steps=move_steps)
     benchmark.pedantic(step, setup=lambda: _estimate_first(tr, done), rounds=rounds,

@@ -43,19 +43,7 @@ def test_jmpd_ap_step(benchmark, warm_up, accuracy, name, n):
     scenario = scenarios.get(name)
     warm = warm_up(scenario, JMPDAPTracker(n_particles=n), WARM_STEPS[name],
                    policy=AllCells(), timed_policy=AllCells())
-    tr = warm.tracker
-    n_calls = 1 if benchmark.disabled else ROUNDS + WARMUP_ROUNDS
-    looks = [warm.looks_at(k) for k in range(warm.step, warm.step + n_calls)]
-    done: list = []
-
-    def step():
-        k = warm.step + len(done)
-        tr.predict()
-        tr.update(looks[k - warm.step])
-        est = tr.estimate()
-        done.append((k, est))
-        return est
-
+    step, done = warm.advance(1 if benchmark.disabled else ROUNDS + WARMUP_ROUNDS)
     benchmark.extra_info.update(scenario=name, n_particles=n, warm_steps=warm.step,
                                 warm_from_truth=False, warm_policy="all",
                                 timed_policy="all")

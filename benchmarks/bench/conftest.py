@@ -167,6 +167,26 @@ class Warm:
         """The looks of step ``k`` (any ``k >= step``) under the timed policy."""
         return _looks_at(self.world, self.timed_policy, k)
 
+    def advance(self, n_calls: int, with_estimate: bool = True):
+        """The step function of an advancing benchmark: each of its ``n_calls`` calls is
+        the next step of this world for :attr:`tracker` (no copy), with its own looks
+        (precomputed, so the policy is never timed): ``predict``, ``update`` and, if
+        ``with_estimate``, ``estimate``. Returns the step function and the list of
+        ``(step, estimate)`` it fills."""
+        tracker = self.tracker
+        looks = [self.looks_at(k) for k in range(self.step, self.step + n_calls)]
+        done: list = []
+
+        def step():
+            k = self.step + len(done)
+            tracker.predict()
+            tracker.update(looks[k - self.step])
+            est = tracker.estimate() if with_estimate else None
+            done.append((k, est))
+            return est
+
+        return step, done
+
 
 def _looks_at(world: Run, policy: Policy, k: int) -> Looks:
     """Step ``k``'s looks at the cells ``policy`` selects (given the true cells if it
