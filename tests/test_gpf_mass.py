@@ -19,12 +19,8 @@ from mttbench.scenarios.model import (
     RayleighGridSensor,
     TrackingModel,
 )
-from mttbench.trackers.gpf import (
-    GaussianParticleFilter,
-    fold_into_workspace,
-    split_broad,
-    truncate_to_workspace,
-)
+from mttbench.trackers.gpf import GaussianParticleFilter, split_broad, truncate_to_workspace
+from mttbench.trackers.gpf_grid import fold_into_workspace
 
 N_MC = 400_000
 W, H = 12.0, 12.0
@@ -68,13 +64,13 @@ def test_fold_matches_folded_samples(mean):
         x[low, p] = -x[low, p]
         x[high, p] = 2 * length - x[high, p]
         x[low | high, v] = -x[low | high, v]
-    fm, fP = fold_into_workspace(m[None], P[None], W, H)
+    fm, fP = fold_into_workspace(m[None], P[None], Grid(12, 12, 1.0))
     _mc_check(x, fm[0], fP[0])
 
 
 def test_fold_leaves_a_gaussian_inside_unchanged():
     m, P = _gaussian((6.0, 0.1, 6.0, 0.1), (0.5, 0.1, 0.5, 0.1))
-    fm, fP = fold_into_workspace(m[None], P[None], W, H)
+    fm, fP = fold_into_workspace(m[None], P[None], Grid(12, 12, 1.0))
     assert np.array_equal(fm[0], m) and np.array_equal(fP[0], P)
 
 

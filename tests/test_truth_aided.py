@@ -17,12 +17,9 @@ from mttbench.benchmarks.specs import PolicySpec, TrackerSpec
 from mttbench.scenarios.model import Grid, RayleighGridSensor
 from mttbench.testing import check_tracker
 from mttbench.trackers import make
+from mttbench.trackers.gpf_grid import fold_into_workspace, known_existence_update
 from mttbench.trackers.kfnn import KFNNTracker
-from mttbench.trackers.truth_aided import (
-    TruthAidedTracker,
-    fold_into_workspace,
-    known_existence_update,
-)
+from mttbench.trackers.truth_aided import TruthAidedTracker
 
 GRID = Grid(12, 12, 1.0)
 SENSOR = RayleighGridSensor(p_d=0.5, snr=10.0)

@@ -10,8 +10,9 @@ Step (the harness calls predict, then update, then estimate):
 * **Predict**: ``mu <- F mu``, ``Sigma <- F Sigma F^T + Q``, ``w <- p w`` with the survival
   ``p = min(p_s, 1 - death_probability)``. No probability stays outside the workspace
   (``truncate=True``, issue 14): under "reflect" the mass beyond a wall is mirrored back
-  (position and that axis's velocity; :func:`fold_into_workspace`, the 3 x 3 regions
-  moment matched exactly), under "die" ``w`` is multiplied by the mass inside and the
+  (position and that axis's velocity; :func:`.gpf_grid.fold_into_workspace`, the
+  Gaussian's reflection images restricted to the workspace, moment matched), under
+  "die" ``w`` is multiplied by the mass inside and the
   Gaussian becomes its truncation to the workspace (:func:`truncate_to_workspace`). So a
   broad Gaussian pays, in the grid update, for the looks that found nothing where its mass
   is (before, mass outside counted as "elsewhere", likelihood 1). ``truncate=False``
@@ -94,7 +95,7 @@ from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
 from . import kalman
 from .base import Estimate, Tracker, register
 from .cells import gaussian_cell_mass, poisson_binomial
-from .gpf_grid import grid_update, rect_state_moments
+from .gpf_grid import fold_into_workspace, grid_update, rect_state_moments
 from .gpf_linear import superposition_update
 from .params import Param
 
@@ -235,59 +236,6 @@ def truncate_to_workspace(m: np.ndarray, P: np.ndarray, width: float, height: fl
     cv = M2 / mass_in[:, None, None] - d[:, :, None] * d[:, None, :]
     P[sel] = 0.5 * (cv + np.swapaxes(cv, -1, -2))
     return mass, m, P
-
-
-def _raw_moments(mass, M1, M2, mean):
-    """Raw first and second moments ``E[x 1_R]``, ``E[x x^T 1_R]`` from the centred ones."""
-    e1 = M1 + mass[:, None] * mean
-    e2 = (M2 + M1[:, :, None] * mean[:, None, :] + mean[:, :, None] * M1[:, None, :]
-          + mass[:, None, None] * mean[:, :, None] * mean[:, None, :])
-    return e1, e2
-
-
-def fold_into_workspace(m: np.ndarray, P: np.ndarray, width: float, height: float,
-                        tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
-    """Reflecting walls: each Gaussian's mass beyond a wall is mirrored back (position
-    ``p -> -p`` or ``2 L - p``, that axis's velocity negated), as the truth reflects, and
-    the folded density is moment matched. The plane is cut into the 3 x 3 regions below,
-    inside and beyond the walls of each axis, each mirrored by its own affine map, so the
-    first two moments are exact for one reflection per wall. Gaussians with no mass
-    outside (the marginals' closed form, ``tol``) are returned unchanged."""
-    sx, sy = np.sqrt(P[:, 0, 0]), np.sqrt(P[:, 2, 2])
-    out = (ndtr(-m[:, 0] / sx) + ndtr((m[:, 0] - width) / sx)
-           + ndtr(-m[:, 2] / sy) + ndtr((m[:, 2] - height) / sy))
-    sel = np.nonzero(out > tol)[0]
-    if len(sel) == 0:
-        return m, P
-    m, P = m.copy(), P.copy()
-    n, big = len(sel), 1e9
-    mu, cov = m[sel], P[sel]
-    e1, e2, total = np.zeros((n, 4)), np.zeros((n, 4, 4)), np.zeros(n)
-    # per axis: (lower edge, upper edge, mirror shift or None for the inside)
-    parts = {axis: ((-big, 0.0, 0.0), (0.0, length, None), (length, big, 2.0 * length))
-             for axis, length in ((0, width), (2, height))}
-    for xlo, xhi, xs in parts[0]:
-        for ylo, yhi, ys in parts[2]:
-            mass, M1, M2 = rect_state_moments(mu, cov, np.full(n, xlo), np.full(n, xhi),
-                                              np.full(n, ylo), np.full(n, yhi))
-            r1, r2 = _raw_moments(mass, M1, M2, mu)
-            flip, c = np.ones(4), np.zeros(4)
-            for axis, shift in ((0, xs), (2, ys)):
-                if shift is not None:
-                    flip[axis:axis + 2] = -1.0
-                    c[axis] = shift
-            f1 = r1 * flip
-            e1 += f1 + mass[:, None] * c
-            e2 += (r2 * flip[None, :, None] * flip[None, None, :]
-                   + f1[:, :, None] * c[None, None, :] + c[None, :, None] * f1[:, None, :]
-                   + mass[:, None, None] * np.outer(c, c)[None])
-            total += mass
-    total = np.maximum(total, 1e-300)  # the nine parts hold all the mass (about 1)
-    mean = e1 / total[:, None]
-    cv = e2 / total[:, None, None] - mean[:, :, None] * mean[:, None, :]
-    m[sel] = mean
-    P[sel] = 0.5 * (cv + np.swapaxes(cv, -1, -2))
-    return m, P
 
 
 def split_broad(w: np.ndarray, m: np.ndarray, P: np.ndarray, max_sd: float,
@@ -453,7 +401,7 @@ class GaussianParticleFilter(Tracker):
         if bd.boundary == "reflect":
             if self.truncate and len(self._w):
                 # no probability outside: the mass beyond a wall is reflected back
-                self._m, self._P = fold_into_workspace(self._m, self._P, width, height)
+                self._m, self._P = fold_into_workspace(self._m, self._P, self._grid)
             else:
                 for axis, length in ((0, width), (2, height)):
                     self._reflect_axis(axis, length)

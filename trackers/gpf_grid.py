@@ -427,3 +427,188 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     covs[upd] = 0.5 * (cv + np.swapaxes(cv, -1, -2))
     return GridUpdateResult(np.clip(w_new, 0.0, 1.0), means, covs, dropped, n_clusters,
                             max_cluster)
+
+
+# ------------------------------------------------- Gaussians known to exist (reference)
+#: looked cells farther than this many marginal sds from a target's mean are ignored
+RANGE_SIGMAS = 6.0
+#: a reflection image with less mass than this in the workspace is ignored
+IMAGE_MASS_FLOOR = 1e-9
+#: a posterior normaliser below this keeps the prior (mean projected into the workspace)
+_TINY = 1e-300
+
+
+def _axis_images(mean: np.ndarray, sd: np.ndarray, length: float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Reflection images of one axis for ``K`` Gaussians: ``sign (K, 6)`` (+1 translated,
+    -1 mirrored), ``shift (K, 6)`` (image position = ``sign * p + shift``) and ``mass
+    (K, 6)``, each image's mass inside ``[0, length)`` (marginal normal CDF). Column 1 is
+    the Gaussian itself."""
+    n = np.array([-1.0, 0.0, 1.0])
+    sign = np.concatenate([np.ones(3), -np.ones(3)])
+    shift = 2.0 * length * np.concatenate([n, n])
+    mu = sign[None, :] * mean[:, None] + shift[None, :]  # (K, 6)
+    sd = np.maximum(sd, 1e-300)[:, None]
+    mass = ndtr((length - mu) / sd) - ndtr(-mu / sd)
+    K = len(mean)
+    return np.broadcast_to(sign, (K, 6)), np.broadcast_to(shift, (K, 6)), mass
+
+
+def reflection_images(m: np.ndarray, P: np.ndarray, grid: Grid
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The Gaussians whose sum, restricted to the workspace, is the density of the
+    state folded into it by reflection (the simulator's boundary rule).
+
+    Per axis the images of ``N(m, P)`` are ``p + 2nL`` and ``2nL - p`` (that velocity
+    negated on a mirror), ``n`` in ``{-1, 0, 1}``; an image is kept when its mass inside
+    ``W`` (product of its axes' masses, the x-y correlation ignored) exceeds
+    :data:`IMAGE_MASS_FLOOR`, and the Gaussian itself always. ``m (K, 4)``,
+    ``P (K, 4, 4)``. Returns ``owner (J,)`` (the target of each image, non-decreasing),
+    ``means (J, 4)`` and ``covs (J, 4, 4)``; a target far from the walls has exactly one
+    image, itself.
+    """
+    width, height = grid.extent
+    sgx, shx, mx = _axis_images(m[:, 0], np.sqrt(np.maximum(P[:, 0, 0], 0.0)), width)
+    sgy, shy, my = _axis_images(m[:, 2], np.sqrt(np.maximum(P[:, 2, 2], 0.0)), height)
+    keep = mx[:, :, None] * my[:, None, :] > IMAGE_MASS_FLOOR  # (K, 6, 6)
+    keep[:, 1, 1] = True
+    owner, ix, iy = np.nonzero(keep)
+    sign = np.stack([sgx[owner, ix], sgx[owner, ix], sgy[owner, iy], sgy[owner, iy]], axis=1)
+    shift = np.zeros((len(owner), 4))
+    shift[:, 0], shift[:, 2] = shx[owner, ix], shy[owner, iy]
+    means = sign * m[owner] + shift
+    covs = sign[:, :, None] * P[owner] * sign[:, None, :]
+    return owner, means, covs
+
+
+#: how the prior is held to the workspace: folded into it, truncated to it, or not at all
+WORKSPACE_RULES = ("reflect", "truncate", "none")
+
+
+def known_existence_update(m: np.ndarray, P: np.ndarray, cells: np.ndarray,
+                           returns: np.ndarray, grid: Grid,
+                           sensor: RayleighGridSensor | None,
+                           own_cells: np.ndarray | None = None, workspace: str = "truncate",
+                           range_sigmas: float = RANGE_SIGMAS
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """Grid update of ``K`` independent targets that are known to exist.
+
+    ``m (K, 4)``, ``P (K, 4, 4)``: the predicted Gaussians (rows ``[px, vx, py, vy]``,
+    workspace units). ``cells (L,)``, ``returns (L,)``: the looks of the step (repeats
+    allowed: they multiply; ``sensor`` may be None when there is none). ``own_cells
+    (K,)``: each target's true cell (-1: none); given, target ``k`` sees a positive look
+    as positive only at ``own_cells[k]`` and as a miss anywhere else (the detections of
+    other targets and false alarms attributed by the truth); None, every target sees
+    every return as it is. ``workspace``: ``"reflect"``, the prior is ``N(m, P)`` folded
+    into the workspace ``W`` (the sum of :func:`reflection_images` on ``W``);
+    ``"truncate"``, ``N(m, P)`` restricted to ``W``; ``"none"``, ``N(m, P)`` as it is.
+    Each target's posterior, prior times ``g`` (``Lambda_c`` in looked cell ``c``, 1
+    elsewhere), is moment-matched to one Gaussian (equations in the module docstring).
+    Returns the posterior means ``(K, 4)`` and covariances ``(K, 4, 4)`` (new arrays).
+    """
+    if workspace not in WORKSPACE_RULES:
+        raise ValueError(f"workspace must be one of {WORKSPACE_RULES}, got {workspace!r}")
+    m = np.asarray(m, dtype=float).reshape(-1, 4)
+    P = np.asarray(P, dtype=float).reshape(-1, 4, 4)
+    K = len(m)
+    cells = np.asarray(cells, dtype=np.int64).reshape(-1)
+    returns = np.asarray(returns, dtype=bool).reshape(-1)
+    if K == 0:
+        return m.copy(), P.copy()
+    s = grid.cell_size
+    width, height = grid.extent
+    # the prior's components: the images of each target (reflect) or the target itself
+    if workspace == "reflect":
+        owner, cm, cP = reflection_images(m, P, grid)
+    else:
+        owner, cm, cP = np.arange(K), m, P
+    J = len(owner)
+    sx = np.sqrt(np.maximum(cP[:, 0, 0], 0.0))
+    sy = np.sqrt(np.maximum(cP[:, 2, 2], 0.0))
+
+    # ---- the workspace term per component: mass, M1, M2 of N on W (exactly 1, 0, P
+    # when W holds its 6-sigma box, or without a workspace rule)
+    mass_w = np.ones(J)
+    M1_w = np.zeros((J, 4))
+    M2_w = cP.copy()
+    if workspace != "none":
+        edge = ((cm[:, 0] - range_sigmas * sx < 0) | (cm[:, 0] + range_sigmas * sx > width)
+                | (cm[:, 2] - range_sigmas * sy < 0) | (cm[:, 2] + range_sigmas * sy > height))
+        e = np.nonzero(edge)[0]
+        if len(e):
+            zeros, ones = np.zeros(len(e)), np.ones(len(e))
+            mass_w[e], M1_w[e], M2_w[e] = rect_state_moments(
+                cm[e], cP[e], zeros, width * ones, zeros, height * ones)
+
+    # ---- (component, looked cell) pairs within range, log Lambda of each pair
+    if len(cells):
+        U, inv = np.unique(cells, return_inverse=True)
+        n_pos = np.bincount(inv, weights=returns, minlength=len(U))
+        n_all = np.bincount(inv, minlength=len(U)).astype(float)
+        # log Lambda of one positive and of one negative look, one target in the cell
+        ll_pos, ll_neg = sensor.log_likelihood_ratio(np.array([True, False]), np.ones(2))
+        ux, uy = U % grid.nx, U // grid.nx
+        near = ((ux[None] >= np.floor((cm[:, 0] - range_sigmas * sx) / s)[:, None])
+                & (ux[None] <= np.floor((cm[:, 0] + range_sigmas * sx) / s)[:, None])
+                & (uy[None] >= np.floor((cm[:, 2] - range_sigmas * sy) / s)[:, None])
+                & (uy[None] <= np.floor((cm[:, 2] + range_sigmas * sy) / s)[:, None]))
+        pj, pu = np.nonzero(near)
+        seen_pos = n_pos[pu]
+        if own_cells is not None:  # a positive look elsewhere than its own cell is a miss
+            own = np.asarray(own_cells, dtype=np.int64).reshape(-1)
+            seen_pos = np.where(U[pu] == own[owner[pj]], seen_pos, 0.0)
+        log_lam = seen_pos * ll_pos + (n_all[pu] - seen_pos) * ll_neg  # per pair
+    else:
+        log_lam = np.zeros(0)
+        pj = pu = np.zeros(0, dtype=np.int64)
+
+    # scale: every weight of a target divided by exp(top), top = max(0, its largest
+    # log Lambda), so that many positive repeats cannot overflow
+    top = np.zeros(K)
+    if len(pj):
+        np.maximum.at(top, owner[pj], log_lam)
+    base = np.exp(-top)[owner]  # (J,) weight of the workspace term (Lambda = 1)
+    Zc = base * mass_w  # per component: weight, and moments centred on its mean
+    S1 = base[:, None] * M1_w
+    S2 = base[:, None, None] * M2_w
+    if len(pj):
+        x0, x1, y0, y1 = grid.cell_bounds(U[pu])
+        mass_c, M1_c, M2_c = rect_state_moments(cm, cP, x0.astype(float), x1.astype(float),
+                                                y0.astype(float), y1.astype(float), owner=pj)
+        coef = np.exp(log_lam - top[owner[pj]]) - base[pj]  # (Lambda_c - 1) / exp(top)
+        np.add.at(Zc, pj, coef * mass_c)
+        np.add.at(S1, pj, coef[:, None] * M1_c)
+        np.add.at(S2, pj, coef[:, None, None] * M2_c)
+
+    # ---- per target: the moments of the sum of its components
+    Z = np.bincount(owner, weights=Zc, minlength=K)
+    raw1 = np.zeros((K, 4))
+    np.add.at(raw1, owner, Zc[:, None] * cm + S1)
+    ok = Z > _TINY * np.exp(-top)
+    mean = np.where(ok[:, None], raw1 / np.where(ok, Z, 1.0)[:, None], m)
+    delta = cm - mean[owner]  # component mean minus the target's posterior mean
+    second = (S2 + S1[:, :, None] * delta[:, None, :] + delta[:, :, None] * S1[:, None, :]
+              + Zc[:, None, None] * delta[:, :, None] * delta[:, None, :])
+    S = np.zeros((K, 4, 4))
+    np.add.at(S, owner, second)
+    means, covs = m.copy(), P.copy()
+    means[ok] = mean[ok]
+    cv = S[ok] / Z[ok, None, None]
+    covs[ok] = 0.5 * (cv + np.swapaxes(cv, -1, -2))
+    if not np.all(ok) and workspace != "none":
+        # no mass left in W at all (a mean far outside with a tiny covariance): keep the
+        # prior, its position projected onto the workspace
+        bad = ~ok
+        means[bad, 0] = np.clip(m[bad, 0], 0.0, np.nextafter(width, 0.0))
+        means[bad, 2] = np.clip(m[bad, 2], 0.0, np.nextafter(height, 0.0))
+    return means, covs
+
+
+def fold_into_workspace(m: np.ndarray, P: np.ndarray, grid: Grid
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Mean ``(K, 4)`` and covariance ``(K, 4, 4)`` of ``N(m, P)`` folded into the
+    workspace by reflection (:func:`known_existence_update` without looks): the mass
+    beyond a wall mirrored back, position and that axis's velocity, as the truth
+    reflects. Used by the GPF's predict and the truth-aided reference."""
+    return known_existence_update(m, P, np.zeros(0, np.int64), np.zeros(0, bool), grid,
+                                  None, workspace="reflect")
