@@ -15,17 +15,9 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
-from scipy import stats
 
-
-def t_interval(x: np.ndarray) -> tuple[float, float]:
-    """Mean and 95% t half-width over the seeds."""
-    x = np.asarray(x, dtype=float)
-    if len(x) < 2:
-        return float(x.mean()), float("nan")
-    return float(x.mean()), float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x)))
+from mttbench.benchmarks.summary import mean_ci95
 
 
 def read(folder: Path) -> pd.DataFrame:
@@ -55,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
                "seeds": per_seed.shape[0]}
         for name, values in (("ospa", per_seed["ospa"]), ("|count err|", per_seed["count"]),
                              ("step ms (median)", steps)):
-            m, h = t_interval(values.to_numpy())
+            m, h = mean_ci95(values.to_numpy())
             row[name] = f"{m:.3f} ± {h:.3f}"
         for c in crossings:
             by_seed = g.groupby("seed")
@@ -64,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
             mb, ma = before.mean(), after.mean()
             # ratio of means, interval by the delta method on the paired seeds
             d = (after - (ma / mb) * before) / mb
-            _, h = t_interval(d.to_numpy())
+            _, h = mean_ci95(d.to_numpy())
             row[f"before {c}"] = f"{mb:.3f}"
             row[f"after {c}"] = f"{ma:.3f}"
             row[f"ratio {c}"] = f"{ma / mb:.2f} ± {h:.2f}"
