@@ -61,13 +61,41 @@ def _num(x: float) -> str:
 
 
 @dataclass(frozen=True)
+class Search:
+    """Where ``mttbench tune`` looks for one parameter (optuna's ``suggest_*``).
+
+    Numbers: ``Search(low, high)`` searches ``[low, high]`` (``log=True``: uniform in
+    the logarithm; ``step``: a grid), as an integer when the parameter is ``int``.
+    Choices: ``Search(choices=(...))`` picks one of the listed values (strings, bools or
+    numbers the parameter accepts). Every value searched must be one the parameter's
+    :class:`Param` accepts.
+    """
+
+    low: float | None = None
+    high: float | None = None
+    log: bool = False
+    step: float | None = None
+    choices: tuple[Any, ...] = ()
+
+    def __post_init__(self) -> None:
+        numeric = self.low is not None or self.high is not None
+        if numeric == bool(self.choices):
+            raise TypeError("Search takes either low and high, or choices")
+        if numeric and (self.low is None or self.high is None or not self.low < self.high):
+            raise TypeError(f"Search needs low < high, got [{self.low}, {self.high}]")
+        if self.log and (not numeric or self.low <= 0 or self.step is not None):
+            raise TypeError("Search(log=True) needs 0 < low < high and no step")
+
+
+@dataclass(frozen=True)
 class Param:
     """What one parameter accepts.
 
     ``kind``: ``int``, ``float``, ``bool`` or ``str`` (``str`` with ``choices``: one of
     them; ``choices`` alone implies ``str``). ``low``/``high``: bounds (None: none),
     inclusive unless ``low_open``/``high_open``. ``allow_none``: ``None`` is allowed and
-    means ``none``. ``doc``: a few words for ``mttbench trackers``.
+    means ``none``. ``doc``: a few words for ``mttbench trackers``. ``search``: the
+    tuning range (:class:`Search`), declared next to what the parameter accepts.
     """
 
     kind: type = str
@@ -79,6 +107,8 @@ class Param:
     allow_none: bool = False
     none: str = ""
     doc: str = ""
+    #: where ``mttbench tune`` searches this parameter; None: not tuned
+    search: Search | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in (int, float, bool, str):
