@@ -48,6 +48,7 @@ from .compare import (
     OUTPUT_FILES,
     is_finished,
 )
+from .executors import add_executor_arguments, describe_current, executor_scope
 from .harness import build_jobs, prepare_out_dir, run_sweep
 from .specs import (
     UsageError,
@@ -179,7 +180,7 @@ def _sweep(args: argparse.Namespace, scs, tracker_specs, policy_specs, looks, se
     for line in resources.check_jobs(jobs, workers):
         print(line, file=sys.stderr)
     prepare_out_dir(out_dir)
-    print(f"{len(jobs)} runs on {min(workers, len(jobs))} worker(s) -> {out_dir}",
+    print(f"{len(jobs)} runs on {describe_current(workers, len(jobs))} -> {out_dir}",
           file=sys.stderr)
     results = run_sweep(jobs, out_dir, workers=workers, progress=not args.no_progress,
                         resume=getattr(args, "resume", False), c=args.c, p=args.p)
@@ -428,6 +429,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default: each scenario's looks_per_step)")
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel worker processes (default: the number of CPUs)")
+    add_executor_arguments(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser(
@@ -456,6 +458,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="tracker (name or label) that paired differences subtract "
                         f"(default {COMPARE_REFERENCE}, or the first tracker that does not use "
                         "the truth if it does not run)")
+    add_executor_arguments(p)
     p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser(
@@ -515,6 +518,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel worker processes (default: the number of CPUs)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_executor_arguments(p)
     p.set_defaults(func=cmd_reproduce)
 
     p = sub.add_parser(
@@ -546,7 +550,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     who = f"mttbench {args.command}"
     try:
-        return args.func(args)
+        with executor_scope(args):  # --executor: every sweep of the command runs there
+            return args.func(args)
     except UsageError as exc:
         print(f"{who}: error: {exc}", file=sys.stderr)
         return 2

@@ -53,6 +53,7 @@ import pandas as pd
 
 from .. import trackers
 from . import resources, summary
+from .executors import describe_current
 from .harness import build_jobs, prepare_out_dir, run_sweep, write_text_atomic
 from .specs import PolicySpec, TrackerSpec, UsageError, resolve_scenarios, resolve_trackers
 
@@ -225,7 +226,7 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
 
     save_manifest("running")
     print(f"{len(jobs)} runs ({len(scs)} scenarios x {len(specs)} trackers x {len(seeds)} "
-          f"seeds) on {workers} worker(s) -> {out}", file=sys.stderr)
+          f"seeds) on {describe_current(workers)} -> {out}", file=sys.stderr)
     try:
         results = run_sweep(jobs, out, workers=workers, progress=progress, resume=resume,
                             c=c, p=p)
@@ -252,7 +253,7 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
                                                              "the truth)",
             "floor and ceiling": f"{summary.FLOOR_TRACKER} and {summary.CEILING_TRACKER} "
                                  "(share of the OSPA gap closed)",
-            "workers": str(workers),
+            "workers": describe_current(workers),
             "wall time of the runs": wall_text,
         }
         intro = [

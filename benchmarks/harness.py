@@ -88,14 +88,12 @@ import math
 import os
 import re
 import resource
-import signal
 import sys
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -107,6 +105,9 @@ from ..trackers.base import Estimate, Tracker
 from .metrics import step_metrics
 from .policies import Policy, Raster
 from .specs import PolicySpec, TrackerSpec, UsageError
+
+if TYPE_CHECKING:
+    from .executors import Executor
 
 METRIC_COLUMNS = [
     "count_error", "ospa", "ospa_loc", "ospa_card", "gospa", "gospa_loc", "gospa_missed",
@@ -566,30 +567,6 @@ def _read_part(path: Path) -> pd.DataFrame:
     return df
 
 
-def _ignore_sigint() -> None:
-    """Worker initializer: Ctrl-C is the main process's to handle (it stops the pool)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def _stop_pool(pool: ProcessPoolExecutor) -> None:
-    """Drop the queued runs and end the running ones now (an interrupt or a write error)."""
-    # the worker processes, read before shutdown() forgets them (a private attribute of
-    # ProcessPoolExecutor; without it the running and already queued runs would finish)
-    procs = list((getattr(pool, "_processes", None) or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for proc in procs:
-        with contextlib.suppress(Exception):
-            proc.terminate()
-    for proc in procs:
-        with contextlib.suppress(Exception):
-            proc.join(timeout=5)
-
-
-def _run_and_save(job: Job, part: Path, c: float, p: float) -> Path:
-    _write_parquet(run_job(job, c, p), part)
-    return part
-
-
 def sort_results(df: pd.DataFrame) -> pd.DataFrame:
     """Deterministic row order: by run keys, tracker parameters and step."""
     keys = [*RUN_KEYS, "tracker_params", "policy_params", "step"]
@@ -610,17 +587,20 @@ def _concat(frames: list[pd.DataFrame]) -> pd.DataFrame:
 
 
 def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1, progress: bool = True,
-              resume: bool = False, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
+              resume: bool = False, c: float = 2.0, p: float = 2.0,
+              executor: Executor | None = None) -> pd.DataFrame:
     """Run ``jobs`` and write ``out_dir/results.parquet``; returns the table.
 
     Every finished job is written at once to ``out_dir/parts/<job hash>.parquet``,
     so an interrupted sweep keeps what it finished; with ``resume=True`` the jobs
-    whose part exists are not run again. ``workers > 1`` runs jobs in separate
-    processes; the results do not depend on ``workers`` (timings aside). If a worker
-    process dies, the process pool breaks and every run not finished by then (the dead
-    worker's and the queued ones, whatever their tracker) gets an error row that is not
-    saved as a part, so ``--resume`` runs them again; finished parts are kept. (Retrying
-    on a fresh pool is left to the executor work of issue 16.)
+    whose part exists are not run again. The jobs run on ``executor``
+    (:mod:`~mttbench.benchmarks.executors`); None means the current one
+    (:func:`~mttbench.benchmarks.executors.use_executor`, set by the command line), else
+    a local pool of ``workers`` processes (``workers <= 1``: in this process). The
+    results do not depend on the executor or the number of workers (timings aside). A
+    run lost with its worker process is run again (``retries`` of the executor); one lost
+    every time gets an error row that is not saved as a part, so ``--resume`` runs it
+    again; finished parts are kept.
 
     On resume a part that cannot be read (damaged, empty, not a part) is reported in
     one line on stderr and recomputed. Temp files left by a killed earlier sweep are
@@ -628,6 +608,8 @@ def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1, progress: 
     running ones and propagates; finished parts stay. A part that cannot be written
     (disk full, read-only) raises ``OSError`` naming the file, and stops the sweep.
     """
+    from .executors import LocalExecutor, current_executor
+
     out_dir = Path(out_dir)
     parts_dir = out_dir / "parts"
     parts_dir.mkdir(parents=True, exist_ok=True)
@@ -648,6 +630,8 @@ def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1, progress: 
               file=sys.stderr)
     todo = [(job, path) for job, path in zip(jobs, paths, strict=True) if path not in done]
     lost: dict[Path, pd.DataFrame] = {}
+    if executor is None:
+        executor = current_executor() or LocalExecutor(workers)
 
     from tqdm.auto import tqdm
 
@@ -656,33 +640,17 @@ def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1, progress: 
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), file=sys.stderr,
                disable=not progress, unit="run", desc="runs")
     try:
-        if workers <= 1 or len(todo) <= 1:
-            for job, path in todo:
-                _run_and_save(job, path, c, p)
+        with contextlib.closing(executor.run(todo, c, p)) as outcomes:
+            for i, error in outcomes:
+                if error is not None:
+                    job, path = todo[i]
+                    lost[path] = _lost_job_frame(job, error, c, p)
                 bar.update()
-        else:
-            pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)),
-                                       initializer=_ignore_sigint)
-            try:
-                futures = {pool.submit(_run_and_save, job, path, c, p): (job, path)
-                           for job, path in todo}
-                for fut in as_completed(futures):
-                    job, path = futures[fut]
-                    try:
-                        fut.result()
-                    except OSError:  # the part could not be written: stop the sweep
-                        raise
-                    except Exception as exc:  # noqa: BLE001 - e.g. a worker killed
-                        msg = f"worker failed: {type(exc).__name__}: {exc}".replace("\n", " ")
-                        lost[path] = _lost_job_frame(job, msg, c, p)
-                    bar.update()
-            except BaseException:
-                # Ctrl-C or a write error: drop the queued runs and end the running ones
-                # instead of waiting for them; the finished parts stay for --resume
-                _stop_pool(pool)
-                remove_stale_temp_files(parts_dir)  # what the ended workers were writing
-                raise
-            pool.shutdown()
+    except BaseException:
+        # Ctrl-C or a write error: the executor dropped the queued runs and ended the
+        # running ones; the finished parts stay for --resume
+        remove_stale_temp_files(parts_dir)  # what the ended workers were writing
+        raise
     finally:
         bar.close()
 
@@ -694,6 +662,6 @@ def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1, progress: 
 
 
 def _lost_job_frame(job: Job, message: str, c: float, p: float) -> pd.DataFrame:
-    """The one error row of a job whose worker process died (not saved as a part)."""
+    """The one error row of a job lost with its worker process (not saved as a part)."""
     row = _special_row(_base_row(job, c, p), -1, "error", message, math.nan)
     return _frame([{**row, "peak_rss_mb": math.nan}])

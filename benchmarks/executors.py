@@ -1,0 +1,480 @@
+"""Where a sweep's runs execute: a local process pool, or a Dask cluster.
+
+:func:`~mttbench.benchmarks.harness.run_sweep` hands an executor the runs still to do,
+each with the part file it must end in, and consumes what :meth:`Executor.run` yields,
+one ``(index, error)`` per run as it finishes: ``error`` is None once the part is
+written, else the message of a run lost after its retries (the sweep gives it an
+``error`` row that is not saved as a part, so ``--resume`` runs it again). Resume, the
+summaries and the reports never see which executor ran: a run's rows depend only on
+its job (:func:`~mttbench.benchmarks.harness.run_job`), so both executors give the same
+table bit for bit, timing and memory columns aside.
+
+* :class:`LocalExecutor` (``--executor local``, the default): ``workers`` processes of
+  this machine (``concurrent.futures``); each writes its own parts. With one worker the
+  runs go in this process. If a worker process dies (killed, out of memory, a crash in
+  compiled code) the pool breaks and ends its other workers: the queued runs go to a
+  fresh pool, and the runs that were running go again one at a time in a one-process
+  pool, where a death is the run's own (so a run that kills its worker takes no other
+  run down with it); a run whose own worker dies ``1 + retries`` times gets its error
+  row.
+* :class:`DaskExecutor` (``--executor dask``; the ``mttbench[dask]`` extra): the runs
+  go to a ``dask.distributed`` cluster, an existing one (``--scheduler tcp://HOST:PORT``)
+  or a ``LocalCluster`` of ``--workers`` processes with one thread each on this machine;
+  each finished run's table comes back to this process, which writes the part
+  atomically. A worker that dies loses only the run it held (our LocalCluster gives a
+  worker one run at a time: ``worker-saturation`` 1.0); the scheduler runs it again
+  elsewhere until it has been on ``1 + retries`` dying workers (the scheduler's
+  ``allowed-failures``: set to ``retries`` on our LocalCluster; an existing cluster's
+  scheduler keeps its own setting, Dask's default 3), then the run gets its error row
+  (``KilledWorker``). A run that raises is retried ``retries`` times (``retries=`` of
+  ``Client.submit``; :func:`~mttbench.benchmarks.harness.run_job` itself turns a
+  tracker's failure into rows, so this is for e.g. a worker that cannot load the job).
+
+Ctrl-C (or a part that cannot be written) stops either executor: queued runs are
+dropped, the local pool's running ones are ended, a Dask cluster's are released (a task
+already running on an existing cluster's worker finishes there and is discarded), and
+the finished parts stay.
+
+The command line builds the executor once per command (:func:`executor_scope`) and
+makes it the current one (:func:`use_executor`): every ``run_sweep`` of the command
+(``compare``, ``reproduce``, ``tune``'s batches) uses it, so a LocalCluster starts once.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import hashlib
+import logging
+import multiprocessing
+import os
+import signal
+import threading
+import uuid
+from collections.abc import Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from contextvars import ContextVar
+from pathlib import Path
+from typing import Any
+
+from .harness import Job, _write_parquet, run_job
+from .specs import UsageError
+
+#: retries of a lost run (a dead worker, or on Dask a run that raised); Dask's own default
+DEFAULT_RETRIES = 3
+EXECUTORS = ("local", "dask")
+#: the one line shown when ``distributed`` is missing
+MISSING_DASK = ("--executor dask needs the distributed package: "
+                "pip install 'mttbench[dask]'")
+#: a run's task key prefix on a Dask cluster (its task group, in Dask's dashboard)
+TASK_PREFIX = "mttbench-run"
+
+#: (index of the run in ``todo``, None once its part is written or the error message)
+Outcome = tuple[int, str | None]
+
+
+class Executor:
+    """Runs a sweep's jobs (see the module docstring). A context manager: ``close``
+    releases what it started (a Dask LocalCluster); it can run several sweeps before."""
+
+    retries: int = DEFAULT_RETRIES
+
+    def describe(self, n_runs: int | None = None) -> str:
+        """Where ``n_runs`` runs go, for messages: ``2 worker(s)``, ``the Dask cluster at
+        ...``."""
+        raise NotImplementedError
+
+    def run(self, todo: Sequence[tuple[Job, Path]], c: float, p: float) -> Iterator[Outcome]:
+        """Run every ``(job, part path)`` of ``todo``; yield ``(i, error)`` as each ends.
+
+        Close the iterator (or let an exception through it) to stop: queued runs are
+        dropped and running ones ended or released. An ``OSError`` of a part that cannot
+        be written propagates."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release what the executor started; it is not used afterwards."""
+
+    def __enter__(self) -> Executor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# ------------------------------------------------------------------ local processes
+#: set in each pool worker by :func:`_init_worker`: where it says which run it starts
+_STARTED: Any = None
+
+
+def _init_worker(started: Any) -> None:
+    """Pool worker initializer: Ctrl-C is the main process's to handle (it stops the
+    pool); runs report their start on ``started`` (which runs a dead worker held)."""
+    global _STARTED
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _STARTED = started
+
+
+def _run_and_save(i: int, job: Job, part: Path, c: float, p: float) -> int:
+    if _STARTED is not None:
+        _STARTED.put(i)
+    _write_parquet(run_job(job, c, p), part)
+    return i
+
+
+def _stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Drop the queued runs and end the running ones now (an interrupt or a write error)."""
+    # the worker processes, read before shutdown() forgets them (a private attribute of
+    # ProcessPoolExecutor; without it the running and already queued runs would finish)
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in procs:
+        with contextlib.suppress(Exception):
+            proc.terminate()
+    for proc in procs:
+        with contextlib.suppress(Exception):
+            proc.join(timeout=5)
+
+
+class LocalExecutor(Executor):
+    """``workers`` processes of this machine; one worker runs in this process."""
+
+    def __init__(self, workers: int = 1, retries: int = DEFAULT_RETRIES) -> None:
+        self.workers = max(1, int(workers))
+        self.retries = _check_retries(retries)
+
+    def describe(self, n_runs: int | None = None) -> str:
+        return f"{min(self.workers, n_runs or self.workers)} worker(s)"
+
+    def run(self, todo: Sequence[tuple[Job, Path]], c: float, p: float) -> Iterator[Outcome]:
+        if self.workers <= 1 or len(todo) <= 1:
+            for i, (job, path) in enumerate(todo):
+                _run_and_save(i, job, path, c, p)
+                yield i, None
+            return
+        deaths = [0] * len(todo)
+        clear, suspects = list(range(len(todo))), []
+        while clear or suspects:
+            # the runs a broken pool was running go again one at a time, so that a
+            # death is the run's own; the others (queued) in a full pool first
+            alone = not clear
+            batch = suspects if alone else clear
+            lost: dict[int, str] = {}
+            finished: set[int] = set()
+            ctx = multiprocessing.get_context()
+            started = ctx.SimpleQueue()
+            pool = ProcessPoolExecutor(max_workers=1 if alone else min(self.workers, len(batch)),
+                                       mp_context=ctx, initializer=_init_worker,
+                                       initargs=(started,))
+            try:
+                futures = {pool.submit(_run_and_save, i, *todo[i], c, p): i for i in batch}
+                for fut in as_completed(futures):
+                    i = futures[fut]
+                    try:
+                        fut.result()
+                    except OSError:  # the part could not be written: stop the sweep
+                        raise
+                    except BrokenProcessPool as exc:  # a worker died: see below
+                        lost[i] = _lost(exc)
+                        continue
+                    except Exception as exc:  # noqa: BLE001 - e.g. a job that cannot pickle
+                        yield i, _lost(exc)
+                        continue
+                    finished.add(i)
+                    yield i, None
+            except BaseException:
+                # Ctrl-C, a write error or the caller closing: drop the queued runs and end
+                # the running ones instead of waiting for them
+                _stop_pool(pool)
+                raise
+            pool.shutdown()
+            if not lost:
+                clear, suspects = ([], []) if alone else ([], suspects)
+                continue
+            # the runs the pool was running when it broke: started and not finished (a
+            # worker that died before saying so: the first lost run, in submission order)
+            held: set[int] = set()
+            while not started.empty():
+                held.add(started.get())
+            held = (held - finished) & set(lost) or {min(lost, key=batch.index)}
+            again = []
+            for i in sorted(lost):
+                if alone and i in held:
+                    deaths[i] += 1
+                    if deaths[i] > self.retries:
+                        yield i, f"{lost[i]} (its worker died {deaths[i]} time(s))"
+                        continue
+                again.append(i)
+            if alone:
+                suspects = again
+            else:
+                clear = [i for i in again if i not in held]
+                suspects = sorted({*suspects, *(i for i in again if i in held)})
+
+
+# ---------------------------------------------------------------------------- Dask
+def import_distributed() -> Any:
+    """The ``distributed`` module, or :class:`UsageError` naming the extra to install."""
+    try:
+        import distributed
+    except ImportError:
+        raise UsageError(MISSING_DASK) from None
+    return distributed
+
+
+def source_digest() -> str:
+    """SHA-256 over the installed mttbench's sources (a Dask worker must run the same)."""
+    import mttbench
+    from mttbench import benchmarks, scenarios, trackers
+
+    h = hashlib.sha256(mttbench.__version__.encode())
+    for package in (mttbench, trackers, scenarios, benchmarks):
+        folder = Path(package.__file__).parent
+        for path in sorted([*folder.rglob("*.py"), *folder.rglob("*.toml")]):
+            h.update(f"{package.__name__}/{path.relative_to(folder).as_posix()}".encode())
+            h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """Ignore Ctrl-C meanwhile (in the main thread only: elsewhere nothing changes)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def dask_setup(worker: Any) -> None:
+    """Preload of our LocalCluster's worker processes: Ctrl-C is the client's to handle."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _worker_identity() -> tuple[str, str]:
+    """Run on each Dask worker: its mttbench version and :func:`source_digest`."""
+    import mttbench
+
+    return mttbench.__version__, source_digest()
+
+
+class DaskExecutor(Executor):
+    """Runs on a Dask cluster: ``scheduler`` an address (``tcp://HOST:PORT``), or
+    ``client`` a ``distributed.Client`` of the caller's (kept open by :meth:`close`,
+    e.g. of a dask-jobqueue or dask-kubernetes cluster), or neither: a ``LocalCluster``
+    of ``workers`` processes (default: the number of CPUs) with one thread each, started
+    at the first sweep and ended by :meth:`close`. ``connect_timeout`` (seconds) None
+    means Dask's ``distributed.comm.timeouts.connect``.
+
+    An existing cluster's workers are checked at connection: each must import the same
+    mttbench (version and :func:`source_digest`), else :class:`UsageError`.
+    """
+
+    def __init__(self, scheduler: str | None = None, workers: int | None = None,
+                 retries: int = DEFAULT_RETRIES, client: Any = None,
+                 connect_timeout: float | None = None) -> None:
+        import_distributed()
+        if scheduler and workers:
+            raise UsageError("--workers starts a LocalCluster and --scheduler names an "
+                             "existing cluster: give one of them")
+        if workers is not None and int(workers) < 1:
+            raise UsageError(f"--workers {workers} is not allowed: expected an integer >= 1")
+        self.scheduler = scheduler
+        self.workers = None if scheduler or client is not None else int(
+            workers or os.cpu_count() or 1)
+        self.retries = _check_retries(retries)
+        self.connect_timeout = connect_timeout
+        self._client = client
+        self._own_client = client is None
+        self._cluster: Any = None
+
+    def describe(self, n_runs: int | None = None) -> str:
+        if self.workers is not None:
+            return f"a Dask LocalCluster of {self.workers} worker(s)"
+        if self.scheduler:
+            return f"the Dask cluster at {self.scheduler}"
+        return f"the Dask cluster at {self._client.scheduler.address}"
+
+    @property
+    def client(self) -> Any:
+        """The ``distributed.Client`` (connecting, or starting the LocalCluster, once)."""
+        if self._client is None:
+            self._client = self._start()
+        return self._client
+
+    def _start(self) -> Any:
+        import dask
+
+        distributed = import_distributed()
+        if self.workers is not None:
+            # one run per worker thread at a time (no run waits on a worker behind
+            # another, so a dying worker takes no queued run with it); no memory limit
+            # of the nanny (the local pool has none; resources.check_jobs checks first)
+            # Ctrl-C is this process's to handle (it closes the cluster): the worker
+            # processes ignore it, from their start (the disposition is inherited) and
+            # after a restart (the preload, dask_setup below)
+            with (dask.config.set({"distributed.scheduler.worker-saturation": 1.0}),
+                  _sigint_ignored()):
+                self._cluster = distributed.LocalCluster(
+                    n_workers=self.workers, threads_per_worker=1, processes=True,
+                    dashboard_address=None, memory_limit=0, silence_logs=logging.CRITICAL,
+                    # no dashboard, and its HTTP server on a free port (not 8787)
+                    scheduler_kwargs={"allowed_failures": self.retries,
+                                      "dashboard_address": "127.0.0.1:0"},
+                    preload=[__name__])
+            return distributed.Client(self._cluster, set_as_default=False)
+        try:
+            timeout = {} if self.connect_timeout is None else {"timeout": self.connect_timeout}
+            client = distributed.Client(self.scheduler, set_as_default=False, **timeout)
+        except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError, ValueError
+            raise UsageError(f"cannot reach the Dask scheduler at {self.scheduler}: "
+                             f"{_one_line(exc)}") from None
+        try:
+            self._check_workers(client)
+        except BaseException:
+            client.close()
+            raise
+        return client
+
+    def _check_workers(self, client: Any) -> None:
+        mine = _worker_identity()
+        try:
+            theirs = client.run(_worker_identity)
+        except Exception as exc:  # noqa: BLE001 - e.g. ModuleNotFoundError on a worker
+            raise UsageError(f"the Dask workers at {self.scheduler} cannot run mttbench "
+                             f"({type(exc).__name__}: {_one_line(exc)}): install mttbench "
+                             f"{mine[0]} on every worker") from None
+        for worker, ident in sorted(theirs.items()):
+            if tuple(ident) != mine:
+                raise UsageError(
+                    f"Dask worker {worker} runs mttbench {ident[0]} (sources {ident[1]}), "
+                    f"this process {mine[0]} (sources {mine[1]}): install the same mttbench "
+                    "on every worker, or the numbers could differ")
+
+    def run(self, todo: Sequence[tuple[Job, Path]], c: float, p: float) -> Iterator[Outcome]:
+        if not todo:
+            return
+        distributed = import_distributed()
+        client = self.client
+        token = uuid.uuid4().hex
+        keys = [f"{TASK_PREFIX}-{token}-{i}" for i in range(len(todo))]
+        futures = client.map(run_job, [job for job, _ in todo], c=c, p=p, key=keys,
+                             pure=False, retries=self.retries)
+        index = {fut.key: i for i, fut in enumerate(futures)}
+        try:
+            for fut in distributed.as_completed(futures, loop=client.loop):
+                i = index[fut.key]
+                try:
+                    frame = fut.result()
+                except Exception as exc:  # noqa: BLE001 - KilledWorker after the retries
+                    fut.release()
+                    yield i, _lost(exc)
+                    continue
+                fut.release()
+                _write_parquet(frame, todo[i][1])  # an OSError stops the sweep
+                yield i, None
+        finally:
+            waiting = [fut for fut in futures if not fut.done()]
+            if waiting:
+                with contextlib.suppress(Exception):
+                    client.cancel(waiting)
+
+    def close(self) -> None:
+        client, cluster = self._client, self._cluster
+        self._client = self._cluster = None
+        if client is not None and self._own_client:
+            with contextlib.suppress(Exception):
+                client.close()
+        if cluster is not None:
+            with contextlib.suppress(Exception):
+                cluster.close()
+
+
+# ------------------------------------------------------------------ the current one
+_CURRENT: ContextVar[Executor | None] = ContextVar("mttbench_executor", default=None)
+
+
+def current_executor() -> Executor | None:
+    """The executor set by :func:`use_executor`, or None (``run_sweep``'s local pool)."""
+    return _CURRENT.get()
+
+
+def describe_current(workers: int, n_runs: int | None = None) -> str:
+    """Where a sweep of ``n_runs`` runs goes: the current executor, else ``workers``
+    local processes (for the command line's messages)."""
+    return (current_executor() or LocalExecutor(workers)).describe(n_runs)
+
+
+@contextlib.contextmanager
+def use_executor(executor: Executor) -> Iterator[Executor]:
+    """Make ``executor`` the one ``run_sweep`` uses when given none; close it at the end."""
+    token = _CURRENT.set(executor)
+    try:
+        yield executor
+    finally:
+        _CURRENT.reset(token)
+        executor.close()
+
+
+# ---------------------------------------------------------------- command line
+def add_executor_arguments(parser: argparse.ArgumentParser, workers: bool = False) -> None:
+    """``--executor``, ``--scheduler`` and ``--retries`` (and ``--workers`` if asked: the
+    run, compare and reproduce commands have their own)."""
+    parser.add_argument("--executor", choices=EXECUTORS, default="local",
+                        help="where the runs go: local processes (default) or a Dask "
+                             "cluster (pip install 'mttbench[dask]')")
+    parser.add_argument("--scheduler", metavar="ADDRESS",
+                        help="with --executor dask: an existing cluster's scheduler, "
+                             "tcp://HOST:PORT (default: a LocalCluster of --workers "
+                             "processes on this machine)")
+    parser.add_argument("--retries", type=int, default=DEFAULT_RETRIES, metavar="N",
+                        help="times a run lost with its worker process is run again "
+                             f"before it counts as failed (default {DEFAULT_RETRIES})")
+    if workers:
+        parser.add_argument("--workers", type=int, default=None, metavar="N",
+                            help="parallel worker processes (default: the number of CPUs)")
+
+
+def executor_from_args(args: argparse.Namespace) -> Executor:
+    """The executor the options ask for (:class:`UsageError` on a bad combination or a
+    missing ``distributed``); ``--workers`` None means the number of CPUs."""
+    workers = getattr(args, "workers", None)
+    retries = getattr(args, "retries", DEFAULT_RETRIES)
+    scheduler = getattr(args, "scheduler", None)
+    _check_retries(retries)
+    if getattr(args, "executor", "local") == "dask":
+        return DaskExecutor(scheduler=scheduler, workers=workers, retries=retries)
+    if scheduler:
+        raise UsageError("--scheduler needs --executor dask")
+    return LocalExecutor(workers or os.cpu_count() or 1, retries=retries)
+
+
+@contextlib.contextmanager
+def executor_scope(args: argparse.Namespace) -> Iterator[Executor | None]:
+    """For a command with :func:`add_executor_arguments`: its executor, current while
+    the command runs and closed after; other commands: nothing."""
+    if not hasattr(args, "executor"):
+        yield None
+        return
+    with use_executor(executor_from_args(args)) as executor:
+        yield executor
+
+
+def _check_retries(retries: int) -> int:
+    if int(retries) < 0:
+        raise UsageError(f"--retries {retries} is not allowed: expected an integer >= 0")
+    return int(retries)
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
+
+
+def _lost(exc: BaseException) -> str:
+    """The error text of a lost run (its row's ``error``)."""
+    return f"worker failed: {type(exc).__name__}: {_one_line(exc)}"

@@ -1,0 +1,346 @@
+"""Executors (benchmarks/executors.py): the local pool and a real Dask LocalCluster give the
+same tables; a worker killed mid-sweep loses nothing; an interrupted Dask sweep resumes;
+the command-line wiring and its one-line errors.
+
+The trackers that kill their own worker process (:class:`KillOnce`, :class:`KillAlways`)
+are named by class path (``test_executors:KillOnce``): Dask's worker processes and the
+pool's import this module (``tests/`` is on their ``sys.path``). Each counts its deaths
+with marker files in the folder :data:`KILL_DIR_ENV` names, and never kills the test
+process itself.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from mttbench import scenarios
+from mttbench.benchmarks import executors
+from mttbench.benchmarks.cli import main
+from mttbench.benchmarks.executors import (
+    MISSING_DASK,
+    DaskExecutor,
+    Executor,
+    LocalExecutor,
+)
+from mttbench.benchmarks.harness import build_jobs, run_sweep
+from mttbench.benchmarks.specs import TrackerSpec, UsageError
+from mttbench.trackers.kfnn import KFNNTracker
+
+TIMING = ["tracker_wall_s", "tracker_cpu_s", "select_wall_s", "select_cpu_s", "peak_rss_mb"]
+#: environment variables: the marker folder, and the pid that must never be killed
+KILL_DIR_ENV = "MTTBENCH_TEST_KILL_DIR"
+KILL_SPARE_ENV = "MTTBENCH_TEST_KILL_SPARE_PID"
+#: the step at which a killing tracker kills its process (mid-run)
+KILL_STEP = 2
+#: how long to wait for the cluster to release cancelled tasks
+SETTLE_S = 30.0
+
+
+class KillOnce(KFNNTracker):
+    """KF-NN that SIGKILLs its own process at step :data:`KILL_STEP` of its first
+    ``deaths`` runs (counted by marker files; one run of the class per sweep); its
+    numbers are KF-NN's."""
+
+    name = "test-kill-once"
+    deaths = 1
+
+    def reset(self, model, rng):
+        super().reset(model, rng)
+        self._steps = 0
+
+    def predict(self):
+        super().predict()
+        self._steps += 1
+        folder = os.environ.get(KILL_DIR_ENV)
+        if self._steps != KILL_STEP or not folder:
+            return
+        done = len(list(Path(folder).glob(f"{type(self).__name__}.*")))
+        if done < self.deaths:
+            if str(os.getpid()) == os.environ.get(KILL_SPARE_ENV):
+                raise RuntimeError("a killing tracker ran in the test process")
+            (Path(folder) / f"{type(self).__name__}.{done}").touch()
+            os.kill(os.getpid(), signal.SIGKILL)
+
+
+class KillAlways(KillOnce):
+    name = "test-kill-always"
+    deaths = sys.maxsize
+
+
+def short(name: str, n_steps: int) -> scenarios.Scenario:
+    return dataclasses.replace(scenarios.get(name), n_steps=n_steps)
+
+
+def jobs_of(scenario: scenarios.Scenario, runs: list[tuple[str, list[int]]]) -> list:
+    """The jobs of ``(tracker spec text, seeds)`` pairs on ``scenario``."""
+    return [job for text, seeds in runs
+            for job in build_jobs([scenario], [TrackerSpec.parse(text)], None, None, seeds)]
+
+
+def strip(df: pd.DataFrame) -> pd.DataFrame:
+    return df.drop(columns=TIMING).reset_index(drop=True)
+
+
+def deaths(folder: Path, cls: type) -> int:
+    return len(list(folder.glob(f"{cls.__name__}.*")))
+
+
+@pytest.fixture
+def kill_dir(tmp_path, monkeypatch):
+    """The marker folder, in the environment of every process started from here on."""
+    folder = tmp_path / "markers"
+    folder.mkdir()
+    monkeypatch.setenv(KILL_DIR_ENV, str(folder))
+    monkeypatch.setenv(KILL_SPARE_ENV, str(os.getpid()))
+    return folder
+
+
+@pytest.fixture(scope="module")
+def dask_two():
+    """A LocalCluster of 2 worker processes (1 thread each), shared by the module."""
+    pytest.importorskip("distributed", reason="distributed is not installed (mttbench[dask])")
+    mp = pytest.MonkeyPatch()
+    # the kill tests' markers: the workers read the variables when they start (a
+    # restarted worker inherits them too), so they are set before the cluster starts
+    folder = Path(os.environ.get("TMPDIR", "/tmp")) / f"mttbench-kill-{os.getpid()}"
+    folder.mkdir(exist_ok=True)
+    mp.setenv(KILL_DIR_ENV, str(folder))
+    mp.setenv(KILL_SPARE_ENV, str(os.getpid()))
+    executor = DaskExecutor(workers=2)
+    assert executor.client is not None  # started now, with the variables
+    mp.undo()
+    executor.kill_dir = folder
+    yield executor
+    executor.close()
+    for marker in folder.iterdir():
+        marker.unlink()
+    folder.rmdir()
+
+
+def reference(jobs, folder: Path) -> pd.DataFrame:
+    """The local executor's table (one worker, in this process)."""
+    return run_sweep(jobs, folder, executor=LocalExecutor(1), progress=False)
+
+
+# ------------------------------------------------------------------ same numbers
+def test_dask_sweep_equals_the_local_executor(dask_two, tmp_path):
+    jobs = build_jobs([short("default", 8)], [
+        TrackerSpec("null"), TrackerSpec("kfnn"), TrackerSpec("gpf"),
+        TrackerSpec("crashing_tracker:Crash")], None, None, [0, 1])
+    jobs += build_jobs([short("superposition", 4)], [TrackerSpec("null")], None, None, [0])
+    on_dask = run_sweep(jobs, tmp_path / "dask", executor=dask_two, progress=False)
+    local = reference(list(reversed(jobs)), tmp_path / "local")
+    pd.testing.assert_frame_equal(strip(on_dask), strip(local))
+    # every run has its part, written by this process, and the tables on disk agree
+    parts = sorted((tmp_path / "dask" / "parts").glob("*.parquet"))
+    assert len(parts) == len(jobs)
+    pd.testing.assert_frame_equal(*(strip(pd.read_parquet(tmp_path / kind / "results.parquet"))
+                                    for kind in ("dask", "local")))
+    # the crashing tracker's error rows are results, the same on both executors
+    crash = on_dask[on_dask["tracker"] == "crashing_tracker:Crash"]
+    assert (crash["status"] == "error").sum() == 2 and (on_dask["status"] != "error").sum() > 0
+
+
+def test_a_worker_killed_mid_sweep_loses_nothing_on_dask(dask_two, tmp_path):
+    folder = dask_two.kill_dir
+    before = set(dask_two.client.nthreads())
+    jobs = jobs_of(short("default", 10), [("test_executors:KillOnce", [0]),
+                                          ("kfnn", [0, 1, 2]), ("null", [0, 1])])
+    on_dask = run_sweep(jobs, tmp_path / "dask", executor=dask_two, progress=False)
+    assert deaths(folder, KillOnce) == 1  # one worker died mid-run ...
+    assert (on_dask["status"] == "ok").all()  # ... and every run finished
+    assert len(list((tmp_path / "dask" / "parts").glob("*.parquet"))) == len(jobs)
+    # the retried runs' numbers (KillOnce is KF-NN) are the local executor's
+    local = reference(jobs, tmp_path / "local")  # the markers exist: nothing dies here
+    pd.testing.assert_frame_equal(strip(on_dask), strip(local))
+    # the nanny restarted the worker, which ignores Ctrl-C like the others (the preload)
+    deadline = time.monotonic() + SETTLE_S
+    while len(dask_two.client.nthreads()) < 2 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    after = set(dask_two.client.nthreads())
+    assert len(after) == 2 and after != before
+    handlers = dask_two.client.run(lambda: signal.getsignal(signal.SIGINT))
+    assert set(handlers.values()) == {signal.SIG_IGN}
+
+
+def test_a_run_that_kills_every_retry_gets_its_error_row_on_dask(kill_dir, tmp_path):
+    pytest.importorskip("distributed", reason="distributed is not installed (mttbench[dask])")
+    jobs = jobs_of(short("default", 6), [("test_executors:KillOnce", [0]), ("kfnn", [0, 1])])
+    # no retry: KillOnce's one death is its run's last chance (kfnn runs are untouched)
+    with DaskExecutor(workers=1, retries=0) as executor:
+        first = run_sweep(jobs, tmp_path / "out", executor=executor, progress=False)
+        failed = first[first["status"] == "error"]
+        assert len(failed) == 1 and failed["tracker"].iloc[0] == "test_executors:KillOnce"
+        assert failed["step"].iloc[0] == -1 and "KilledWorker" in failed["error"].iloc[0]
+        assert (first[first["tracker"] == "kfnn"]["status"] == "ok").all()
+        assert len(list((tmp_path / "out" / "parts").glob("*.parquet"))) == len(jobs) - 1
+        # the failed run has no part: --resume runs it again (its worker lives now)
+        again = run_sweep(jobs, tmp_path / "out", executor=executor, progress=False,
+                          resume=True)
+    assert deaths(kill_dir, KillOnce) == 1 and (again["status"] == "ok").all()
+    pd.testing.assert_frame_equal(strip(again), strip(reference(jobs, tmp_path / "local")))
+
+
+class Interrupting(Executor):
+    """Passes ``inner``'s outcomes on and raises KeyboardInterrupt at the ``at``-th (as a
+    Ctrl-C in the sweep's loop would)."""
+
+    def __init__(self, inner: Executor, at: int) -> None:
+        self.inner, self.at = inner, at
+
+    def run(self, todo, c, p):
+        with contextlib.closing(self.inner.run(todo, c, p)) as outcomes:
+            for n, outcome in enumerate(outcomes):
+                if n == self.at:
+                    raise KeyboardInterrupt
+                yield outcome
+
+
+def test_an_interrupted_dask_sweep_resumes(dask_two, tmp_path):
+    jobs = build_jobs([short("default", 30)], [TrackerSpec("kfnn"), TrackerSpec("null")],
+                      None, None, [0, 1, 2, 3])
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(jobs, out, executor=Interrupting(dask_two, at=2), progress=False)
+    # three runs came back (the third's part is written before it is handed on), the
+    # rest were cancelled: the scheduler forgets them
+    done = {p: p.stat().st_mtime_ns for p in (out / "parts").glob("*.parquet")}
+    assert len(done) == 3 and not list(out.rglob("*.tmp"))
+    deadline = time.monotonic() + SETTLE_S
+    while _our_tasks(dask_two) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _our_tasks(dask_two)
+    again = run_sweep(jobs, out, executor=dask_two, progress=False, resume=True)
+    assert {p: p.stat().st_mtime_ns for p in done} == done  # not recomputed
+    assert len(list((out / "parts").glob("*.parquet"))) == len(jobs)
+    pd.testing.assert_frame_equal(strip(again), strip(reference(jobs, tmp_path / "local")))
+
+
+def _our_tasks(executor: DaskExecutor) -> list[str]:
+    return executor.client.run_on_scheduler(
+        lambda dask_scheduler: [str(k) for k in dask_scheduler.tasks
+                                if str(k).startswith(executors.TASK_PREFIX)])
+
+
+# ------------------------------------------------------------------- local pool
+def test_the_local_pool_retries_a_run_whose_worker_died(kill_dir, tmp_path, monkeypatch):
+    jobs = jobs_of(short("default", 8), [("test_executors:KillOnce", [0]),
+                                         ("test_executors:KillAlways", [0]),
+                                         ("kfnn", [0, 1, 2])])
+    # retries=1: KillOnce dies once and finishes on its retry; KillAlways dies on its
+    # retry too and gets its error row
+    out = run_sweep(jobs, tmp_path / "pool", executor=LocalExecutor(2, retries=1),
+                    progress=False)
+    assert deaths(kill_dir, KillOnce) == 1 and deaths(kill_dir, KillAlways) >= 2
+    failed = out[out["status"] == "error"]
+    assert list(failed["tracker"]) == ["test_executors:KillAlways"]
+    assert failed["step"].iloc[0] == -1 and "BrokenProcessPool" in failed["error"].iloc[0]
+    assert "died 2 time(s)" in failed["error"].iloc[0]
+    # every other run finished (those lost with a broken pool went again, uncharged) and
+    # has its part; the failed one has none
+    assert (out[out["status"] != "error"]["status"] == "ok").all()
+    assert out.groupby(["tracker", "seed"]).ngroups == len(jobs)
+    parts = tmp_path / "pool" / "parts"
+    done = {p: p.stat().st_mtime_ns for p in parts.glob("*.parquet")}
+    assert len(done) == len(jobs) - 1
+    # --resume runs only it again; without the marker folder it lives: the serial table
+    monkeypatch.delenv(KILL_DIR_ENV)
+    again = run_sweep(jobs, tmp_path / "pool", executor=LocalExecutor(2), progress=False,
+                      resume=True)
+    assert {p: p.stat().st_mtime_ns for p in done} == done
+    pd.testing.assert_frame_equal(strip(again), strip(reference(jobs, tmp_path / "local")))
+
+
+# ------------------------------------------------------------------ command line
+def test_run_on_an_existing_scheduler(dask_two, tmp_path, capsys):
+    address = dask_two.client.scheduler.address
+    dask_two.client.get_task_stream()  # the scheduler records tasks from here on
+    t0 = time.time()
+    args = ["run", "--scenarios", "default", "--trackers", "null", "kfnn", "--seeds", "2",
+            "--steps", "5", "--no-progress", "--out"]
+    assert main([*args, str(tmp_path / "dask"), "--executor", "dask",
+                 "--scheduler", address]) == 0
+    err = capsys.readouterr().err
+    assert f"4 runs on the Dask cluster at {address} -> {tmp_path / 'dask'}" in err
+    # the runs went to the cluster's workers
+    stream = dask_two.client.get_task_stream(start=t0)
+    assert sum(str(t["key"]).startswith(executors.TASK_PREFIX) for t in stream) == 4
+    assert main([*args, str(tmp_path / "local"), "--workers", "1"]) == 0
+    pd.testing.assert_frame_equal(
+        strip(pd.read_parquet(tmp_path / "dask" / "results.parquet")),
+        strip(pd.read_parquet(tmp_path / "local" / "results.parquet")))
+
+
+def test_workers_with_other_sources_are_refused(dask_two, monkeypatch):
+    monkeypatch.setattr(executors, "source_digest", lambda: "0123456789abcdef")
+    executor = DaskExecutor(scheduler=dask_two.client.scheduler.address)
+    with pytest.raises(UsageError, match=r"runs mttbench .* this process .*0123456789abcdef"):
+        executor.client  # noqa: B018 - connecting checks the workers
+    executor.close()
+
+
+def test_an_unreachable_scheduler_is_one_line():
+    pytest.importorskip("distributed", reason="distributed is not installed (mttbench[dask])")
+    import socket
+
+    with socket.socket() as sock:  # a port where nothing listens
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    executor = DaskExecutor(scheduler=f"tcp://127.0.0.1:{port}", connect_timeout=0.5)
+    with pytest.raises(UsageError, match=f"cannot reach the Dask scheduler at tcp://127.0.0.1:"
+                                         f"{port}: ") as info:
+        executor.client  # noqa: B018
+    assert "\n" not in str(info.value)
+
+
+def test_missing_distributed_is_one_line(monkeypatch, tmp_path, capsys):
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed fails
+    with pytest.raises(UsageError, match="pip install 'mttbench\\[dask\\]'"):
+        DaskExecutor(workers=2)
+    out = tmp_path / "never"
+    assert main(["run", "--scenarios", "default", "--trackers", "null", "--out", str(out),
+                 "--executor", "dask"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"mttbench run: error: {MISSING_DASK}\n" and not out.exists()
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--scheduler", "tcp://127.0.0.1:8786"], "--scheduler needs --executor dask"),
+    (["--retries", "-1"], "--retries -1 is not allowed"),
+    (["--executor", "dask", "--scheduler", "tcp://127.0.0.1:8786", "--workers", "2"],
+     "give one of them"),
+])
+def test_bad_executor_options_are_refused(extra, message, tmp_path, capsys):
+    if "dask" in extra:
+        pytest.importorskip("distributed", reason="distributed is not installed")
+    out = tmp_path / "never"
+    assert main(["run", "--scenarios", "default", "--trackers", "null", "--out", str(out),
+                 *extra]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.splitlines()) == 1 and not out.exists()
+
+
+def test_every_sweep_command_takes_the_executor_options():
+    import argparse
+
+    from mttbench.benchmarks.cli import build_parser
+
+    parser = build_parser()
+    (commands,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    sweeps = set(commands.choices) - {"scenarios", "trackers", "screenshot"}
+    assert {"run", "compare", "reproduce"} <= sweeps
+    for name in sorted(sweeps):
+        options = {o for a in commands.choices[name]._actions for o in a.option_strings}
+        assert {"--executor", "--scheduler", "--retries", "--workers"} <= options, name
+    args = parser.parse_args(["compare", "--executor", "dask", "--scheduler", "tcp://h:1",
+                              "--retries", "5"])
+    assert (args.executor, args.scheduler, args.retries) == ("dask", "tcp://h:1", 5)
