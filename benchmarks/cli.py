@@ -260,7 +260,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     res = run_compare(args.scenarios, args.trackers, seeds, args.steps, args.workers, out_dir,
                       reference=args.reference, progress=not args.no_progress,
                       resume=args.resume, c=args.c, p=args.p,
-                      argv=args.argv)
+                      argv=args.argv, tuned_dir=args.tuned_dir, untuned=args.untuned,
+                      tuning_effect=args.tuning_effect)
     print((res.out_dir / "summary.md").read_text(encoding="utf-8"))
     man = res.manifest
     wall = f"{man['wall_time_s']:.0f} s"
@@ -272,6 +273,60 @@ def cmd_compare(args: argparse.Namespace) -> int:
         print(failed, file=sys.stderr)
         return 1
     return 0
+
+
+def cmd_tune(args: argparse.Namespace) -> int:
+    """Tune trackers' parameters under one budget (:mod:`benchmarks.tune`): exit 0; 1 when
+    a tracker has no finished trial; 2 for bad input."""
+    from . import tune
+
+    _check_common(args)
+    if args.tuning_seeds < 1 or args.seed_start < tune.TUNING_SEED_BASE:
+        raise UsageError(f"--tuning-seeds {args.tuning_seeds} from --seed-start "
+                         f"{args.seed_start}: expected >= 1 seed from >= "
+                         f"{tune.TUNING_SEED_BASE} (disjoint from the evaluation seeds)")
+    scs = tuple(resolve_scenarios(args.scenarios, args.steps))
+    specs = resolve_trackers(args.trackers)
+    policy = resolve_policies(args.policy)
+    if len(policy) != 1:
+        raise UsageError("--policy: give one policy to tune under")
+    looks = _int_list(args.looks, "--looks value", 0)
+    if looks and len(looks) > 1:
+        raise UsageError("--looks: give one look budget to tune under")
+    workers = args.workers or os.cpu_count() or 1
+    out_dir = _out_dir(args, "tune-", tune.is_finished)
+    args.out_dir = out_dir  # for the resume line after Ctrl-C
+    seeds = tuple(range(args.seed_start, args.seed_start + args.tuning_seeds))
+    settings = []
+    for spec in specs:
+        batch = args.batch_size or (tune.stored_batch_size(out_dir, spec.name)
+                                    if args.resume else None) or workers
+        s = tune.TuneSettings(spec, scs, seeds, trials=args.trials, objective=args.objective,
+                              policy=policy[0], looks=looks[0] if looks else None, c=args.c,
+                              p=args.p, seed=args.seed, batch_size=batch)
+        problem = s.problem()
+        if problem:
+            raise UsageError(problem)
+        for line in resources.check_jobs(s.jobs(s.spec({})), workers):
+            print(line, file=sys.stderr)
+        settings.append(s)
+    res = tune.run_tune(settings, out_dir, tuned_dir=args.tuned_dir, workers=workers,
+                        resume=args.resume, progress=not args.no_progress, argv=args.argv)
+    status = 0
+    for r in res.results:
+        if r.record is None:
+            print(f"{r.name}: {r.message}", file=sys.stderr)
+            status = 1
+            continue
+        obj = r.record["objective"]
+        default = obj.get("default_value")
+        params = ", ".join(f"{k}={v}" for k, v in r.record["params"].items()) or "the defaults"
+        print(f"{r.name}: mean {obj['metric'].upper()} {obj['value']:.4f} on the tuning seeds "
+              f"(defaults: {'failed' if default is None else f'{default:.4f}'}) with {params}; "
+              f"wrote {r.tuned_file}")
+    print(f"wrote {res.out_dir}/: {', '.join(tune.OUTPUT_FILES)}, and per tracker "
+          "study.journal, trials.csv, tuned.toml")
+    return status
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
@@ -458,8 +513,94 @@ def build_parser() -> argparse.ArgumentParser:
                    help="tracker (name or label) that paired differences subtract "
                         f"(default {COMPARE_REFERENCE}, or the first tracker that does not use "
                         "the truth if it does not run)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--untuned", action="store_true",
+                   help="run every tracker's defaults, not its tuned parameters")
+    g.add_argument("--tuning-effect", action="store_true",
+                   help="run each tuned tracker's defaults beside it and report tuned minus "
+                        "default (paired by seed)")
+    p.add_argument("--tuned-dir", metavar="DIR",
+                   help="tuned parameter files (default: the package's tuned/; a tracker "
+                        "with DIR/<name>.toml runs its parameters, labelled name(tuned))")
     add_executor_arguments(p)
     p.set_defaults(func=cmd_compare)
+
+    from . import tune as _tune  # its defaults (optuna is imported only when tuning)
+
+    p = sub.add_parser(
+        "tune", help="tune trackers' parameters, the same budget for each, on held-apart seeds",
+        formatter_class=fmt,
+        description="\n\n".join(textwrap.fill(" ".join(para.split()), 88) for para in (
+            "Tune each tracker's declared search space (its parameters' search=Search(...), "
+            "listed in the tuned file) with optuna's seeded TPE sampler, minimising the mean "
+            "OSPA (--objective gospa: GOSPA): each run's per-step values averaged over its "
+            "steps, then over the tuning seeds, then over the scenarios.",
+            "Budget, the same for every tracker and stated in the output: --trials parameter "
+            "settings x --tuning-seeds seeds x the scenarios, each run --steps long (the "
+            "scenario's own by default) under the raster policy at the scenario's look "
+            "budget (--policy/--looks), plus those runs once more for the defaults, so the "
+            f"output shows what tuning gained. Default: {_tune.TUNE_TRIALS} trials x "
+            f"{_tune.TUNE_SEEDS} seeds x {len(_tune.TUNE_SCENARIOS)} scenarios of 100 steps "
+            f"= {_tune.TUNE_TRIALS * _tune.TUNE_SEEDS * len(_tune.TUNE_SCENARIOS)} runs per "
+            f"tracker (+ {_tune.TUNE_SEEDS * len(_tune.TUNE_SCENARIOS)} for the defaults), "
+            "about 20 minutes for kfnn, gpf, jmpd-ap:n_particles=250, ss-gnn and ss-gmphd "
+            "together on a quiet 2-core machine (docs/tune.md).",
+            f"Tuning seeds start at {_tune.TUNING_SEED_BASE:,}; evaluation seeds (--seeds N: "
+            "0..N-1) never reach them. Trials go in batches of --batch-size (default: the "
+            "workers) over the same executor as `run`; every run is saved at once, and "
+            "--resume continues an interrupted study with the trials an uninterrupted one "
+            "would have drawn. Writes tuned/<tracker>.toml (the best parameters and their "
+            "provenance; `mttbench compare` runs them) and the study into --out (default "
+            "reports/tune-<UTC timestamp>).")),
+        epilog=textwrap.dedent("""\
+            examples:
+              mttbench tune kfnn --trials 8 --tuning-seeds 2 --scenarios default --steps 50
+              mttbench tune kfnn gpf jmpd-ap:n_particles=250 ss-gnn ss-gmphd  # default budget
+              mttbench tune kfnn --out reports/tune-kfnn --resume  # after an interrupt
+
+            Parameters given with a tracker (jmpd-ap:n_particles=250) are held fixed and
+            not searched. A failed run fails its trial (kept in trials.csv); the study
+            goes on."""))
+    p.add_argument("trackers", nargs="+", metavar="TRACKER",
+                   help="trackers to tune, as NAME or NAME:key=value (held fixed)")
+    p.add_argument("--trials", type=int, default=_tune.TUNE_TRIALS, metavar="N",
+                   help=f"parameter settings tried per tracker (default {_tune.TUNE_TRIALS})")
+    p.add_argument("--tuning-seeds", type=int, default=_tune.TUNE_SEEDS, metavar="N",
+                   help=f"seeds per scenario and setting (default {_tune.TUNE_SEEDS})")
+    p.add_argument("--seed-start", type=int, default=_tune.TUNING_SEED_BASE, metavar="S",
+                   help=f"first tuning seed (default and least {_tune.TUNING_SEED_BASE:,})")
+    p.add_argument("--scenarios", nargs="+", metavar="SCENARIO",
+                   default=list(_tune.TUNE_SCENARIOS),
+                   help="scenarios the objective averages (default: "
+                        f"{' '.join(_tune.TUNE_SCENARIOS)})")
+    p.add_argument("--steps", type=int, metavar="K",
+                   help="override every scenario's n_steps (default: the scenario's)")
+    p.add_argument("--objective", choices=["ospa", "gospa"], default="ospa",
+                   help="metric minimised (default ospa)")
+    p.add_argument("--policy", nargs="+", default=["raster"], metavar="SPEC",
+                   help="the cell-selection policy to tune under (default raster)")
+    p.add_argument("--looks", nargs="+", metavar="M",
+                   help="looks per step (default: each scenario's looks_per_step)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the TPE sampler (default 0)")
+    p.add_argument("--batch-size", type=int, default=None, metavar="B",
+                   help="trials asked together and run in parallel (default: the workers; a "
+                        "resumed study keeps its own)")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="parallel worker processes (default: the number of CPUs)")
+    p.add_argument("--tuned-dir", metavar="DIR",
+                   help="where tuned/<tracker>.toml goes (default: the checkout's tuned/; "
+                        "from an installed package ./tuned)")
+    p.add_argument("--out", metavar="DIR",
+                   help="study folder (default reports/tune-<UTC timestamp>)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the studies in DIR (runs already saved are read back); "
+                        "without --out: the most recent unfinished reports/tune-* folder")
+    p.add_argument("--c", type=float, default=2.0, help="OSPA/GOSPA cut-off c (default 2)")
+    p.add_argument("--p", type=float, default=2.0, help="OSPA/GOSPA order p (default 2)")
+    p.add_argument("--no-progress", action="store_true", help="no progress lines")
+    add_executor_arguments(p)
+    p.set_defaults(func=cmd_tune)
 
     p = sub.add_parser(
         "reproduce", help="regenerate the paper's figures (or Kreucher's managed-versus-periodic "

@@ -31,6 +31,12 @@ length, the raster policy at each scenario's look budget, and JMPD at 1000 parti
 (its own default is 2000), plus a 250-particle JMPD setting so the accuracy-against-
 runtime figure shows the particle-count trade-off. ``--seeds``, ``--steps``,
 ``--trackers`` (with ``name:key=val`` parameters), ``--scenarios`` scale it.
+
+Parameters: a tracker with a tuned file (``tuned/<tracker>.toml``, written by ``mttbench
+tune`` on seeds held apart; :mod:`~mttbench.benchmarks.tuned`) runs those parameters,
+labelled ``name(tuned)``; ``--untuned`` runs the defaults; ``--tuning-effect`` runs both
+and reports tuned minus default per tracker. The summary and the report list the
+parameters each tracker ran.
 """
 
 from __future__ import annotations
@@ -52,7 +58,7 @@ from typing import TYPE_CHECKING, Any
 import pandas as pd
 
 from .. import trackers
-from . import resources, summary
+from . import resources, summary, tuned
 from .executors import describe_current
 from .harness import build_jobs, prepare_out_dir, run_sweep, write_text_atomic
 from .specs import PolicySpec, TrackerSpec, UsageError, resolve_scenarios, resolve_trackers
@@ -148,7 +154,9 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
                 steps: int | None = None, workers: int | None = None,
                 out_dir: str | Path | None = None, reference: str | None = None,
                 progress: bool = True, resume: bool = False, c: float = 2.0, p: float = 2.0,
-                snapshot: bool = True, argv: Sequence[str] | None = None) -> CompareOutput:
+                snapshot: bool = True, argv: Sequence[str] | None = None,
+                tuned_dir: str | Path | None = None, untuned: bool = False,
+                tuning_effect: bool = False) -> CompareOutput:
     """Run the comparison and write the report folder (see the module docstring).
 
     ``tracker_texts`` None means :func:`default_tracker_texts`; ``seeds`` None means
@@ -164,20 +172,28 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
     cannot be written, all before any run and before the folder is touched.
     ``resume=True`` keeps the parts already in the folder and adds this session to the
     manifest's ``sessions``.
+
+    Tuned parameters (:mod:`~mttbench.benchmarks.tuned`): a tracker with a file
+    ``<tuned_dir>/<name>.toml`` (None: the package's ``tuned/``) runs its parameters under
+    the label ``name(tuned)`` unless ``untuned``; ``tuning_effect`` also runs its defaults
+    (label ``name``) for the report's "Effect of tuning". A bare ``reference`` name means
+    the tuned setting.
     """
     t0 = time.perf_counter()
     started = datetime.now(UTC)
     scs = resolve_scenarios(list(scenario_names), steps)
     texts = list(tracker_texts) if tracker_texts else default_tracker_texts()
-    specs = resolve_trackers(texts)
+    seeds = list(range(COMPARE_SEEDS)) if seeds is None else [int(s) for s in seeds]
+    plan = tuned.plan_tuning(resolve_trackers(texts), tuned_dir, seeds, untuned=untuned,
+                             tuning_effect=tuning_effect)
+    specs = plan.specs
     labels = [s.label for s in specs]
     if reference is None:
-        reference = default_reference(specs)
+        reference = default_reference(plan.main)
     else:
-        reference = _resolve_reference(reference, specs)
+        reference = _resolve_reference(reference, plan.main)
         if reference not in labels:
             raise UsageError(f"--reference {reference!r} is not one of the trackers {labels}")
-    seeds = list(range(COMPARE_SEEDS)) if seeds is None else [int(s) for s in seeds]
     workers = workers or os.cpu_count() or 1
     out = Path(out_dir) if out_dir else Path("reports") / f"compare-{started:%Y%m%dT%H%M%SZ}"
 
@@ -209,6 +225,9 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
         "scenarios": [sc.name for sc in scs],
         "steps": {sc.name: sc.n_steps for sc in scs},
         "trackers": [s.label for s in specs],
+        "parameters": {label: {"tuned_file": str(src.tuned.path) if src.tuned else None,
+                               "source": src.why, "params": src.params}
+                       for label, src in plan.sources.items()},
         "seeds": seeds,
         "reference": reference,
         "ospa_c": c,
@@ -234,7 +253,8 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
         manifest["runs_wall_time_s"] = round(t_runs, 3)
         manifest["n_rows"] = len(results)
 
-        summary.write_summary(results, out, "mttbench compare")
+        summary.write_summary(results, out, "mttbench compare",
+                              notes=tuned.parameter_notes(plan))
 
         trace = _snapshot_trace(scs, specs, seeds) if snapshot else None
         earlier = sum(float(s.get("wall_time_s") or 0.0) for s in sessions[:-1])
@@ -245,6 +265,9 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
         settings = {
             "scenarios": ", ".join(f"{sc.name} ({sc.n_steps} steps)" for sc in scs),
             "trackers": ", ".join(s.label for s in specs),
+            "parameters": ("defaults (--untuned)" if untuned else "tuned where "
+                           f"{tuned.show_path(plan.tuned_dir)}/<tracker>.toml exists (label "
+                           "name(tuned)), else the defaults; see Parameters"),
             "seeds": _seed_text(seeds),
             "policy": "raster sweep at each scenario's looks_per_step (the same cells for "
                       "every tracker, so differences are the trackers')",
@@ -268,7 +291,8 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
         from . import report  # matplotlib: imported only when a report is drawn
 
         files = report.build_report(results, out, reference=reference, intro=intro,
-                                    settings=settings, trace=trace)
+                                    settings=settings, trace=trace,
+                                    sections=tuned.report_sections(plan, results))
     except BaseException as exc:
         status = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
         with contextlib.suppress(OSError):

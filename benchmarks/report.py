@@ -405,13 +405,16 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
                  title: str = "mttbench head-to-head comparison",
                  intro: list[str] | None = None, settings: dict[str, Any] | None = None,
                  trace: Any = None, notes: list[str] | None = None,
-                 draw: bool = True) -> ReportFiles:
+                 draw: bool = True, sections: list[tuple[Any, ...]] | None = None
+                 ) -> ReportFiles:
     """Write ``report.md``, ``report.html`` and ``figures/*.png`` into ``out_dir``.
 
     ``reference`` is the tracker label that paired differences subtract (skipped
     with a note when absent or None). ``settings`` is shown as a list (what was run);
     ``trace`` a :class:`benchmarks.snapshot.Trace` for the snapshot figure;
-    ``notes`` extra paragraphs at the end; ``draw=False`` skips the figures (tables only).
+    ``notes`` extra paragraphs at the end; ``draw=False`` skips the figures (tables only);
+    ``sections`` blocks (:class:`Document`) shown after the settings (``compare``: the
+    parameters each tracker ran and the effect of tuning).
     """
     out_dir = Path(out_dir)
     fig_dir = out_dir / "figures"
@@ -432,6 +435,8 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
     if settings:
         doc.add("h2", "Settings")
         doc.add("list", [f"{k}: {v}" for k, v in settings.items()])
+    for block in sections or []:
+        doc.add(*block)
     _floor_ceiling_section(doc, gc, truth)
     unranked = baseline_notes(summ)
     if unranked:

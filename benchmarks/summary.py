@@ -577,16 +577,18 @@ def gap_notes(gc: GapClosed) -> list[str]:
     return out
 
 
-def write_summary(results: pd.DataFrame, out_dir: str | Path, title: str) -> str:
+def write_summary(results: pd.DataFrame, out_dir: str | Path, title: str,
+                  notes: Sequence[str] = ()) -> str:
     """Write ``summary.csv`` and ``summary.md`` (headed ``title``) of ``results`` into
-    ``out_dir``, each all or nothing; return the Markdown text."""
+    ``out_dir``, each all or nothing; return the Markdown text. ``notes``: more lines
+    listed under the table (``compare``: which parameters each tracker ran)."""
     from .harness import write_text_atomic
 
     out_dir = Path(out_dir)
     table = with_gap_closed(summarize(results), gc := gap_closed(results))
     write_text_atomic(out_dir / "summary.csv", table.to_csv(index=False))
     text = f"# {title}\n\n" + to_markdown(table)
-    extra = gap_notes(gc)
+    extra = [*gap_notes(gc), *notes]
     if extra:
         text += "\n" + "\n".join(f"- {line}" for line in extra) + "\n"
     write_text_atomic(out_dir / "summary.md", text)

@@ -117,6 +117,47 @@ class Param:
             raise TypeError("Param choices need kind str")
         if (self.low is not None or self.high is not None) and self.kind not in (int, float):
             raise TypeError("Param bounds need kind int or float")
+        if self.search is not None:
+            problem = self.search_problem()
+            if problem:
+                raise TypeError(f"Param search {problem}")
+
+    def search_problem(self) -> str | None:
+        """None if every value :attr:`search` can draw is one this parameter accepts, else
+        why not (one line). Numbers: both ends accepted (an integer parameter needs
+        integral ends and step), ``step`` dividing ``high - low``; choices: each accepted
+        in its canonical type (``1`` is not a choice of a ``float`` parameter)."""
+        s = self.search
+        if s is None:
+            return None
+        if s.choices:
+            for c in s.choices:
+                try:
+                    ok = self.parse(c)
+                except ValueError:
+                    return f"choice {_value_text(c)} refused; allowed: {self.allowed()}"
+                if type(ok) is not type(c) or ok != c:
+                    return (f"choice {_value_text(c)} is not in the parameter's canonical "
+                            f"type ({self.kind.__name__}): write {_value_text(ok)}")
+            if len(set(map(repr, s.choices))) != len(s.choices):
+                return f"choices {s.choices} repeat a value"
+            return None
+        rng = f"[{_num(s.low)}, {_num(s.high)}]"
+        if self.kind not in (int, float):
+            return f"{rng} is numeric; the parameter takes {self.allowed()}"
+        ends = [s.low, s.high] + ([s.step] if s.step is not None else [])
+        if self.kind is int and not all(float(x).is_integer() for x in ends):
+            return f"{rng} (step {s.step}) is not integral; the parameter is an int"
+        for end in (s.low, s.high):
+            try:
+                self.parse(end)
+            except ValueError:
+                return f"{rng}: {_num(end)} refused; allowed: {self.allowed()}"
+        if s.step is not None:
+            n = (s.high - s.low) / s.step
+            if not s.step > 0 or abs(n - round(n)) > 1e-9 * max(1.0, abs(n)):
+                return f"step {_num(s.step)} does not divide {rng}"
+        return None
 
     # ------------------------------------------------------------------ text
     def allowed(self) -> str:

@@ -93,7 +93,7 @@ import numpy as np
 
 from ...scenarios.model import Looks, RayleighGridSensor, TrackingModel
 from ..base import Estimate, Tracker, register
-from ..params import Param
+from ..params import Param, Search
 from .cell_proposal import axis_window, truncated_normal
 from .estimation import cell_count_distribution_from
 from .likelihood import grid_log_likelihood, grid_log_likelihood_tables
@@ -143,16 +143,24 @@ class JMPDAPTracker(Tracker):
         "n_particles": Param(int, 1, doc="particles N"),
         "t_max": Param(int, 1, allow_none=True, none="twice the expected peak count + 4",
                        doc="slots per particle"),
+        # tuning (mttbench tune): arrivals and removals about Kreucher's 0.02 and 0.005
+        # (log, two decades each; the defaults, the model's rates, are 0 on the fixed-count
+        # presets and are scored beside the trials); cluster and merge distances and the
+        # position noise floor about their defaults (docs/jmpd-ap.md). n_particles is a
+        # cost, not tuned; sort_iterations and max_window trade time for accuracy
         "arrival_rate": Param(float, 0, allow_none=True, none="the model's birth rate",
                               doc="expected arrivals per step over the workspace "
-                                  "(Kreucher: 0.02)"),
+                                  "(Kreucher: 0.02)", search=Search(0.002, 0.2, log=True)),
         "removal_probability": Param(float, 0, 1, allow_none=True, none="1 - p_s",
-                                     doc="per target and step (Kreucher: 0.005)"),
-        "cluster_distance": Param(float, 0, doc="AP threshold, in cells (Morelande: 2.5)"),
+                                     doc="per target and step (Kreucher: 0.005)",
+                                     search=Search(0.0005, 0.05, log=True)),
+        "cluster_distance": Param(float, 0, doc="AP threshold, in cells (Morelande: 2.5)",
+                                  search=Search(1.0, 4.0)),
         "max_window": Param(int, 1, doc="the proposal window spans at most 2 max_window + 1 "
                                         "cells per axis"),
         "sort_iterations": Param(int, 0, doc="K-means sweeps per step"),
-        "merge_distance": Param(float, 0, doc="slots whose means are closer (cells) merge"),
+        "merge_distance": Param(float, 0, doc="slots whose means are closer (cells) merge",
+                                search=Search(0.1, 1.5)),
         "undetected_in_policy": Param(bool, doc="add the undetected intensity to P_c(t)"),
         "init_fraction": Param(float, 0, 1,
                                doc="fraction of particles that start on the model's declared "
@@ -160,7 +168,8 @@ class JMPDAPTracker(Tracker):
         "position_noise_floor": Param(float, 0,
                                       doc="least position noise variance per step, in "
                                           "cells^2 (the model's q11 when larger); 0: the "
-                                          "model's"),
+                                          "model's",
+                                      search=Search(1e-4, 1e-2, log=True)),
     }
 
     def __init__(self, n_particles: int = 500, t_max: int | None = None,

@@ -13,7 +13,7 @@ import numpy as np
 
 from ...scenarios.model import Looks, TrackingModel
 from ..base import Estimate, Tracker, register
-from ..params import Param
+from ..params import Param, Search
 from .backend import compiled_kernels
 from .estimation import cell_count_distribution_from, estimate_targets
 from .likelihood import GridLikelihood, SuperpositionLikelihood, step_likelihood
@@ -54,13 +54,19 @@ class JMPDTracker(Tracker):
     parameters: ClassVar[dict[str, Param]] = {
         "n_particles": Param(int, 1, doc="particles N"),
         "t_max": Param(int, 1, doc="largest count a particle can hold"),
+        # tuning (mttbench tune; jmpd-ip inherits it): the birth and death floors about
+        # their defaults 0.02 and 0.01 (log, two decades), the resampling threshold over
+        # its range; the particle count is a cost, the proposal a method, neither tuned
         "birth_rate": Param(float, 0, allow_none=True,
                             none="the model's rate, or DEFAULT_BIRTH_RATE",
-                            doc="births per particle and step"),
+                            doc="births per particle and step",
+                            search=Search(0.002, 0.2, log=True)),
         "death_probability": Param(float, 0, 1, allow_none=True,
                                    none="1 - p_s, or DEFAULT_DEATH_PROBABILITY",
-                                   doc="per target and step"),
-        "resample_threshold": Param(float, 0, 1, doc="resample when ESS < threshold * N"),
+                                   doc="per target and step",
+                                   search=Search(0.001, 0.1, log=True)),
+        "resample_threshold": Param(float, 0, 1, doc="resample when ESS < threshold * N",
+                                    search=Search(0.1, 1.0)),
         "proposal": Param(choices=("bootstrap", "ip")),
         "initial_count": Param(int, 0, allow_none=True, none="Poisson prior",
                                doc="targets in every particle at first"),
