@@ -226,6 +226,9 @@ def cmd_trackers(args: argparse.Namespace) -> int:
           "any run.")
     for name in trackers.available():
         _print_entry(name, trackers.get_class(name))
+        missing = getattr(trackers.get_class(name), "missing_extra", None)
+        if callable(missing) and missing():  # an optional extra not installed (Stone Soup)
+            print(" " * 11 + f"NOT AVAILABLE: {missing()}")
     for name, why in trackers.broken_plugins().items():
         print(f"  {name:<8} NOT LOADED (entry point failed): {why}")
     print("\nCell-selection policies (--policy NAME or NAME:key=value,...):")

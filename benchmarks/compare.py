@@ -93,6 +93,9 @@ def default_tracker_texts() -> list[str]:
     (only those the tracker actually accepts)."""
     out = []
     for name in trackers.available():
+        missing = getattr(trackers.get_class(name), "missing_extra", None)
+        if callable(missing) and missing():
+            continue  # an optional extra that is not installed (the Stone Soup peers)
         accepted = set(trackers.get_class(name).param_names())
         settings = [s for s in DEFAULT_PARAMS.get(name, []) if set(s) <= accepted] or [{}]
         for s in settings:

@@ -5,7 +5,7 @@ register through the entry-point group ``mttbench.trackers`` (loaded on the firs
 of the registry), or are named by class path, ``package.module:ClassName``.
 """
 
-from . import gpf, jmpd, kfnn, null, truth_aided  # noqa: F401  (importing registers them)
+from . import gpf, jmpd, kfnn, null, stonesoup_peers, truth_aided  # noqa: F401  (importing registers them)
 from .base import (
     Estimate,
     Tracker,
@@ -18,5 +18,5 @@ from .base import (
 )
 from .params import Param, ParameterError, Search
 
-__all__ = ["Estimate", "Param", "ParameterError", "Search", "Tracker", "available", "broken_plugins",
-           "get_class", "make", "register", "unregister"]
+__all__ = ["Estimate", "Param", "ParameterError", "Search", "Tracker", "available",
+           "broken_plugins", "get_class", "make", "register", "unregister"]

@@ -1,0 +1,337 @@
+"""Stone Soup's trackers as peers (``ss-gnn``, ``ss-gmphd``; trackers/stonesoup_peers.py).
+
+* The conformance kit runs on both peers in tests/test_conformance.py (it takes every
+  registered tracker); here: they are registered and skip no check but the ones they
+  declare, and ss-gnn passes the declared tracking checks once set for every-cell looks.
+* Determinism: the same runs in two processes with different hash seeds give identical
+  numbers (Stone Soup iterates sets ordered by memory address and salted string hashes).
+* Without Stone Soup: the module imports, a run gets an ``unsupported`` row through the
+  harness, ``mttbench trackers`` says what to install, and ``compare`` leaves them out.
+* Numbers: ss-gnn on one target against a filterpy Kalman filter fed the same detections
+  from the same prior; ss-gmphd's expected count and ``P_c(t)`` against closed forms.
+
+Tests that run Stone Soup are skipped (with the reason) when it is not installed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+from scipy.stats import multivariate_normal, norm
+
+from mttbench import testing, trackers
+from mttbench.benchmarks import cli
+from mttbench.benchmarks.compare import default_tracker_texts
+from mttbench.benchmarks.harness import Job, run_job
+from mttbench.benchmarks.specs import TrackerSpec
+from mttbench.scenarios.model import Dynamics, Looks
+from mttbench.scenarios.spec import get as get_scenario
+from mttbench.trackers import stonesoup_peers as sp
+
+PEERS = ("ss-gnn", "ss-gmphd")
+
+
+@pytest.fixture
+def stonesoup_installed():
+    pytest.importorskip("stonesoup", minversion="1.9",
+                        reason="needs the stonesoup extra: pip install 'mttbench[stonesoup]'")
+
+
+@pytest.fixture
+def no_stonesoup(monkeypatch):
+    """Stone Soup made unimportable (a ``None`` entry in ``sys.modules``) and the cached
+    import forgotten, as on a machine without the extra."""
+    monkeypatch.setitem(sys.modules, "stonesoup", None)
+    sp.stonesoup.cache_clear()
+    yield
+    sp.stonesoup.cache_clear()
+
+
+def _looks(cells, returns=None) -> Looks:
+    cells = np.asarray(cells, dtype=np.int64)
+    ret = np.zeros(len(cells), bool) if returns is None else np.asarray(returns, bool)
+    return Looks(cells, ret)
+
+
+# ------------------------------------------------------------------ registration, kit
+def test_peers_are_registered_and_run_the_kit(stonesoup_installed):
+    """tests/test_conformance.py runs the kit on every registered tracker: the peers are
+    among them and skip only what they declare (ss-gnn: the two tracking checks)."""
+    for name in PEERS:
+        assert name in trackers.available()
+    assert testing.skipped_checks(sp.StoneSoupGMPHD) == {}
+    assert set(testing.skipped_checks(sp.StoneSoupGNN)) == {
+        "check_tracks_one_target", "check_tracks_two_targets"}
+
+
+class _GNNEveryCell(sp.StoneSoupGNN):
+    """ss-gnn set for every cell looked at every step (the kit's tracking scenarios)."""
+
+    name = "ss-gnn-every-cell"
+    conformance_exceptions = {}
+    parameters = None
+
+    def __init__(self, gate: float = 5.0, min_points: int = 1,
+                 max_steps_without_update: int = 4, velocity_std: float = 0.1) -> None:
+        super().__init__(gate, min_points, max_steps_without_update, velocity_std)
+
+
+def test_gnn_passes_the_tracking_checks_when_set_for_every_cell(stonesoup_installed):
+    testing.check_tracker(_GNNEveryCell, checks=["check_tracks_one_target",
+                                                 "check_tracks_two_targets"])
+
+
+def test_every_tuned_parameter_searches_values_it_accepts():
+    for cls in (sp.StoneSoupGNN, sp.StoneSoupGMPHD):
+        searched = {n: p for n, p in cls.parameters.items() if p.search is not None}
+        assert len(searched) >= 4, cls.name
+        for n, p in searched.items():
+            values = p.search.choices or (p.search.low, p.search.high)
+            for v in values:
+                p.parse(v)  # raises if the declaration refuses its own range
+            default = cls.param_defaults()[n]
+            if not p.search.choices and default is not None:
+                assert p.search.low <= default <= p.search.high, (cls.name, n)
+
+
+# ------------------------------------------------------------------ determinism
+_DETERMINISM_SCRIPT = textwrap.dedent("""
+    import dataclasses, sys
+    import numpy as np
+    from mttbench.benchmarks.harness import play
+    from mttbench.benchmarks.policies import AllCells, make_policy
+    from mttbench.scenarios.spec import get
+    from mttbench.trackers import make
+    out = {}
+    for preset, policy in (("births", "renyi"), ("default", "all"), ("crossing", "raster")):
+        sc = dataclasses.replace(get(preset), n_steps=25)
+        for name in ("ss-gnn", "ss-gmphd"):
+            pol = AllCells() if policy == "all" else make_policy(policy)
+            for rec in play(sc, make(name), 1, policy=pol):
+                key = f"{preset}-{name}-{rec.k}"
+                e = rec.estimate
+                out[key + "-count"] = np.float64(e.count)
+                out[key + "-states"] = e.states
+                out[key + "-covs"] = e.covariances
+                if rec.counts is not None:
+                    out[key + "-pc"] = rec.counts
+    np.savez(sys.argv[1], **out)
+""")
+
+
+def test_two_processes_give_identical_numbers(stonesoup_installed, tmp_path):
+    """Closed-loop renyi on ``births`` (P_c(t) chooses the looks), every cell on
+    ``default``, raster on ``crossing``: 25 steps each, both peers, in two processes with
+    different ``PYTHONHASHSEED`` (string-set order) and memory layouts (object-set order)."""
+    script = tmp_path / "run.py"
+    script.write_text(_DETERMINISM_SCRIPT)
+    procs = []
+    for seed in ("1", "2"):
+        env = {**os.environ, "PYTHONHASHSEED": seed}
+        procs.append(subprocess.Popen([sys.executable, str(script), str(tmp_path / seed)],
+                                      env=env, stderr=subprocess.PIPE, text=True))
+    for p in procs:
+        _, err = p.communicate(timeout=120)
+        assert p.returncode == 0, err
+    a, b = np.load(tmp_path / "1.npz"), np.load(tmp_path / "2.npz")
+    assert sorted(a.files) == sorted(b.files)
+    assert any(k.endswith("-pc") for k in a.files)
+    assert any(a[k].size for k in a.files if k.endswith("-states"))
+    differ = [k for k in a.files if not np.array_equal(a[k], b[k])]
+    assert not differ, f"{len(differ)} arrays differ between processes, first {differ[:3]}"
+
+
+# ------------------------------------------------------------------ without the extra
+def test_the_module_imports_without_stonesoup():
+    code = textwrap.dedent("""
+        import sys
+        sys.modules["stonesoup"] = None
+        from mttbench import trackers
+        from mttbench.trackers import stonesoup_peers as sp
+        assert "ss-gnn" in trackers.available() and "ss-gmphd" in trackers.available()
+        assert sp.missing_extra() == sp.EXTRA_HINT
+        for cls in (sp.StoneSoupGNN, sp.StoneSoupGMPHD):
+            assert set(cls.conformance_exceptions) == set(sp._RUNNING_CHECKS)
+            assert set(cls.conformance_exceptions.values()) == {sp.EXTRA_HINT}
+        print("ok")
+    """)
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120)
+    assert res.returncode == 0 and res.stdout.strip() == "ok", res.stderr
+
+
+def test_without_stonesoup_a_run_gets_an_unsupported_row(no_stonesoup):
+    sc = dataclasses.replace(get_scenario("default"), n_steps=3)
+    for name in PEERS:
+        df = run_job(Job(sc, TrackerSpec(name), seed=0))
+        assert len(df) == 1
+        row = df.iloc[0]
+        assert row["status"] == "unsupported" and row["step"] == -1
+        assert row["error"] == "needs the stonesoup extra: pip install 'mttbench[stonesoup]'"
+    tracker = trackers.make("ss-gnn")
+    with pytest.raises(ValueError, match="needs the stonesoup extra"):
+        tracker.reset(sc.model, np.random.default_rng(0))
+    with pytest.raises(ImportError, match="needs the stonesoup extra"):
+        sp.stonesoup()
+
+
+def test_without_stonesoup_the_listing_says_what_to_install(no_stonesoup, capsys):
+    assert cli.main(["trackers"]) == 0
+    out = capsys.readouterr().out
+    lines = out.splitlines()
+    for name in PEERS:
+        start = next(i for i, line in enumerate(lines) if line.split()[:1] == [name])
+        end = next((i for i in range(start + 1, len(lines))
+                    if lines[i].startswith("  ") and not lines[i].startswith("   ")),
+                   len(lines))
+        assert any("needs the stonesoup extra: pip install 'mttbench[stonesoup]'" in line
+                   for line in lines[start:end]), name
+    assert out.count("needs the stonesoup extra") == len(PEERS)
+
+
+def test_compare_includes_the_peers_only_when_installed(stonesoup_installed, monkeypatch):
+    names = [t.split(":")[0] for t in default_tracker_texts()]
+    assert set(PEERS) <= set(names)
+    monkeypatch.setitem(sys.modules, "stonesoup", None)
+    names = [t.split(":")[0] for t in default_tracker_texts()]
+    assert not set(PEERS) & set(names) and "kfnn" in names
+
+
+# ------------------------------------------------------------------ numbers
+@pytest.mark.parametrize("q", ["wna", "matrix"])
+def test_gnn_on_one_target_is_a_filterpy_kalman_filter(stonesoup_installed, q):
+    """One target walking across cells, every cell looked at each step, positive at its
+    cell on most steps: ss-gnn's single track equals a filterpy filter started from the
+    same prior (position at the first detection with variance R, velocity 0 with sd
+    ``velocity_std``) and updated with the same detections at the same steps."""
+    from filterpy.kalman import KalmanFilter
+
+    model = get_scenario("default").model
+    if q == "matrix":
+        model = dataclasses.replace(model, dynamics=Dynamics(
+            tau=1.0, q_matrix=((2e-3, 1e-4, 0, 0), (1e-4, 5e-4, 0, 0),
+                               (0, 0, 3e-3, 0), (0, 0, 0, 7e-4))))
+    grid = model.grid
+    tracker = trackers.make("ss-gnn", gate=10.0, velocity_std=0.2)
+    tracker.reset(model, np.random.default_rng(0))
+    steps = 30
+    px = 2.5 + 0.17 * np.arange(steps)
+    py = 6.4 - 0.09 * np.arange(steps)
+    detected = np.ones(steps, bool)
+    detected[[3, 7, 8, 15, 22, 23, 24]] = False
+    every = np.arange(grid.n_cells)
+    r = grid.cell_size ** 2 / 12.0
+
+    kf = KalmanFilter(dim_x=4, dim_z=2)
+    kf.F, kf.Q = model.dynamics.F, model.dynamics.Q
+    kf.H = np.eye(4)[[0, 2]]
+    kf.R = r * np.eye(2)
+    compared = 0
+    for k in range(steps):
+        cell = int(grid.cell_of(px[k], py[k]))
+        returns = (every == cell) & detected[k]
+        tracker.predict()
+        tracker.update(_looks(every, returns))
+        z = grid.cell_centers(np.array([cell]))[0]
+        if k == 0:
+            kf.x = np.array([z[0], 0.0, z[1], 0.0])
+            kf.P = np.diag([r, 0.04, r, 0.04])
+        else:
+            kf.predict()
+            if detected[k]:
+                kf.update(z)
+        est = tracker.estimate()
+        if k == 0:
+            assert est.count == 0  # a holding track: released at the next step
+            continue
+        assert est.count == 1 and est.states.shape == (1, 4), k
+        np.testing.assert_allclose(est.states[0], kf.x, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(est.covariances[0], kf.P, rtol=0, atol=1e-9)
+        compared += 1
+    assert compared == steps - 1
+
+
+def test_gmphd_expected_count_follows_the_closed_form(stonesoup_installed):
+    """From an empty mixture, one detection at cell ``c`` (every cell looked once) makes
+    the birth component's weight ``w1 = p b q / (kappa + p b q)`` with ``q`` the Gaussian
+    density of the detection under the predicted birth component, ``p = p_d`` and
+    ``kappa = p_f / cell area``; then a negative look at ``c`` multiplies the count by
+    ``1 - p_d``, two negative looks by ``(1 - p_d)^2``, and a step that does not look at
+    ``c`` leaves it unchanged. ``P_c(t)`` is Poisson with the predicted intensity mass."""
+    sc = get_scenario("default")
+    model = sc.model
+    grid, sensor = model.grid, model.sensor
+    b, sv = 2e-3, 0.1
+    tracker = trackers.make("ss-gmphd", birth_intensity=b, birth_velocity_std=sv,
+                            prune_threshold=1e-12)
+    tracker.reset(model, np.random.default_rng(0))
+    c = 5 * grid.nx + 7
+    z = grid.cell_centers(np.array([c]))[0]
+    every = np.arange(grid.n_cells)
+    F, Q = model.dynamics.F, model.dynamics.Q
+    r = grid.cell_size ** 2 / 12.0
+    P_birth = F @ np.diag([r, sv * sv, r, sv * sv]) @ F.T + Q
+    S = P_birth[np.ix_([0, 2], [0, 2])] + r * np.eye(2)
+    q = multivariate_normal(mean=z, cov=S).pdf(z)
+    p, kappa = sensor.p_d, sensor.p_f / grid.cell_size ** 2
+    w1 = p * b * q / (kappa + p * b * q)
+
+    tracker.predict()
+    tracker.update(_looks(every, every == c))
+    assert tracker.estimate().count == pytest.approx(w1, rel=1e-12)
+    w, m, P = tracker.components
+    assert len(w) == 1 and np.allclose(m[0], [z[0], 0.0, z[1], 0.0], atol=1e-12)
+
+    # P_c(t) before the next update: Poisson(lambda_c), lambda_c = w1 * mass_c + b
+    tracker.predict()
+    pc = tracker.cell_count_distribution()
+    mp, Pp = F @ m[0], F @ P[0] @ F.T + Q
+    edges = np.arange(grid.nx + 1) * grid.cell_size
+    mx = np.diff(norm.cdf(edges, mp[0], np.sqrt(Pp[0, 0])))
+    my = np.diff(norm.cdf(edges, mp[2], np.sqrt(Pp[2, 2])))
+    lam = w1 * np.outer(my, mx).ravel() + b
+    np.testing.assert_allclose(pc[:, 0], np.exp(-lam), rtol=1e-12)
+    np.testing.assert_allclose(pc[:, 1], lam * np.exp(-lam), rtol=1e-12)
+
+    tracker.update(_looks([c]))  # one negative look at c
+    w2 = w1 * (1 - p)
+    assert tracker.estimate().count == pytest.approx(w2, rel=1e-12)
+    tracker.predict()
+    tracker.update(_looks([0, 1]))  # c not looked at
+    assert tracker.estimate().count == pytest.approx(w2, rel=1e-12)
+    tracker.predict()
+    tracker.update(_looks([]))  # no looks at all
+    assert tracker.estimate().count == pytest.approx(w2, rel=1e-12)
+    tracker.predict()
+    tracker.update(_looks([c, c]))  # two negative looks at c
+    assert tracker.estimate().count == pytest.approx(w2 * (1 - p) ** 2, rel=1e-12)
+
+
+def test_gmphd_averages_detection_probability_over_the_looked_cells(stonesoup_installed):
+    """Looks at ``c`` twice and at another cell once, all negative: the update uses
+    ``p = ((1 - (1 - p_d)^2) + p_d) / 2`` for every looked component (Stone Soup takes
+    one ``prob_detection`` per update; docs/stonesoup.md)."""
+    model = get_scenario("default").model
+    p_d = model.sensor.p_d
+    tracker = trackers.make("ss-gmphd", prune_threshold=1e-12)
+    tracker.reset(model, np.random.default_rng(0))
+    c = 40
+    m0 = np.array([*model.grid.cell_centers(np.array([c]))[0], 0.0, 0.0])[[0, 2, 1, 3]]
+    tracker.set_components([0.8], [m0], [np.diag([0.01, 1e-4, 0.01, 1e-4])])
+    tracker.predict()
+    tracker.update(_looks([c, c, 100]))
+    p = ((1 - (1 - p_d) ** 2) + p_d) / 2
+    assert tracker.estimate().count == pytest.approx(0.8 * (1 - p), rel=1e-12)
+
+
+def test_peers_refuse_the_superposition_sensor_in_words(stonesoup_installed):
+    model = get_scenario("superposition").model
+    for name in PEERS:
+        reason = trackers.make(name).unsupported_reason(model)
+        assert reason and "superposition" in reason
