@@ -623,11 +623,15 @@ def run_tune(settings: Sequence[TuneSettings], out_dir: str | Path, *,
                                                           if res.tuned_file else None)
             manifest["trackers"][s.name]["message"] = res.message
             save("running")
+        # every saved run of the studies in one table (reads the parts; runs nothing: a
+        # run without a part, lost with its worker, is left out)
         all_jobs: dict[str, Job] = {}
         for s in settings:
             for t in _finished_specs(s, out):
                 for job in s.jobs(t):
-                    all_jobs.setdefault(job.key(s.c, s.p), job)
+                    key = job.key(s.c, s.p)
+                    if (out / "parts" / f"{key}.parquet").is_file():
+                        all_jobs.setdefault(key, job)
         if all_jobs:
             c, p = settings[0].c, settings[0].p
             harness.run_sweep(list(all_jobs.values()), out, workers=1, progress=False,

@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import tomllib
 from pathlib import Path
 from typing import ClassVar
@@ -308,6 +309,25 @@ def test_the_tuned_file_has_its_provenance_and_round_trips(study):
     assert (root / "out" / "kfnn" / "tuned.toml").read_text(encoding="utf-8") == text
     assert list(pd.read_csv(root / "out" / "kfnn" / "trials.csv")["number"]) == list(
         range(TRIALS))
+
+
+def test_the_command_writes_its_folder_and_the_tuned_file(tmp_path, capsys):
+    out, tuned_dir = tmp_path / "out", tmp_path / "tuned"
+    args = ["tune", "kfnn", "--trials", "2", "--tuning-seeds", "2", "--scenarios", "default",
+            "--steps", "4", "--workers", "1", "--no-progress", "--out", str(out),
+            "--tuned-dir", str(tuned_dir)]
+    assert cli.main(args) == 0
+    printed = capsys.readouterr()
+    assert "2 trials x 2 tuning seeds x 1 scenarios" in printed.err  # the budget, stated
+    assert f"wrote {tuned_dir / 'kfnn.toml'}" in printed.out
+    man = json.loads((out / "manifest.json").read_text(encoding="utf-8"))
+    assert man["status"] == "finished" and man["trackers"]["kfnn"]["settings"]["batch_size"] == 1
+    # every run of the study, once: the defaults and the two trials, on the tuning seeds
+    df = pd.read_parquet(out / "results.parquet")
+    runs = df.drop_duplicates(["tracker_label", "seed"])
+    assert len(runs) == 6 and set(runs["seed"]) == set(SEEDS)
+    assert runs["tracker_label"].nunique() == 3 and "kfnn" in set(runs["tracker_label"])
+    assert tuned.read_tuned(tuned_dir / "kfnn.toml").record["budget"]["trials"] == 2
 
 
 def test_a_bad_tuned_file_is_refused_in_one_line(tmp_path):
