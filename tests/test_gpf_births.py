@@ -84,7 +84,10 @@ def test_candidate_in_a_detected_cell_joins_the_particle_that_explains_it(epsilo
     prior 5e-5, is cut as the paper's rule says."""
     grid = Grid(2, 1, 1.0)
     u, w = 5e-4, 0.9
-    t = trackers.make("gpf", epsilon=epsilon, birth_floor=u)
+    # the paper's prior cut on every looked cell (aggregate_misses=False); the field's own
+    # rule without the model's count (count_aware_births=False)
+    t = trackers.make("gpf", epsilon=epsilon, birth_floor=u, aggregate_misses=False,
+                      count_aware_births=False)
     t.reset(_model(grid), np.random.default_rng(0))
     mean = np.array([0.5, 0.0, 0.5, 0.0])
     cov = np.diag([0.05**2, 0.01, 0.05**2, 0.01])
@@ -123,7 +126,7 @@ def test_candidate_alone_in_a_detected_cell_becomes_a_target_at_the_cell_centre(
     The field starts at 1/6 (one expected target on six cells)."""
     grid = Grid(3, 2, 0.5)
     u, bv, floor = 1.0 / 6.0, 0.07, 1e-3
-    t = trackers.make("gpf", epsilon=0.0, birth_floor=floor)
+    t = trackers.make("gpf", epsilon=0.0, birth_floor=floor, count_aware_births=False)
     t.reset(_model(grid, birth_velocity_std=bv, n_initial=1), np.random.default_rng(0))
     t.update(Looks(np.array([4, 1, 4]), np.array([True, False, False])))
 

@@ -240,9 +240,11 @@ def test_cluster_components_equal_scipy_connected_components():
         np.testing.assert_array_equal(ref[:, None] == ref[None, :], got[:, None] == got[None, :])
 
 
+@pytest.mark.parametrize("jpda_star", [False, True])
 @pytest.mark.parametrize("eps", [0.0, 1e-3, 0.05])
-def test_small_clusters_listed_together_equal_one_at_a_time(eps):
-    """The batched full listing of small clusters equals the per-cluster enumeration."""
+def test_small_clusters_listed_together_equal_one_at_a_time(eps, jpda_star):
+    """The batched full listing of small clusters equals the per-cluster enumeration (with
+    and without the JPDA* rule, cells 0-2 counting as detected)."""
     from mttbench.trackers.gpf_grid import _cluster_posterior, _small_clusters_posterior
 
     rng = np.random.default_rng(int(eps * 1000) + 5)
@@ -262,11 +264,12 @@ def test_small_clusters_listed_together_equal_one_at_a_time(eps):
             probs.append(row), cells.append(cell), cl.append(c)
     probs, cells, cl = np.array(probs), np.array(cells), np.array(cl)
     n_pos = (probs > 0).sum(axis=1)
-    post, dropped = _small_clusters_posterior(probs, cells, cl, n_pos, LL, eps)
+    detected = (np.arange(n_u) < 3) if jpda_star else None
+    post, dropped = _small_clusters_posterior(probs, cells, cl, n_pos, LL, eps, detected)
     ref_dropped = 0.0
     for c in range(len(sizes)):
         sl = cl == c
-        ref, d = _cluster_posterior(probs[sl], cells[sl], LL, eps, 10**6)
+        ref, d = _cluster_posterior(probs[sl], cells[sl], LL, eps, 10**6, detected)
         np.testing.assert_allclose(post[sl], ref, rtol=1e-12, atol=1e-14)
         ref_dropped += d
     assert dropped == pytest.approx(ref_dropped, abs=1e-12)

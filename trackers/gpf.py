@@ -5,6 +5,18 @@ with that Gaussian exists, and the estimated count is ``sum_i w_i`` (paper Secti
 Arrays: ``w (K,)``, ``means (K, 4)``, ``covs (K, 4, 4)``; states ``[px, vx, py, vy]``.
 The measurements behind the defaults, with commands that repeat them: docs/gpf.md.
 
+On the grid sensor a particle ("track") may carry a mixture of up to ``max_components``
+Gaussians (a Bernoulli with a Gaussian-mixture density, as in multi-Bernoulli filters; a
+deviation from the paper, whose particle is one Gaussian, ``max_components=1``): a
+detection a broad track may have made splits off as a component (``split_share``,
+:func:`.gpf_grid.grid_update`) instead of being blended with the rest into a broader
+Gaussian, while the track keeps one existence probability. Each component is predicted
+like a particle; within a track components merge by the Bhattacharyya rule below, those
+below ``_COMPONENT_FLOOR`` go, and beyond ``max_components`` the lightest are moment
+matched into one. A track reports the component with the highest peak
+(``state_estimate="mode"``), skipping one within a cell of a state already reported by a
+heavier track (tracks that share a detection each hold a component on it).
+
 Step (the harness calls predict, then update, then estimate):
 
 * **Predict**: ``mu <- F mu``, ``Sigma <- F Sigma F^T + Q``, ``w <- p w`` with the survival
@@ -31,19 +43,31 @@ Step (the harness calls predict, then update, then estimate):
 * **Update**: :mod:`trackers.gpf_linear` (superposition: the paper's combinations ``E`` and
   appendix gain, moment-matched fold-back) or :mod:`trackers.gpf_grid` (grid: truncated
   Gaussians, exact Bernoulli weights, combinations per cluster sharing a looked cell).
-* **Combinations**: as in the paper, cut on their *prior* probability ``<= epsilon``, at most
+* **Combinations**: as in the paper, cut on their probability ``<= epsilon``, at most
   ``max_combinations`` (the most probable) kept, renormalised. ``epsilon = 1e-4`` (was
   ``1e-3``): 2.5x smaller weight error per update at the same cost, closed-loop scores
-  unchanged within noise (docs/gpf.md).
+  unchanged within noise (docs/gpf.md). With ``aggregate_misses`` (default) the looked cells
+  without a detection are one option per member and the cut acts on the likelihood-tilted
+  probability (:mod:`.gpf_grid`, "missed cells"); ``avoid_coalescence`` (default) keeps one
+  of the combinations that swap detections between members (JPDA*, Blom and Bloem 2000).
+* **Count bound** (``count_aware_births``, default): a model without arrivals never has
+  more targets than it started with, so after each update the existences are replaced by
+  their marginals given ``count <= n0`` (:func:`condition_on_count_bound`, exact for
+  independent Bernoullis), and the undetected field holds ``n0 - sum w`` at most; without
+  it a fixed-count scene collects false tracks that a broad prediction keeps alive
+  (``paper``: four or five tracks for three targets).
 * **Merge** (the paper's Mahalanobis rule): greedily from the heaviest particle ``i``, those
   ``j`` with ``(mu_i - mu_j)^T (Sigma_i + Sigma_j)^-1 (mu_i - mu_j) < merge_threshold``
   join it; a group becomes one moment-matched Gaussian (the paper sums the covariances). The
   paper's merged weight, the sum, can exceed 1; ``merge_weight``: ``"bounded_sum"`` admits
   members (nearest first) while the sum stays ``<= 1`` (``sum w`` kept exactly);
   ``"capped_sum"`` takes all, weight ``min(1, sum w)``; ``"union"`` ``1 - prod(1 - w)``.
-  ``"auto"`` (default): ``"bounded_sum"`` on the superposition sensor, which hardly informs
-  the count; ``"capped_sum"`` on the grid (better GOSPA, no overcount on ``paper``)
-  (docs/gpf.md).
+  ``"auto"`` (default): ``"bounded_sum"``, but ``"capped_sum"`` on the grid for a model
+  with arrivals (on the grid it was ``"capped_sum"`` always: it merged two broad tracks of
+  two targets into one of weight 1, and ``paper`` held one target of three; without
+  arrivals the count bound now does what it did against overcounting; docs/gpf.md).
+  ``merge_metric="bhattacharyya"`` adds a shape term, so a narrow Gaussian never joins a
+  much broader one; components within a track always merge by it.
 * **Prune**: drop ``w < prune_threshold``; keep at most ``max_particles`` (the heaviest).
 * **Split** (``split_sd > 0``, off by default): before a grid update, a Gaussian whose
   position sd exceeds ``split_sd`` cells is split in three along its broadest axis keeping
@@ -57,13 +81,13 @@ Births and the initial prior (``births=False``: empty prior, no births, for redu
 * Grid: an undetected-target field ``u (n_cells,)`` (per cell, the probability of an unseen
   target): ``initial_count_mean / n_cells`` at first, ``u <- 1 - (1 - p u)(1 - birth_rate /
   n_cells)`` at each predict, floored at ``birth_floor``; with ``count_aware_births``
-  (off by default) the field holds at least the targets the model expects and no
-  particle holds, ``m(k) - sum w`` (scaled up keeping its shape), so that a detection a
-  lost target made can start a track against a broad particle that would otherwise
-  absorb it. Off: measured it does not help (``paper``, every cell looked, 6 seeds:
-  OSPA 1.58 -> 1.55, count error 1.73 -> 1.71) and it widens the runs' spread (20
-  seeds: ``births`` raster 24 +0.036 ± 0.039, ``crossing`` renyi 24 -0.002 ± 0.088
-  against +0.023 ± 0.072 without it). Each looked
+  (default; models without arrivals only) the field holds the targets the model expects
+  and no particle holds, ``m(k) - sum w`` (scaled up or down keeping its shape, no
+  floor), so that a detection a lost target made can start a track against a broad
+  particle that would otherwise absorb it, and no more tracks start than the count leaves
+  (with the count bound above). On ``births`` (arrivals) it and ``bounded_sum`` cost OSPA
+  under renyi (docs/gpf.md section 9), so models with arrivals keep the floored field and
+  ``capped_sum``. Each looked
   cell with ``u_c > 0`` adds a candidate (weight ``u_c``, uniform on the cell) to the
   update; after it, a candidate whose cell returned a detection becomes a Gaussian (cell
   centre, position variance
@@ -97,7 +121,7 @@ from .base import Estimate, Tracker, register
 from .cells import gaussian_cell_mass, poisson_binomial
 from .gpf_grid import fold_into_workspace, grid_update, rect_state_moments
 from .gpf_linear import superposition_update
-from .params import Param
+from .params import Param, Search
 
 _MERGE_RULES = ("bounded_sum", "capped_sum", "union")
 _MERGE_CHOICES = _MERGE_RULES + ("auto",)
@@ -105,6 +129,39 @@ _MERGE_CHOICES = _MERGE_RULES + ("auto",)
 _SUM_TOL = 1e-9
 #: per-step death probability floor of the grid tracker with births (``death_probability=None``)
 DEFAULT_DEATH_FLOOR = 0.003
+#: a track's component with a smaller weight within the track is dropped
+_COMPONENT_FLOOR = 0.02
+
+
+def condition_on_count_bound(w: np.ndarray, n_max: int) -> np.ndarray:
+    """Existence probabilities of independent Bernoullis ``w (T,)`` conditioned on
+    ``count <= n_max`` (the marginals of the conditioned law; exact):
+    ``w_i' = w_i A_i / (w_i A_i + (1 - w_i) B_i)`` with ``A_i = P(C_-i <= n_max - 1)``,
+    ``B_i = P(C_-i <= n_max)``, ``C_-i`` the count of the others (prefix and suffix
+    Poisson-binomial tables, ``O(T n_max^2)``). Where the bound has probability 0 (more
+    certain tracks than it allows) ``w`` is returned unchanged."""
+    T = len(w)
+    if T <= n_max:
+        return w.copy()
+    if n_max <= 0:
+        return np.zeros(T) if np.all(w < 1.0) else w.copy()
+    n = n_max + 1  # counts 0..n_max
+    pre = np.zeros((T + 1, n))
+    pre[0, 0] = 1.0
+    for i in range(T):
+        pre[i + 1] = pre[i] * (1.0 - w[i])
+        pre[i + 1, 1:] += pre[i, :-1] * w[i]
+    suf = np.zeros((T + 1, n))
+    suf[T, 0] = 1.0
+    for i in range(T - 1, -1, -1):
+        suf[i] = suf[i + 1] * (1.0 - w[i])
+        suf[i, 1:] += suf[i + 1, :-1] * w[i]
+    cum = np.cumsum(suf[1:], axis=1)  # cum[i, b] = P(count of tracks after i <= b)
+    a = pre[:T]  # a[i, j] = P(count of tracks before i = j)
+    B = np.einsum("ij,ij->i", a, cum[:, ::-1])  # sum_j a_j P(after <= n_max - j)
+    A = np.einsum("ij,ij->i", a[:, :-1], cum[:, -2::-1])  # <= n_max - 1 - j
+    den = w * A + (1.0 - w) * B
+    return np.where(den > 0.0, w * A / np.where(den > 0.0, den, 1.0), w)
 
 
 @functools.lru_cache(maxsize=256)
@@ -116,13 +173,20 @@ def _upper_pairs(K: int) -> tuple[np.ndarray, np.ndarray]:
     return iu, ju
 
 
-def _pair_distances(m: np.ndarray, P: np.ndarray, threshold: float) -> np.ndarray:
+def _pair_distances(m: np.ndarray, P: np.ndarray, threshold: float,
+                    metric: str = "mahalanobis", groups: np.ndarray | None = None
+                    ) -> np.ndarray:
     """``d2 (K, K)``: ``(mu_i - mu_j)^T (Sigma_i + Sigma_j)^-1 (mu_i - mu_j)`` where it can be
-    below ``threshold``, ``inf`` elsewhere (and on the diagonal).
+    below ``threshold``, ``inf`` elsewhere (and on the diagonal). ``metric="bhattacharyya"``
+    adds the shape term ``2 ln(det S_bar / sqrt(det Sigma_i det Sigma_j))``,
+    ``S_bar = (Sigma_i + Sigma_j) / 2``: the sum is ``4 D_B``, four times the
+    Bhattacharyya distance, equal to the Mahalanobis form for equal covariances and large
+    when one Gaussian is much broader than the other (never negative).
 
     The position-only form is a lower bound of the full one (a marginal's quadratic form never
-    exceeds the joint's), so it screens the pairs in closed form (2x2 inverse) and the 4x4
-    solve runs only on the pairs that pass.
+    exceeds the joint's, and the shape term is non-negative), so it screens the pairs in
+    closed form (2x2 inverse) and the 4x4 solve runs only on the pairs that pass.
+    ``groups (K,)``: only pairs in the same group get a distance (components of one track).
     """
     K = len(m)
     iu, ju = _upper_pairs(K)
@@ -134,20 +198,39 @@ def _pair_distances(m: np.ndarray, P: np.ndarray, threshold: float) -> np.ndarra
     with np.errstate(divide="ignore", invalid="ignore"):
         lower = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
     cand = ~(lower >= threshold)  # NaN (degenerate) pairs go to the exact solve
+    if groups is not None:
+        cand &= groups[iu] == groups[ju]
     d2 = np.full((K, K), np.inf)
     if np.any(cand):
         dc = diff[cand]
         full = np.einsum("ka,ka->k", dc, np.linalg.solve(S[cand], dc[..., None])[..., 0])
+        if metric == "bhattacharyya":
+            ld_s = np.linalg.slogdet(0.5 * S[cand])[1]
+            ld_i = np.linalg.slogdet(P[iu[cand]])[1]
+            ld_j = np.linalg.slogdet(P[ju[cand]])[1]
+            full = full + np.maximum(2.0 * ld_s - ld_i - ld_j, 0.0)
         d2[iu[cand], ju[cand]] = full
         d2[ju[cand], iu[cand]] = full
     return d2
 
 
 def merge_particles(w: np.ndarray, m: np.ndarray, P: np.ndarray, threshold: float,
-                    rule: str = "capped_sum") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    rule: str = "capped_sum", metric: str = "mahalanobis"
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Greedy Mahalanobis merging (module docstring); see :func:`merge_groups`."""
+    out_w, mean, cov, _ = merge_groups(w, m, P, threshold, rule, metric)
+    return out_w, mean, cov
+
+
+def merge_groups(w: np.ndarray, m: np.ndarray, P: np.ndarray, threshold: float,
+                 rule: str = "capped_sum", metric: str = "mahalanobis",
+                 groups: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Greedy Mahalanobis merging (module docstring). Shapes ``(K,)``, ``(K, 4)``, ``(K, 4, 4)``.
 
-    Returns the merged ``w``, ``m``, ``P``; a group's Gaussian is the ``w``-weighted moment
+    Returns the merged ``w``, ``m``, ``P`` and ``label (K,)``, the merged Gaussian each
+    input joined; ``groups``: only Gaussians of one group merge (the components of one
+    track). A group's Gaussian is the ``w``-weighted moment
     match ``m = sum w_j m_j / sum w_j``, ``P = sum w_j (P_j + (m_j - m)(m_j - m)^T) / sum w_j``.
     Groups are formed from the heaviest remaining particle ``i`` (distances to the original
     ``mu_i``, ``Sigma_i``); with ``"bounded_sum"`` the particles within the threshold join in
@@ -157,10 +240,11 @@ def merge_particles(w: np.ndarray, m: np.ndarray, P: np.ndarray, threshold: floa
         raise ValueError(f"merge_weight must be one of {_MERGE_RULES}, got {rule!r}")
     K = len(w)
     if K <= 1 or threshold <= 0:
-        return w, m, P
+        return w, m, P, np.arange(K)
     order = np.argsort(-w, kind="stable")
     w, m, P = w[order], m[order], P[order]
-    close = _pair_distances(m, P, threshold)
+    close = _pair_distances(m, P, threshold, metric,
+                            None if groups is None else np.asarray(groups)[order])
     label = np.full(K, -1)
     out_w = []
     for i in range(K):
@@ -182,8 +266,10 @@ def merge_particles(w: np.ndarray, m: np.ndarray, P: np.ndarray, threshold: floa
             out_w.append(min(1.0, wg.sum()) if rule == "capped_sum"
                          else 1.0 - np.prod(1.0 - wg))
     n_g = len(out_w)
+    in_order = np.empty(K, dtype=np.int64)
+    in_order[order] = label
     if n_g == K:
-        return np.array(out_w), m, P
+        return np.array(out_w), m, P, in_order
     # w-weighted moment match per group; a group of total weight 0 keeps its head's Gaussian
     tot = np.bincount(label, weights=w, minlength=n_g)
     head = np.unique(label, return_index=True)[1]  # the first member is the group's head
@@ -194,7 +280,7 @@ def merge_particles(w: np.ndarray, m: np.ndarray, P: np.ndarray, threshold: floa
     dev = m - mean[label]
     cov = np.zeros((n_g, 4, 4))
     np.add.at(cov, label, wn[:, None, None] * (P + dev[:, :, None] * dev[:, None, :]))
-    return np.array(out_w), mean, cov
+    return np.array(out_w), mean, cov, in_order
 
 
 #: a moment-preserving split of one axis into three: weights, offsets in sd, residual sd
@@ -239,15 +325,19 @@ def truncate_to_workspace(m: np.ndarray, P: np.ndarray, width: float, height: fl
 
 
 def split_broad(w: np.ndarray, m: np.ndarray, P: np.ndarray, max_sd: float,
-                max_particles: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                max_particles: int, owner: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | tuple[
+                    np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Split every Gaussian whose position spread (the larger eigenvalue's sd of its
     position covariance) exceeds ``max_sd`` into three along that eigenvector, keeping the
     first two moments of the mixture exactly: weights ``w (1/4, 1/2, 1/4)``, means shifted
     by ``(-a, 0, a) sigma`` along ``e`` with the velocities following by regression
     (``P e / sigma^2`` times the shift), covariance ``P - (1 - r^2) (P e)(P e)^T /
     sigma^2`` (``r = 1/2``, ``a = sqrt(3/2)``). Repeated until no Gaussian is broader or
-    the split would exceed ``max_particles``; the broadest are split first."""
+    the split would exceed ``max_particles``; the broadest are split first. With ``owner``
+    (the track of each Gaussian), the pieces keep their owner and it is returned too."""
     pos = [0, 2]
+    own = np.zeros(len(w), dtype=np.int64) if owner is None else np.asarray(owner)
     while len(w):
         Spp = P[:, pos][:, :, pos]
         evals, evecs = np.linalg.eigh(Spp)
@@ -272,7 +362,22 @@ def split_broad(w: np.ndarray, m: np.ndarray, P: np.ndarray, max_sd: float,
         w = np.concatenate([w[keep], new_w.reshape(-1)])
         m = np.concatenate([m[keep], new_m.reshape(-1, 4)])
         P = np.concatenate([P[keep], np.repeat(new_P, 3, axis=0)])
-    return w, m, P
+        own = np.concatenate([own[keep], np.repeat(own[broad], 3)])
+    return (w, m, P) if owner is None else (w, m, P, own)
+
+
+def collapse(w: np.ndarray, m: np.ndarray, P: np.ndarray, owner: np.ndarray, n: int
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Per group ``0..n-1`` of ``owner``, the moment match of its rows (weights ``w``,
+    normalised within the group): ``means (n, 4)``, ``covs (n, 4, 4)``."""
+    tot = np.bincount(owner, weights=w, minlength=n)
+    wn = w / np.where(tot > 0.0, tot, 1.0)[owner]
+    mean = np.zeros((n, 4))
+    np.add.at(mean, owner, wn[:, None] * m)
+    dev = m - mean[owner]
+    cov = np.zeros((n, 4, 4))
+    np.add.at(cov, owner, wn[:, None, None] * (P + dev[:, :, None] * dev[:, None, :]))
+    return mean, cov
 
 
 @register
@@ -287,21 +392,46 @@ class GaussianParticleFilter(Tracker):
         "max_combinations": Param(int, 1, doc="at most this many combinations kept"),
         "interaction_threshold": Param(float, 0, 1, high_open=True,
                                        doc="w m_c above it: the particle takes part in a cell"),
-        "merge_threshold": Param(float, 0, doc="squared Mahalanobis distance; 0: no merging"),
-        "merge_weight": Param(choices=_MERGE_CHOICES, doc="merged weight rule"),
+        "merge_threshold": Param(float, 0, doc="squared Mahalanobis distance; 0: no merging",
+                                 search=Search(1.0, 16.0, log=True)),
+        "merge_weight": Param(choices=_MERGE_CHOICES, doc="merged weight rule",
+                              search=Search(choices=_MERGE_RULES)),
+        "merge_metric": Param(choices=("mahalanobis", "bhattacharyya"),
+                              doc="pair distance of the merge (bhattacharyya: 4 D_B, which "
+                                  "keeps a narrow Gaussian apart from a broad one)"),
         "prune_threshold": Param(float, 0, 1, high_open=True, doc="drop w below it"),
         "max_particles": Param(int, 1, doc="keep at most this many (the heaviest)"),
         "births": Param(bool, doc="False: empty prior, no births"),
-        "birth_floor": Param(float, 0, 1, doc="floor of the undetected-target field u"),
+        "birth_floor": Param(float, 0, 1, doc="floor of the undetected-target field u",
+                             search=Search(1e-6, 1e-2, log=True)),
         "extraction": Param(choices=("round_sum", "threshold"), doc="which particles are "
-                            "reported"),
-        "extraction_threshold": Param(float, 0, 1, doc="w above it is reported (threshold)"),
+                            "reported", search=Search(choices=("round_sum", "threshold"))),
+        "extraction_threshold": Param(float, 0, 1, doc="w above it is reported (threshold)",
+                                      search=Search(0.2, 0.8)),
         "n_counts": Param(int, 2, doc="count columns of P_c(t)"),
         "death_probability": Param(float, 0, 1, allow_none=True,
                                    none="DEFAULT_DEATH_FLOOR on the grid with births, else 0",
-                                   doc="per-step death floor"),
+                                   doc="per-step death floor",
+                                   search=Search(1e-4, 0.05, log=True)),
         "split_sd": Param(float, 0, doc="grid: split Gaussians broader than this (cells, "
                                         "position sd) before an update; 0: never"),
+        "aggregate_misses": Param(bool, doc="grid: in a cluster, a member's looked cells "
+                                            "without a detection are one option (trackers/"
+                                            "gpf_grid.py)"),
+        "avoid_coalescence": Param(bool, doc="grid: JPDA* (Blom and Bloem): of combinations "
+                                             "that swap detections between members, keep "
+                                             "the most probable"),
+        "max_components": Param(int, 1, doc="grid: Gaussians per track (a Bernoulli with a "
+                                            "Gaussian-mixture density); 1: the paper's one",
+                                search=Search(1, 6)),
+        "split_share": Param(float, 0, 1, high_open=True,
+                             doc="grid: a detected cell's part of a track's posterior at "
+                                 "least this large becomes a component of its own",
+                             search=Search(0.02, 0.5, log=True)),
+        "state_estimate": Param(choices=("mode", "heaviest", "mean"),
+                                doc="a track's reported state: the component with the "
+                                    "highest peak a / sqrt(det Sigma_pos), the heaviest, "
+                                    "or the mixture's mean"),
         "truncate": Param(bool, doc="keep each Gaussian inside the workspace (moment-matched "
                                     "truncation after predict)"),
         "count_aware_births": Param(bool, doc="grid: the undetected field holds at least the "
@@ -311,17 +441,21 @@ class GaussianParticleFilter(Tracker):
 
     def __init__(self, epsilon: float = 1e-4, max_combinations: int = 512,
                  interaction_threshold: float = 1e-3, merge_threshold: float = 4.0,
-                 merge_weight: str = "auto", prune_threshold: float = 1e-3,
+                 merge_weight: str = "auto", merge_metric: str = "mahalanobis",
+                 prune_threshold: float = 1e-3,
                  max_particles: int = 100, births: bool = True, birth_floor: float = 1e-4,
                  extraction: str = "round_sum", extraction_threshold: float = 0.5,
                  n_counts: int = 4, death_probability: float | None = None,
-                 split_sd: float = 0.0, truncate: bool = True,
-                 count_aware_births: bool = False) -> None:
+                 split_sd: float = 0.0, aggregate_misses: bool = True,
+                 avoid_coalescence: bool = True, max_components: int = 4,
+                 split_share: float = 0.1, state_estimate: str = "mode",
+                 truncate: bool = True, count_aware_births: bool = True) -> None:
         self.epsilon = epsilon
         self.max_combinations = max_combinations
         self.interaction_threshold = interaction_threshold
         self.merge_threshold = merge_threshold
         self.merge_weight = merge_weight
+        self.merge_metric = merge_metric
         self.prune_threshold = prune_threshold
         self.max_particles = max_particles
         self.births = births
@@ -331,26 +465,36 @@ class GaussianParticleFilter(Tracker):
         self.n_counts = n_counts
         self.death_probability = death_probability
         self.split_sd = split_sd
+        self.aggregate_misses = aggregate_misses
+        self.avoid_coalescence = avoid_coalescence
+        self.max_components = max_components
+        self.split_share = split_share
+        self.state_estimate = state_estimate
         self.truncate = truncate
         self.count_aware_births = count_aware_births
 
     # ------------------------------------------------------------------ state
+    # Tracks t = 0..T-1: existence w (T,). Gaussian rows r = 0..R-1: track own (R,),
+    # weight a (R,) within the track (sums to 1 per track), mean m (R, 4), cov P (R, 4, 4).
     def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
         self.validate_params(self.get_params())  # the declaration above (built directly)
         self._model = model
         self._rng = rng
         self._F, self._Q = model.dynamics.F, model.dynamics.Q
         self._grid = model.grid
+        arrivals = model.birth_death.birth_rate > 0.0
         self._merge_rule = (self.merge_weight if self.merge_weight != "auto"
-                            else "capped_sum" if model.is_grid else "bounded_sum")
+                            else "capped_sum" if (arrivals and model.is_grid)
+                            else "bounded_sum")
+        #: the count-aware field and count bound apply to models without arrivals
+        self._count_bound = self.count_aware_births and not arrivals
         floor = self.death_probability
         if floor is None:
             floor = DEFAULT_DEATH_FLOOR if (self.births and model.is_grid) else 0.0
         #: the survival probability the filter predicts with: min(p_s, 1 - floor)
         self._survival = min(model.birth_death.survival_probability, 1.0 - floor)
-        self._w = np.zeros(0)
-        self._m = np.zeros((0, 4))
-        self._P = np.zeros((0, 4, 4))
+        self._set(np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 4)),
+                  np.zeros((0, 4, 4)))
         bd = model.birth_death
         n0 = bd.initial_count_mean
         n_cells = model.grid.n_cells
@@ -364,16 +508,35 @@ class GaussianParticleFilter(Tracker):
             n = math.ceil(n0)
             self._add_broad(n, n0 / n)
 
+    def _set(self, w: np.ndarray, own: np.ndarray, a: np.ndarray, m: np.ndarray,
+             P: np.ndarray) -> None:
+        self._w, self._own, self._a, self._m, self._P = w, own, a, m, P
+
     def set_particles(self, w: np.ndarray, m: np.ndarray, P: np.ndarray) -> None:
-        """Replace the particle set (tests, warm starts): ``(K,)``, ``(K,4)``, ``(K,4,4)``."""
-        self._w = np.array(w, dtype=float).reshape(-1)
-        self._m = np.array(m, dtype=float).reshape(-1, 4)
-        self._P = np.array(P, dtype=float).reshape(-1, 4, 4)
+        """Replace the particle set (tests, warm starts): ``(K,)``, ``(K,4)``, ``(K,4,4)``,
+        one Gaussian per track."""
+        w = np.array(w, dtype=float).reshape(-1)
+        self._set(w, np.arange(len(w)), np.ones(len(w)), np.array(m, dtype=float).reshape(-1, 4),
+                  np.array(P, dtype=float).reshape(-1, 4, 4))
 
     @property
     def particles(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Copies of ``w (K,)``, ``means (K, 4)``, ``covs (K, 4, 4)``."""
-        return self._w.copy(), self._m.copy(), self._P.copy()
+        """Copies of ``w (K,)``, ``means (K, 4)``, ``covs (K, 4, 4)`` per track (a track
+        with several components as their moment match)."""
+        m, P = self._collapsed()
+        return self._w.copy(), m, P
+
+    @property
+    def components(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Copies of ``w (T,)`` and, per Gaussian row, ``track (R,)``, ``weight within the
+        track (R,)``, ``means (R, 4)``, ``covs (R, 4, 4)``."""
+        return (self._w.copy(), self._own.copy(), self._a.copy(), self._m.copy(),
+                self._P.copy())
+
+    def _collapsed(self) -> tuple[np.ndarray, np.ndarray]:
+        if len(self._m) == len(self._w):  # one row per track, in track order
+            return self._m.copy(), self._P.copy()
+        return collapse(self._a, self._m, self._P, self._own, len(self._w))
 
     def _broad_cov(self) -> np.ndarray:
         width, height = self._grid.extent
@@ -388,9 +551,21 @@ class GaussianParticleFilter(Tracker):
                      np.repeat(self._broad_cov()[None], n, axis=0))
 
     def _append(self, w: np.ndarray, m: np.ndarray, P: np.ndarray) -> None:
-        self._w = np.concatenate([self._w, w])
-        self._m = np.concatenate([self._m, m])
-        self._P = np.concatenate([self._P, P])
+        """New tracks, one Gaussian each."""
+        T = len(self._w)
+        self._set(np.concatenate([self._w, w]),
+                  np.concatenate([self._own, T + np.arange(len(w))]),
+                  np.concatenate([self._a, np.ones(len(w))]),
+                  np.concatenate([self._m, m]), np.concatenate([self._P, P]))
+
+    def _weigh_rows(self, mass: np.ndarray) -> None:
+        """Each row keeps the share ``mass (R,)`` of its probability: the track's existence
+        is multiplied by ``sum_r a_r mass_r``, the rows' weights re-normalised."""
+        kept = self._a * mass
+        tot = np.bincount(self._own, weights=kept, minlength=len(self._w))
+        self._w = self._w * np.minimum(tot, 1.0)
+        self._a = np.where(tot[self._own] > 0.0,
+                           kept / np.where(tot > 0.0, tot, 1.0)[self._own], self._a)
 
     # ---------------------------------------------------------------- predict
     def predict(self) -> None:
@@ -399,31 +574,32 @@ class GaussianParticleFilter(Tracker):
         self._w = self._w * self._survival
         width, height = self._grid.extent
         if bd.boundary == "reflect":
-            if self.truncate and len(self._w):
+            if self.truncate and len(self._m):
                 # no probability outside: the mass beyond a wall is reflected back
                 self._m, self._P = fold_into_workspace(self._m, self._P, self._grid)
             else:
                 for axis, length in ((0, width), (2, height)):
                     self._reflect_axis(axis, length)
-        elif self.truncate and len(self._w):
+        elif self.truncate and len(self._m):
             # the mass that left is death; what stays is the Gaussian inside
             mass, self._m, self._P = truncate_to_workspace(self._m, self._P, width, height)
-            self._w = self._w * mass
-        elif len(self._w):
+            self._weigh_rows(mass)
+        elif len(self._m):
             sx = np.sqrt(self._P[:, 0, 0])
             sy = np.sqrt(self._P[:, 2, 2])
             inside = ((ndtr((width - self._m[:, 0]) / sx) - ndtr(-self._m[:, 0] / sx))
                       * (ndtr((height - self._m[:, 2]) / sy) - ndtr(-self._m[:, 2] / sy)))
-            self._w = self._w * inside
+            self._weigh_rows(inside)
         if not self.births:
             return
         n_cells = self._grid.n_cells
         if self._model.is_grid:
             b = bd.birth_rate / n_cells
             self._u = 1.0 - (1.0 - self._survival * self._u) * (1.0 - b)
-            if self.count_aware_births:
+            if self._count_bound:
                 self._respread_missing()
-            np.maximum(self._u, self.birth_floor, out=self._u)
+            else:
+                np.maximum(self._u, self.birth_floor, out=self._u)
         elif bd.birth_rate > 0:
             self._add_broad(1, min(bd.birth_rate, 0.5))
 
@@ -431,18 +607,21 @@ class GaussianParticleFilter(Tracker):
         """Targets the model expects but no particle holds go back to the undetected
         field: when ``sum u`` is below ``m(k) - sum w`` (``m(k)`` the model's expected
         count at this step), ``u`` is scaled up to it, keeping its shape (uniform when it
-        is empty), each cell at most 1/2. Without it a fixed-count model's field decays
-        to its floor under misses and a target a track lost can only be taken by that
-        track (paper: the GPF held 1 of 3 targets)."""
+        is empty), each cell at most 1/2, and above it down to it (no floor: no target can
+        appear that the count does not leave). Used on models without arrivals only.
+        Without it a fixed-count model's field decays to its floor under misses and a
+        target a track lost can only be taken by that track (paper: the GPF held 1 of 3
+        targets)."""
         bd = self._model.birth_death
         self._k += 1
         p_s, b = bd.survival_probability, bd.birth_rate
         keep = p_s ** self._k
         expected = bd.initial_count_mean * keep + (
             b * self._k if p_s == 1.0 else b * (1.0 - keep) / (1.0 - p_s))
-        missing = expected - float(self._w.sum())
+        missing = max(expected - float(self._w.sum()), 0.0)
         total = float(self._u.sum())
-        if missing <= total:
+        if missing < total:  # no more undetected targets than the count leaves
+            self._u *= missing / total
             return
         shape = self._u / total if total > 0 else np.full(len(self._u), 1.0 / len(self._u))
         np.minimum(missing * shape, 0.5, out=self._u)
@@ -467,6 +646,10 @@ class GaussianParticleFilter(Tracker):
         probs = np.zeros((0, self._grid.n_cells))
         if len(self._w):
             mass = gaussian_cell_mass(self._grid, *kalman.position_marginal(self._m, self._P))
+            if len(self._m) != len(self._w):  # a track's mass: its components' sum
+                per_track = np.zeros((len(self._w), mass.shape[1]))
+                np.add.at(per_track, self._own, self._a[:, None] * mass)
+                mass = per_track
             probs = self._w[:, None] * mass
         if np.any(self._u > 0):
             probs = np.concatenate([probs, self._u[None]])
@@ -478,18 +661,28 @@ class GaussianParticleFilter(Tracker):
         if isinstance(sensor, RayleighGridSensor):
             if len(looks):
                 self._update_grid(looks, sensor)
-        elif looks.z is not None:
+        elif looks.z is not None:  # one Gaussian per track on this sensor
             res = superposition_update(self._w, self._m, self._P, np.asarray(looks.z, float),
                                        sensor.H, sensor.R, self.epsilon, self.max_combinations)
-            self._w, self._m, self._P = res.weights, res.means, res.covs
+            self.set_particles(res.weights, res.means, res.covs)
         self._merge_and_prune()
+        if self._count_bound and len(self._w):
+            # no arrivals: never more targets than the model started with
+            n0 = int(round(self._model.birth_death.initial_count_mean))
+            self._w = condition_on_count_bound(self._w, n0)
 
     def _update_grid(self, looks: Looks, sensor: RayleighGridSensor) -> None:
-        if self.split_sd > 0 and len(self._w):
-            self._w, self._m, self._P = split_broad(
-                self._w, self._m, self._P, self.split_sd * self._grid.cell_size,
-                self.max_particles)
-        K = len(self._w)
+        if self.split_sd > 0 and len(self._m):
+            room = max(self.max_particles * self.max_components, len(self._m))
+            a, self._m, self._P, self._own = split_broad(
+                self._a, self._m, self._P, self.split_sd * self._grid.cell_size, room,
+                owner=self._own)
+            if self.max_components == 1:  # the pieces are tracks of their own (w a)
+                self._w = self._w[self._own] * a
+                self._own, self._a = np.arange(len(a)), np.ones(len(a))
+            else:
+                self._a = a
+        T, R = len(self._w), len(self._m)
         looked = np.unique(looks.cells)
         cand = looked[self._u[looked] > 0.0] if self.births else looked[:0]
         n_c = len(cand)
@@ -500,27 +693,104 @@ class GaussianParticleFilter(Tracker):
         w = np.concatenate([self._w, self._u[cand]])
         m = np.concatenate([self._m, cm])
         P = np.concatenate([self._P, cP])
-        ucell = np.concatenate([np.full(K, -1, dtype=np.int64), cand])
+        own = np.concatenate([self._own, T + np.arange(n_c)])
+        alpha = np.concatenate([self._a, np.ones(n_c)])
+        ucell = np.concatenate([np.full(R, -1, dtype=np.int64), cand])
         res = grid_update(w, m, P, ucell, looks.cells, looks.returns, self._grid, sensor,
-                          self.epsilon, self.max_combinations, self.interaction_threshold)
-        wc = res.weights[K:]
+                          self.epsilon, self.max_combinations, self.interaction_threshold,
+                          aggregate_misses=self.aggregate_misses,
+                          coalescence=not self.avoid_coalescence, owner=own, alpha=alpha,
+                          split_share=self.split_share if self.max_components > 1 else 0.0)
+        wc = res.weights[T:]
         detected = np.zeros(self._grid.n_cells, dtype=bool)
         detected[looks.cells[looks.returns]] = True
         promote = detected[cand] & (wc > self.prune_threshold)
         self._u[cand] = np.where(promote, 0.0, wc)
-        if self.births:
+        if self.births and not self._count_bound:
             np.maximum(self._u, self.birth_floor, out=self._u)
-        keep = np.concatenate([np.ones(K, dtype=bool), promote])
-        self._w, self._m, self._P = res.weights[keep], res.means[keep], res.covs[keep]
+        keep_track = np.concatenate([np.ones(T, dtype=bool), promote])
+        new_index = np.cumsum(keep_track) - 1
+        keep_row = keep_track[res.owner]
+        self._set(res.weights[keep_track], new_index[res.owner[keep_row]],
+                  res.alpha[keep_row], res.means[keep_row], res.covs[keep_row])
 
     def _merge_and_prune(self) -> None:
+        """Prune tracks, merge tracks (on their moment-matched Gaussians; the merged track
+        keeps every member's components), then reduce each track's mixture: merge its
+        components by the same rule, drop those below ``_COMPONENT_FLOOR``, and beyond
+        ``max_components`` moment-match the lightest into one."""
         alive = self._w >= self.prune_threshold
-        w, m, P = self._w[alive], self._m[alive], self._P[alive]
-        w, m, P = merge_particles(w, m, P, self.merge_threshold, self._merge_rule)
-        if len(w) > self.max_particles:
-            top = np.argsort(-w, kind="stable")[: self.max_particles]
-            w, m, P = w[top], m[top], P[top]
-        self._w, self._m, self._P = w, m, P
+        rows = alive[self._own]
+        idx = np.cumsum(alive) - 1
+        w, own, a = self._w[alive], idx[self._own[rows]], self._a[rows]
+        m, P = self._m[rows], self._P[rows]
+        T = len(w)
+        if T > 1 and self.merge_threshold > 0:
+            if len(m) == T:
+                cm, cP = m[np.argsort(own)], P[np.argsort(own)]
+            else:
+                cm, cP = collapse(a, m, P, own, T)
+            mw, _, _, label = merge_groups(w, cm, cP, self.merge_threshold, self._merge_rule,
+                                           self.merge_metric)
+            if len(mw) < T:
+                share = w / np.bincount(label, weights=w, minlength=len(mw))[label]
+                a = a * np.nan_to_num(share, nan=0.0)[own]
+                own = label[own]
+                tot = np.bincount(own, weights=a, minlength=len(mw))
+                a = np.where(tot[own] > 0.0, a / np.where(tot > 0.0, tot, 1.0)[own],
+                             1.0 / np.bincount(own, minlength=len(mw))[own])
+                w, T = mw, len(mw)
+        if len(m) > T:
+            own, a, m, P = self._reduce_components(own, a, m, P, T)
+        if T > self.max_particles:
+            top = np.zeros(T, dtype=bool)
+            top[np.argsort(-w, kind="stable")[: self.max_particles]] = True
+            idx = np.cumsum(top) - 1
+            rows = top[own]
+            w, own, a, m, P = w[top], idx[own[rows]], a[rows], m[rows], P[rows]
+        order = np.argsort(own, kind="stable")
+        self._set(w, own[order], a[order], m[order], P[order])
+
+    def _reduce_components(self, own: np.ndarray, a: np.ndarray, m: np.ndarray, P: np.ndarray,
+                           T: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        if self.max_components == 1:  # the paper's one Gaussian: the moment match
+            mean, cov = collapse(a, m, P, own, T)
+            return np.arange(T), np.ones(T), mean, cov
+        keep = a >= _COMPONENT_FLOOR
+        # a track keeps its heaviest row even when all are below the floor
+        best = np.zeros(len(a), dtype=bool)
+        order = np.lexsort((-a, own))
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = own[order[1:]] != own[order[:-1]]
+        best[order[first]] = True
+        keep |= best
+        own, a, m, P = own[keep], a[keep], m[keep], P[keep]
+        if self.merge_threshold > 0:
+            # Bhattacharyya always: a cell's narrow component must not fold back into
+            # the broad rest of its track, which Mahalanobis distances would allow
+            a, m, P, label = merge_groups(a, m, P, self.merge_threshold, "capped_sum",
+                                          "bhattacharyya", groups=own)
+            merged_own = np.empty(len(a), dtype=np.int64)
+            merged_own[label] = own
+            own = merged_own
+        # beyond max_components: the lightest of a track are moment-matched into one
+        order = np.lexsort((-a, own))
+        own, a, m, P = own[order], a[order], m[order], P[order]
+        start = np.searchsorted(own, own)
+        rank = np.arange(len(own)) - start
+        excess = rank >= self.max_components - 1
+        n_rows = np.bincount(own, minlength=T)
+        excess &= n_rows[own] > self.max_components
+        if np.any(excess):
+            g = np.where(excess, self.max_components - 1, rank)
+            key = own * self.max_components + g
+            uk, grp = np.unique(key, return_inverse=True)
+            grp = grp.reshape(-1)
+            wsum = np.bincount(grp, weights=a)
+            mean, cov = collapse(a, m, P, grp, len(uk))
+            own, a, m, P = uk // self.max_components, wsum, mean, cov
+        tot = np.bincount(own, weights=a, minlength=T)
+        return own, a / tot[own], m, P
 
     # --------------------------------------------------------------- estimate
     def estimate(self) -> Estimate:
@@ -530,4 +800,35 @@ class GaussianParticleFilter(Tracker):
             sel = np.argsort(-self._w, kind="stable")[:n]
         else:
             sel = np.nonzero(self._w > self.extraction_threshold)[0]
-        return Estimate(count, self._m[sel].copy(), self._P[sel].copy())
+        if len(self._m) == len(self._w):
+            return Estimate(count, self._m[sel].copy(), self._P[sel].copy())
+        if self.state_estimate == "mean":
+            m, P = self._collapsed()
+            return Estimate(count, m[sel], P[sel])
+        score = self._a
+        if self.state_estimate == "mode":  # the peak height of each component
+            pos = self._P[:, 0::2, 0::2]
+            score = self._a / np.sqrt(np.maximum(np.linalg.det(pos), 1e-300))
+        rows = self._distinct_modes(sel, score)
+        return Estimate(count, self._m[rows].copy(), self._P[rows].copy())
+
+    def _distinct_modes(self, sel: np.ndarray, score: np.ndarray) -> np.ndarray:
+        """One row per selected track (heaviest track first): its best-scoring component
+        whose mean is at least a cell from the states already reported, else its best.
+        Tracks that share a detection each hold a component on it; reporting it once and
+        each other track's next component avoids stacking estimates on one cell."""
+        order = np.lexsort((-score, self._own))  # each track's rows, best first
+        start = np.searchsorted(self._own[order], np.arange(len(self._w) + 1))
+        chosen: list[int] = []
+        min_d2 = self._grid.cell_size ** 2
+        for t in sel:
+            rows = order[start[t]:start[t + 1]]
+            pick = rows[0]
+            if chosen and len(rows) > 1:
+                taken = self._m[chosen][:, 0::2]
+                d2 = ((self._m[rows][:, None, 0::2] - taken[None]) ** 2).sum(-1).min(axis=1)
+                free = np.nonzero(d2 >= min_d2)[0]
+                if len(free):
+                    pick = rows[free[0]]
+            chosen.append(int(pick))
+        return np.array(chosen, dtype=np.int64)

@@ -35,6 +35,30 @@ Velocities follow from the linear regression on position,
 ``v = m_v + B (p - m_p) + e``, ``B = S_vp S_pp^-1``, ``e ~ N(0, S_vv - B S_pv)`` independent
 of ``p``.
 
+Missed cells (``aggregate_misses``, the tracker's default; a deviation from the paper):
+members of a cluster interact only through looked cells that returned a detection, and
+each member's looked cells without a detection are one option "missed" with likelihood
+``sum_c m_c l_c(1)``, as if no two targets shared such a cell (``l(1)^2`` for ``l(2)``:
+0.25 against 0.305 at ``p_d = 0.5``, ``snr = 10``). Every option is tilted by its own
+likelihood, ``q_o ~ p_o l_o(1)``, and the combinations are weighed by the coupling
+``LL[c, T] - T LL[c, 1]`` of the detected cells, so the cut ``epsilon`` acts on
+combinations' probability under independent single-member posteriors instead of their
+prior. Without it a broad particle's options are one per looked cell, each with a prior
+below ``epsilon``: the combinations in which two broad particles both explain detections
+were cut and the second particle lost its existence (``paper``, every cell looked).
+
+JPDA* (:func:`avoid_coalescence`, Blom and Bloem 2000, the tracker's default): of the
+combinations that differ only by which members took which detected cells, only the most
+probable is kept, so that two tracks that could swap their detections do not both move to
+the blend of them.
+
+Components (the tracker's ``max_components > 1``): a track may carry a mixture of Gaussian
+rows (``owner``, ``alpha``); its mass in a cell is the mixture's, the combinatorics run on
+tracks, and each row is moment matched under its track's ``g``. With ``split_share``, the
+part of a row in a detected cell whose posterior share of the track reaches ``split_share``
+becomes a component of its own (the row's Gaussian truncated to the cell), so a track that
+may have made a far detection keeps that mode instead of a broad blend.
+
 "Uniform" particles (the tracker's birth candidates) have all their mass in one cell and
 are treated as uniform there: they take part in the likelihood like any particle, and
 their posterior given existence is unchanged (it stays uniform on the cell). In a cell that
@@ -148,7 +172,8 @@ def rect_state_moments(means: np.ndarray, covs: np.ndarray, x0: np.ndarray, x1: 
 
 @dataclass(frozen=True)
 class GridUpdateResult:
-    """Posterior of a grid update: ``weights (K,)``, ``means (K, 4)``, ``covs (K, 4, 4)``;
+    """Posterior of a grid update: ``weights (T,)`` per track, ``means (R, 4)``,
+    ``covs (R, 4, 4)`` per Gaussian row;
     ``dropped``: total prior mass cut by the combination threshold (summed over clusters);
     ``n_clusters``: number of multi-particle clusters enumerated;
     ``max_cluster``: size of the largest one (0 if none)."""
@@ -159,6 +184,10 @@ class GridUpdateResult:
     dropped: float
     n_clusters: int
     max_cluster: int
+    #: mixture weight and track of each row of ``means`` (one row per track unless
+    #: components were given or split off)
+    alpha: np.ndarray | None = None
+    owner: np.ndarray | None = None
 
 
 def _components(part: np.ndarray, cell: np.ndarray, K: int) -> np.ndarray:
@@ -189,11 +218,37 @@ def _components(part: np.ndarray, cell: np.ndarray, K: int) -> np.ndarray:
 _FULL_LISTING = 4096
 
 
+def avoid_coalescence(cluster: np.ndarray, choice: np.ndarray, cell: np.ndarray,
+                      detected: np.ndarray, log_post: np.ndarray) -> np.ndarray:
+    """Blom and Bloem's JPDA* rule: of the combinations that differ only by which members
+    took which detected cells (the same members take detected cells, the same multiset of
+    detected cells is taken, every other member makes the same choice), keep only the most
+    probable (the first on ties). ``cluster (C,)``, ``choice (C, S)`` and ``cell (C, S)``
+    (members padded with ``-2``; cell ``-1``: none), ``detected (n_u,)``, ``log_post (C,)``;
+    returns ``log_post`` with the others at ``-inf``. Without it the members of a cluster
+    whose detections could be swapped all move to the same blend of them (coalescence)."""
+    took = cell >= 0
+    took[took] = detected[cell[took]]
+    marker = np.where(took, -1, choice)
+    taken = np.sort(np.where(took, cell, -1), axis=1)
+    key = np.column_stack([cluster, marker, taken])
+    _, cls = np.unique(key, axis=0, return_inverse=True)
+    cls = cls.reshape(-1)
+    order = np.lexsort((np.arange(len(cls)), -log_post, cls))
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = cls[order[1:]] != cls[order[:-1]]
+    out = np.full(len(log_post), -np.inf)
+    out[order[first]] = log_post[order[first]]
+    return out
+
+
 def _cluster_posterior(option_probs: np.ndarray, option_cell: np.ndarray, LL: np.ndarray,
-                       epsilon: float, max_combinations: int) -> tuple[np.ndarray, float]:
+                       epsilon: float, max_combinations: int,
+                       detected: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """One cluster by :func:`enumerate_combinations`: ``option_probs``, ``option_cell`` are
     ``(n, O)`` (cell ``-1`` = not in a looked cell); returns ``post (n, O)``, the posterior
-    probability of each member's options, and the dropped prior mass."""
+    probability of each member's options, and the dropped prior mass. ``detected (n_u,)``:
+    apply :func:`avoid_coalescence` with these cells as the detected ones."""
     n, n_opt = option_probs.shape
     combs = enumerate_combinations(option_probs, epsilon, max_combinations)
     ch = combs.choice  # (C, n)
@@ -203,7 +258,11 @@ def _cluster_posterior(option_probs: np.ndarray, option_cell: np.ndarray, LL: np
     counts = np.zeros((ch.shape[0], len(loc_cells)), dtype=np.int64)
     np.add.at(counts, (np.nonzero(cell_of >= 0)[0], loc_idx), 1)
     loglik = LL[loc_cells[None, :], counts].sum(axis=1)
-    pc = log_normalise(combs.log_prior + loglik)  # (C,)
+    log_post = combs.log_prior + loglik
+    if detected is not None:
+        log_post = avoid_coalescence(np.zeros(len(ch), dtype=np.int64), ch, cell_of, detected,
+                                     log_post)
+    pc = log_normalise(log_post)  # (C,)
     # post[j, o] = sum over combinations with choice_j = o of p(C | z)
     post = np.bincount((np.arange(n)[None, :] * n_opt + ch).ravel(),
                        weights=np.repeat(pc, n), minlength=n * n_opt).reshape(n, n_opt)
@@ -212,7 +271,8 @@ def _cluster_posterior(option_probs: np.ndarray, option_cell: np.ndarray, LL: np
 
 def _small_clusters_posterior(option_probs: np.ndarray, option_cell: np.ndarray,
                               cl: np.ndarray, n_pos: np.ndarray, LL: np.ndarray,
-                              epsilon: float) -> tuple[np.ndarray, float]:
+                              epsilon: float, detected: np.ndarray | None = None
+                              ) -> tuple[np.ndarray, float]:
     """Several clusters at once, each listing all its joint choices (few: the cap never binds).
 
     ``option_probs``, ``option_cell (M, O)`` for the members of all the clusters, grouped by
@@ -261,6 +321,15 @@ def _small_clusters_posterior(option_probs: np.ndarray, option_cell: np.ndarray,
     key, t_count = np.unique(comb[hit] * n_u + cell[hit], return_counts=True)
     loglik = np.bincount(key // n_u, weights=LL[key % n_u, t_count], minlength=len(comb_cl))
     log_post = np.where(keep, lp + loglik, -np.inf)
+    if detected is not None:
+        # each combination's members in a row: (n_comb, largest cluster), padded with -2
+        rank = member - np.searchsorted(cidx, cidx[member])  # the member's place in its cluster
+        width = int(rank.max()) + 1
+        choice = np.full((len(comb_cl), width), -2)
+        cells = np.full((len(comb_cl), width), -2)
+        choice[comb, rank] = opt
+        cells[comb, rank] = cell
+        log_post = avoid_coalescence(comb_cl, choice, cells, detected, log_post)
     top = np.full(len(n_comb), -np.inf)
     np.maximum.at(top, comb_cl, log_post)
     e = np.exp(log_post - top[comb_cl])
@@ -270,30 +339,84 @@ def _small_clusters_posterior(option_probs: np.ndarray, option_cell: np.ndarray,
     return post, dropped
 
 
+def _aggregate_misses(option_probs: np.ndarray, option_cell: np.ndarray, rows: np.ndarray,
+                      cols: np.ndarray, LL: np.ndarray, hit: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Cluster options with the looked cells that returned nothing pooled into one option,
+    and every option tilted by its own likelihood (module docstring, "missed cells").
+
+    In: ``option_probs``, ``option_cell (M, O)`` as in :func:`grid_update` (absent,
+    elsewhere, then the member's looked cells at ``(rows, cols)``), ``LL (n_u, T + 1)``,
+    ``hit (n_u,)``. Out, ``(M, O + 1)``: the same columns, missed cells emptied, and a last
+    column "missed", with probabilities ``q_o = p_o l_o / sum_o' p_o' l_o'`` (``l`` = 1
+    for absent and elsewhere, ``sum_c m_c l_c(1) / sum_c m_c`` for missed, ``l_c(1)`` for a
+    detected cell); their cells (``-1`` but for detected cells); the coupling
+    ``LLc[c, T] = LL[c, T] - T LL[c, 1]`` (0 for ``T <= 1``); and each member's
+    ``sum_c m_c l_c(1)`` over its missed cells (``m_c`` given existence). The joint
+    posterior is unchanged, up to a constant, wherever no two members share a missed cell.
+    """
+    M, n_opt = option_probs.shape
+    cell = option_cell[rows, cols]
+    p = option_probs[rows, cols]
+    l1 = np.exp(LL[cell, 1])
+    missed = ~hit[cell]
+    wm = 1.0 - option_probs[:, 0]
+    miss_w = np.bincount(rows[missed], weights=p[missed] * l1[missed], minlength=M)
+    q = np.zeros((M, n_opt + 1))
+    q[:, :2] = option_probs[:, :2]
+    q[rows[~missed], cols[~missed]] = p[~missed] * l1[~missed]
+    q[:, -1] = miss_w
+    q /= q.sum(axis=1, keepdims=True)
+    out_cell = np.full((M, n_opt + 1), -1)
+    out_cell[rows[~missed], cols[~missed]] = cell[~missed]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        miss_lik = np.where(wm > 0.0, miss_w / wm, 0.0)
+    LLc = LL - np.arange(LL.shape[1])[None, :] * LL[:, [1]]
+    return q, out_cell, LLc, miss_lik
+
+
 def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.ndarray,
                 cells: np.ndarray, returns: np.ndarray, grid: Grid,
                 sensor: RayleighGridSensor, epsilon: float = 1e-3,
                 max_combinations: int = 512, interaction_threshold: float = 1e-3,
-                range_sigmas: float = 6.0) -> GridUpdateResult:
-    """Update particles ``w (K,)``, ``m (K, 4)``, ``P (K, 4, 4)`` with the looks of one step.
+                range_sigmas: float = 6.0, aggregate_misses: bool = False,
+                coalescence: bool = True, owner: np.ndarray | None = None,
+                alpha: np.ndarray | None = None, split_share: float = 0.0
+                ) -> GridUpdateResult:
+    """Update tracks ``w (T,)`` with Gaussian rows ``m (R, 4)``, ``P (R, 4, 4)`` by the looks
+    of one step.
 
-    ``uniform_cell (K,)`` int: ``-1`` for a Gaussian particle, else the (looked) cell on
-    which the particle is uniform. ``cells (L,)``, ``returns (L,)``: the looks. A Gaussian
-    particle is paired with the looked cells within ``range_sigmas`` marginal standard
-    deviations of its mean (mass beyond is below 1e-8 at 6). Equations in the module
-    docstring.
+    ``owner (R,)``: the track of each row, ``alpha (R,)`` its mixture weight within the track
+    (default: one row per track, weight 1). ``uniform_cell (R,)`` int: ``-1`` for a Gaussian
+    row, else the (looked) cell on which the row is uniform (such a row is alone in its
+    track). ``cells (L,)``, ``returns (L,)``: the looks. A Gaussian row is paired with the
+    looked cells within ``range_sigmas`` marginal standard deviations of its mean (mass
+    beyond is below 1e-8 at 6); a track's mass in a cell is ``sum_r alpha_r m_rc``.
+    Equations in the module docstring; ``aggregate_misses``: the "missed cells" option;
+    ``coalescence=False``: clusters drop all but the most probable of the combinations that
+    swap detections between members (:func:`avoid_coalescence`); ``split_share > 0``: each
+    row's part in a detected cell whose posterior share of its track is at least
+    ``split_share`` becomes a component of its own (the Gaussian truncated to the cell),
+    the rest of the row stays one moment-matched component.
     """
-    K = len(w)
+    T = len(w)
+    R = len(m)
     w = np.clip(np.asarray(w, dtype=float), 0.0, 1.0)
-    if K == 0 or len(cells) == 0:
-        return GridUpdateResult(w.copy(), m.copy(), P.copy(), 0.0, 0, 0)
+    own = np.arange(R) if owner is None else np.asarray(owner, dtype=np.int64)
+    alp = np.ones(R) if alpha is None else np.asarray(alpha, dtype=float)
+    if T == 0 or len(cells) == 0:
+        return GridUpdateResult(w.copy(), m.copy(), P.copy(), 0.0, 0, 0, alp.copy(),
+                                own.copy())
+    K = T
     s = grid.cell_size
     U = np.unique(cells)
     n_u = len(U)
     ux, uy = U % grid.nx, U // grid.nx
-    gauss = uniform_cell < 0
+    gauss_row = uniform_cell < 0
+    gauss = np.ones(T, dtype=bool)
+    gauss[own[~gauss_row]] = False
 
-    # ---- (particle, looked cell) pairs
+    # ---- (row, looked cell) pairs
     sx = np.sqrt(np.maximum(P[:, 0, 0], 0.0))
     sy = np.sqrt(np.maximum(P[:, 2, 2], 0.0))
     ix_lo = np.floor((m[:, 0] - range_sigmas * sx) / s)
@@ -301,27 +424,27 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     iy_lo = np.floor((m[:, 2] - range_sigmas * sy) / s)
     iy_hi = np.floor((m[:, 2] + range_sigmas * sy) / s)
     near = ((ux[None] >= ix_lo[:, None]) & (ux[None] <= ix_hi[:, None])
-            & (uy[None] >= iy_lo[:, None]) & (uy[None] <= iy_hi[:, None]) & gauss[:, None])
-    pi_g, pu_g = np.nonzero(near)
+            & (uy[None] >= iy_lo[:, None]) & (uy[None] <= iy_hi[:, None])
+            & gauss_row[:, None])
+    ri_g, pu_g = np.nonzero(near)
     x0, x1, y0, y1 = grid.cell_bounds(U[pu_g])
     mass_g, M1_g, M2_g = rect_state_moments(m, P, x0.astype(float), x1.astype(float),
-                                            y0.astype(float), y1.astype(float), owner=pi_g)
+                                            y0.astype(float), y1.astype(float), owner=ri_g)
     keep = mass_g > 1e-12
-    pi_g, pu_g, mass_g, M1_g, M2_g = pi_g[keep], pu_g[keep], mass_g[keep], M1_g[keep], M2_g[keep]
-    # uniform particles: one pair, mass 1 (their moments are never used)
-    pi_u = np.nonzero(~gauss)[0]
-    pu_u = np.searchsorted(U, uniform_cell[pi_u])
-    if np.any(U[np.minimum(pu_u, n_u - 1)] != uniform_cell[pi_u]):
+    ri_g, pu_g, mass_g, M1_g, M2_g = ri_g[keep], pu_g[keep], mass_g[keep], M1_g[keep], M2_g[keep]
+    # uniform rows: one pair, mass 1 (their moments are never used)
+    ri_u = np.nonzero(~gauss_row)[0]
+    pu_u = np.searchsorted(U, uniform_cell[ri_u])
+    if np.any(U[np.minimum(pu_u, n_u - 1)] != uniform_cell[ri_u]):
         raise ValueError("a uniform particle must sit in a looked cell")
-    pi = np.concatenate([pi_g, pi_u])
-    pu = np.concatenate([pu_g, pu_u])
-    mass = np.concatenate([mass_g, np.ones(len(pi_u))])
-    order = np.lexsort((pu, pi))
-    pi, pu, mass = pi[order], pu[order], mass[order]
-    n_g = len(pi_g)
-    is_g_pair = order < n_g
-    # index of each sorted pair into the Gaussian-pair moment arrays
-    g_index = np.where(is_g_pair, order, 0)
+    # ---- (track, looked cell) pairs: the track's mass sum_r alpha_r m_rc
+    row_pi = np.concatenate([own[ri_g], own[ri_u]])
+    row_pu = np.concatenate([pu_g, pu_u])
+    row_mass = np.concatenate([alp[ri_g] * mass_g, np.ones(len(ri_u))])
+    key, pair_of = np.unique(row_pi * n_u + row_pu, return_inverse=True)
+    pair_of = pair_of.reshape(-1)
+    pi, pu = key // n_u, key % n_u  # sorted by track, then cell
+    mass = np.bincount(pair_of, weights=row_mass, minlength=len(key))
     mass_in = np.bincount(pi, weights=mass, minlength=K)
     mass_out = np.clip(1.0 - mass_in, 0.0, 1.0)
     mass_out[~gauss] = 0.0
@@ -333,6 +456,8 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     hit = np.zeros(n_u, dtype=bool)
     hit[np.searchsorted(U, cells[returns])] = True
     signif = (occ > interaction_threshold) | (~gauss[pi] & hit[pu])
+    if aggregate_misses:  # members interact only through cells that returned a detection
+        signif &= hit[pu]
     n_sig = np.bincount(pu[signif], minlength=n_u)
     link = signif & (n_sig[pu] >= 2)
     plabel = _components(pi[link], pu[link], K)
@@ -383,7 +508,13 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
         option_probs[rows, cols] = wm[rows] * mass[pidx]
         option_cell = np.full((M, n_opt), -1)
         option_cell[rows, cols] = pu[pidx]
+        LLc = LL
+        if aggregate_misses:
+            option_probs, option_cell, LLc, miss_lik = _aggregate_misses(
+                option_probs, option_cell, rows, cols, LL, hit)
         n_pos = np.maximum((option_probs > 0.0).sum(axis=1), 1)
+        n_opt = option_probs.shape[1]
+        detected = None if coalescence else hit
         # clusters with few joint choices (at most the cap) are listed in full, all at once
         log_size = np.bincount(cl, weights=np.log(n_pos))
         small = log_size <= math.log(min(max_combinations, _FULL_LISTING)) + 1e-9
@@ -391,42 +522,93 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
         cstart = np.cumsum(csize) - csize
         for c in np.nonzero(~small)[0]:
             sl = slice(cstart[c], cstart[c] + csize[c])
-            post[sl], d = _cluster_posterior(option_probs[sl], option_cell[sl], LL, epsilon,
-                                             max_combinations)
+            post[sl], d = _cluster_posterior(option_probs[sl], option_cell[sl], LLc, epsilon,
+                                             max_combinations, detected)
             dropped += d
         sm = np.nonzero(small[cl])[0]
         if len(sm):
             post[sm], d = _small_clusters_posterior(option_probs[sm], option_cell[sm], cl[sm],
-                                                    n_pos[sm], LL, epsilon)
+                                                    n_pos[sm], LLc, epsilon, detected)
             dropped += d
         present = 1.0 - post[:, 0]
         w_new[mem] = present
         ok = present > 0.0
+        # the prior mass of each option's bin, given existence
+        bin_mass = np.zeros(post.shape)
+        bin_mass[:, 1] = mass_out[mem]
+        bin_mass[rows, cols] = mass[pidx]
         with np.errstate(divide="ignore", invalid="ignore"):
-            g = np.where(option_probs > 0.0,
-                         post / present[:, None] / (option_probs / wm[:, None]), 0.0)
+            g = np.where(bin_mass > 0.0, post / present[:, None] / bin_mass, 0.0)
+            if aggregate_misses:
+                # inside the missed bin the posterior over its cells is m_c l_c(1) / sum
+                missed = ~hit[pu[pidx]]
+                gm = post[rows, -1] / present[rows] * np.exp(LL[pu[pidx], 1]) / miss_lik[rows]
+                g[rows[missed], cols[missed]] = gm[missed]
         g[~ok] = 0.0
         g_out[mem] = np.where(ok, g[:, 1], g_out[mem])
         g_pair[pidx] = np.where(ok[rows], g[rows, cols], g_pair[pidx])
 
-    # ---- moment match the Gaussian particles: density prior * g, g piecewise constant
+    # ---- moment match each Gaussian row: density prior * g, g piecewise constant (its
+    # track's g per cell); row r's posterior mass within its track is alpha_r Z_r
+    n_gp = len(ri_g)
+    gi = pair_of[:n_gp]  # the track pair of each Gaussian row pair
+    live = w_new[own[ri_g]] > 0.0
+    g_rp = np.where(live, g_pair[gi], 0.0)
+    go_r = g_out[own]
+    Z = go_r.copy()
+    coef = g_rp - go_r[ri_g]  # (g_c - g_out) per row pair
+    np.add.at(Z, ri_g, coef * mass_g)
+    d = np.zeros((R, 4))
+    np.add.at(d, ri_g, coef[:, None] * M1_g)
+    S2 = go_r[:, None, None] * P
+    np.add.at(S2, ri_g, coef[:, None, None] * M2_g)
+    new_alpha = alp * np.where(gauss_row, Z, 1.0)
+    split = np.zeros(n_gp, dtype=bool)
+    if split_share > 0.0:
+        # a detected cell's part of a row, if heavy enough, leaves as its own component
+        tot = np.bincount(own, weights=new_alpha, minlength=T)
+        share = alp[ri_g] * g_rp * mass_g / np.maximum(tot[own[ri_g]], 1e-300)
+        split = hit[pu_g] & (share >= split_share) & live
+        # ... unless it is (nearly) all of the row: then the row is that component anyway
+        split &= alp[ri_g] * g_rp * mass_g < (1.0 - split_share) * new_alpha[ri_g]
+        if np.any(split):
+            Z_full = Z.copy()
+            c = g_rp[split]
+            np.subtract.at(Z, ri_g[split], c * mass_g[split])
+            np.subtract.at(d, ri_g[split], c[:, None] * M1_g[split])
+            np.subtract.at(S2, ri_g[split], c[:, None, None] * M2_g[split])
+            new_alpha = alp * np.where(gauss_row, Z, 1.0)
     means, covs = m.copy(), P.copy()
-    gp = is_g_pair & (w_new[pi] > 0.0)
-    coef = g_pair[gp] - g_out[pi[gp]]  # (g_c - g_out) per pair
-    Z = g_out.copy()
-    np.add.at(Z, pi[gp], coef * mass[gp])
-    d = np.zeros((K, 4))
-    np.add.at(d, pi[gp], coef[:, None] * M1_g[g_index[gp]])
-    S2 = g_out[:, None, None] * P
-    np.add.at(S2, pi[gp], coef[:, None, None] * M2_g[g_index[gp]])
-    upd = gauss & (w_new > 0.0) & (Z > 0.0)
+    upd = gauss_row & (w_new[own] > 0.0) & (Z > 0.0)
     Zs = Z[upd]
     dd = d[upd] / Zs[:, None]
     means[upd] = m[upd] + dd
     cv = S2[upd] / Zs[:, None, None] - dd[:, :, None] * dd[:, None, :]
     covs[upd] = 0.5 * (cv + np.swapaxes(cv, -1, -2))
+    out_own = own
+    if np.any(split):
+        # a split row's remainder is dropped when negligible or its moments degenerate
+        was_split = np.zeros(R, dtype=bool)
+        was_split[ri_g[split]] = True
+        sane = (covs[:, 0, 0] > 0.0) & (covs[:, 2, 2] > 0.0)
+        rest_ok = ~was_split | (upd & (Z > 1e-6 * Z_full) & sane)
+        sm = mass_g[split]
+        sd = M1_g[split] / sm[:, None]
+        sc = M2_g[split] / sm[:, None, None] - sd[:, :, None] * sd[:, None, :]
+        srow = ri_g[split]
+        means = np.concatenate([means[rest_ok], m[srow] + sd])
+        covs = np.concatenate([covs[rest_ok], 0.5 * (sc + np.swapaxes(sc, -1, -2))])
+        new_alpha = np.concatenate([new_alpha[rest_ok], alp[srow] * g_rp[split] * sm])
+        out_own = np.concatenate([own[rest_ok], own[srow]])
+    # renormalise the mixture weights within each track (a track with no posterior mass
+    # keeps its prior weights)
+    tot = np.bincount(out_own, weights=new_alpha, minlength=T)
+    prior_alpha = (np.concatenate([alp[rest_ok], alp[ri_g[split]] * 0.0])
+                   if np.any(split) else alp)
+    good = tot[out_own] > 0.0
+    new_alpha = np.where(good, new_alpha / np.where(good, tot[out_own], 1.0), prior_alpha)
     return GridUpdateResult(np.clip(w_new, 0.0, 1.0), means, covs, dropped, n_clusters,
-                            max_cluster)
+                            max_cluster, new_alpha, out_own)
 
 
 # ------------------------------------------------- Gaussians known to exist (reference)

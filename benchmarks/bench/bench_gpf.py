@@ -79,6 +79,10 @@ def _separated_world(n_targets: int):
     means = np.zeros((n_targets, 4))
     means[:, 0], means[:, 2] = ix + 0.5, iy + 0.5
     means[:, 1], means[:, 3] = 0.05, -0.05
+    # the model's count is these targets' (the GPF bounds its count by a fixed-count model's)
+    bd = dataclasses.replace(model.birth_death, initial_states=tuple(map(tuple, means)),
+                             n_random_initial=0)
+    model = dataclasses.replace(model, birth_death=bd)
     covs = np.repeat(np.diag([0.09, 0.0025, 0.09, 0.0025])[None], n_targets, axis=0)
     offsets = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
     cells = ((iy[:, None] + offsets[None, :, 1]) * grid.nx
