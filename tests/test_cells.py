@@ -101,3 +101,25 @@ def test_gaussian_cell_mass_degenerate_and_outside() -> None:
     want = (stats.norm(3, 2).cdf(6) - stats.norm(3, 2).cdf(0)) * (
         stats.norm(2, 1).cdf(4) - stats.norm(2, 1).cdf(0))
     assert wide.sum() == pytest.approx(want, rel=1e-12)
+
+
+def test_cell_counts_rows_dense_and_default_cells_agree_with_brute_force():
+    """CellCounts: row_of and default_cell against the dense array built cell by cell."""
+    from mttbench.trackers.cells import CellCounts
+
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        n_cells = int(rng.integers(1, 40))
+        m = int(rng.integers(0, n_cells + 1))
+        cells = np.sort(rng.choice(n_cells, m, replace=False))
+        rows = rng.dirichlet(np.ones(4), m).reshape(m, 4)
+        default = rng.dirichlet(np.ones(4))
+        cc = CellCounts(n_cells, cells, rows, default)
+        dense = np.array([rows[list(cells).index(c)] if c in cells else default
+                          for c in range(n_cells)])
+        np.testing.assert_array_equal(cc.dense(), dense)
+        np.testing.assert_array_equal(cc.row_of(np.arange(n_cells)), dense)
+        free = [c for c in range(n_cells) if c not in cells]
+        np.testing.assert_array_equal(cc.default_cell(np.arange(len(free))), free)
+    with pytest.raises(ValueError, match="sorted, unique"):
+        CellCounts(5, [3, 1], np.eye(2), np.eye(2)[0])

@@ -129,3 +129,74 @@ def look_log_ratios(sensor: RayleighGridSensor, cells: np.ndarray, returns: np.n
     LL = np.zeros((len(U), t_max + 1))
     np.add.at(LL, inv, per_look)
     return U, LL
+
+
+class CellCounts:
+    """``P_c(t)`` for every cell of a grid, stored in ``O(cells with their own row)``.
+
+    ``cells (m,)`` sorted, unique flat cell indices with rows ``rows (m, n_counts)``; every
+    other cell has the row ``default (n_counts,)`` (for example the undetected-target field
+    where no track has mass). Each row is a distribution over counts ``0..n_counts-1`` (the
+    last column "that many or more"). ``dense()`` builds the ``(n_cells, n_counts)`` array
+    (``O(cells)``: small grids, tests). A tracker's ``cell_count_distribution`` may return
+    this or the dense array (:func:`as_cell_counts` turns either into this).
+    """
+
+    __slots__ = ("n_cells", "cells", "rows", "default")
+
+    def __init__(self, n_cells: int, cells: np.ndarray, rows: np.ndarray,
+                 default: np.ndarray) -> None:
+        cells = np.asarray(cells, dtype=np.int64).reshape(-1)
+        rows = np.asarray(rows, dtype=float)
+        default = np.asarray(default, dtype=float).reshape(-1)
+        if rows.ndim != 2 or rows.shape != (len(cells), len(default)) or len(default) < 2:
+            raise ValueError(f"CellCounts: rows {rows.shape} must be (len(cells) = "
+                             f"{len(cells)}, n_counts = {len(default)} >= 2)")
+        if len(cells) and (np.any(np.diff(cells) <= 0) or cells[0] < 0
+                           or cells[-1] >= n_cells):
+            raise ValueError(f"CellCounts: cells must be sorted, unique and in [0, {n_cells})")
+        self.n_cells, self.cells, self.rows, self.default = int(n_cells), cells, rows, default
+
+    @property
+    def n_counts(self) -> int:
+        return len(self.default)
+
+    @property
+    def n_default(self) -> int:
+        """How many cells have the default row."""
+        return self.n_cells - len(self.cells)
+
+    def row_of(self, cells: np.ndarray) -> np.ndarray:
+        """The rows of the given flat cells, ``(len(cells), n_counts)``."""
+        cells = np.asarray(cells, dtype=np.int64).reshape(-1)
+        i = np.searchsorted(self.cells, cells)
+        own = i < len(self.cells)
+        own[own] = self.cells[i[own]] == cells[own]
+        out = np.repeat(self.default[None], len(cells), axis=0)
+        out[own] = self.rows[i[own]]
+        return out
+
+    def default_cell(self, k: np.ndarray) -> np.ndarray:
+        """The ``k``-th cells (0-based, ascending) among those with the default row:
+        ``k + (number of own cells at or below the answer)``, by a search over ``cells``."""
+        k = np.asarray(k, dtype=np.int64)
+        # own cells below position j: cells[j] - j cells with the default row come before it
+        gaps = self.cells - np.arange(len(self.cells))
+        return k + np.searchsorted(gaps, k, side="right")
+
+    def dense(self) -> np.ndarray:
+        """``(n_cells, n_counts)``: every cell's row (``O(cells)``)."""
+        out = np.repeat(self.default[None], self.n_cells, axis=0)
+        out[self.cells] = self.rows
+        return out
+
+    @staticmethod
+    def from_dense(P: np.ndarray) -> CellCounts:
+        """Every cell its own row (``default`` the first row, unused)."""
+        P = np.asarray(P, dtype=float)
+        return CellCounts(len(P), np.arange(len(P)), P, P[0] if len(P) else np.eye(2)[0])
+
+
+def as_cell_counts(P: CellCounts | np.ndarray) -> CellCounts:
+    """A tracker's ``cell_count_distribution()`` output as :class:`CellCounts`."""
+    return P if isinstance(P, CellCounts) else CellCounts.from_dense(P)
