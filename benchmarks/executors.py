@@ -123,6 +123,15 @@ def _run_and_save(i: int, job: Job, part: Path, c: float, p: float) -> int:
     return i
 
 
+def _drain(started: Any) -> set[int]:
+    """What the workers put on ``started`` (a ``SimpleQueue``), which is then closed."""
+    out = set()
+    while not started.empty():
+        out.add(started.get())
+    started.close()
+    return out
+
+
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
     """Drop the queued runs and end the running ones now (an interrupt or a write error)."""
     # the worker processes, read before shutdown() forgets them (a private attribute of
@@ -187,16 +196,15 @@ class LocalExecutor(Executor):
                 # Ctrl-C, a write error or the caller closing: drop the queued runs and end
                 # the running ones instead of waiting for them
                 _stop_pool(pool)
+                started.close()
                 raise
             pool.shutdown()
+            held = _drain(started)  # the runs this pool started
             if not lost:
                 clear, suspects = ([], []) if alone else ([], suspects)
                 continue
             # the runs the pool was running when it broke: started and not finished (a
             # worker that died before saying so: the first lost run, in submission order)
-            held: set[int] = set()
-            while not started.empty():
-                held.add(started.get())
             held = (held - finished) & set(lost) or {min(lost, key=batch.index)}
             again = []
             for i in sorted(lost):
@@ -223,16 +231,26 @@ def import_distributed() -> Any:
     return distributed
 
 
+#: the installed packages whose files :func:`source_digest` reads, with their patterns
+SOURCE_PACKAGES = {
+    "mttbench": "*.py", "mttbench.trackers": "*.py", "mttbench.trackers.jmpd": "*.py",
+    "mttbench.scenarios": "*.py", "mttbench.scenarios.presets": "*.toml",
+    "mttbench.benchmarks": "*.py",
+}
+
+
 def source_digest() -> str:
-    """SHA-256 over the installed mttbench's sources (a Dask worker must run the same)."""
+    """SHA-256 over the installed mttbench's version and sources (a Dask worker must run
+    the same); the same for a checkout and a plain install of it."""
+    import importlib
+
     import mttbench
-    from mttbench import benchmarks, scenarios, trackers
 
     h = hashlib.sha256(mttbench.__version__.encode())
-    for package in (mttbench, trackers, scenarios, benchmarks):
-        folder = Path(package.__file__).parent
-        for path in sorted([*folder.rglob("*.py"), *folder.rglob("*.toml")]):
-            h.update(f"{package.__name__}/{path.relative_to(folder).as_posix()}".encode())
+    for name, pattern in SOURCE_PACKAGES.items():
+        package = importlib.import_module(name)
+        for path in sorted(Path(next(iter(package.__path__))).glob(pattern)):
+            h.update(f"{name}/{path.name}".encode())
             h.update(path.read_bytes())
     return h.hexdigest()[:16]
 
@@ -291,6 +309,7 @@ class DaskExecutor(Executor):
         self.connect_timeout = connect_timeout
         self._client = client
         self._own_client = client is None
+        self._checked = False
         self._cluster: Any = None
 
     def describe(self, n_runs: int | None = None) -> str:
@@ -305,6 +324,9 @@ class DaskExecutor(Executor):
         """The ``distributed.Client`` (connecting, or starting the LocalCluster, once)."""
         if self._client is None:
             self._client = self._start()
+        elif not self._checked:  # the caller's client
+            self._check_workers(self._client)
+            self._checked = True
         return self._client
 
     def _start(self) -> Any:
@@ -327,6 +349,7 @@ class DaskExecutor(Executor):
                     scheduler_kwargs={"allowed_failures": self.retries,
                                       "dashboard_address": "127.0.0.1:0"},
                     preload=[__name__])
+            self._checked = True  # workers of this installation
             return distributed.Client(self._cluster, set_as_default=False)
         try:
             timeout = {} if self.connect_timeout is None else {"timeout": self.connect_timeout}
@@ -339,6 +362,7 @@ class DaskExecutor(Executor):
         except BaseException:
             client.close()
             raise
+        self._checked = True
         return client
 
     def _check_workers(self, client: Any) -> None:
@@ -346,7 +370,7 @@ class DaskExecutor(Executor):
         try:
             theirs = client.run(_worker_identity)
         except Exception as exc:  # noqa: BLE001 - e.g. ModuleNotFoundError on a worker
-            raise UsageError(f"the Dask workers at {self.scheduler} cannot run mttbench "
+            raise UsageError(f"the workers of {self.describe()} cannot run mttbench "
                              f"({type(exc).__name__}: {_one_line(exc)}): install mttbench "
                              f"{mine[0]} on every worker") from None
         for worker, ident in sorted(theirs.items()):

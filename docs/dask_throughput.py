@@ -75,7 +75,16 @@ def main() -> int:
     print(f"throughput ratio, 2 workers / 1 worker: {ratio:.2f}x")
     print(f"load average after {os.getloadavg()}")
     ref = tables["dask 1"].drop(columns=TIMING)
-    same = all(ref.equals(t.drop(columns=TIMING)) for t in tables.values())
+    same = True
+    for name, table in tables.items():
+        other = table.drop(columns=TIMING)
+        if not ref.equals(other):
+            same = False
+            cols = [c for c in ref.columns if not ref[c].equals(other[c])]
+            rows = (ref[cols] != other[cols]).any(axis=1)
+            first = ref.loc[rows, ["seed", "step"]].head(1).to_dict("records")
+            print(f"  {name} differs from dask 1 in {cols} on {int(rows.sum())} rows, "
+                  f"first {first}")
     print("identical results (timing and memory columns aside): " + ("yes" if same else "NO"))
     return 0 if same else 1
 

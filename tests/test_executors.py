@@ -280,12 +280,24 @@ def test_run_on_an_existing_scheduler(dask_two, tmp_path, capsys):
         strip(pd.read_parquet(tmp_path / "local" / "results.parquet")))
 
 
-def test_workers_with_other_sources_are_refused(dask_two, monkeypatch):
+@pytest.mark.parametrize("how", ["scheduler", "client"])
+def test_workers_with_other_sources_are_refused(dask_two, monkeypatch, how):
     monkeypatch.setattr(executors, "source_digest", lambda: "0123456789abcdef")
-    executor = DaskExecutor(scheduler=dask_two.client.scheduler.address)
+    executor = (DaskExecutor(scheduler=dask_two.client.scheduler.address) if how == "scheduler"
+                else DaskExecutor(client=dask_two.client))
     with pytest.raises(UsageError, match=r"runs mttbench .* this process .*0123456789abcdef"):
         executor.client  # noqa: B018 - connecting checks the workers
     executor.close()
+    assert dask_two.client.status == "running"  # a caller's client is the caller's to close
+
+
+def test_a_callers_client_runs_the_sweep(dask_two, tmp_path):
+    jobs = build_jobs([short("crossing", 6)], [TrackerSpec("kfnn")], None, None, [0, 1, 2])
+    with DaskExecutor(client=dask_two.client) as executor:
+        assert executor.describe() == f"the Dask cluster at {dask_two.client.scheduler.address}"
+        on_dask = run_sweep(jobs, tmp_path / "dask", executor=executor, progress=False)
+    assert dask_two.client.status == "running"
+    pd.testing.assert_frame_equal(strip(on_dask), strip(reference(jobs, tmp_path / "local")))
 
 
 def test_an_unreachable_scheduler_is_one_line():
