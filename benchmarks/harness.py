@@ -102,6 +102,7 @@ from ..scenarios.model import Looks, RayleighGridSensor
 from ..scenarios.simulator import simulate, tracker_seed
 from ..scenarios.spec import Scenario, dumps
 from ..trackers.base import Estimate, Tracker
+from ..trackers.cells import CellCounts
 from .metrics import step_metrics
 from .policies import Policy, Raster
 from .specs import PolicySpec, TrackerSpec, UsageError
@@ -239,8 +240,9 @@ class StepRecord:
 
     ``truth (n, 4)`` true states and ``truth_ids (n,)`` their ids; ``looks`` the
     looks made (cells and returns, or the superposition measurement); ``estimate``
-    the tracker's output; ``counts`` the predicted ``P_c(t)`` ``(n_cells, n_counts)``
-    if the policy asked for it, else None. Times in seconds: the tracker's
+    the tracker's output; ``counts`` the predicted ``P_c(t)`` as the tracker returned it
+    (the dense ``(n_cells, n_counts)`` array or a :class:`~mttbench.trackers.cells.
+    CellCounts`) if the policy asked for it, else None. Times in seconds: the tracker's
     predict + update + estimate, and the cell selection (including ``counts``).
     """
 
@@ -249,7 +251,7 @@ class StepRecord:
     truth_ids: np.ndarray
     looks: Looks
     estimate: Estimate
-    counts: np.ndarray | None
+    counts: np.ndarray | CellCounts | None
     tracker_wall_s: float
     tracker_cpu_s: float
     select_wall_s: float
@@ -346,6 +348,7 @@ def play(scenario: Scenario, tracker: Tracker, seed: int, *, policy: Policy | No
         tracker.observe_truth(states, ids)    # untimed, only if tracker.uses_truth
         P = tracker.cell_count_distribution()              # timed (selection), if asked
         cells = policy.select(k, counts=P, truth_cells=...)   # timed (selection)
+        # P as the tracker returns it: a dense array or a CellCounts (never converted)
         looks = world.look(k, cells)       # world.measure(k) on the superposition sensor
         tracker.update(looks); est = tracker.estimate()    # timed (tracker)
 

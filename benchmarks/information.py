@@ -34,8 +34,12 @@ only has to provide ``P_c(t)``.
 
 from __future__ import annotations
 
+import heapq
+
 import numpy as np
 from scipy.stats import binom
+
+from ..trackers.cells import CellCounts
 
 
 def expected_gain(counts: np.ndarray, likelihood: np.ndarray, alpha: float = 0.5) -> np.ndarray:
@@ -109,12 +113,23 @@ def gain_of_looks(counts: np.ndarray, p_detect: np.ndarray, n_looks: int,
 
 #: looks per cell whose gains :func:`greedy_looks` computes for all cells at once
 _PRECOMPUTED_LOOKS = 3
+#: grids of at most this many cells: :func:`greedy_looks` turns a :class:`CellCounts`
+#: into the dense array and chooses exactly as it does from that array
+DENSE_CELLS = 10_000
 
 
-def greedy_looks(counts: np.ndarray, p_detect: np.ndarray, n_looks: int, alpha: float = 0.5,
-                 repeats: bool = True, rng: np.random.Generator | None = None,
-                 tables: dict[int, np.ndarray] | None = None) -> np.ndarray:
+def greedy_looks(counts: np.ndarray | CellCounts, p_detect: np.ndarray, n_looks: int,
+                 alpha: float = 0.5, repeats: bool = True,
+                 rng: np.random.Generator | None = None,
+                 tables: dict[int, np.ndarray] | None = None,
+                 dense_cells: int = DENSE_CELLS) -> np.ndarray:
     """Choose ``n_looks`` looks by expected gain; returns flat cells ``(L,)`` int64.
+
+    ``counts`` is the dense ``(n_cells, n_counts)`` array or a :class:`CellCounts`. A
+    :class:`CellCounts` on a grid of more than ``dense_cells`` cells takes
+    :func:`greedy_looks_sparse` (nothing per cell of the grid, the same rule with other
+    random tie-breaks); on a smaller grid it is made dense first, so the choice is the
+    one described here, bit for bit.
 
     ``repeats=False``: the ``min(n_looks, n_cells)`` distinct cells of largest ``G_c(1)``.
 
@@ -132,6 +147,11 @@ def greedy_looks(counts: np.ndarray, p_detect: np.ndarray, n_looks: int, alpha: 
     same ``p_detect``.
     """
     tables = {} if tables is None else tables
+    if isinstance(counts, CellCounts):
+        if counts.n_cells > dense_cells:
+            return greedy_looks_sparse(counts, p_detect, n_looks, alpha, repeats, rng, tables)
+        counts = counts.dense()
+    pd = np.asarray(p_detect, dtype=float)
 
     def table(n: int) -> np.ndarray:
         if n not in tables:
@@ -139,7 +159,6 @@ def greedy_looks(counts: np.ndarray, p_detect: np.ndarray, n_looks: int, alpha: 
         return tables[n]
 
     P = np.asarray(counts, dtype=float)
-    pd = np.asarray(p_detect, dtype=float)
     n_cells = P.shape[0]
     perm = rng.permutation(n_cells) if rng is not None else np.arange(n_cells)
     P = P[perm]  # work in a shuffled order: the first maximum is then a random one
@@ -172,3 +191,150 @@ def greedy_looks(counts: np.ndarray, p_detect: np.ndarray, n_looks: int, alpha: 
                else expected_gain(P[c:c + 1], table(n + 1), alpha)[0])
         marginal[c] = nxt - gain_now[c]
     return np.sort(perm[chosen]).astype(np.int64)
+
+
+def greedy_looks_sparse(counts: CellCounts, p_detect: np.ndarray, n_looks: int,
+                        alpha: float = 0.5, repeats: bool = True,
+                        rng: np.random.Generator | None = None,
+                        tables: dict[int, np.ndarray] | None = None) -> np.ndarray:
+    """:func:`greedy_looks` on a :class:`CellCounts` without touching every cell.
+
+    The gains are computed once per distinct row: each own row and the one default row
+    (``O(own cells)``); cells with the default row are drawn with
+    :meth:`CellCounts.default_cell`, never listed. The rule is :func:`greedy_looks`'s;
+    only the random tie-breaks are drawn differently (the dense path permutes all cells):
+
+    * ``repeats=False``: the own cells of gain above the default row's by gain (ties among
+      them in a random order), then, if looks remain, cells drawn uniformly without
+      replacement from those tied with the default row (the default cells and the own
+      cells of exactly the default gain), then the own cells below it by gain.
+    * ``repeats=True``: greedy by marginal gain with a heap; every cell has a random key,
+      i.i.d. uniform (the own cells' drawn up front, the default cells' drawn as the
+      successive minima of the keys of the default cells not yet chosen), and exact ties
+      go to the fewest looks, then the smallest key, as a random permutation would.
+      Only the ``n_looks`` own cells first in (gain, key) order can be chosen, so the
+      heap holds at most ``n_looks + 1`` entries.
+
+    ``rng`` None: deterministic tie-breaks (by cell index). Cost ``O(own cells * n_counts
+    + n_looks log n_looks)`` plus the binomial tables.
+    """
+    tables = {} if tables is None else tables
+    pd = np.asarray(p_detect, dtype=float)
+
+    def table(n: int) -> np.ndarray:
+        if n not in tables:
+            tables[n] = binomial_likelihood(pd, n)
+        return tables[n]
+
+    m = len(counts.cells)
+    L = int(n_looks)
+    rows = np.vstack([counts.rows, counts.default[None]])  # the distinct rows: own + default
+    first = expected_gain(rows, table(1), alpha)
+    own_gain, g_def = first[:m], float(first[m])
+    if not repeats:
+        return _top_cells(counts, own_gain, g_def, min(L, counts.n_cells), rng)
+    # candidate own cells: the first L in (gain descending, key ascending) order
+    key = rng.random(m) if rng is not None else counts.cells / max(counts.n_cells, 1)
+    cand = np.lexsort((key, -own_gain))[:L]
+    n_pre = min(L, _PRECOMPUTED_LOOKS) + 1
+    curve_rows = np.vstack([counts.rows[cand], counts.default[None]])
+    curve = np.zeros((len(cand) + 1, n_pre + 1))
+    curve[:-1, 1], curve[-1, 1] = own_gain[cand], g_def
+    for n in range(2, n_pre + 1):
+        curve[:, n] = expected_gain(curve_rows, table(n), alpha)
+    later: dict[tuple[int, int], float] = {}  # G(n) beyond n_pre, by (candidate, n)
+
+    def gain(i: int, n: int) -> float:
+        """``G(n)`` of candidate ``i`` (``i = len(cand)``: the default row, shared)."""
+        if n <= n_pre:
+            return float(curve[i, n])
+        if (i, n) not in later:
+            later[i, n] = float(expected_gain(curve_rows[i:i + 1], table(n), alpha)[0])
+        return later[i, n]
+
+    # heap entries: (-marginal, looks given, key, candidate, cell); default cells that have
+    # been chosen are candidates of their own (row index len(cand))
+    heap = [(-curve[i, 1], 0, float(key[c]), i, int(counts.cells[c]))
+            for i, c in enumerate(cand)]
+    fresh = _DefaultPool(counts, rng)
+    if fresh.left:
+        heap.append((-g_def, 0, fresh.key, -1, -1))
+    heapq.heapify(heap)
+    chosen = np.empty(L, dtype=np.int64)
+    for j in range(L):
+        neg, n, k, i, cell = heapq.heappop(heap)
+        if i == -1:  # the next fresh default cell (smallest key among those not chosen)
+            cell, i = fresh.take(), len(cand)
+            if fresh.left:
+                heapq.heappush(heap, (-g_def, 0, fresh.key, -1, -1))
+        chosen[j] = cell
+        n += 1
+        heapq.heappush(heap, (-(gain(i, n + 1) - gain(i, n)), n, k, i, cell))
+    return np.sort(chosen)
+
+
+def _top_cells(counts: CellCounts, own_gain: np.ndarray, g_def: float, L: int,
+               rng: np.random.Generator | None) -> np.ndarray:
+    """The ``L`` distinct cells of largest single-look gain (:func:`greedy_looks_sparse`,
+    ``repeats=False``), sorted."""
+    m = len(own_gain)
+    perm = rng.permutation(m) if rng is not None else np.arange(m)
+    order = perm[np.argsort(-own_gain[perm], kind="stable")]
+    g = own_gain[order]
+    above, tie, below = order[g > g_def], order[g == g_def], order[g < g_def]
+    if len(above) >= L:
+        return np.sort(counts.cells[above[:L]])
+    need = L - len(above)
+    n_tie = len(tie) + counts.n_default
+    if n_tie >= need:
+        pick = (rng.choice(n_tie, size=need, replace=False) if rng is not None
+                else np.arange(need))
+        from_own = pick < len(tie)
+        tied = np.concatenate([counts.cells[tie[pick[from_own]]],
+                               counts.default_cell(pick[~from_own] - len(tie))])
+        rest = np.zeros(0, dtype=np.int64)
+    else:  # fewer tied cells than looks left: all of them (a small grid), then the rest
+        tied = np.concatenate([counts.cells[tie],
+                               counts.default_cell(np.arange(counts.n_default))])
+        rest = counts.cells[below[:need - n_tie]]
+    return np.sort(np.concatenate([counts.cells[above], tied, rest])).astype(np.int64)
+
+
+class _DefaultPool:
+    """The default cells not yet chosen by :func:`greedy_looks_sparse`, with random keys.
+
+    The keys of the ``n`` cells left are i.i.d. uniform; the smallest is drawn as
+    ``x + (1 - x)(1 - V^(1/n))`` above the previous one ``x`` (``V`` uniform), and the
+    cell that holds it is uniform among those left. ``rng`` None: the lowest default
+    cell first, its key its index over the grid's size.
+    """
+
+    def __init__(self, counts: CellCounts, rng: np.random.Generator | None) -> None:
+        self.counts, self.rng = counts, rng
+        self.left = counts.n_default
+        self.taken: list[int] = []  # ranks among the default cells, sorted
+        self.key = 0.0
+        self._draw_key()
+
+    def _draw_key(self) -> None:
+        if not self.left:
+            return
+        if self.rng is None:
+            nxt = self.counts.default_cell(np.array([len(self.taken)]))[0]
+            self.key = float(nxt) / max(self.counts.n_cells, 1)
+        else:
+            v = self.rng.random()
+            self.key = self.key + (1.0 - self.key) * -np.expm1(np.log1p(-v) / self.left)
+
+    def take(self) -> int:
+        """The cell holding the current smallest key; draws the next key."""
+        if self.rng is None:
+            rank = len(self.taken)
+        else:  # the k-th default cell not taken yet, uniformly
+            k = int(self.rng.integers(self.left))
+            taken = np.asarray(self.taken, dtype=np.int64)
+            rank = k + int(np.searchsorted(taken - np.arange(len(taken)), k, side="right"))
+        self.taken.insert(int(np.searchsorted(self.taken, rank)), rank)
+        self.left -= 1
+        self._draw_key()
+        return int(self.counts.default_cell(np.array([rank]))[0])

@@ -4,10 +4,18 @@ One small interface. The harness calls, every step after the tracker's predict::
 
     cells = policy.select(k, counts=P, truth_cells=None)   # (M,) int64, repeats allowed
 
-``counts`` is the tracker's predicted ``P_c(t)`` (``(n_cells, n_counts)``), passed
-only to policies with ``uses_prediction = True`` so other policies never pay for
-it; ``truth_cells`` (flat cells of the true targets) only to policies with
-``uses_truth = True`` (the oracle), which are marked as such in every result.
+``counts`` is the tracker's predicted ``P_c(t)`` as the tracker returns it: the dense
+``(n_cells, n_counts)`` array or a :class:`~mttbench.trackers.cells.CellCounts` (own rows
+plus one default row), passed only to policies with ``uses_prediction = True`` so other
+policies never pay for it; ``truth_cells`` (flat cells of the true targets) only to
+policies with ``uses_truth = True`` (the oracle), which are marked as such in every result.
+
+Cost per step: ``raster``, ``random`` and ``oracle`` ``O(looks)`` (plus the true targets)
+whatever the grid; ``renyi`` ``O(own rows of P_c + looks log looks)`` on a
+:class:`~mttbench.trackers.cells.CellCounts` over more than
+:data:`~mttbench.benchmarks.information.DENSE_CELLS` cells
+(:func:`~mttbench.benchmarks.information.greedy_looks_sparse`), ``O(cells)`` on a dense
+array or a smaller grid; ``all`` looks at every cell, ``O(cells)`` by definition.
 """
 
 from __future__ import annotations
@@ -18,6 +26,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..scenarios.model import RayleighGridSensor, TrackingModel
+from ..trackers.cells import CellCounts
 from ..trackers.params import Configurable, Param
 from ..trackers.registry import Registry
 from .information import greedy_looks
@@ -50,7 +59,7 @@ class Policy(Configurable, ABC):
         self._rng = rng
 
     @abstractmethod
-    def select(self, k: int, counts: np.ndarray | None = None,
+    def select(self, k: int, counts: np.ndarray | CellCounts | None = None,
                truth_cells: np.ndarray | None = None) -> np.ndarray:
         """Flat cell indices ``(n,)`` int64 to look at during step ``k``."""
 
@@ -87,7 +96,11 @@ class AllCells(Policy):
 
 @register_policy
 class RandomCells(Policy):
-    """``M`` distinct cells drawn uniformly each step (the policy's own generator)."""
+    """``M`` distinct cells drawn uniformly each step (the policy's own generator).
+
+    ``Generator.choice(n_cells, M, replace=False)``: Floyd's algorithm, ``O(M)``, when
+    ``M <= n_cells / 50``, a partial shuffle of all cells (``O(cells)``) otherwise, so
+    the cost is ``O(looks)`` on any grid with more than 50 cells per look."""
 
     name = "random"
     summary = "M distinct cells drawn uniformly at random each step"
@@ -130,7 +143,9 @@ class Oracle(Policy):
 
     Each step: the distinct cells of the true targets (``truth_cells``, flat indices;
     ``-1`` = outside the grid, ignored), in random order if there are more than ``M``,
-    then distinct other cells drawn uniformly to fill the ``M`` looks. The harness
+    then distinct other cells drawn uniformly to fill the ``M`` looks (indices drawn
+    among the ``n_cells - T`` other cells and mapped to cells by a search over the
+    sorted true cells: ``O(looks + T)``, never a list of the other cells). The harness
     passes ``truth_cells`` only to policies with ``uses_truth = True`` and marks
     their results; a tracker never sees the truth, only the looks this policy made.
     """
@@ -148,8 +163,9 @@ class Oracle(Policy):
         truth = truth[(truth >= 0) & (truth < self._n_cells)]
         if truth.size >= m:
             return np.sort(self._rng.choice(truth, size=m, replace=False)).astype(np.int64)
-        others = np.setdiff1d(np.arange(self._n_cells), truth, assume_unique=True)
-        fill = self._rng.choice(others, size=m - truth.size, replace=False)
+        # the i-th cell not holding a target: i plus the true cells at or below it
+        i = self._rng.choice(self._n_cells - truth.size, size=m - truth.size, replace=False)
+        fill = i + np.searchsorted(truth - np.arange(truth.size), i, side="right")
         return np.sort(np.concatenate([truth, fill])).astype(np.int64)
 
 
@@ -165,6 +181,13 @@ class RenyiGain(Policy):
     Top-M distinct cells by default: greedy with repeats piles the looks onto the few
     cells around known targets and starves the search for new ones (measured on
     ``crossing``: docs/policies.md).
+
+    Given a :class:`~mttbench.trackers.cells.CellCounts` on a grid of more than
+    :data:`~mttbench.benchmarks.information.DENSE_CELLS` cells, the gains are computed
+    once per own row and once for the default row, and default cells are drawn without
+    being listed (:func:`~mttbench.benchmarks.information.greedy_looks_sparse`): the
+    same rule, other random tie-breaks. A dense array, or a smaller grid, chooses
+    exactly as before (the dense path).
     """
 
     name = "renyi"
@@ -190,7 +213,7 @@ class RenyiGain(Policy):
     def select(self, k, counts=None, truth_cells=None):
         if counts is None:
             raise ValueError("the renyi policy needs the tracker's predicted counts")
-        n_counts = counts.shape[1]
+        n_counts = counts.n_counts if isinstance(counts, CellCounts) else counts.shape[1]
         pd = self._pd_cache.get(n_counts)
         if pd is None:  # p_d(t) at the count columns t = 0..n_counts-1
             pd = self._model.sensor.detection_probability(np.arange(n_counts))

@@ -63,6 +63,7 @@ from mttbench.benchmarks.policies import AllCells, Raster
 from mttbench.scenarios.spec import Scenario
 from mttbench.scenarios.spec import get as get_scenario
 from mttbench.trackers.base import Estimate, Tracker, available, get_class, make
+from mttbench.trackers.cells import CellCounts
 
 __all__ = [
     "CHECKS", "INTERFACE_CHECKS", "TRACKING_CHECKS", "check_tracker", "checks_for",
@@ -170,14 +171,44 @@ def _assert_estimate_valid(est: Any, k: int) -> None:
 
 
 def _assert_count_distribution_valid(P: Any, n_cells: int, k: int) -> None:
+    """A dense ``(n_cells, n_counts)`` array, or a :class:`CellCounts` whose own rows and
+    (when some cell uses it) default row are checked as they are, never made dense."""
     where = f"step {k}: cell_count_distribution()"
-    assert isinstance(P, np.ndarray), f"{where} returned {type(P).__name__}, not ndarray"
-    assert P.ndim == 2 and P.shape[0] == n_cells and P.shape[1] >= 2, (
-        f"{where} has shape {P.shape}: need (n_cells = {n_cells}, n_counts >= 2)")
-    assert np.all(np.isfinite(P)), f"{where} has non-finite values"
-    assert np.all(P >= 0), f"{where} has negative probabilities (min {P.min():.3g})"
-    worst = float(np.max(np.abs(P.sum(axis=1) - 1.0)))
-    assert worst <= ROW_SUM_TOL, f"{where}: a row sums to 1 {worst:+.3g} (tolerance {ROW_SUM_TOL})"
+    if isinstance(P, CellCounts):
+        assert P.n_cells == n_cells, (
+            f"{where} is a CellCounts over {P.n_cells} cells, not n_cells = {n_cells}")
+        cells = np.asarray(P.cells)
+        assert P.rows.ndim == 2 and P.rows.shape == (len(cells), len(P.default)), (
+            f"{where}: rows {P.rows.shape} do not match its {len(cells)} cells and "
+            f"{len(P.default)} counts")
+        assert len(P.default) >= 2, f"{where} has {len(P.default)} count columns: need >= 2"
+        assert not len(cells) or (np.all(np.diff(cells) > 0) and cells[0] >= 0
+                                  and cells[-1] < n_cells), (
+            f"{where}: its cells are not sorted, unique and in [0, {n_cells})")
+        rows = P.rows if P.n_default == 0 else np.vstack([P.rows, P.default[None]])
+        what = "a row (own or default)"
+    else:
+        assert isinstance(P, np.ndarray), (
+            f"{where} returned {type(P).__name__}, not ndarray or CellCounts")
+        assert P.ndim == 2 and P.shape[0] == n_cells and P.shape[1] >= 2, (
+            f"{where} has shape {P.shape}: need (n_cells = {n_cells}, n_counts >= 2)")
+        rows, what = P, "a row"
+    if not len(rows):
+        return
+    assert np.all(np.isfinite(rows)), f"{where} has non-finite values"
+    assert np.all(rows >= 0), f"{where} has negative probabilities (min {rows.min():.3g})"
+    worst = float(np.max(np.abs(rows.sum(axis=1) - 1.0)))
+    assert worst <= ROW_SUM_TOL, (
+        f"{where}: {what} sums to 1 {worst:+.3g} (tolerance {ROW_SUM_TOL})")
+
+
+def _same_counts(a: Any, b: Any) -> bool:
+    """Two recorded ``P_c(t)`` identical: the same type and the same numbers."""
+    if isinstance(a, CellCounts) or isinstance(b, CellCounts):
+        return (isinstance(a, CellCounts) and isinstance(b, CellCounts)
+                and a.n_cells == b.n_cells and np.array_equal(a.cells, b.cells)
+                and np.array_equal(a.rows, b.rows) and np.array_equal(a.default, b.default))
+    return np.array_equal(a, b)
 
 
 def _assert_records_valid(records: list[StepRecord], scenario: Scenario) -> None:
@@ -202,7 +233,7 @@ def _assert_same_outputs(a: list[StepRecord], b: list[StepRecord], what: str) ->
                     and np.array_equal(ea.covariances, eb.covariances)), (
                 f"{where}: the covariances differ")
         if ra.counts is not None:
-            assert np.array_equal(ra.counts, rb.counts), f"{where}: P_c(t) differs"
+            assert _same_counts(ra.counts, rb.counts), f"{where}: P_c(t) differs"
 
 
 # ======================================================================= interface
@@ -286,9 +317,10 @@ def check_params(cls: type[Tracker]) -> None:
 def check_runs_200_steps(cls: type[Tracker]) -> None:
     """200 steps of the ``default`` preset (three targets, raster of 24 looks): every
     estimate valid (``count`` finite and >= 0; ``states (n, 4)`` float64, finite;
-    ``covariances (n, 4, 4)`` or None) and ``P_c(t)`` valid at every step:
-    ``(n_cells, n_counts >= 2)``, finite, non-negative, rows summing to 1 within
-    :data:`ROW_SUM_TOL`."""
+    ``covariances (n, 4, 4)`` or None) and ``P_c(t)`` valid at every step: a dense
+    ``(n_cells, n_counts >= 2)`` array or a :class:`~mttbench.trackers.cells.CellCounts`
+    over ``n_cells`` cells (its own rows and its default row checked, never made dense),
+    finite, non-negative, rows summing to 1 within :data:`ROW_SUM_TOL`."""
     sc = _scenario("default", "check-default", n_steps=200)
     _assert_records_valid(_run(cls(), sc, 0, policy=_RasterWithPrediction()), sc)
 
@@ -342,7 +374,7 @@ def check_step_without_looks(cls: type[Tracker]) -> None:
 
 def check_count_distribution_on_large(cls: type[Tracker]) -> None:
     """The ``large`` preset (50x50 cells, 25 targets, 250 looks; see
-    :func:`_large_scenario`), 5 steps: valid estimates and ``P_c(t)`` of 2500 rows at
+    :func:`_large_scenario`), 5 steps: valid estimates and ``P_c(t)`` over 2500 cells at
     every step."""
     sc = _large_scenario(cls, n_steps=5)
     _assert_records_valid(_run(cls(), sc, 0, policy=_RasterWithPrediction()), sc)

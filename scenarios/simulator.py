@@ -3,11 +3,18 @@
 Common random numbers (DESIGN.md). The world of a run depends on
 ``(scenario name, seed)`` only. For every step ``k`` the world holds uniforms
 ``U[k, j, c]``: the ``j``-th look at cell ``c`` during step ``k`` returns
-``U[k, j, c] < p_d(T_kc)``. Row ``j`` of step ``k`` is the ``j``-th block of
-``n_cells`` draws from a generator keyed by ``(scenario, seed, k)``, created only
-when some step first looks at a cell ``j+1`` times, so the answer to a look
+``U[k, j, c] < p_d(T_kc)``. ``U[k, j, c]`` is draw number ``j n_cells + c`` of
+``Generator.random`` on numpy's PCG64 keyed by ``(scenario, seed, k)`` (row ``j`` of
+step ``k`` is the ``j``-th block of ``n_cells`` draws), so the answer to a look
 depends neither on which other cells were looked at nor on the order of the
 looks. Every tracker and every cell-selection policy therefore sees the same world.
+
+Cost per step: ``O(targets + looks)``, nothing per cell of the grid. A look's uniform
+is computed directly from its position in the generator's stream (PCG64 is a 128-bit
+linear congruential generator: its state after ``n`` steps is ``A_n s_0 + S_n inc``
+mod 2^128, :func:`pcg64_uniforms`), bit for bit the number ``Generator.random`` would
+draw there, without drawing the ``n_cells`` numbers of a row; the number of targets of
+a looked cell is counted from the targets' cells.
 """
 
 from __future__ import annotations
@@ -44,6 +51,103 @@ def tracker_seed(scenario_name: str, seed: int, identity: str) -> np.random.Seed
     enters as a 128-bit SHA-256 prefix (no practical collision between configurations)."""
     key = int.from_bytes(hashlib.sha256(identity.encode("utf-8")).digest()[:16], "little")
     return np.random.SeedSequence(seed, spawn_key=(stable_hash(scenario_name), TRACKER_TAG, key))
+
+
+# --------------------------------------------------------- the PCG64 stream, jumped
+#: numpy's PCG64 (XSL-RR 128/64) multiplier
+_PCG_MULT = 0x2360ED051FC65DA44385DF649FCCF645
+_MASK64 = (1 << 64) - 1
+_MASK128 = (1 << 128) - 1
+#: bits of the stream position per jump table (one table of 2^16 entries per 16 bits)
+_DIGIT_BITS = 16
+_LOW32 = np.uint64(0xFFFFFFFF)
+_U32 = np.uint64(32)
+_JUMP_TABLES: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+
+
+def _mulhi64(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """High 64 bits of the 128-bit products ``a b`` (uint64 arrays, 32-bit halves)."""
+    a0, a1, b0, b1 = a & _LOW32, a >> _U32, b & _LOW32, b >> _U32
+    p00, p01, p10 = a0 * b0, a0 * b1, a1 * b0
+    mid = (p00 >> _U32) + (p01 & _LOW32) + (p10 & _LOW32)
+    return a1 * b1 + (p01 >> _U32) + (p10 >> _U32) + (mid >> _U32)
+
+
+def _mul128(ah, al, bh, bl):
+    """``a b mod 2^128`` of 128-bit numbers held as (high, low) uint64 arrays."""
+    return _mulhi64(al, bl) + al * bh + ah * bl, al * bl
+
+
+def _add128(ah, al, bh, bl):
+    """``a + b mod 2^128``."""
+    lo = al + bl
+    return ah + bh + (lo < al).astype(np.uint64), lo
+
+
+def _split(x: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.array([x >> 64], dtype=np.uint64), np.array([x & _MASK64], dtype=np.uint64)
+
+
+def _jump(n: int) -> tuple[int, int]:
+    """``(A_n, S_n)``: ``n`` LCG steps map ``s`` to ``A_n s + S_n inc`` (mod 2^128), with
+    ``A_n = MULT^n`` and ``S_n = sum_{i<n} MULT^i`` (the geometric sum, computed exactly
+    modulo ``(MULT - 1) 2^128``)."""
+    a = pow(_PCG_MULT, n, 1 << 128)
+    s = ((pow(_PCG_MULT, n, (_PCG_MULT - 1) << 128) - 1) // (_PCG_MULT - 1)) & _MASK128
+    return a, s
+
+
+def _jump_table(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``A``, ``S`` (high and low words) of the jumps ``d 2^(16 i)``, ``d < 2^16``, built
+    by doubling (vectorised) and kept for the process."""
+    while len(_JUMP_TABLES) <= i:
+        a, s = _jump(1 << (_DIGIT_BITS * len(_JUMP_TABLES)))
+        size = 1 << _DIGIT_BITS
+        Ah, Al = np.zeros(size, np.uint64), np.zeros(size, np.uint64)
+        Sh, Sl = np.zeros(size, np.uint64), np.zeros(size, np.uint64)
+        Al[0] = 1
+        for b in range(_DIGIT_BITS):  # entries [2^b, 2^(b+1)): jump 2^b base steps more
+            h = 1 << b
+            ah, al = _split(a)
+            sh, sl = _split(s)
+            Ah[h:2 * h], Al[h:2 * h] = _mul128(ah, al, Ah[:h], Al[:h])
+            Sh[h:2 * h], Sl[h:2 * h] = _add128(*_mul128(ah, al, Sh[:h], Sl[:h]), sh, sl)
+            a, s = (a * a) & _MASK128, (a * s + s) & _MASK128
+        _JUMP_TABLES.append((Ah, Al, Sh, Sl))
+    return _JUMP_TABLES[i]
+
+
+def pcg64_uniforms(state: int, inc: int, positions: np.ndarray) -> np.ndarray:
+    """Draws number ``positions`` (0-based, int64 ``>= 0``) of ``Generator.random`` on a
+    PCG64 whose state is ``state`` and increment ``inc`` (``bit_generator.state``),
+    without drawing the numbers before them: ``O(len(positions) log(max position))``.
+
+    Draw ``n`` is the output of the state after ``n + 1`` steps, ``A s + S inc`` with
+    ``(A, S)`` composed from one table entry per 16 bits of ``n + 1`` (the affine maps
+    of one LCG commute); XSL-RR gives 64 bits, and ``random`` keeps the top 53. Equal,
+    bit for bit, to ``Generator.random(n + 1)[n]`` (tests/test_simulator.py).
+    """
+    m = np.asarray(positions, dtype=np.int64).reshape(-1).astype(np.uint64) + np.uint64(1)
+    Ah, Al = np.zeros(len(m), np.uint64), np.ones(len(m), np.uint64)
+    Sh, Sl = np.zeros(len(m), np.uint64), np.zeros(len(m), np.uint64)
+    digit_mask, shift = np.uint64((1 << _DIGIT_BITS) - 1), np.uint64(_DIGIT_BITS)
+    i = 0
+    while len(m) and m.any():
+        d = (m & digit_mask).astype(np.intp)
+        th, tl, sh, sl = _jump_table(i)
+        bh, bl = th[d], tl[d]
+        # this jump after the ones so far: A <- B A, S <- B S + S_B
+        Sh, Sl = _add128(*_mul128(bh, bl, Sh, Sl), sh[d], sl[d])
+        Ah, Al = _mul128(bh, bl, Ah, Al)
+        m = m >> shift
+        i += 1
+    s0h, s0l = _split(state)
+    ih, il = _split(inc)
+    xh, xl = _add128(*_mul128(Ah, Al, s0h, s0l), *_mul128(Sh, Sl, ih, il))
+    # XSL-RR: (high xor low) rotated right by the top 6 bits of the state
+    x, rot = xh ^ xl, xh >> np.uint64(58)
+    raw = (x >> rot) | (x << ((np.uint64(64) - rot) & np.uint64(63)))
+    return (raw >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
 
 
 # ----------------------------------------------------------------------- dynamics
@@ -122,8 +226,8 @@ class Run:
     seed: int
     ids: list[np.ndarray]
     states: list[np.ndarray]
-    _rows: dict[int, list[np.ndarray]] = field(default_factory=dict, repr=False)
-    _gens: dict[int, np.random.Generator] = field(default_factory=dict, repr=False)
+    #: PCG64 (state, inc) of the generator of step k's looks, made on first use
+    _streams: dict[int, tuple[int, int]] = field(default_factory=dict, repr=False)
 
     @property
     def n_steps(self) -> int:
@@ -134,23 +238,32 @@ class Run:
         return self.states[k][:, [0, 2]]
 
     def cell_counts(self, k: int) -> np.ndarray:
-        """Number of targets in every cell at step ``k``, shape ``(n_cells,)``."""
+        """Number of targets in every cell at step ``k``, shape ``(n_cells,)``
+        (``O(cells)``: tests and plots; a look uses :meth:`counts_in`)."""
         grid = self.scenario.grid
         cells = grid.cell_of(self.states[k][:, 0], self.states[k][:, 2])
         return np.bincount(cells[cells >= 0], minlength=grid.n_cells)
 
-    def _uniform_rows(self, k: int, n_rows: int) -> np.ndarray:
-        """The first ``n_rows`` rows ``U[k, :n_rows, :]`` (created on first use)."""
-        rows = self._rows.setdefault(k, [])
-        if len(rows) < n_rows:
-            gen = self._gens.get(k)
-            if gen is None:
-                gen = np.random.default_rng(world_seed(self.scenario.name, self.seed, _LOOKS, k))
-                self._gens[k] = gen
-            n_cells = self.scenario.grid.n_cells
-            while len(rows) < n_rows:
-                rows.append(gen.random(n_cells))
-        return np.stack(rows[:n_rows])
+    def counts_in(self, k: int, cells: np.ndarray) -> np.ndarray:
+        """Number of targets at step ``k`` in each of ``cells`` (int64, any order, repeats
+        allowed): ``O((targets + len(cells)) log targets)``."""
+        grid = self.scenario.grid
+        own = np.sort(grid.cell_of(self.states[k][:, 0], self.states[k][:, 2]))
+        cells = np.asarray(cells, dtype=np.int64)
+        return (np.searchsorted(own, cells, side="right")
+                - np.searchsorted(own, cells, side="left")).astype(np.int64)
+
+    def uniforms(self, k: int, cells: np.ndarray, repeat: np.ndarray) -> np.ndarray:
+        """``U[k, repeat, cells]`` (element-wise): draw ``repeat * n_cells + cell`` of step
+        ``k``'s generator (:func:`pcg64_uniforms`; nothing per cell of the grid)."""
+        stream = self._streams.get(k)
+        if stream is None:
+            bits = np.random.PCG64(world_seed(self.scenario.name, self.seed, _LOOKS, k))
+            stream = (int(bits.state["state"]["state"]), int(bits.state["state"]["inc"]))
+            self._streams[k] = stream
+        n_cells = self.scenario.grid.n_cells
+        positions = np.asarray(repeat, dtype=np.int64) * n_cells + np.asarray(cells, np.int64)
+        return pcg64_uniforms(*stream, positions)
 
     def look(self, k: int, cells: np.ndarray) -> Looks:
         """Look at ``cells (L,)`` (repeats allowed) during step ``k``.
@@ -173,9 +286,8 @@ class Run:
         first = np.searchsorted(sorted_cells, sorted_cells, side="left")
         repeat = np.empty_like(cells)
         repeat[order] = np.arange(cells.size) - first
-        n_rows = int(repeat.max()) + 1 if cells.size else 0
-        u = self._uniform_rows(k, n_rows)[repeat, cells] if cells.size else np.zeros(0)
-        p = sensor.detection_probability(self.cell_counts(k)[cells])
+        u = self.uniforms(k, cells, repeat)
+        p = sensor.detection_probability(self.counts_in(k, cells))
         return Looks(cells=cells, returns=u < p)
 
     def measure(self, k: int) -> Looks:

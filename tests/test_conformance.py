@@ -25,6 +25,7 @@ from mttbench.testing import (
     skipped_checks,
 )
 from mttbench.trackers.base import Estimate
+from mttbench.trackers.cells import CellCounts
 from mttbench.trackers.kfnn import KFNNTracker
 from mttbench.trackers.null import NullTracker
 
@@ -90,12 +91,44 @@ class WrongShapeKFNN(KFNNTracker):
 
 
 class UnnormalisedKFNN(KFNNTracker):
-    """Bug: ``P_c(t)`` drops its last column, so rows no longer sum to 1."""
+    """Bug: ``P_c(t)`` (a CellCounts) drops its last column, so rows no longer sum to 1."""
 
     name = "broken-counts"
 
     def cell_count_distribution(self):
-        return super().cell_count_distribution()[:, :-1]
+        cc = super().cell_count_distribution()
+        return CellCounts(cc.n_cells, cc.cells, cc.rows[:, :-1], cc.default[:-1])
+
+
+class UnnormalisedDenseKFNN(KFNNTracker):
+    """Bug: the dense ``P_c(t)`` drops its last column, so rows no longer sum to 1."""
+
+    name = "broken-dense-counts"
+
+    def cell_count_distribution(self):
+        return super().cell_count_distribution().dense()[:, :-1]
+
+
+class NegativeDefaultKFNN(KFNNTracker):
+    """Bug: the default row of ``P_c(t)`` (shared by the cells away from every track)
+    has a negative entry; only that row is wrong."""
+
+    name = "broken-default-row"
+
+    def cell_count_distribution(self):
+        cc = super().cell_count_distribution()
+        default = np.r_[1.1, -0.1, np.zeros(cc.n_counts - 2)]  # sums to 1
+        return CellCounts(cc.n_cells, cc.cells, cc.rows, default)
+
+
+class WrongGridCountsKFNN(KFNNTracker):
+    """Bug: ``P_c(t)`` claims a grid of another size."""
+
+    name = "broken-counts-grid"
+
+    def cell_count_distribution(self):
+        cc = super().cell_count_distribution()
+        return CellCounts(cc.n_cells + 1, cc.cells, cc.rows, cc.default)
 
 
 class UnseededKFNN(KFNNTracker):
@@ -163,6 +196,9 @@ BROKEN = [  # (tracker class, the check that must catch it, what its message say
     (SwallowingKFNN, "check_params", "was accepted"),
     (WrongShapeKFNN, "check_runs_200_steps", r"shape \(\d+, 2\), not \(n, 4\)"),
     (UnnormalisedKFNN, "check_runs_200_steps", "sums to 1"),
+    (UnnormalisedDenseKFNN, "check_runs_200_steps", "a row sums to 1"),
+    (NegativeDefaultKFNN, "check_runs_200_steps", "negative probabilities"),
+    (WrongGridCountsKFNN, "check_runs_200_steps", "not n_cells = 144"),
     (UnseededKFNN, "check_deterministic", "states differ"),
     (LeakyKFNN, "check_reset_no_state_leak", "after reset"),
     (BlindCrashKFNN, "check_step_without_looks", "raised IndexError"),

@@ -247,7 +247,9 @@ def test_several_positive_looks_at_one_cell_are_one_detection() -> None:
 
 # -------------------------------------------------------------------- count distribution
 def test_cell_count_distribution_matches_its_ingredients() -> None:
-    """One confirmed track + the untracked intensity: no truncation, so E[count] is exact."""
+    """One confirmed track + the untracked intensity: no truncation of the count, so
+    E[count] is exact; the track's mass is kept within 6 sd of its mean (scipy's CDF
+    there, 0 outside, and less than 4e-9 left out)."""
     model = _model(initial_states=((1.0, 0, 1.0, 0), (2.0, 0, 2.0, 0)))  # prior mean 2 targets
     tracker = KFNNTracker(existence_confirmed=0.9)
     tracker.reset(model, np.random.default_rng(0))
@@ -259,16 +261,25 @@ def test_cell_count_distribution_matches_its_ingredients() -> None:
         tracker.update(_looks([cell], looked=looked))
         lam[looked] *= 0.5  # (1 - p_d) per look
     tracker.predict()
-    P = tracker.cell_count_distribution()
-    assert P.shape == (GRID.n_cells, 4)
+    np.testing.assert_array_equal(tracker.undetected_intensity().dense(), lam)
+    cc = tracker.cell_count_distribution()
+    P = cc.dense()
+    assert P.shape == (GRID.n_cells, 4) and cc.n_cells == GRID.n_cells
     np.testing.assert_allclose(P.sum(axis=1), 1.0, atol=1e-12)
     m, C = tracker.track_table()["mean"][0], tracker.track_table()["cov"][0]
     x0, x1, y0, y1 = GRID.cell_bounds(np.arange(GRID.n_cells))
-    gx, gy = stats.norm(m[0], np.sqrt(C[0, 0])), stats.norm(m[2], np.sqrt(C[2, 2]))
+    sx, sy = np.sqrt(C[0, 0]), np.sqrt(C[2, 2])
+    gx, gy = stats.norm(m[0], sx), stats.norm(m[2], sy)
     mass = (gx.cdf(x1) - gx.cdf(x0)) * (gy.cdf(y1) - gy.cdf(y0))
-    expected_count = 0.9 * mass + (1.0 - np.exp(-lam))
+    in_box = ((x1 > m[0] - 6 * sx) & (x0 <= m[0] + 6 * sx)
+              & (y1 > m[2] - 6 * sy) & (y0 <= m[2] + 6 * sy))
+    assert 0 < in_box.sum() < GRID.n_cells and mass[~in_box].max() < 4e-9
+    expected_count = 0.9 * np.where(in_box, mass, 0.0) + (1.0 - np.exp(-lam))
     np.testing.assert_allclose(P @ np.arange(4), expected_count, rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(P[:, 3], 0.0, atol=1e-300)  # two Bernoullis: never 3
+    # cells outside the box and never looked at share the default row
+    shared = ~in_box & ~np.isin(np.arange(GRID.n_cells), looked)
+    assert not np.isin(np.flatnonzero(shared), cc.cells).any()
 
 
 def test_no_tracks_count_distribution_is_the_untracked_prior() -> None:
@@ -277,7 +288,9 @@ def test_no_tracks_count_distribution_is_the_untracked_prior() -> None:
     tracker.predict()
     p = 1.0 - np.exp(-3.0 / GRID.n_cells)
     want = poisson_binomial(np.full((1, GRID.n_cells), p), 4)
-    np.testing.assert_allclose(tracker.cell_count_distribution(), want, rtol=1e-14)
+    cc = tracker.cell_count_distribution()
+    assert len(cc.cells) == 0  # no track, nothing looked at: one row for the whole grid
+    np.testing.assert_allclose(cc.dense(), want, rtol=1e-14)
 
 
 # ------------------------------------------------------------------------ interface

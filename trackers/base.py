@@ -7,7 +7,7 @@ Life cycle, as the harness drives it (STYLE.md pattern 1)::
     tracker.reset(model, rng)               # untimed: build the run state
     for k in range(n_steps):
         tracker.predict()                   # timed
-        P = tracker.cell_count_distribution()   # (n_cells, n_counts), when a policy asks
+        P = tracker.cell_count_distribution()   # P_c(t), when a policy asks
         tracker.update(looks)               # timed; looks of step k
         est = tracker.estimate()            # timed
 
@@ -24,6 +24,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..scenarios.model import Looks, TrackingModel
+from .cells import CellCounts
 from .params import Configurable
 from .registry import Registry
 
@@ -100,13 +101,20 @@ class Tracker(Configurable, ABC):
         """Propagate the state one step with the dynamics and the birth/death prior."""
 
     @abstractmethod
-    def cell_count_distribution(self) -> np.ndarray:
+    def cell_count_distribution(self) -> np.ndarray | CellCounts:
         """Predicted per-cell count distribution ``P_c(t)``.
 
-        Returns ``(n_cells, n_counts)`` with non-negative rows summing to 1; column
-        ``t`` is the probability of ``t`` targets in the cell, and the last column
+        Each cell's row is a distribution over counts: non-negative, summing to 1;
+        column ``t`` is the probability of ``t`` targets in the cell, and the last column
         holds "``n_counts - 1`` or more". ``n_counts >= 2``. Valid between
         :meth:`predict` and :meth:`update`.
+
+        Return either a :class:`~mttbench.trackers.cells.CellCounts` -- the cells with a
+        row of their own (for example near a track) plus one default row shared by every
+        other cell (for example the untracked-target field), which costs nothing per cell
+        of the grid -- or the dense ``(n_cells,
+        n_counts)`` array (``O(cells)``: fine on small grids; policies accept both, and
+        :func:`~mttbench.trackers.cells.as_cell_counts` turns either into the former).
         """
 
     @abstractmethod

@@ -10,6 +10,13 @@ Two kernels build a tracker's predicted per-cell count distribution ``P_c(t)``:
 
 A tracker multiplies the cell masses by each target's existence probability and
 passes the product to :func:`poisson_binomial`.
+
+Their sparse forms cost nothing per cell of the grid (issue 16):
+:func:`gaussian_cell_mass_sparse` keeps each Gaussian's masses within 6 sd of its mean,
+:func:`bernoulli_cell_counts` turns such entries plus a per-cell field into
+:class:`CellCounts` (``P_c(t)`` as own rows plus one default row), and :class:`CellField`
+holds a per-cell value (an undetected-target intensity) as a default plus the cells that
+differ. Each equals its dense counterpart bit for bit where it keeps a number.
 """
 
 from __future__ import annotations
@@ -200,3 +207,198 @@ class CellCounts:
 def as_cell_counts(P: CellCounts | np.ndarray) -> CellCounts:
     """A tracker's ``cell_count_distribution()`` output as :class:`CellCounts`."""
     return P if isinstance(P, CellCounts) else CellCounts.from_dense(P)
+
+
+# ------------------------------------------------------------- sparse P_c(t) (issue 16)
+#: half-width, in marginal standard deviations, of the box of cells around a Gaussian's
+#: mean inside which :func:`gaussian_cell_mass_sparse` keeps its cell masses: the mass
+#: left out is at most ``2 * Phi(-6) = 2e-9`` per axis
+BOX_SD = 6.0
+
+
+def _concat_ranges(starts: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``seg, values``: for each ``i``, ``lengths[i]`` entries ``seg = i`` and
+    ``values = starts[i], starts[i] + 1, ...``, concatenated (``O(sum(lengths))``)."""
+    starts = np.asarray(starts, dtype=np.int64)
+    lengths = np.asarray(lengths, dtype=np.int64)
+    seg = np.repeat(np.arange(len(lengths)), lengths)
+    first = np.cumsum(lengths) - lengths
+    values = np.arange(int(lengths.sum()), dtype=np.int64) - first[seg] + starts[seg]
+    return seg, values
+
+
+def _axis_boxes(mean: np.ndarray, sd: np.ndarray, n: int, s: float, n_sd: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per Gaussian, the first cell of its box on one axis, the box's width in cells (0 when
+    the box misses the grid) and the masses of its cells concatenated (:func:`gaussian_cell_mass`'s
+    arithmetic on the box's edges only)."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        lo = np.floor((mean - n_sd * sd) / s)
+        hi = np.floor((mean + n_sd * sd) / s)
+    hit = (hi >= 0) & (lo <= n - 1)
+    i0 = np.clip(np.nan_to_num(lo, nan=0.0), 0, n - 1).astype(np.int64)
+    i1 = np.clip(np.nan_to_num(hi, nan=-1.0), 0, n - 1).astype(np.int64)
+    width = np.where(hit, i1 - i0 + 1, 0)
+    seg, edge = _concat_ranges(i0, np.where(hit, width + 1, 0))
+    # the same expression as the dense kernel: edge index times the cell size, standardised
+    cdf = ndtr((edge * s - mean[seg]) / sd[seg])
+    # differences within a box; the last edge of each box starts no cell
+    last = np.cumsum(np.where(hit, width + 1, 0)) - 1
+    keep = np.ones(len(cdf), dtype=bool)
+    keep[last[hit]] = False
+    mass = (cdf[1:] - cdf[:-1])[keep[:-1]] if len(cdf) else np.zeros(0)
+    return i0, width, mass
+
+
+def gaussian_cell_mass_sparse(grid: Grid, means_xy: np.ndarray, cov_xy: np.ndarray,
+                              n_sd: float = BOX_SD
+                              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`gaussian_cell_mass` restricted to a box of ``+- n_sd`` marginal standard
+    deviations around each mean (clipped to the grid), in ``O(cells in the boxes)``.
+
+    Returns ``comp (nnz,)``, ``cells (nnz,)`` (int64) and ``mass (nnz,)`` float64: the
+    entries of component ``k`` are contiguous, ``k`` ascending, and within one component
+    the cells ascend. Each entry is bit for bit the dense kernel's value (the same
+    expression on the same edges); cells outside the box are left out, which drops at
+    most ``2 Phi(-n_sd)`` of mass per axis (``4e-9`` in all at ``n_sd = 6``). A Gaussian
+    whose box misses the grid has no entries.
+    """
+    means_xy = np.asarray(means_xy, dtype=float).reshape(-1, 2)
+    cov_xy = np.asarray(cov_xy, dtype=float).reshape(-1, 2, 2)
+    s = grid.cell_size
+    floor = _MIN_STD_CELLS * s
+    sx = np.maximum(np.sqrt(np.maximum(cov_xy[:, 0, 0], 0.0)), floor)
+    sy = np.maximum(np.sqrt(np.maximum(cov_xy[:, 1, 1], 0.0)), floor)
+    ix0, wx, mass_x = _axis_boxes(means_xy[:, 0], sx, grid.nx, s, n_sd)
+    iy0, wy, mass_y = _axis_boxes(means_xy[:, 1], sy, grid.ny, s, n_sd)
+    size = wx * wy
+    comp, t = _concat_ranges(np.zeros(len(size), dtype=np.int64), size)
+    w = wx[comp]
+    ly, lx = t // np.maximum(w, 1), t % np.maximum(w, 1)
+    off_x = np.cumsum(wx) - wx
+    off_y = np.cumsum(wy) - wy
+    mass = mass_y[off_y[comp] + ly] * mass_x[off_x[comp] + lx]
+    cells = (iy0[comp] + ly) * grid.nx + ix0[comp] + lx
+    return comp, cells, mass
+
+
+def bernoulli_cell_counts(n_cells: int, n_counts: int, cells: np.ndarray, probs: np.ndarray,
+                          last_default: float = 0.0, last_cells: np.ndarray | None = None,
+                          last_probs: np.ndarray | None = None) -> CellCounts:
+    """:func:`poisson_binomial` of sparse Bernoullis, as :class:`CellCounts`.
+
+    Entry ``i`` is a Bernoulli of probability ``probs[i]`` in cell ``cells[i]`` (a cell
+    may have many; they are applied in the order given). Then every cell gets one more
+    Bernoulli, of probability ``last_default`` except at the sorted unique
+    ``last_cells`` (``last_probs``): a field such as "at least one untracked target".
+    The cells with entries or their own ``last`` value get their own rows; every other
+    cell the default row, one Bernoulli ``last_default``. ``O((entries + last_cells)
+    n_counts)`` plus a sort of the entries.
+
+    Every row equals, bit for bit, :func:`poisson_binomial`'s row of the dense
+    ``(K + 1, n_cells)`` array holding the same Bernoullis in the same order and zeros
+    elsewhere (a zero probability leaves the recurrence's row unchanged exactly).
+    """
+    if n_counts < 2:
+        raise ValueError(f"n_counts must be >= 2, got {n_counts}")
+    cells = np.asarray(cells, dtype=np.int64).reshape(-1)
+    probs = np.clip(np.asarray(probs, dtype=float).reshape(-1), 0.0, 1.0)
+    last_cells = (np.zeros(0, dtype=np.int64) if last_cells is None
+                  else np.asarray(last_cells, dtype=np.int64).reshape(-1))
+    last_probs = (np.zeros(0) if last_probs is None
+                  else np.clip(np.asarray(last_probs, dtype=float).reshape(-1), 0.0, 1.0))
+    p_default = float(np.clip(last_default, 0.0, 1.0))
+    order = np.argsort(cells, kind="stable")  # by cell, the given order within a cell
+    c_sorted, p_sorted = cells[order], probs[order]
+    own = np.union1d(c_sorted, last_cells)
+    dist = np.zeros((n_counts, len(own)))
+    dist[0] = 1.0
+    if len(c_sorted):
+        col = np.searchsorted(own, c_sorted)
+        rank = np.arange(len(c_sorted)) - np.searchsorted(c_sorted, c_sorted, side="left")
+        by_rank = np.argsort(rank, kind="stable")
+        bounds = np.concatenate([[0], np.cumsum(np.bincount(rank))])
+        for r in range(len(bounds) - 1):  # the r-th Bernoulli of every cell that has one
+            sel = by_rank[bounds[r]:bounds[r + 1]]
+            idx = col[sel]
+            sub = dist[:, idx]
+            _add_bernoulli(sub, p_sorted[sel])
+            dist[:, idx] = sub
+    p_last = np.full(len(own), p_default)
+    if len(last_cells):
+        p_last[np.searchsorted(own, last_cells)] = last_probs
+    _add_bernoulli(dist, p_last)
+    default = np.zeros((n_counts, 1))
+    default[0] = 1.0
+    _add_bernoulli(default, np.array([p_default]))
+    return CellCounts(n_cells, own, dist.T.copy(), default[:, 0])
+
+
+class CellField:
+    """A value per cell (for example an undetected-target intensity) stored as one
+    ``default`` shared by every cell plus the sorted ``cells`` whose ``values`` differ.
+
+    Updates apply the same floating-point operations as the dense ``(n_cells,)`` array
+    would, cell by cell, so :meth:`dense` equals that array bit for bit; a cell whose
+    value becomes exactly the default again rejoins it. Memory and time
+    ``O(cells with their own value)``: the cells touched so far (looked at), never the grid.
+    """
+
+    __slots__ = ("n_cells", "default", "cells", "values")
+
+    def __init__(self, n_cells: int, default: float) -> None:
+        self.n_cells = int(n_cells)
+        self.default = float(default)
+        self.cells = np.zeros(0, dtype=np.int64)
+        self.values = np.zeros(0)
+
+    def affine(self, a: float, b: float) -> None:
+        """``x <- a x + b`` in every cell."""
+        self.default = a * self.default + b
+        self.values = a * self.values + b
+        self._rejoin()
+
+    def multiply(self, cells: np.ndarray, factors: np.ndarray) -> None:
+        """``x_c <- x_c * factor_c`` at the sorted unique ``cells``."""
+        cells = np.asarray(cells, dtype=np.int64).reshape(-1)
+        factors = np.asarray(factors, dtype=float).reshape(-1)
+        if not len(cells):
+            return
+        new = np.setdiff1d(cells, self.cells, assume_unique=True)
+        if len(new):
+            all_cells = np.concatenate([self.cells, new])
+            order = np.argsort(all_cells, kind="stable")
+            self.cells = all_cells[order]
+            self.values = np.concatenate([self.values, np.full(len(new), self.default)])[order]
+        i = np.searchsorted(self.cells, cells)
+        self.values[i] = self.values[i] * factors
+        self._rejoin()
+
+    def at(self, cells: np.ndarray) -> np.ndarray:
+        """The values at ``cells`` (any order, repeats allowed)."""
+        cells = np.asarray(cells, dtype=np.int64).reshape(-1)
+        out = np.full(len(cells), self.default)
+        if len(self.cells):
+            i = np.minimum(np.searchsorted(self.cells, cells), len(self.cells) - 1)
+            own = self.cells[i] == cells
+            out[own] = self.values[i[own]]
+        return out
+
+    def dense(self) -> np.ndarray:
+        """``(n_cells,)``: every cell's value (``O(cells)``: small grids, tests)."""
+        out = np.full(self.n_cells, self.default)
+        out[self.cells] = self.values
+        return out
+
+    def _rejoin(self) -> None:
+        same = self.values == self.default
+        if np.any(same):
+            self.cells, self.values = self.cells[~same], self.values[~same]
+
+
+def untracked_probabilities(field: CellField) -> tuple[float, np.ndarray, np.ndarray]:
+    """``P(at least one target) = 1 - exp(-lambda)`` of a Poisson intensity ``field``: the
+    default cells' value, the own cells and theirs (:func:`bernoulli_cell_counts`'s
+    ``last_*`` arguments), in one array operation as on the dense field."""
+    p = -np.expm1(-np.concatenate([[field.default], field.values]))
+    return float(p[0]), field.cells, p[1:]

@@ -66,16 +66,25 @@ Predicted count distribution ``P_c(t)`` (for sensor management)
     Each track is a Bernoulli target: present with probability
     ``existence_confirmed`` (confirmed) or ``existence_tentative`` (tentative), and
     then in cell ``c`` with the mass of its predicted position Gaussian there
-    (:func:`trackers.cells.gaussian_cell_mass`, x-y correlation ignored). Targets
-    not yet tracked are an undetected Poisson intensity ``lambda_c`` per cell:
-    ``initial_count_mean / n_cells`` at reset, ``lambda <- p_s lambda + birth_rate /
-    n_cells`` at each predict (no spatial diffusion), and ``lambda_c <- (1 - p_d)
-    lambda_c`` for each look at ``c`` (a look detects an untracked target with
-    probability ``p_d``; detected ones become tracks). The intensity enters as one
-    more Bernoulli per cell with probability ``1 - exp(-lambda_c)`` (at least one
-    untracked target). Per cell, the count of these independent Bernoullis is
-    Poisson-binomial (:func:`trackers.cells.poisson_binomial`), truncated to 0..3
-    with the last column "3 or more".
+    (:func:`trackers.cells.gaussian_cell_mass_sparse`: x-y correlation ignored, and
+    only the cells within 6 marginal sd of the mean, which leaves out less than 4e-9
+    of its mass). Targets not yet tracked are an undetected Poisson intensity
+    ``lambda_c`` per cell: ``initial_count_mean / n_cells`` at reset, ``lambda <- p_s
+    lambda + birth_rate / n_cells`` at each predict (no spatial diffusion), and
+    ``lambda_c <- (1 - p_d) lambda_c`` for each look at ``c`` (a look detects an
+    untracked target with probability ``p_d``; detected ones become tracks). The
+    intensity enters as one more Bernoulli per cell with probability ``1 -
+    exp(-lambda_c)`` (at least one untracked target). Per cell, the count of these
+    independent Bernoullis is Poisson-binomial (:func:`trackers.cells.
+    bernoulli_cell_counts`), truncated to 0..3 with the last column "3 or more".
+
+Cost per step: nothing per cell of the grid. The association and the filters cost
+``O(tracks + looks)``; the intensity is a :class:`~trackers.cells.CellField`, one value
+shared by the cells never looked at plus the cells looked at so far with their own (the
+same arithmetic as a dense array, bit for bit), so its predict costs ``O(cells looked at
+so far)``, two flops each (at most the looks made so far, at most the grid).
+``P_c(t)`` is a :class:`~trackers.cells.CellCounts`: rows of their own for the cells in
+a track's 6-sd box and the looked-at cells, the untracked-only row for all others.
 """
 
 from __future__ import annotations
@@ -89,7 +98,13 @@ from scipy.stats import chi2
 from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
 from . import kalman
 from .base import Estimate, Tracker, register
-from .cells import gaussian_cell_mass, poisson_binomial
+from .cells import (
+    CellCounts,
+    CellField,
+    bernoulli_cell_counts,
+    gaussian_cell_mass_sparse,
+    untracked_probabilities,
+)
 from .params import Param, Search
 
 #: count columns of P_c: 0, 1, 2 and "3 or more"
@@ -234,7 +249,7 @@ class KFNNTracker(Tracker):
         n = model.grid.n_cells
         self._birth_per_cell = bd.birth_rate / n
         self._p_d = model.sensor.p_d
-        self._undetected = np.full(n, bd.initial_count_mean / n)  # (n_cells,) lambda_c
+        self._undetected = CellField(n, bd.initial_count_mean / n)  # lambda_c
         # the tracks: leading axis K
         self._m = np.zeros((0, 4))
         self._P = np.zeros((0, 4, 4))
@@ -267,25 +282,25 @@ class KFNNTracker(Tracker):
         ix = np.clip(np.floor(self._m[:, 0] / s), 0, grid.nx - 1).astype(np.int64)
         iy = np.clip(np.floor(self._m[:, 2] / s), 0, grid.ny - 1).astype(np.int64)
         self._cell = iy * grid.nx + ix
-        self._undetected = self._p_s * self._undetected + self._birth_per_cell
+        self._undetected.affine(self._p_s, self._birth_per_cell)
 
-    def cell_count_distribution(self) -> np.ndarray:
-        """``(n_cells, 4)``: Poisson-binomial of track Bernoullis and untracked targets."""
-        mass = gaussian_cell_mass(self._grid, *kalman.position_marginal(self._m, self._P))
+    def cell_count_distribution(self) -> CellCounts:
+        """Poisson-binomial of track Bernoullis and untracked targets: rows of their own
+        for the cells within 6 sd of a track and the cells looked at so far, the default
+        row (untracked targets only) everywhere else."""
+        comp, cells, mass = gaussian_cell_mass_sparse(
+            self._grid, *kalman.position_marginal(self._m, self._P))
         exist = np.where(self._confirmed, self.existence_confirmed, self.existence_tentative)
-        untracked = -np.expm1(-self._undetected)  # P(at least one untracked target in c)
-        probs = np.concatenate([mass * exist[:, None], untracked[None, :]])
-        return poisson_binomial(probs, N_COUNTS)
+        return bernoulli_cell_counts(self._grid.n_cells, N_COUNTS, cells, mass * exist[comp],
+                                     *untracked_probabilities(self._undetected))
 
     def update(self, looks: Looks) -> None:
         """Associate, update, score hits/misses, confirm/delete, and start new tracks."""
         grid = self._grid
-        n_cells = grid.n_cells
         cells = np.asarray(looks.cells, dtype=np.int64)
         returns = np.asarray(looks.returns, dtype=bool)
-        n_looks = np.bincount(cells, minlength=n_cells)  # (n_cells,)
-        positive = np.bincount(cells[returns], minlength=n_cells) > 0
-        det_cells = np.flatnonzero(positive)  # one detection per positive cell
+        looked, n_looks = np.unique(cells, return_counts=True)  # looked cells, looks at each
+        det_cells = np.unique(cells[returns])  # one detection per positive cell
         z = grid.cell_centers(det_cells)  # (D, 2)
         K, D = len(self._m), len(det_cells)
 
@@ -306,7 +321,7 @@ class KFNNTracker(Tracker):
                 det_used[cols] = True
 
         # miss: the track's cell was looked at and every look there returned 0
-        miss = ~hit & (n_looks[self._cell] > 0) & ~positive[self._cell]
+        miss = ~hit & np.isin(self._cell, looked) & ~np.isin(self._cell, det_cells)
         self._misses = np.where(hit, 0, self._misses + miss)
         tentative = ~self._confirmed
         scored = tentative & (hit | miss)
@@ -317,7 +332,7 @@ class KFNNTracker(Tracker):
         self._keep(~(hopeless | lost))
 
         # a look detects an untracked target with probability p_d (which then becomes a track)
-        self._undetected = self._undetected * (1.0 - self._p_d) ** n_looks
+        self._undetected.multiply(looked, (1.0 - self._p_d) ** n_looks)
 
         new_cells = det_cells[~det_used]
         n_new = len(new_cells)
@@ -341,6 +356,10 @@ class KFNNTracker(Tracker):
         return Estimate(float(c.sum()), self._m[c].copy(), self._P[c].copy())
 
     # ---------------------------------------------------------- for tests/plots
+    def undetected_intensity(self) -> CellField:
+        """The untracked-target intensity ``lambda_c`` (the tracker's own object: read only)."""
+        return self._undetected
+
     def track_table(self) -> dict[str, np.ndarray]:
         """Copies of the track arrays (ids, means, covariances, flags, counters)."""
         return {"id": self._id.copy(), "mean": self._m.copy(), "cov": self._P.copy(),

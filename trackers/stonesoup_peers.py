@@ -62,9 +62,10 @@ Determinism
     after 18 steps, velocity sd 0.1. Estimate: the confirmed tracks, count = their number.
     ``P_c(t)``: each track is a target in its predicted position Gaussian (existence 1
     confirmed, :data:`HOLDING_EXISTENCE` holding), plus KF-NN's undetected Poisson
-    intensity per cell for targets not yet tracked; per cell the count is
-    Poisson-binomial (:func:`~mttbench.trackers.cells.poisson_binomial` of
-    :func:`~mttbench.trackers.cells.gaussian_cell_mass`).
+    intensity per cell for targets not yet tracked (a :class:`~mttbench.trackers.cells.
+    CellField`); per cell the count is Poisson-binomial (:func:`~mttbench.trackers.cells.
+    bernoulli_cell_counts` of :func:`~mttbench.trackers.cells.gaussian_cell_mass_sparse`:
+    the cells within 6 sd of each track).
 
 ``ss-gmphd``
     ``PHDUpdater`` over a ``GaussianMixtureHypothesiser`` (a ``DistanceHypothesiser`` with
@@ -82,7 +83,17 @@ Determinism
     (``q`` of a Gaussian a cell away). Estimate: the components with weight above
     ``extraction_threshold``; count = the sum of the weights (``count="sum"``) or its
     rounding (``"round"``). ``P_c(t)``: Poisson with the cell's predicted intensity mass
-    ``sum_i p_s w_i m_ic + birth_intensity``.
+    ``sum_i p_s w_i m_ic + birth_intensity`` (the components' masses within 6 sd;
+    ``Poisson(birth_intensity)`` in every cell outside them).
+
+Cost per step (the adapter's part)
+    Nothing per cell of the grid: the looks are counted per looked cell, ``P_c(t)`` is a
+    :class:`~mttbench.trackers.cells.CellCounts` (rows of their own near tracks or
+    components and, for the GNN, at the cells looked at so far), the GNN's untracked
+    intensity a :class:`~mttbench.trackers.cells.CellField` (its predict ``O(cells looked
+    at so far)``). The GM-PHD's ``P_c(t)`` sums the components' masses per cell in
+    component order where the dense product summed them by matrix product: equal to
+    round-off.
 """
 
 from __future__ import annotations
@@ -101,7 +112,13 @@ from scipy.stats import poisson
 from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
 from . import kalman
 from .base import Estimate, Tracker, register
-from .cells import gaussian_cell_mass, poisson_binomial
+from .cells import (
+    CellCounts,
+    CellField,
+    bernoulli_cell_counts,
+    gaussian_cell_mass_sparse,
+    untracked_probabilities,
+)
 from .params import Param, Search
 
 #: the one-line reason when Stone Soup is missing (run rows, ``mttbench trackers``)
@@ -208,7 +225,7 @@ def track_key(track: Any) -> tuple[datetime.datetime, int]:
 
 def poisson_counts(lam: np.ndarray, n_counts: int) -> np.ndarray:
     """Per cell, Poisson(``lam_c``) counts ``0 .. n_counts - 2`` and "``n_counts - 1`` or
-    more": ``(n_cells, n_counts)``, rows summing to 1."""
+    more": ``(len(lam), n_counts)``, rows summing to 1."""
     lam = np.maximum(np.asarray(lam, dtype=float), 0.0)
     t = np.arange(n_counts - 1)
     pmf = poisson.pmf(t[None, :], lam[:, None])
@@ -264,20 +281,18 @@ class _StoneSoupPeer(Tracker):
     def _time(self, k: int) -> datetime.datetime:
         return EPOCH + datetime.timedelta(seconds=k * self._model.dynamics.tau)
 
-    def _detections(self, looks: Looks) -> tuple[list[Any], np.ndarray]:
-        """One ``Detection`` per positive cell at its centre, in cell order; and the looks
-        per cell ``(n_cells,)``."""
+    def _detections(self, looks: Looks) -> tuple[list[Any], np.ndarray, np.ndarray]:
+        """One ``Detection`` per positive cell at its centre, in cell order; the looked
+        cells (sorted) and the looks at each."""
         ss = stonesoup()
-        n_cells = self._grid.n_cells
         cells = np.asarray(looks.cells, dtype=np.int64)
-        n_looks = np.bincount(cells, minlength=n_cells)
-        det_cells = np.flatnonzero(np.bincount(cells[np.asarray(looks.returns, bool)],
-                                               minlength=n_cells))
+        looked, n_looks = np.unique(cells, return_counts=True)
+        det_cells = np.unique(cells[np.asarray(looks.returns, bool)])
         t = self._time(self._k)
         dets = [ss.Detection(np.array([[x], [y]]), timestamp=t,
                              measurement_model=self._measurement, metadata={"cell": int(c)})
                 for c, (x, y) in zip(det_cells, self._grid.cell_centers(det_cells), strict=True)]
-        return dets, n_looks
+        return dets, looked, n_looks
 
     def _inside(self, m: np.ndarray) -> np.ndarray:
         """``(K,)`` True where the means ``m (K, 4)`` lie in the workspace (``die``:
@@ -357,13 +372,13 @@ class StoneSoupGNN(_StoneSoupPeer):
         n = model.grid.n_cells
         self._p_s, self._birth_per_cell = bd.survival_probability, bd.birth_rate / n
         self._p_d = model.sensor.p_d
-        self._undetected = np.full(n, bd.initial_count_mean / n)
+        self._undetected = CellField(n, bd.initial_count_mean / n)
 
     def predict(self) -> None:
         """The next step (Stone Soup predicts inside the association); the undetected
         intensity ``p_s lambda + b / n``."""
         self._k += 1
-        self._undetected = self._p_s * self._undetected + self._birth_per_cell
+        self._undetected.affine(self._p_s, self._birth_per_cell)
 
     def _predicted(self, tracks: list[Any]) -> tuple[np.ndarray, np.ndarray]:
         """Predicted means ``(K, 4)`` and covariances of ``tracks`` (``F``, ``Q``)."""
@@ -373,20 +388,20 @@ class StoneSoupGNN(_StoneSoupPeer):
             m[i], P[i] = _mean_cov(tr.state)
         return kalman.predict(m, P, self._F, self._Q)
 
-    def cell_count_distribution(self) -> np.ndarray:
+    def cell_count_distribution(self) -> CellCounts:
         """Poisson-binomial of the tracks (existence 1 or :data:`HOLDING_EXISTENCE`) in
-        their predicted Gaussians, and of the untracked targets."""
+        their predicted Gaussians (within 6 sd), and of the untracked targets."""
         holding = sorted(self._initiator.holding_tracks, key=track_key)
         m, P = self._predicted(self._tracks + holding)
-        mass = gaussian_cell_mass(self._grid, *kalman.position_marginal(m, P))
+        comp, cells, mass = gaussian_cell_mass_sparse(self._grid,
+                                                      *kalman.position_marginal(m, P))
         exist = np.r_[np.ones(len(self._tracks)), np.full(len(holding), HOLDING_EXISTENCE)]
-        untracked = -np.expm1(-self._undetected)
-        return poisson_binomial(np.concatenate([mass * exist[:, None], untracked[None]]),
-                                N_COUNTS)
+        return bernoulli_cell_counts(self._grid.n_cells, N_COUNTS, cells, mass * exist[comp],
+                                     *untracked_probabilities(self._undetected))
 
     def update(self, looks: Looks) -> None:
         """Stone Soup's GNN step: associate, update or coast, delete, initiate."""
-        dets, n_looks = self._detections(looks)
+        dets, looked, n_looks = self._detections(looks)
         t = self._time(self._k)
         used = set()
         if self._tracks:
@@ -405,7 +420,7 @@ class StoneSoupGNN(_StoneSoupPeer):
                             if ok and tr not in dead]
         new = self._initiator.initiate({d for d in dets if d not in used}, t)
         self._tracks += sorted(new, key=track_key)
-        self._undetected = self._undetected * (1.0 - self._p_d) ** n_looks
+        self._undetected.multiply(looked, (1.0 - self._p_d) ** n_looks)
 
     def estimate(self) -> Estimate:
         """The confirmed tracks: count, states ``(n, 4)``, covariances ``(n, 4, 4)``."""
@@ -499,12 +514,17 @@ class StoneSoupGMPHD(_StoneSoupPeer):
         """The next step (Stone Soup predicts inside the update)."""
         self._k += 1
 
-    def cell_count_distribution(self) -> np.ndarray:
-        """Poisson with the predicted intensity mass per cell."""
+    def cell_count_distribution(self) -> CellCounts:
+        """Poisson with the predicted intensity mass per cell: rows of their own within 6
+        sd of a component, ``Poisson(birth_intensity)`` everywhere else."""
         m, P = kalman.predict(self._m, self._P, self._F, self._Q)
-        mass = gaussian_cell_mass(self._grid, *kalman.position_marginal(m, P))
-        lam = (self._p_s * self._w) @ mass + self.birth_intensity
-        return poisson_counts(lam, N_COUNTS)
+        comp, cells, mass = gaussian_cell_mass_sparse(self._grid,
+                                                      *kalman.position_marginal(m, P))
+        own, inv = np.unique(cells, return_inverse=True)
+        lam = np.bincount(inv, weights=(self._p_s * self._w)[comp] * mass,
+                          minlength=len(own)) + self.birth_intensity
+        return CellCounts(self._grid.n_cells, own, poisson_counts(lam, N_COUNTS),
+                          poisson_counts(np.array([self.birth_intensity]), N_COUNTS)[0])
 
     def _state(self, w: float, m: np.ndarray, P: np.ndarray, tag: str, k: int) -> Any:
         return self._ss.TaggedWeightedGaussianState(m.reshape(4, 1), P, weight=w, tag=tag,
@@ -513,11 +533,11 @@ class StoneSoupGMPHD(_StoneSoupPeer):
     def update(self, looks: Looks) -> None:
         """Stone Soup's GM-PHD update of the components in looked cells, plus birth
         components at detected cells; the others predicted only; then the reducer."""
-        dets, n_looks = self._detections(looks)
+        dets, looked_cells, n_looked = self._detections(looks)
         t, k = self._time(self._k), self._k
         m_pred, _ = kalman.predict(self._m, self._P, self._F, self._Q)
         alive = self._inside(m_pred)
-        looked = (n_looks[self._cells_of(m_pred)] > 0) & alive
+        looked = np.isin(self._cells_of(m_pred), looked_cells) & alive
         comps = [self._state(w, m, P, f"c{i}", k - 1)
                  for i, (w, m, P) in enumerate(zip(self._w, self._m, self._P, strict=True))]
         out = []
@@ -527,7 +547,6 @@ class StoneSoupGMPHD(_StoneSoupPeer):
                 out.append(self._state(float(c.weight) * self._p_s,
                                        np.asarray(pred.state_vector, float),
                                        np.asarray(pred.covar, float), c.tag, k))
-        n_looked = n_looks[n_looks > 0]
         if len(n_looked):
             p = float(np.mean(-np.expm1(n_looked * np.log1p(-self._p_d))))
             kappa = float(np.mean(-np.expm1(n_looked * np.log1p(-self._p_f)))

@@ -83,10 +83,15 @@ wall after its target bounced).
 
 Predicted per-cell count distribution ``P_c(t)``: each tracked target is present with
 probability 1, in cell ``c`` with its predicted Gaussian's mass there (summed over its
-images under ``"reflect"``; :func:`~mttbench.trackers.cells.gaussian_cell_mass`, x-y
-correlation ignored) renormalised to ``W``; a known but not yet detected target
+images under ``"reflect"``; :func:`~mttbench.trackers.cells.gaussian_cell_mass_sparse`,
+x-y correlation ignored, only the cells within 6 sd of each image's mean: less than 4e-9
+of its mass left out) renormalised to ``W``; a known but not yet detected target
 (``first_detection``) is uniform over the cells; the count is Poisson-binomial
-(:func:`~mttbench.trackers.cells.poisson_binomial`), columns 0, 1, 2 and "3 or more".
+(:func:`~mttbench.trackers.cells.bernoulli_cell_counts`), columns 0, 1, 2 and "3 or
+more". It is a :class:`~mttbench.trackers.cells.CellCounts`: rows of their own in the
+targets' boxes, one default row (the not yet detected targets only) everywhere else.
+Nothing in a step costs ``O(cells)``: the filters' update works on the looked cells near
+each target (:func:`~mttbench.trackers.gpf_grid.known_existence_update`).
 
 Superposition sensor: not supported (the linear update with a known count would need
 the targets' joint covariance; this reference is for the grid sensor).
@@ -104,7 +109,7 @@ import numpy as np
 from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
 from . import kalman
 from .base import Estimate, Tracker, register
-from .cells import gaussian_cell_mass, poisson_binomial
+from .cells import CellCounts, bernoulli_cell_counts, gaussian_cell_mass_sparse
 from .gpf_grid import known_existence_update, reflection_images
 from .params import Param
 
@@ -199,33 +204,37 @@ class TruthAidedTracker(Tracker):
         # the fold into the workspace (reflect) is applied by the update, with the looks
         self._m, self._P = kalman.predict(self._m, self._P, self._F, self._Q)
 
-    def cell_count_distribution(self) -> np.ndarray:
+    def cell_count_distribution(self) -> CellCounts:
         grid = self._grid
         K = len(self._m)
         if self._reflect:  # the folded prior: the sum of the images' cell masses
             owner, cm, cP = reflection_images(self._m, self._P, grid)
         else:
             owner, cm, cP = np.arange(K), self._m, self._P
-        mass = gaussian_cell_mass(grid, *kalman.position_marginal(cm, cP))  # (J, n_cells)
-        if len(owner) > K:  # sum the images of each target
-            mass = np.add.reduceat(mass, np.searchsorted(owner, np.arange(K)), axis=0)
-        mean_xy = self._m[:, kalman.POSITION]
-        tot = mass.sum(axis=1)
-        empty = tot <= 0.0
-        if np.any(empty):  # no mass on the grid at all: all of it in the nearest cell
-            ix = np.clip(np.floor(mean_xy[empty, 0] / grid.cell_size), 0, grid.nx - 1)
-            iy = np.clip(np.floor(mean_xy[empty, 1] / grid.cell_size), 0, grid.ny - 1)
-            mass[empty] = 0.0
-            mass[np.nonzero(empty)[0], (iy * grid.nx + ix).astype(np.int64)] = 1.0
+        comp, cells, mass = gaussian_cell_mass_sparse(grid, *kalman.position_marginal(cm, cP))
+        # sum the images of each target cell by cell, in image order (as the dense rows)
+        key, inv = np.unique(owner[comp] * grid.n_cells + cells, return_inverse=True)
+        mass = np.bincount(inv, weights=mass, minlength=len(key))
+        target, cells = key // grid.n_cells, key % grid.n_cells
+        tot = np.bincount(target, weights=mass, minlength=K)
+        empty = np.flatnonzero(tot <= 0.0)
+        if len(empty):  # no mass on the grid at all: all of it in the nearest cell
+            mean_xy = self._m[empty][:, kalman.POSITION]
+            ix = np.clip(np.floor(mean_xy[:, 0] / grid.cell_size), 0, grid.nx - 1)
+            iy = np.clip(np.floor(mean_xy[:, 1] / grid.cell_size), 0, grid.ny - 1)
+            keep = ~np.isin(target, empty)
+            target = np.concatenate([target[keep], empty])
+            cells = np.concatenate([cells[keep], (iy * grid.nx + ix).astype(np.int64)])
+            mass = np.concatenate([mass[keep], np.ones(len(empty))])
             tot[empty] = 1.0
-        probs = mass / tot[:, None]
+            order = np.argsort(target, kind="stable")
+            target, cells, mass = target[order], cells[order], mass[order]
+        probs = mass / tot[target]
+        # known targets without a state: each uniform over the cells; together one
+        # Bernoulli "at least one of them" in every cell (the default row)
         n_pending = len(self._pending_ids)
-        if n_pending:
-            # known targets without a state: each uniform over the cells; together one
-            # Bernoulli "at least one of them" per cell
-            p = 1.0 - (1.0 - 1.0 / grid.n_cells) ** n_pending
-            probs = np.concatenate([probs, np.full((1, grid.n_cells), p)])
-        return poisson_binomial(probs, N_COUNTS)
+        p = 1.0 - (1.0 - 1.0 / grid.n_cells) ** n_pending if n_pending else 0.0
+        return bernoulli_cell_counts(grid.n_cells, N_COUNTS, cells, probs, last_default=p)
 
     def update(self, looks: Looks) -> None:
         own = self._own if self.attribution == "truth" and self._fresh else None
