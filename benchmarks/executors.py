@@ -51,15 +51,18 @@ import os
 import signal
 import threading
 import uuid
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from contextvars import ContextVar
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from .harness import Job, _write_parquet, run_job
 from .specs import UsageError
+
+if TYPE_CHECKING:
+    from .harness import Job
 
 #: retries of a lost run (a dead worker, or on Dask a run that raised); Dask's own default
 DEFAULT_RETRIES = 3
@@ -74,6 +77,22 @@ TASK_PREFIX = "mttbench-run"
 Outcome = tuple[int, str | None]
 
 
+@dataclass(frozen=True)
+class Work:
+    """What one run is: ``rows = run_job(job, c, p)``, then ``write(rows, part)``.
+    :func:`~mttbench.benchmarks.harness.run_sweep` passes the harness's ``run_job`` and
+    its atomic Parquet writer (module-level functions: they pickle by reference, and a
+    Dask worker imports them from its own mttbench)."""
+
+    run_job: Callable[[Job, float, float], Any]
+    write: Callable[[Any, Path], None]
+    c: float = 2.0
+    p: float = 2.0
+
+    def __call__(self, job: Job, part: Path) -> None:
+        self.write(self.run_job(job, self.c, self.p), part)
+
+
 class Executor:
     """Runs a sweep's jobs (see the module docstring). A context manager: ``close``
     releases what it started (a Dask LocalCluster); it can run several sweeps before."""
@@ -85,8 +104,9 @@ class Executor:
         ...``."""
         raise NotImplementedError
 
-    def run(self, todo: Sequence[tuple[Job, Path]], c: float, p: float) -> Iterator[Outcome]:
-        """Run every ``(job, part path)`` of ``todo``; yield ``(i, error)`` as each ends.
+    def run(self, todo: Sequence[tuple[Job, Path]], work: Work) -> Iterator[Outcome]:
+        """Do ``work`` for every ``(job, part path)`` of ``todo``; yield ``(i, error)`` as
+        each ends.
 
         Close the iterator (or let an exception through it) to stop: queued runs are
         dropped and running ones ended or released. An ``OSError`` of a part that cannot
@@ -116,10 +136,10 @@ def _init_worker(started: Any) -> None:
     _STARTED = started
 
 
-def _run_and_save(i: int, job: Job, part: Path, c: float, p: float) -> int:
+def _pool_task(i: int, work: Work, job: Job, part: Path) -> int:
     if _STARTED is not None:
         _STARTED.put(i)
-    _write_parquet(run_job(job, c, p), part)
+    work(job, part)
     return i
 
 
@@ -156,10 +176,10 @@ class LocalExecutor(Executor):
     def describe(self, n_runs: int | None = None) -> str:
         return f"{min(self.workers, n_runs or self.workers)} worker(s)"
 
-    def run(self, todo: Sequence[tuple[Job, Path]], c: float, p: float) -> Iterator[Outcome]:
+    def run(self, todo: Sequence[tuple[Job, Path]], work: Work) -> Iterator[Outcome]:
         if self.workers <= 1 or len(todo) <= 1:
             for i, (job, path) in enumerate(todo):
-                _run_and_save(i, job, path, c, p)
+                work(job, path)
                 yield i, None
             return
         deaths = [0] * len(todo)
@@ -177,7 +197,7 @@ class LocalExecutor(Executor):
                                        mp_context=ctx, initializer=_init_worker,
                                        initargs=(started,))
             try:
-                futures = {pool.submit(_run_and_save, i, *todo[i], c, p): i for i in batch}
+                futures = {pool.submit(_pool_task, i, work, *todo[i]): i for i in batch}
                 for fut in as_completed(futures):
                     i = futures[fut]
                     try:
@@ -380,15 +400,15 @@ class DaskExecutor(Executor):
                     f"this process {mine[0]} (sources {mine[1]}): install the same mttbench "
                     "on every worker, or the numbers could differ")
 
-    def run(self, todo: Sequence[tuple[Job, Path]], c: float, p: float) -> Iterator[Outcome]:
+    def run(self, todo: Sequence[tuple[Job, Path]], work: Work) -> Iterator[Outcome]:
         if not todo:
             return
         distributed = import_distributed()
         client = self.client
         token = uuid.uuid4().hex
         keys = [f"{TASK_PREFIX}-{token}-{i}" for i in range(len(todo))]
-        futures = client.map(run_job, [job for job, _ in todo], c=c, p=p, key=keys,
-                             pure=False, retries=self.retries)
+        futures = client.map(work.run_job, [job for job, _ in todo], c=work.c, p=work.p,
+                             key=keys, pure=False, retries=self.retries)
         index = {fut.key: i for i, fut in enumerate(futures)}
         try:
             for fut in distributed.as_completed(futures, loop=client.loop):
@@ -400,7 +420,7 @@ class DaskExecutor(Executor):
                     yield i, _lost(exc)
                     continue
                 fut.release()
-                _write_parquet(frame, todo[i][1])  # an OSError stops the sweep
+                work.write(frame, todo[i][1])  # an OSError stops the sweep
                 yield i, None
         finally:
             waiting = [fut for fut in futures if not fut.done()]

@@ -611,7 +611,7 @@ def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1, progress: 
     running ones and propagates; finished parts stay. A part that cannot be written
     (disk full, read-only) raises ``OSError`` naming the file, and stops the sweep.
     """
-    from .executors import LocalExecutor, current_executor
+    from .executors import LocalExecutor, Work, current_executor
 
     out_dir = Path(out_dir)
     parts_dir = out_dir / "parts"
@@ -643,7 +643,8 @@ def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1, progress: 
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), file=sys.stderr,
                disable=not progress, unit="run", desc="runs")
     try:
-        with contextlib.closing(executor.run(todo, c, p)) as outcomes:
+        work = Work(run_job, _write_parquet, c, p)
+        with contextlib.closing(executor.run(todo, work)) as outcomes:
             for i, error in outcomes:
                 if error is not None:
                     job, path = todo[i]

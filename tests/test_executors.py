@@ -197,8 +197,8 @@ class Interrupting(Executor):
     def __init__(self, inner: Executor, at: int) -> None:
         self.inner, self.at = inner, at
 
-    def run(self, todo, c, p):
-        with contextlib.closing(self.inner.run(todo, c, p)) as outcomes:
+    def run(self, todo, work):
+        with contextlib.closing(self.inner.run(todo, work)) as outcomes:
             for n, outcome in enumerate(outcomes):
                 if n == self.at:
                     raise KeyboardInterrupt
