@@ -207,12 +207,16 @@ def test_cell_count_distribution_equals_loop(seed):
     cells, _ = _random_particles(rng, 100, t_max, n_cells)
     w = rng.random(100)
     w /= w.sum()
-    fast = cell_count_distribution_from(cells, w, n_cells, n_counts)
+    P = cell_count_distribution_from(cells, w, n_cells, n_counts)
+    fast = P.dense()
     slow = np.zeros((n_cells, n_counts))
     for i in range(100):
         count = np.bincount(cells[i][cells[i] < n_cells], minlength=n_cells)
         slow[np.arange(n_cells), np.minimum(count, n_counts - 1)] += w[i]
     assert np.max(np.abs(fast - slow)) < EXACT
+    # rows of their own only where some particle has a target; no target elsewhere
+    assert np.array_equal(P.cells, np.unique(cells[cells < n_cells]))
+    assert np.array_equal(P.default, np.eye(n_counts)[0])
 
 
 # ------------------------------------------------------------------ resampling
@@ -555,7 +559,7 @@ def test_count_posterior_matches_enumeration(proposal):
     tr.predict()  # static: the prediction is the posterior
     assert np.max(np.abs(tr.count_probabilities - exact_t)) < 0.02
     if proposal == "bootstrap":
-        assert np.max(np.abs(tr.cell_count_distribution() - exact_pc)) < 0.02
+        assert np.max(np.abs(tr.cell_count_distribution().dense() - exact_pc)) < 0.02
     assert 0.05 < exact_t.min()  # the case is not degenerate
 
 

@@ -807,7 +807,7 @@ def test_undetected_share_stays_normalised_over_many_sweeps():
     for k in range(300):
         t.predict()
         t.update(Looks(np.r_[cells, cells[:1]], np.zeros(nx + 1, dtype=bool)))
-        total = t._v.sum()
+        total = t._undetected.dense("v").sum()
         assert abs(t._v_total - total) <= 1e-9 * total, (k, t._v_total, total)
 
 

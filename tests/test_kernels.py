@@ -16,7 +16,14 @@ import numpy as np
 import pytest
 
 from mttbench import scenarios
-from mttbench.scenarios.model import BirthDeath, Dynamics, Grid, RayleighGridSensor, TrackingModel
+from mttbench.scenarios.model import (
+    BirthDeath,
+    Dynamics,
+    Grid,
+    Looks,
+    RayleighGridSensor,
+    TrackingModel,
+)
 from mttbench.scenarios.simulator import simulate
 from mttbench.trackers.jmpd import (
     JMPDTracker,
@@ -89,6 +96,66 @@ def test_boundary_cells_counts_equals_numpy_forms(boundary, cell_size):
     assert np.array_equal(counts_k, valid.sum(axis=0))
     # every cell is on the grid, the far edge included
     assert cells_k.min() >= 0 and cells_k.max() < grid.n_cells
+
+
+def test_boundary_cells_counts_beyond_int32_cells():
+    """A 100000 x 50000 grid (5e9 cells, more than int32 holds): the cells are int64, the
+    compiled pass equals the numpy forms and ``Grid.cell_of`` exactly, above ``2^31``
+    too."""
+    grid = Grid(100_000, 50_000)
+    width, height = grid.extent
+    rng = np.random.default_rng(6)
+    T, N = 3, 400
+    X = np.empty((4, T, N))
+    X[0] = rng.uniform(-0.1 * width, 1.1 * width, (T, N))
+    X[2] = rng.uniform(0.9 * height, 1.1 * height, (T, N))  # rows near the top: big cells
+    X[1], X[3] = rng.normal(0, 1, (T, N)), rng.normal(0, 1, (T, N))
+    valid = rng.random((T, N)) < 0.8
+    X_k, valid_k = X.copy(), valid.copy()
+    cells_k = np.empty((T, N), dtype=np.int64)
+    counts_k = np.empty(N, dtype=np.int64)
+    kernels.boundary_cells_counts(
+        X_k[0], X_k[1], X_k[2], X_k[3], valid_k, width, height, np.nextafter(width, 0.0),
+        np.nextafter(height, 0.0), grid.nx, grid.ny, 1.0, True, True, cells_k, counts_k)
+    apply_boundary(X, valid, width, height, True)
+    cells = flat_cells(X[0], X[2], grid)
+    assert cells.dtype == np.int64
+    assert np.array_equal(X_k.view(np.uint64), X.view(np.uint64))
+    assert np.array_equal(cells_k, cells) and np.array_equal(counts_k, valid.sum(axis=0))
+    assert np.array_equal(cells, grid.cell_of(X[0], X[2]))
+    assert cells.max() > 2**31
+
+
+def test_tracker_runs_beyond_int32_cells_are_identical_with_and_without_kernels():
+    """``jmpd`` on a 1e5 x 1e5 grid (int64 cells, hashed look tables), six steps of
+    hand-made looks (the targets' cells and random ones): the same states, weights,
+    cells, ``P_c`` and estimates with and without the kernels."""
+    grid = Grid(100_000, 100_000)
+    model = TrackingModel(grid, Dynamics(wna_intensity=1e-3),
+                          BirthDeath(initial_states=((99_990.5, 0.1, 99_980.5, 0.0),)),
+                          RayleighGridSensor())
+    digests = []
+    for use_kernels in (True, False):
+        with use_backend("compiled" if use_kernels else "numpy"):
+            tr = JMPDTracker(n_particles=400, t_max=3)
+            tr.reset(model, np.random.default_rng(2))
+            tr.states[:, 0] = model.birth_death.initial_states[0]
+            tr.mask[:, 0] = True
+            rng = np.random.default_rng(3)
+            digest = hashlib.sha256()
+            for _ in range(6):
+                tr.predict()
+                P = tr.cell_count_distribution()
+                target = tr.slot_cells[0, 0]
+                cells = np.concatenate([[target], rng.integers(0, grid.n_cells, 9)])
+                tr.update(Looks(cells.astype(np.int64), np.r_[True, np.zeros(9, bool)]))
+                est = tr.estimate()
+                for a in (tr.states, tr.mask, tr.log_weights, tr.slot_cells, est.states,
+                          P.cells, P.rows):
+                    digest.update(np.ascontiguousarray(a).tobytes())
+            assert tr.slot_cells.dtype == np.int64 and tr.slot_cells.max() > 2**31
+            digests.append(digest.hexdigest())
+    assert digests[0] == digests[1]
 
 
 @pytest.mark.parametrize("use_kernels", [False, True])

@@ -39,17 +39,34 @@ The step runs the numba kernels (``mttbench.trackers.jmpd.kernels``) when numba 
 installed (``extra_info["compiled_kernels"]``); ``MTTBENCH_NO_NUMBA=1`` times the
 numpy forms, which give the same numbers.
 
+**Grid scaling** (issue 16, ``test_jmpd_grid_scaling``): ``jmpd`` and ``jmpd-ip`` (``N
+= 2000``, ``t_max = 30``) on ``large``'s world (25 targets placed at random, ~0.1 cell
+per step) drawn on a 50x50 and on a 2000x2000 grid, 250 looks per step (the targets'
+cells, then distinct random cells; returns drawn from ``p_d`` of the true counts by
+:func:`grid_looks`, not the simulator, so that building them costs ``O(looks)``). The
+particles start from the truth (:func:`start_jmpd_on_truth`), play ``GRID_WARM`` untimed
+steps, then each round is the next step, with ``P_c(t)`` (the managed step:
+``predict(); cell_count_distribution(); update(looks); estimate()``). The goal: the
+2000x2000 step within 1.5 times the 50x50 step (medians, docs/jmpd.md section 6).
+``bench_jmpd_ap.py`` times ``jmpd-ap`` on the same worlds.
+
 Run: ``pytest benchmarks/bench/bench_jmpd.py --benchmark-only``.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
 
 from mttbench import scenarios
 from mttbench.benchmarks.policies import AllCells, Oracle
-from mttbench.trackers.jmpd import JMPDTracker
+from mttbench.scenarios.model import Grid, Looks
+from mttbench.scenarios.simulator import simulate_truth
+from mttbench.scenarios.spec import Scenario
+from mttbench.trackers.base import Tracker
+from mttbench.trackers.jmpd import JMPDIPTracker, JMPDTracker
 
 #: (scenario, t_max): the default t_max, and one that fits large's 25 targets
 CONFIGS = [("default", 5), ("large", 30)]
@@ -167,3 +184,98 @@ def test_jmpd_resample_move_step(benchmark, warm_up, accuracy, name, t_max, move
     _estimate_first(tr, done)
     benchmark.extra_info["move_acceptance"] = tr.move_acceptance
     _check_steps(benchmark, accuracy, warm, done)
+
+
+# ------------------------------------------------------------ grid scaling (issue 16)
+#: grid sides of the scaling pair (cells per axis)
+GRID_SIDES = [50, 2000]
+GRID_LOOKS = 250  # looks per step
+GRID_WARM = 2  # untimed steps from the truth before the timed ones
+GRID_ROUNDS = (10, 1)  # (rounds, warm-up rounds)
+
+
+def grid_world(side: int, seed: int = 0) -> tuple[Scenario, list[np.ndarray]]:
+    """``large`` (25 targets placed at random, ``p_s = 1``, no births) on a ``side x
+    side`` grid of unit cells, and its true states ``(25, 4)`` per step."""
+    sc = scenarios.get("large")
+    sc = dataclasses.replace(sc, model=dataclasses.replace(sc.model, grid=Grid(side, side)))
+    return sc, simulate_truth(sc, seed)[1]
+
+
+def grid_looks(sc: Scenario, truth: np.ndarray, rng: np.random.Generator,
+               n_looks: int = GRID_LOOKS) -> Looks:
+    """The targets' cells (each once), then distinct random cells, ``n_looks`` in all;
+    each look's return drawn with ``p_d(T)`` of the cell's true count ``T``. ``O(looks +
+    targets)``: no per-cell uniforms (the simulator's world draws one per cell)."""
+    grid, sensor = sc.model.grid, sc.model.sensor
+    at = grid.cell_of(truth[:, 0], truth[:, 2])
+    own, count = np.unique(at[at >= 0], return_counts=True)
+    others = rng.integers(0, grid.n_cells, 4 * n_looks)
+    others = others[~np.isin(others, own)]
+    _, first = np.unique(others, return_index=True)
+    others = others[np.sort(first)][:n_looks - len(own)]
+    cells = np.concatenate([own, others]).astype(np.int64)
+    counts = np.concatenate([count, np.zeros(len(others), dtype=np.int64)])
+    return Looks(cells, rng.random(len(cells)) < sensor.detection_probability(counts))
+
+
+def start_jmpd_on_truth(tracker: JMPDTracker, sc: Scenario, truth: np.ndarray,
+                        rng: np.random.Generator) -> None:
+    """As ``conftest.start_from_truth``: every particle holds the targets one step back
+    plus ``N(0, diag(0.3^2, 0.03^2, 0.3^2, 0.03^2))``, clipped into the workspace."""
+    n = len(truth)
+    back = truth @ np.linalg.inv(tracker.prior.F).T
+    states, mask = tracker.states, tracker.mask
+    states[:, :n] = back[None] + rng.standard_normal((len(states), n, 4)) * [0.3, 0.03, 0.3, 0.03]
+    width, height = sc.model.grid.extent
+    states[:, :n, 0] = np.clip(states[:, :n, 0], 0.0, np.nextafter(width, 0.0))
+    states[:, :n, 2] = np.clip(states[:, :n, 2], 0.0, np.nextafter(height, 0.0))
+    mask[:] = False
+    mask[:, :n] = True
+
+
+def managed_steps(tracker: Tracker, sc: Scenario, states: list[np.ndarray], first: int,
+                  n_calls: int, rng: np.random.Generator):
+    """The step function of an advancing grid-scaling benchmark: call ``j`` plays step
+    ``first + j`` (``predict``, ``cell_count_distribution``, ``update`` with that step's
+    :func:`grid_looks`, precomputed, and ``estimate``). Returns it and the list of
+    ``(step, estimate)`` it fills."""
+    looks = [grid_looks(sc, states[k], rng) for k in range(first, first + n_calls)]
+    done: list = []
+
+    def step():
+        k = first + len(done)
+        tracker.predict()
+        tracker.cell_count_distribution()
+        tracker.update(looks[k - first])
+        est = tracker.estimate()
+        done.append((k, est))
+        return est
+
+    return step, done
+
+
+@pytest.mark.parametrize("side", GRID_SIDES)
+@pytest.mark.parametrize("cls", [JMPDTracker, JMPDIPTracker], ids=["jmpd", "jmpd-ip"])
+def test_jmpd_grid_scaling(benchmark, accuracy, cls, side):
+    """The managed step at 25 targets and 250 looks on a ``side x side`` grid (module
+    docstring, "Grid scaling")."""
+    sc, states = grid_world(side)
+    tracker = cls(n_particles=2000, t_max=30)
+    tracker.reset(sc.model, np.random.default_rng(np.random.SeedSequence([side, 1])))
+    rng = np.random.default_rng(np.random.SeedSequence([side, 2]))
+    start_jmpd_on_truth(tracker, sc, states[0], rng)
+    rounds, warmup = GRID_ROUNDS
+    step, done = managed_steps(tracker, sc, states, 0,
+                               GRID_WARM + (1 if benchmark.disabled else rounds + warmup), rng)
+    for _ in range(GRID_WARM):
+        step()
+    benchmark.extra_info.update(scenario=f"large on {side}x{side}", n_particles=2000, t_max=30,
+                                looks=GRID_LOOKS, warm_steps=GRID_WARM, warm_from_truth=True,
+                                compiled_kernels=tracker.uses_compiled_kernels)
+    benchmark.pedantic(step, rounds=rounds, warmup_rounds=warmup)
+    k0, est0 = done[GRID_WARM]
+    accuracy(states[k0], est0, OSPA_BOUND)
+    k1, est1 = done[-1]
+    if k1 != k0:
+        accuracy(states[k1], est1, None, prefix="last_")

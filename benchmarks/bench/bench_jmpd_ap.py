@@ -15,16 +15,27 @@ Measured on this 2-core machine, quiet, ``--benchmark-timer=time.process_time``,
 median of 20 rounds: kreucher-50 N = 250 8.1 ms (the goal: <= 10 ms); kreucher
 N = 250 2.8 ms, N = 1000 6.0 ms.
 
+**Grid scaling** (issue 16, ``test_jmpd_ap_grid_scaling``): ``jmpd-ap`` at ``N = 500``
+(its default; 54 slots for the 25 targets) on the worlds of ``bench_jmpd.py``'s
+``test_jmpd_grid_scaling`` (``large`` on 50x50 and 2000x2000, 250 looks per step), every
+particle started on the truth (:func:`start_ap_on_truth`), the same managed step
+(``predict(); cell_count_distribution(); update(looks); estimate()``). Goal: the
+2000x2000 step within 1.5 times the 50x50 step (docs/jmpd-ap.md, last section).
+
 Run: ``pytest benchmarks/bench/bench_jmpd_ap.py --benchmark-only``.
 """
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from mttbench import scenarios
 from mttbench.benchmarks.policies import AllCells
+from mttbench.scenarios.spec import Scenario
 from mttbench.trackers.jmpd import JMPDAPTracker
+
+from .bench_jmpd import GRID_LOOKS, GRID_ROUNDS, GRID_SIDES, GRID_WARM, grid_world, managed_steps
 
 #: (scenario, particles)
 CONFIGS = [("kreucher-50", 250), ("kreucher", 250), ("kreucher", 1000)]
@@ -53,3 +64,45 @@ def test_jmpd_ap_step(benchmark, warm_up, accuracy, name, n):
     k1, est1 = done[-1]
     if k1 != k0:
         accuracy(warm.world.states[k1], est1, None, prefix="last_")
+
+
+# ------------------------------------------------------------ grid scaling (issue 16)
+def start_ap_on_truth(tracker: JMPDAPTracker, sc: Scenario, truth: np.ndarray,
+                      rng: np.random.Generator) -> None:
+    """Every particle holds the targets ``truth (n, 4)`` in slots ``0..n-1``, one step
+    back (the first predict brings them to step 0): positions plus ``N(0, 0.3^2)`` per
+    axis (clipped into the workspace), velocity means the truth's with variance 1e-3."""
+    n = len(truth)
+    back = truth @ np.linalg.inv(sc.model.dynamics.F).T
+    pos = back[:, [0, 2]][None] + 0.3 * rng.standard_normal((tracker.pos.shape[0], n, 2))
+    width, height = sc.model.grid.extent
+    pos[..., 0] = np.clip(pos[..., 0], 0.0, np.nextafter(width, 0.0))
+    pos[..., 1] = np.clip(pos[..., 1], 0.0, np.nextafter(height, 0.0))
+    tracker.valid[:] = False
+    tracker.pos[:, :n], tracker.vel[:, :n] = pos, back[:, [1, 3]][None]
+    tracker.vvar[:, :n] = 1e-3
+    tracker.valid[:, :n] = True
+
+
+@pytest.mark.parametrize("side", GRID_SIDES)
+def test_jmpd_ap_grid_scaling(benchmark, accuracy, side):
+    """The managed step at 25 targets and 250 looks on a ``side x side`` grid (module
+    docstring, "Grid scaling")."""
+    sc, states = grid_world(side)
+    tracker = JMPDAPTracker(n_particles=500)
+    tracker.reset(sc.model, np.random.default_rng(np.random.SeedSequence([side, 1])))
+    rng = np.random.default_rng(np.random.SeedSequence([side, 2]))
+    start_ap_on_truth(tracker, sc, states[0], rng)
+    rounds, warmup = GRID_ROUNDS
+    step, done = managed_steps(tracker, sc, states, 0,
+                               GRID_WARM + (1 if benchmark.disabled else rounds + warmup), rng)
+    for _ in range(GRID_WARM):
+        step()
+    benchmark.extra_info.update(scenario=f"large on {side}x{side}", n_particles=500,
+                                looks=GRID_LOOKS, warm_steps=GRID_WARM, warm_from_truth=True)
+    benchmark.pedantic(step, rounds=rounds, warmup_rounds=warmup)
+    k0, est0 = done[GRID_WARM]
+    accuracy(states[k0], est0, OSPA_BOUND)
+    k1, est1 = done[-1]
+    if k1 != k0:
+        accuracy(states[k1], est1, None, prefix="last_")

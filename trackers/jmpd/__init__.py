@@ -46,6 +46,13 @@ means over the particles with ``T = mode``, targets aligned by K-means over
 permutations. Three per-slot passes run as numba kernels when numba is installed
 (:mod:`.kernels`), bit-identical to the numpy forms.
 
+Cost: ``O(N t_max^2 + looks)`` per step and ``O(N t_max + looks)`` memory, whatever the
+grid's size. The look tables are keyed by the looked cells and ``P_c(t)`` is a
+:class:`~..cells.CellCounts` with rows for the cells the particles occupy and the
+no-target row elsewhere (:mod:`.sparse`); grids of more than ``2^31 - 1`` cells keep
+int64 cells (docs/jmpd.md, section 6). The numbers are those of the former dense tables
+bit for bit.
+
 Measured (docs/jmpd.md): the bootstrap loses targets even at N = 1e5 or started on the
 truth; the IP proposal helps (``default``, N = 2000, every cell looked at, 20 seeds:
 OSPA 1.41 -> 0.87); resample-move shows no measurable gain, so it stays opt-in.

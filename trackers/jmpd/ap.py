@@ -57,7 +57,14 @@ One update (every step; ``Lambda_c(n)`` is the product over this step's looks at
    (1 - p_d)`` per look); and arrivals with intensity ``u_c`` (``u <- p_s u + alpha_c`` per step,
    ``u <- u (1 - p_d)`` per look), kept lazily (value and step of each cell's last
    look), so a step costs the looks, not the cells. ``pi_c = 1 - (1 - v_c / sum v)^r_i
-   exp(-u_c)``.
+   exp(-u_c)``. The cells never looked at share one value of ``v`` and ``u``
+   (:class:`.sparse.CellTable`); ``P_c(t)`` (:meth:`JMPDAPTracker.cell_count_distribution`)
+   has rows for the cells the particles occupy and the cells looked at so far, one
+   default row for all others.
+
+Cost per step: ``O(N T W + looks)`` (``W`` the proposal window's cells) and nothing per
+cell of the grid: the look tables are keyed by the looked cells (:mod:`.sparse`), the
+undetected values by the cells looked at so far (docs/jmpd-ap.md, "Grid size").
 
 Estimate: count ``E[T]``; states: the ``round(E[T])`` slots of largest existence mass,
 each averaged over the particles holding it (positions, velocity means).
@@ -93,12 +100,14 @@ import numpy as np
 
 from ...scenarios.model import Looks, RayleighGridSensor, TrackingModel
 from ..base import Estimate, Tracker, register
+from ..cells import CellCounts
 from ..params import Param, Search
 from .cell_proposal import axis_window, truncated_normal
 from .estimation import cell_count_distribution_from
 from .likelihood import grid_log_likelihood, grid_log_likelihood_tables
 from .partitions import cluster_slots, merge_slots, sort_slots
 from .resampling import effective_sample_size, systematic_resample
+from .sparse import CellTable
 from .state import fold
 
 #: Kreucher's removal probability per target and step (docs/literature/jmpd.md Sec.
@@ -114,6 +123,19 @@ def _boxes(pos: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return np.stack([np.where(valid, x, inf).min(axis=0), np.where(valid, x, -inf).max(axis=0),
                      np.where(valid, y, inf).min(axis=0), np.where(valid, y, -inf).max(axis=0)],
                     axis=1)
+
+
+def _with_undetected(P: np.ndarray, pis: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Rows ``P (m, n_counts)`` of count distributions with one more target with
+    probability ``pi = 1 - (1 - pi_init)(1 - pi_arr)`` per row (``pis`` as returned by
+    ``_undetected_probability`` for one particle: shapes ``(1, m)``); the last column
+    keeps "that many or more"."""
+    pi_init, pi_arr = pis
+    pi = (1.0 - (1.0 - pi_init[0]) * (1.0 - pi_arr[0]))[:, None]
+    shifted = np.zeros_like(P)
+    shifted[:, 1:] = P[:, :-1]
+    shifted[:, -1] += P[:, -1]
+    return P * (1.0 - pi) + shifted * pi
 
 
 def _auto_slots(model: TrackingModel) -> int:
@@ -249,12 +271,12 @@ class JMPDAPTracker(Tracker):
         # undetected targets (module docstring, 6): the initial ones, n0 p_s^(k+1) alive
         # less the particle's targets, spread over the cells in proportion to v (v <- v
         # (1 - p_d) per look); and the arrivals' intensity u, kept lazily as the value at
-        # each cell's last look and its step
+        # each cell's last look and its step; all three in a CellTable (one default value
+        # per column, and the values of the cells looked at so far)
         self._n0 = float(bd.initial_count_mean)
-        self._v = np.full(J, 1.0 / J)
+        self._undetected = CellTable(J, u=(0.0, np.float64), u_step=(-1, np.int64),
+                                     v=(1.0 / J, np.float64))
         self._v_total = 1.0
-        self._u = np.zeros(J)
-        self._u_step = np.full(J, -1, dtype=np.int64)
         self._k = -1
         self._pred: tuple[np.ndarray, np.ndarray] | None = None
         self.count_mean = 0.0
@@ -263,15 +285,25 @@ class JMPDAPTracker(Tracker):
         self.largest_cluster = 0
 
     # ------------------------------------------------------------- helpers
-    def _arrival_intensity(self, cells: np.ndarray) -> np.ndarray:
-        """Intensity of undetected arrivals in the given cells at the current step
-        (after this step's arrivals, before its looks): ``u <- p_s u + alpha`` per step."""
-        gap = self._k - self._u_step[cells]
+    def _undetected_values(self, cells: np.ndarray | None
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(u, u_step, v)`` of the given cells; ``cells=None``: of a cell never looked
+        at (the default values, as arrays of one)."""
+        table = self._undetected
+        if cells is None:
+            return tuple(np.array([table.defaults[k]]) for k in ("u", "u_step", "v"))
+        return tuple(table.get(k, cells) for k in ("u", "u_step", "v"))
+
+    def _arrival_intensity(self, u: np.ndarray, u_step: np.ndarray) -> np.ndarray:
+        """Intensity of undetected arrivals at the current step (after this step's
+        arrivals, before its looks) of cells whose value was ``u`` after their last look
+        at step ``u_step``: ``u <- p_s u + alpha`` per step since."""
+        gap = self._k - u_step
         p_s, a = self._p_s, self._alpha
         if p_s == 1.0:
-            return self._u[cells] + a * gap
+            return u + a * gap
         keep = p_s ** gap
-        return self._u[cells] * keep + a * (1.0 - keep) / (1.0 - p_s)
+        return u * keep + a * (1.0 - keep) / (1.0 - p_s)
 
     def _remaining(self) -> np.ndarray:
         """Initial targets not held, per particle: ``max(n0 p_s^(k+1) - T_i, 0)``
@@ -280,22 +312,27 @@ class JMPDAPTracker(Tracker):
         alive = self._n0 * self._p_s ** (self._k + 1)
         return np.maximum(alive - self.valid.sum(axis=1), 0.0)
 
-    def _undetected_probability(self, cells: np.ndarray, remaining: np.ndarray
+    def _undetected_probability(self, cells: np.ndarray | None, remaining: np.ndarray
                                 ) -> tuple[np.ndarray, np.ndarray]:
-        """``(pi_initial, pi_arrival)`` of an undetected target in each cell, for
-        particles with ``remaining`` initial targets not found; shapes ``remaining.shape
-        + cells.shape``."""
-        share = self._v[cells] / self._v_total
+        """``(pi_initial, pi_arrival)`` of an undetected target in each cell (``None``: a
+        cell never looked at, as one cell), for particles with ``remaining`` initial
+        targets not found; shapes ``remaining.shape + cells.shape``."""
+        u, u_step, v = self._undetected_values(cells)
+        share = v / self._v_total
         pi_init = -np.expm1(remaining[..., None] * np.log1p(-np.minimum(share, 1.0 - 1e-12)))
-        pi_arr = -np.expm1(-self._arrival_intensity(cells))
+        pi_arr = -np.expm1(-self._arrival_intensity(u, u_step))
         return pi_init, np.broadcast_to(pi_arr, pi_init.shape)
 
     @property
     def undetected_mass(self) -> float:
-        """Expected number of undetected targets now (an O(cells) diagnostic)."""
+        """Expected number of undetected targets now: the remaining initial targets
+        (mean over the particles) plus the arrival intensity summed over the cells, the
+        cells never looked at counted together (``O(cells looked at so far)``)."""
         remaining = self._remaining().mean()
-        arrivals = self._arrival_intensity(np.arange(self._model.grid.n_cells)).sum()
-        return float(remaining + arrivals)
+        table = self._undetected
+        own = self._arrival_intensity(table.columns["u"], table.columns["u_step"]).sum()
+        rest = self._arrival_intensity(*self._undetected_values(None)[:2])[0] * table.n_default
+        return float(remaining + own + rest)
 
     def predict(self) -> None:
         self._k += 1
@@ -334,20 +371,24 @@ class JMPDAPTracker(Tracker):
             self._kp_cells = np.where(ok & (cells >= 0), cells, grid.n_cells)
         return self._kp_cells
 
-    def cell_count_distribution(self) -> np.ndarray:
-        grid = self._model.grid
+    def cell_count_distribution(self) -> CellCounts:
+        """``P_c(t)`` of one draw from the predictive (kinematic prior), each cell's count
+        raised by one undetected target with probability ``pi_c`` (module docstring, 6)
+        when ``undetected_in_policy``. Rows for the cells the draw occupies and the
+        cells looked at so far (whose ``pi_c`` has its own value); every other cell has
+        the default row (no target, the ``pi`` of a cell never looked at)."""
+        J = self._model.grid.n_cells
         n_counts = min(self._T, 4) + 1
         w = np.full(self._N, 1.0 / self._N)
-        P = cell_count_distribution_from(self._kinematic_cells(), w, grid.n_cells, n_counts)
-        if self.undetected_in_policy:
-            remaining = np.array([self._remaining().mean()])
-            pi_init, pi_arr = self._undetected_probability(np.arange(grid.n_cells), remaining)
-            pi = (1.0 - (1.0 - pi_init[0]) * (1.0 - pi_arr[0]))[:, None]
-            shifted = np.zeros_like(P)
-            shifted[:, 1:] = P[:, :-1]
-            shifted[:, -1] += P[:, -1]
-            P = P * (1.0 - pi) + shifted * pi
-        return P
+        P = cell_count_distribution_from(self._kinematic_cells(), w, J, n_counts)
+        if not self.undetected_in_policy:
+            return P
+        remaining = np.array([self._remaining().mean()])
+        cells = np.union1d(P.cells, self._undetected.cells)
+        rows = _with_undetected(P.row_of(cells), self._undetected_probability(cells, remaining))
+        default = _with_undetected(P.default[None], self._undetected_probability(None,
+                                                                                 remaining))
+        return CellCounts(J, cells, rows, default[0])
 
     # ------------------------------------------------------------- update
     def update(self, looks: Looks) -> None:
@@ -356,7 +397,7 @@ class JMPDAPTracker(Tracker):
         N, T, J = self._N, self._T, grid.n_cells
         rhohat, psi = self._pred
         sd = np.sqrt(psi)
-        slot_of_cell, table = grid_log_likelihood_tables(
+        index, table = grid_log_likelihood_tables(
             model.sensor, np.asarray(looks.cells, dtype=np.int64),
             np.asarray(looks.returns, dtype=bool), J, T)
         beta = self._beta
@@ -372,14 +413,13 @@ class JMPDAPTracker(Tracker):
 
         log_w = np.zeros(N)
         if clusters:
-            log_w += self._move_persistent(clusters, rhohat, psi, sd, slot_of_cell, table,
-                                           beta)
-        log_w += self._births(centres, active, slot_of_cell, table)
+            log_w += self._move_persistent(clusters, rhohat, psi, sd, index, table, beta)
+        log_w += self._births(centres, active, index, table)
 
         # full likelihood (all targets, newborns included)
         cells = grid.cell_of(self.pos[..., 0], self.pos[..., 1])
         cells = np.where(self.valid & (cells >= 0), cells, J)
-        log_w += grid_log_likelihood(cells, slot_of_cell, table)
+        log_w += grid_log_likelihood(cells, index, table)
 
         # weights, resampling every step
         if self._fixed_count is not None:
@@ -401,16 +441,15 @@ class JMPDAPTracker(Tracker):
             lc, n_looks = np.unique(np.asarray(looks.cells, dtype=np.int64),
                                     return_counts=True)
             miss = (1.0 - model.sensor.p_d) ** n_looks
-            self._u[lc] = self._arrival_intensity(lc) * miss
-            self._u_step[lc] = self._k
-            v_new = self._v[lc] * miss
-            self._v_total += float((v_new - self._v[lc]).sum())
-            self._v[lc] = v_new
+            u, u_step, v = self._undetected_values(lc)
+            v_new = v * miss
+            self._v_total += float((v_new - v).sum())
+            self._undetected.set(lc, u=self._arrival_intensity(u, u_step) * miss,
+                                 u_step=self._k, v=v_new)
             if self._v_total < 1e-6:
                 # the running total has lost six digits to cancellation: only ratios
-                # matter, so rescale by the exact sum (O(cells), once per ~20 sweeps)
-                self._v /= self._v.sum()
-                self._v_total = 1.0
+                # matter, so rescale by the exact sum (once per ~20 sweeps)
+                self._rescale_shares()
 
         # K-means partition sorting within clusters (after resampling, before estimation)
         if self.sort_iterations > 0:
@@ -423,7 +462,22 @@ class JMPDAPTracker(Tracker):
             sort_slots(self.pos, self.valid, now, arrays, self.sort_iterations)
             merge_slots(self.pos, self.valid, arrays, self.merge_distance * grid.cell_size)
 
-    def _move_persistent(self, clusters, rhohat, psi, sd, slot_of_cell, table, beta):
+    def _rescale_shares(self) -> None:
+        """``v <- v / sum v`` over every cell, ``_v_total = 1``. The sum is numpy's over
+        the dense array when at most half the cells have the default value (always, in
+        fact: the total falls below 1e-6 only after all but a millionth of the cells
+        were looked at; ``O(cells) = O(cells looked at)``), so the numbers are those of a
+        dense ``v``; else the default's part plus the own values' sum."""
+        table = self._undetected
+        if table.n_default <= len(table.cells):
+            total = table.dense("v").sum()
+        else:
+            total = table.defaults["v"] * table.n_default + table.columns["v"].sum()
+        table.columns["v"] = table.columns["v"] / total
+        table.defaults["v"] = table.defaults["v"] / total
+        self._v_total = 1.0
+
+    def _move_persistent(self, clusters, rhohat, psi, sd, index, table, beta):
         """Steps 2-3 of the module docstring for every cluster at once, in place; returns
         the per-particle ``-sum_l log pi_l(z | X_il)``."""
         rng, grid = self._rng, self._model.grid
@@ -465,7 +519,7 @@ class JMPDAPTracker(Tracker):
             inside = in_x * in_y
             gamma *= np.where(total > 0, inside / np.where(total > 0, total, 1.0), 0.0)[..., None]
             m_out = 1.0 - inside
-        row = slot_of_cell[wcell]  # (N, S, W) table rows
+        row = index(wcell)  # (N, S, W) table rows
         dead = beta + (1.0 - beta) * m_out  # (N, S)
 
         # 3. every particle draws its own clusters, target after target
@@ -529,16 +583,15 @@ class JMPDAPTracker(Tracker):
         # the weight keeps p(z | X) / prod_l pi_l: nonzero only where clusters share a cell
         return -log_pi[anc, np.arange(len(clusters))[None, :]].sum(axis=1)
 
-    def _births(self, centres, active, slot_of_cell, table) -> np.ndarray:
+    def _births(self, centres, active, index, table) -> np.ndarray:
         """Step 4 of the module docstring; returns the per-particle prior/proposal log
         ratio of the birth decisions at the detected cells."""
         grid, rng = self._model.grid, self._rng
         N = self._N
-        n_u = table.shape[0] - 1
-        looked = np.flatnonzero(slot_of_cell[:-1] != n_u)
+        looked = index.keys  # sorted; row r of the table is looked[r]
         if looked.size == 0:
             return np.zeros(N)
-        lam = table[slot_of_cell[looked], 1]
+        lam = table[:-1, 1]
         det = looked[lam > 0.0]
         if det.size == 0:
             return np.zeros(N)

@@ -1,6 +1,6 @@
 """What the particles say: the count posterior, the state estimates (alignment of the
 particles' targets, Kreucher's K-means over permutations) and the per-cell count
-distribution ``P_c(t)``.
+distribution ``P_c(t)`` (rows for the occupied cells only).
 
 Estimates: the count is the posterior mode of ``T``; the states are weighted means of
 the targets of the particles with ``T = mode`` after aligning each particle's targets to
@@ -18,6 +18,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ..base import Estimate
+from ..cells import CellCounts
+from .sparse import CellIndex, unique_cells
 
 EXACT_ALIGN_MAX = 4  # enumerate all T! permutations up to this many targets
 
@@ -168,13 +170,18 @@ def _ranks(c: np.ndarray) -> np.ndarray:
 
 
 def cell_count_distribution_from(cells: np.ndarray, weights: np.ndarray, n_cells: int,
-                                 n_counts: int) -> np.ndarray:
-    """``P_c(t) = sum_i w_i [T_ic = t]`` (last column "t or more"), ``(n_cells, n_counts)``.
+                                 n_counts: int) -> CellCounts:
+    """``P_c(t) = sum_i w_i [T_ic = t]`` (last column "t or more") as
+    :class:`~..cells.CellCounts`: a row for every cell some particle's target occupies,
+    the default row ``(1, 0, ..., 0)`` (no target) for every other cell.
 
     ``cells (N, t_max)`` as in :func:`grid_log_likelihood`, ``weights (N,)``
     normalised. Only occupied (particle, cell) pairs are visited: the first target
     of each cell in a particle carries the particle's count in that cell; the mass
-    not accounted for goes to ``t = 0``.
+    not accounted for goes to ``t = 0``. ``O(N t_max^2)`` (the in-particle counts) plus
+    :func:`.sparse.unique_cells`; nothing per cell of the grid. ``dense()`` equals the
+    ``(n_cells, n_counts)`` array of the former dense computation bit for bit: each
+    occupied cell's bins receive the same weights in the same order.
     """
     c = cells.T
     t_max = c.shape[0]
@@ -185,9 +192,12 @@ def cell_count_distribution_from(cells: np.ndarray, weights: np.ndarray, n_cells
             n_in[j] += c[k] == c[j]
     keep = first & (c < n_cells)
     slot, particle = np.nonzero(keep)
-    key = c[slot, particle] * n_counts + np.minimum(n_in[slot, particle], n_counts - 1)
-    P = np.bincount(key, weights=weights[particle], minlength=n_cells * n_counts)
-    P = P.reshape(n_cells, n_counts).astype(np.float64, copy=False)  # int when no target
+    held = c[slot, particle]
+    occupied = unique_cells(held, n_cells)
+    row = CellIndex(occupied, n_cells)(held)
+    key = row.astype(np.int64) * n_counts + np.minimum(n_in[slot, particle], n_counts - 1)
+    P = np.bincount(key, weights=weights[particle], minlength=len(occupied) * n_counts)
+    P = P.reshape(len(occupied), n_counts).astype(np.float64, copy=False)  # int when empty
     P[:, 0] = np.maximum(1.0 - P[:, 1:].sum(axis=1), 0.0)
     P /= P.sum(axis=1, keepdims=True)
-    return P
+    return CellCounts(n_cells, occupied, P, np.eye(n_counts)[0])

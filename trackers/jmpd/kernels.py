@@ -62,8 +62,9 @@ def boundary_cells_counts(px: np.ndarray, vx: np.ndarray, py: np.ndarray, vy: np
     ``px, vx, py, vy (T, N)`` the state rows (changed in place), ``valid (T, N)`` bool
     (in place: the ``die`` rule clears it), ``cap_w = nextafter(width, 0)`` (same for
     the height), ``inv = 1 / cell_size`` (unused when ``unit``: cell size 1),
-    ``reflect`` the boundary rule (else ``die``). Writes ``cells (T, N)`` int32 and
-    ``counts (N,)`` (valid slots per particle).
+    ``reflect`` the boundary rule (else ``die``). Writes ``cells (T, N)`` (int32, or
+    int64 on grids of more than ``2^31 - 1`` cells) and ``counts (N,)`` (valid slots per
+    particle).
 
     Numpy forms: :func:`.state.apply_boundary` (a position outside ``[0, L)`` is
     folded back with its velocity mirrored, or its slot dies and the position is
@@ -92,7 +93,7 @@ def boundary_cells_counts(px: np.ndarray, vx: np.ndarray, py: np.ndarray, vy: np
             else:
                 col = min(np.int32(x * inv), nx - 1)
                 row = min(np.int32(y * inv), ny - 1)
-            ct[i] = row * nx + col  # int32 store wraps like numpy's int32 arithmetic
+            ct[i] = row * nx + col  # exact: the cell fits the array's dtype
             counts[i] += vt[i]
 
 
@@ -102,10 +103,11 @@ def grid_log_likelihood_dense(cells: np.ndarray, valid: np.ndarray, use_valid: b
                               count: np.ndarray, out: np.ndarray) -> None:
     """The dense path of :func:`.likelihood.grid_log_likelihood`, its passes fused.
 
-    ``cells (T, N)`` integers, ``valid (T, N)`` bool (read only when ``use_valid``;
-    otherwise every slot counts as valid), ``inc_cell`` the flat per-cell increment
-    table (indices clipped to it), ``key (T, N)`` int32 and ``count (N,)`` int32
-    scratch; writes ``out (N,)``. Same integer steps (int32 keys ``c n_counts + v``,
+    ``cells (T, N)`` integers (the tracker passes each slot's row of the look table,
+    :class:`.sparse.CellIndex`), ``valid (T, N)`` bool (read only when ``use_valid``;
+    otherwise every slot counts as valid), ``inc_cell`` the flat increment table
+    ``(rows * n_counts,)`` (indices clipped to it), ``key (T, N)`` int32 and ``count
+    (N,)`` int32 scratch; writes ``out (N,)``. Same integer steps (int32 keys ``c n_counts + v``,
     ranks from the unranked keys of the earlier slots) and the same float additions
     in slot order as numpy; the loops run over particles innermost, so they vectorise.
     """
@@ -175,9 +177,10 @@ def warm_up() -> None:
         return
     rows = np.full((4, 1, 2), 0.5)
     valid = np.ones((1, 2), dtype=bool)
-    boundary_cells_counts(rows[0], rows[1], rows[2], rows[3], valid, 1.0, 1.0, 0.9, 0.9,
-                          1, 1, 1.0, True, True, np.zeros((1, 2), dtype=np.int32),
-                          np.zeros(2, dtype=np.int64))
+    for cell_type in (np.int32, np.int64):  # int64: grids of more than 2^31 - 1 cells
+        boundary_cells_counts(rows[0], rows[1], rows[2], rows[3], valid, 1.0, 1.0, 0.9, 0.9,
+                              1, 1, 1.0, True, True, np.zeros((1, 2), dtype=cell_type),
+                              np.zeros(2, dtype=np.int64))
     out, key, count = np.empty(2), np.empty((1, 2), np.int32), np.empty(2, np.int32)
     for cells in (np.zeros((1, 2), np.int32), np.zeros((1, 2), np.int64)):
         for use_valid in (True, False):

@@ -21,31 +21,29 @@ import numpy as np
 from ...scenarios.model import Looks, RayleighGridSensor, Sensor
 from ..cells import look_log_ratios
 from .backend import compiled_kernels
+from .sparse import CellIndex
 
 
 def grid_log_likelihood_tables(sensor: RayleighGridSensor, look_cells: np.ndarray,
                                returns: np.ndarray, n_cells: int, t_max: int
-                               ) -> tuple[np.ndarray, np.ndarray]:
-    """Per-look tables for :func:`grid_log_likelihood`.
+                               ) -> tuple[CellIndex, np.ndarray]:
+    """Per-look tables for :func:`grid_log_likelihood`, ``O(looks)`` (never ``O(cells)``).
 
-    Returns ``slot_of_cell (n_cells + 1,) int64`` (looked slot of each cell; the
-    unlooked cells and the sentinel ``n_cells`` map to the zero row ``n_u``) and
-    ``table (n_u + 1, t_max + 1)`` with ``table[s, t] = sum_{looks at cell s}
-    log l(z, t)``; its last row is zero.
+    Returns ``index`` (:class:`.sparse.CellIndex` over the sorted unique looked cells:
+    ``index(cells)`` is each cell's row of ``table``, ``n_u`` for an unlooked cell or
+    the sentinel ``n_cells``) and ``table (n_u + 1, t_max + 1)`` with ``table[s, t] =
+    sum_{looks at cell s} log l(z, t)``; its last row is zero.
     """
     ucells, LL = look_log_ratios(sensor, np.asarray(look_cells, dtype=np.int64),
                                  np.asarray(returns, bool), t_max)
-    n_u = ucells.shape[0]
     table = np.vstack([LL, np.zeros((1, t_max + 1))])  # the zero row of unlooked cells
-    slot_of_cell = np.full(n_cells + 1, n_u, dtype=np.int64)
-    slot_of_cell[ucells] = np.arange(n_u)
-    return slot_of_cell, table
+    return CellIndex(ucells, n_cells), table
 
 
 _NO_MASK = np.ones((1, 1), dtype=bool)  # the kernel's unread mask when there is none
 
 
-def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.ndarray,
+def grid_log_likelihood(cells: np.ndarray, index: CellIndex, table: np.ndarray,
                         valid: np.ndarray | None = None,
                         key_buffer: np.ndarray | None = None,
                         path: Literal["auto", "dense", "sparse"] = "auto"
@@ -53,7 +51,7 @@ def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.n
     """``log p(z | X_i) - log p(z | no target)`` for every particle, shape ``(N,)``.
 
     ``cells (N, t_max)`` (integers) are the targets' flat cells, with ``n_cells`` for an
-    empty slot or a target outside the grid; tables from
+    empty slot or a target outside the grid; ``index`` and ``table`` from
     :func:`grid_log_likelihood_tables`. If ``valid (N, t_max)`` bool is given, the
     slots where it is False are empty whatever their cell (it may then be any index
     in ``[0, n_cells]``, or beyond it, which counts as unlooked). ``key_buffer``:
@@ -68,6 +66,12 @@ def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.n
     cell ``c`` adds ``table[c, j] - table[c, j - 1]``, which telescopes to
     ``table[c, T_ic]`` because ``table[c, 0] = 0``. Each particle's terms are added
     in slot order, starting from 0 (both code paths below; results are identical).
+
+    Every slot's cell is first replaced by its row ``r = index(c)`` of the table
+    (``n_u`` for an unlooked cell), so the work is ``O(N t_max^2 + looks)`` whatever the
+    grid's size. Slots are told apart by their rows: two looked slots share a row iff
+    they share a cell, and unlooked slots (which share the row ``n_u``) add the zero
+    row's entries, 0.0, whatever their rank.
     """
     c = cells.T  # (t_max, N); contiguous rows when the caller stores (t_max, N)
     v = None if valid is None else valid.T
@@ -76,25 +80,22 @@ def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.n
     n_u = table.shape[0] - 1
     increments = np.zeros_like(table)
     increments[:, 1:] = np.diff(table, axis=1)
-    looked = (slot_of_cell != n_u).view(np.uint8)
+    inc = increments.ravel()
+    rows = index(c)  # (t_max, N) int32, rows of the table
     kernels = compiled_kernels() if path == "auto" else None
     if path == "auto" and kernels is None:
         # choose on a sample of particles (the choice never changes the result); measured
         # crossover: the sparse path wins below about 5% of the slots looked at
         n_sample = min(n, 4096)  # contiguous, so cheap
-        hit = np.take(looked, c[:, :n_sample], mode="clip")
+        hit = rows[:, :n_sample] != n_u
         if v is not None:
-            hit &= v[:, :n_sample].view(np.uint8)
+            hit &= v[:, :n_sample]
         path = "dense" if 20 * int(np.count_nonzero(hit)) > hit.size else "sparse"
     if path != "sparse":
         # dense (particles gathered on looked cells): one gather per slot from the
-        # per-cell table inc_cell[c, r] = increments[slot_of_cell[c], r], with the
-        # key c * n_counts + r and r = 1 + #{k < j: same cell} (0 for an empty slot:
-        # column 0 is zero); cells >= n_cells land in the zero sentinel row or are
-        # clipped onto its last entry
-        inc_cell = increments[slot_of_cell].ravel()
-        # int32 keys when they fit (half the traffic of the rank compares)
-        key_type = np.int32 if inc_cell.size < 2**30 else np.int64
+        # table of increments with the key r * n_counts + k and k = 1 + #{j' < j: same
+        # row} (0 for an empty slot: column 0 is zero); int32 keys when they fit
+        key_type = np.int32 if inc.size < 2**31 else np.int64
         if key_buffer is not None and key_buffer.dtype == key_type:
             key = key_buffer
         else:
@@ -102,15 +103,15 @@ def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.n
         if kernels is not None and key_type is np.int32:  # the same steps, fused
             total = np.empty(n)
             kernels.grid_log_likelihood_dense(
-                c, _NO_MASK if v is None else v, v is not None, inc_cell, n_counts, key,
+                rows, _NO_MASK if v is None else v, v is not None, inc, n_counts, key,
                 np.empty(n, dtype=np.int32), total)
             return total
-        np.multiply(c, n_counts, out=key, dtype=key_type, casting="unsafe")
+        np.multiply(rows, n_counts, out=key, dtype=key_type, casting="unsafe")
         if v is not None:
             key += v
         else:
             key += 1
-        # before slot j gets its rank, key[k] == key[j] (k < j) says same cell and
+        # before slot j gets its rank, key[k] == key[j] (k < j) says same row and
         # same validity; going down j, the slots k < j are not ranked yet
         same = np.empty(n, dtype=bool)
         count = np.empty(n, dtype=np.uint8 if t_max < 256 else np.int64)
@@ -124,25 +125,25 @@ def grid_log_likelihood(cells: np.ndarray, slot_of_cell: np.ndarray, table: np.n
             key[j] += count
         # log w = ((val[0] + val[1]) + val[2]) + ..., row by row (the order of
         # val.sum(axis=0)) so that each gathered row is added while in cache
-        total = np.take(inc_cell, key[0], mode="clip")
+        total = np.take(inc, key[0], mode="clip")
         row = np.empty(n)
         for j in range(1, t_max):
-            total += np.take(inc_cell, key[j], mode="clip", out=row)
+            total += np.take(inc, key[j], mode="clip", out=row)
         return total
     # sparse (few slots in looked cells): work on the looked slots alone, in
     # slot-major order (the order of the sums above)
-    hit = np.take(looked, c, mode="clip")  # (t_max, N) uint8, C order
+    hit = rows != n_u  # (t_max, N), C order
     if v is not None:
-        hit &= v.view(np.uint8)
+        hit &= v
     j, i = np.divmod(np.flatnonzero(hit), n)
-    cj = c[j, i]
+    rj = rows[j, i]
     rank = np.ones(j.shape[0], dtype=np.int64)
     for k in range(t_max - 1):
-        same = (c[k].take(i) == cj) & (k < j)
+        same = (rows[k].take(i) == rj) & (k < j)
         if v is not None:
             same &= v[k].take(i)
         rank += same
-    contrib = increments.ravel()[slot_of_cell[cj] * n_counts + rank]
+    contrib = inc[rj * n_counts + rank]
     # an empty weighted bincount comes back as int64: force float
     return np.bincount(i, weights=contrib, minlength=n).astype(np.float64, copy=False)
 
@@ -165,7 +166,7 @@ def superposition_log_likelihood(X: np.ndarray, valid: np.ndarray, z: np.ndarray
 class GridLikelihood:
     """One step's looks on the grid sensor: the tables of :func:`grid_log_likelihood`."""
 
-    slot_of_cell: np.ndarray
+    index: CellIndex
     table: np.ndarray
 
     def __call__(self, X: np.ndarray, valid: np.ndarray, cells: np.ndarray,
@@ -173,13 +174,13 @@ class GridLikelihood:
         """``log p(z | X_i)`` up to a constant, ``(N,)``, of states ``X (4, t_max, N)``
         (component-major) with validity ``valid (t_max, N)`` and the flat cell of every
         slot ``cells (t_max, N)`` (any index in empty slots)."""
-        return grid_log_likelihood(cells.T, self.slot_of_cell, self.table, valid.T,
+        return grid_log_likelihood(cells.T, self.index, self.table, valid.T,
                                    key_buffer=key_buffer)
 
     def single_target(self, cells: np.ndarray) -> np.ndarray:
         """``log l_c(1)`` summed over the looks at each cell of ``cells`` (any shape): the
         log-likelihood of a target alone (junk for an index beyond the grid)."""
-        return self.table[:, 1][np.take(self.slot_of_cell, cells, mode="clip")]
+        return self.table[:, 1][self.index(cells)]
 
 
 @dataclass(frozen=True)

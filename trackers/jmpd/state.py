@@ -64,11 +64,18 @@ def apply_boundary(X: np.ndarray, valid: np.ndarray, width: float, height: float
 
 
 # ----------------------------------------------------------------------- cells
+def cell_dtype(grid: Grid) -> type:
+    """int32 when every flat cell of ``grid`` fits (half the memory traffic of int64),
+    else int64 (grids of more than ``2^31 - 1`` cells)."""
+    return np.int32 if grid.n_cells <= np.iinfo(np.int32).max else np.int64
+
+
 def flat_cells(px: np.ndarray, py: np.ndarray, grid: Grid, out: np.ndarray | None = None,
                col: np.ndarray | None = None, tmp: np.ndarray | None = None) -> np.ndarray:
     """Flat cells ``floor(py / s) nx + floor(px / s)`` (``s`` the cell size) of positions
-    inside the workspace, int32 of their shape; ``out``, ``col`` (int32) and ``tmp``
-    (float64) are optional buffers of that shape.
+    inside the workspace, of their shape and dtype :func:`cell_dtype` (int32 unless the
+    grid has more cells); ``out``, ``col`` (that dtype) and ``tmp`` (float64) are
+    optional buffers of that shape.
 
     Computed as ``trunc(py * (1 / s)) nx + trunc(px * (1 / s))``; the positions are
     inside, so the truncating cast is the floor. With ``s = 1`` the products are skipped
@@ -77,9 +84,9 @@ def flat_cells(px: np.ndarray, py: np.ndarray, grid: Grid, out: np.ndarray | Non
     :func:`.kernels.boundary_cells_counts` is the compiled form.
     """
     if out is None:
-        out = np.empty(px.shape, dtype=np.int32)
+        out = np.empty(px.shape, dtype=cell_dtype(grid))
     if col is None:
-        col = np.empty(px.shape, dtype=np.int32)
+        col = np.empty(px.shape, dtype=out.dtype)
     if grid.cell_size == 1.0:
         np.copyto(out, py, casting="unsafe")
         np.copyto(col, px, casting="unsafe")
@@ -123,7 +130,7 @@ class ParticleState:
 
     Fields: ``X (4, t_max, N)`` the states; ``valid (t_max, N)`` bool; ``counts (N,)``
     int64 targets per particle; ``logw``, ``w (N,)`` normalised log-weights and their
-    exponentials (kept in step); ``raw_cells (t_max, N)`` int32 the flat cell of every
+    exponentials (kept in step); ``raw_cells (t_max, N)`` the flat cell of every
     slot, valid or not (None: stale after a resampling until the next predict; empty
     slots hold positions inside the workspace too, so their cells are in range);
     ``parents (8, t_max, N)`` (resample-move only, else None) rows 0-3 the states
@@ -134,7 +141,9 @@ class ParticleState:
     step's standard normals, so that ``x <- F x + L e`` is one ``(4, 8) @ (8, t_max N)``
     product into the other buffer; a resampling also gathers into the other buffer, then
     the two swap (no fresh arrays per step). ``cells_buf``, ``col_buf``, ``key_buf``
-    (int32), ``flags`` (bool) and ``tmp`` (float64), all ``(t_max, N)``, are scratch.
+    (:func:`cell_dtype`; the keys int32), ``flags`` (bool) and ``tmp`` (float64), all
+    ``(t_max, N)``, are scratch. ``raw_cells`` are :func:`cell_dtype` (int32 unless the
+    grid has more than ``2^31 - 1`` cells).
     """
 
     def __init__(self, n: int, t_max: int, grid: Grid) -> None:
@@ -145,9 +154,9 @@ class ParticleState:
         self.X = self.bufs[0][:4]
         self.valid = np.zeros((T, N), dtype=bool)
         self.valid_spare = np.empty((T, N), dtype=bool)
-        # int32 cells (half the memory traffic of int64) and likelihood keys
-        self.cells_buf = np.empty((T, N), dtype=np.int32)
-        self.col_buf = np.empty((T, N), dtype=np.int32)
+        # int32 cells when they fit (half the memory traffic of int64), int32 keys
+        self.cells_buf = np.empty((T, N), dtype=cell_dtype(grid))
+        self.col_buf = np.empty((T, N), dtype=cell_dtype(grid))
         self.key_buf = np.empty((T, N), dtype=np.int32)
         self.flags = np.empty((T, N), dtype=bool)
         self.tmp = np.empty((T, N))
@@ -218,8 +227,8 @@ class ParticleState:
         return counts
 
     def slot_cells(self) -> np.ndarray:
-        """The flat cell of every slot ``(t_max, N)`` int32: ``raw_cells``, or computed
-        from the positions by the same rule when stale."""
+        """The flat cell of every slot ``(t_max, N)`` (:func:`cell_dtype`): ``raw_cells``,
+        or computed from the positions by the same rule when stale."""
         if self.raw_cells is not None:
             return self.raw_cells
         return flat_cells(self.X[0], self.X[2], self.grid)

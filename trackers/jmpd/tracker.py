@@ -13,6 +13,7 @@ import numpy as np
 
 from ...scenarios.model import Looks, TrackingModel
 from ..base import Estimate, Tracker, register
+from ..cells import CellCounts
 from ..params import Param, Search
 from .backend import compiled_kernels
 from .estimation import cell_count_distribution_from, estimate_targets
@@ -118,10 +119,11 @@ class JMPDTracker(Tracker):
 
     @property
     def slot_cells(self) -> np.ndarray:
-        """Flat cell of every slot's position, valid or not, ``(N, t_max)`` int32 (the
-        grid rule of :func:`.state.flat_cells`; empty slots hold positions inside the
-        workspace too). As computed by the last predict; recomputed from the positions
-        when a resampling has made those stale. Read only."""
+        """Flat cell of every slot's position, valid or not, ``(N, t_max)`` int32 (int64
+        on grids of more than ``2^31 - 1`` cells; the grid rule of
+        :func:`.state.flat_cells`; empty slots hold positions inside the workspace too).
+        As computed by the last predict; recomputed from the positions when a
+        resampling has made those stale. Read only."""
         return self._particles.slot_cells().T
 
     @property
@@ -237,7 +239,9 @@ class JMPDTracker(Tracker):
         if self._ref is not None and len(self._ref):
             self._ref = self._ref @ self._prior.F.T
 
-    def cell_count_distribution(self) -> np.ndarray:
+    def cell_count_distribution(self) -> CellCounts:
+        """``P_c(t)`` with rows for the cells the particles' targets occupy
+        (:func:`.estimation.cell_count_distribution_from`), ``O(N t_max^2)``."""
         p = self._particles
         return cell_count_distribution_from(p.cells().T, p.w, p.grid.n_cells, p.t_max + 1)
 
