@@ -20,7 +20,9 @@ a looked cell is counted from the targets' cells.
 from __future__ import annotations
 
 import hashlib
+import itertools
 import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -128,10 +130,12 @@ def pcg64_uniforms(state: int, inc: int, positions: np.ndarray) -> np.ndarray:
     bit for bit, to ``Generator.random(n + 1)[n]`` (tests/test_simulator.py).
     """
     m = np.asarray(positions, dtype=np.int64).reshape(-1).astype(np.uint64) + np.uint64(1)
-    Ah, Al = np.zeros(len(m), np.uint64), np.ones(len(m), np.uint64)
-    Sh, Sl = np.zeros(len(m), np.uint64), np.zeros(len(m), np.uint64)
     digit_mask, shift = np.uint64((1 << _DIGIT_BITS) - 1), np.uint64(_DIGIT_BITS)
-    i = 0
+    d = (m & digit_mask).astype(np.intp)
+    th, tl, sh, sl = _jump_table(0)
+    Ah, Al, Sh, Sl = th[d], tl[d], sh[d], sl[d]  # the lowest 16 bits: one table entry
+    m = m >> shift
+    i = 1
     while len(m) and m.any():
         d = (m & digit_mask).astype(np.intp)
         th, tl, sh, sl = _jump_table(i)
@@ -173,8 +177,10 @@ def _draw_births(rng: np.random.Generator, n: int, model: TrackingModel) -> np.n
     return states
 
 
-def simulate_truth(scenario: Scenario, seed: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Target ids ``(n_k,)`` and states ``(n_k, 4)`` for each step ``k < n_steps``.
+def iter_truth(scenario: Scenario, seed: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Target ids ``(n_k,)`` and states ``(n_k, 4)`` of step ``k = 0, 1, ...`` (without
+    end: :func:`simulate_truth` takes the first ``n_steps``), one step per ``next``:
+    ``O(targets)`` each.
 
     Step 0 holds the initial targets; each later step applies survival, the
     dynamics ``x <- F x + v``, the boundary rule and then births.
@@ -189,8 +195,8 @@ def simulate_truth(scenario: Scenario, seed: int) -> tuple[list[np.ndarray], lis
     states = np.concatenate([states, _draw_births(rng, bd.n_random_initial, model)])
     ids = np.arange(len(states), dtype=np.int64)
     next_id = len(states)
-    all_ids, all_states = [ids.copy()], [states.copy()]
-    for _ in range(1, scenario.n_steps):
+    yield ids.copy(), states.copy()
+    while True:
         alive = rng.random(len(states)) < bd.survival_probability
         states, ids = states[alive], ids[alive]
         # x <- F x + chol(Q) e, e ~ N(0, I), vectorised over targets
@@ -207,9 +213,14 @@ def simulate_truth(scenario: Scenario, seed: int) -> tuple[list[np.ndarray], lis
             states = np.concatenate([states, _draw_births(rng, n_new, model)])
             ids = np.concatenate([ids, np.arange(next_id, next_id + n_new)])
             next_id += n_new
-        all_ids.append(ids.copy())
-        all_states.append(states.copy())
-    return all_ids, all_states
+        yield ids.copy(), states.copy()
+
+
+def simulate_truth(scenario: Scenario, seed: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Target ids ``(n_k,)`` and states ``(n_k, 4)`` for each step ``k < n_steps``
+    (:func:`iter_truth`)."""
+    steps = list(itertools.islice(iter_truth(scenario, seed), max(scenario.n_steps, 1)))
+    return [i for i, _ in steps], [x for _, x in steps]
 
 
 # -------------------------------------------------------------------------- world

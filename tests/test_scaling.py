@@ -526,3 +526,77 @@ def test_counts_of_a_huge_grid_are_validated_without_densifying():
     with pytest.raises(AssertionError, match="negative"):
         _assert_count_distribution_valid(bad, HUGE * HUGE, 0)
     assert as_cell_counts(good) is good
+
+
+# ------------------------------------------------------------ KF-NN's sparse association
+def _gating_instance(rng, K: int, D: int):
+    pred = rng.uniform(0, 30, (K, 2))
+    n = min(K, D)
+    near = pred[rng.choice(K, n, replace=False)] + rng.normal(0, 0.5, (n, 2))
+    z = np.concatenate([near, rng.uniform(0, 30, (D - n, 2))])
+    A = rng.normal(0, 1, (K, 2, 2)) * rng.choice([0.2, 1.0, 6.0], (K, 1, 1))
+    S = A @ A.transpose(0, 2, 1) + 0.05 * np.eye(2)
+    return pred, S, z
+
+
+def test_gated_pairs_are_the_dense_admissible_pairs():
+    """Every pair of the full ``(K, D)`` array with ``d2 < gate``, the same ``d2`` bit for
+    bit, row-major; a track with a non-finite mean is tried against every detection."""
+    from mttbench.trackers.kfnn import gated_pairs
+
+    rng = np.random.default_rng(4)
+    for trial in range(40):
+        K, D = int(rng.integers(1, 60)), int(rng.integers(1, 60))
+        pred, S, z = _gating_instance(rng, K, D)
+        if trial % 5 == 0:
+            pred[0] = np.nan
+        gate = float(rng.choice([4.6, 13.8, 18.4]))
+        full = kalman.mahalanobis_sq(z[None] - pred[:, None], S[:, None])
+        want_r, want_c = np.nonzero(np.isfinite(full) & (full < gate))
+        rows, cols, d2 = gated_pairs(pred, S, z, gate)
+        np.testing.assert_array_equal(rows, want_r)
+        np.testing.assert_array_equal(cols, want_c)
+        np.testing.assert_array_equal(d2, full[want_r, want_c])
+
+
+@pytest.mark.parametrize("method", ["global", "greedy"])
+def test_associate_pairs_equals_the_dense_association(method):
+    """The same pairs as :func:`associate` on the full array (continuous costs: one
+    optimum); with exactly tied costs, the same number of pairs and the same total."""
+    from mttbench.trackers.kfnn import associate, associate_pairs
+
+    rng = np.random.default_rng(8)
+    for trial in range(60):
+        K, D = int(rng.integers(1, 50)), int(rng.integers(1, 50))
+        pred, S, z = _gating_instance(rng, K, D)
+        gate = 13.8
+        full = kalman.mahalanobis_sq(z[None] - pred[:, None], S[:, None])
+        if trial % 3 == 0:
+            full = np.round(full)  # exact ties
+        rows, cols = np.nonzero(full < gate)
+        got = associate_pairs(rows, cols, full[rows, cols], gate, method)
+        want = associate(full, gate, method)
+        if trial % 3 == 0 and method == "global":
+            assert len(got[0]) == len(want[0])
+            assert full[got].sum() == pytest.approx(full[want].sum(), rel=1e-12)
+            assert len(np.unique(got[0])) == len(np.unique(got[1])) == len(got[0])
+        else:
+            np.testing.assert_array_equal(got[0], want[0])
+            np.testing.assert_array_equal(got[1], want[1])
+
+
+@pytest.mark.parametrize("association", ["global", "greedy"])
+def test_kfnn_sparse_association_keeps_the_estimates(monkeypatch, association):
+    """``large`` with the oracle's looks (25 tracks held): the pairs-only association
+    (forced) and the full array give the same estimates bit for bit."""
+    import mttbench.trackers.kfnn as kfnn
+
+    sc = _scenario("large", 25)
+    runs = []
+    for limit in (10**9, 0):
+        monkeypatch.setattr(kfnn, "DENSE_PAIRS", limit)
+        tr = trackers.make("kfnn", association=association)
+        runs.append([r.estimate for r in play(sc, tr, 1, policy=make_policy("oracle"))])
+    for a, b in zip(*runs, strict=True):
+        assert a.count == b.count and np.array_equal(a.states, b.states)
+    assert max(a.count for a in runs[0]) >= 20

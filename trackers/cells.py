@@ -364,13 +364,14 @@ class CellField:
         factors = np.asarray(factors, dtype=float).reshape(-1)
         if not len(cells):
             return
-        new = np.setdiff1d(cells, self.cells, assume_unique=True)
-        if len(new):
-            all_cells = np.concatenate([self.cells, new])
-            order = np.argsort(all_cells, kind="stable")
-            self.cells = all_cells[order]
-            self.values = np.concatenate([self.values, np.full(len(new), self.default)])[order]
         i = np.searchsorted(self.cells, cells)
+        new = cells[(i == len(self.cells)) | (self.cells[np.minimum(i, len(self.cells) - 1)]
+                                              != cells)] if len(self.cells) else cells
+        if len(new):  # insert them, sorted, with the default value (a memory move)
+            at = np.searchsorted(self.cells, new)
+            self.cells = np.insert(self.cells, at, new)
+            self.values = np.insert(self.values, at, self.default)
+            i = np.searchsorted(self.cells, cells)
         self.values[i] = self.values[i] * factors
         self._rejoin()
 

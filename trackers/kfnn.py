@@ -25,7 +25,12 @@ Prediction
 
 Gating and association
     Innovation ``y = z - H m``, ``S = H P H^T + R``, ``d^2 = y^T S^-1 y``; a pair is
-    admissible when ``d^2 < chi2.ppf(gate_probability, 2)``.
+    admissible when ``d^2 < chi2.ppf(gate_probability, 2)``. Up to :data:`DENSE_PAIRS`
+    track-detection pairs ``d^2`` is computed for every pair; beyond (hundreds of tracks)
+    only for the pairs a k-d tree finds within the gate's radius (:func:`gated_pairs`),
+    and the assignment below is solved per connected component of the admissible pairs
+    (:func:`associate_pairs`: the same optimum; of assignments tied for it exactly, another
+    may be chosen).
     ``association="global"`` (default) solves one assignment problem
     (``scipy.optimize.linear_sum_assignment``) on the gated ``d^2`` with forbidden
     pairs priced above any sum of admissible ones: the result has the largest
@@ -93,6 +98,9 @@ from typing import ClassVar
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 from scipy.stats import chi2
 
 from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
@@ -109,6 +117,9 @@ from .params import Param, Search
 
 #: count columns of P_c: 0, 1, 2 and "3 or more"
 N_COUNTS = 4
+#: at most this many (track, detection) pairs: the association works on the full
+#: ``(K, D)`` array; above, on the pairs within the gate only (:func:`gated_pairs`)
+DENSE_PAIRS = 10_000
 #: H picks (px, py) out of [px, vx, py, vy]
 _H = np.eye(4)[kalman.POSITION]
 
@@ -158,6 +169,133 @@ def associate(cost: np.ndarray, gate: float, method: str = "global"
         raise ValueError(f"association must be 'global' or 'greedy', got {method!r}")
     by_row = np.argsort(rows, kind="stable")
     return rows[by_row].astype(np.int64), cols[by_row].astype(np.int64)
+
+
+def _member(x: np.ndarray, sorted_set: np.ndarray) -> np.ndarray:
+    """``np.isin(x, sorted_set)`` for a sorted ``sorted_set``, by binary search."""
+    if not len(sorted_set):
+        return np.zeros(len(x), dtype=bool)
+    i = np.minimum(np.searchsorted(sorted_set, x), len(sorted_set) - 1)
+    return sorted_set[i] == x
+
+
+def gated_pairs(pred_z: np.ndarray, S: np.ndarray, z: np.ndarray, gate: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The admissible (track, detection) pairs: ``d2 = y^T S_k^-1 y < gate`` with ``y = z_j
+    - pred_z[k]``, without forming all ``K x D`` pairs.
+
+    ``d2 < gate`` implies ``|y|^2 < gate * lambda_max(S_k)``, so a k-d tree over the
+    detections (``scipy.spatial.cKDTree``) lists the detections within that radius of the
+    tracks (``O((K + D) log D)`` plus the pairs found) and ``d2`` is computed for those only,
+    the same expression per pair as on the full ``(K, D)`` array (tracks grouped in bands
+    of radius within a factor 2, one search per band). Returns ``rows, cols``
+    (int64, sorted row-major) and ``d2`` of the pairs with ``d2 < gate``.
+    """
+    K, D = len(pred_z), len(z)
+    empty = np.zeros(0, dtype=np.int64)
+    if K == 0 or D == 0:
+        return empty, empty, np.zeros(0)
+    a, b, c = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
+    lam = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)  # largest eigenvalue of S_k
+    radius = np.sqrt(gate * lam) * (1.0 + 1e-9) + 1e-12
+    ok = np.isfinite(radius) & np.all(np.isfinite(pred_z), axis=1)
+    # tracks in bands of radius (powers of two): one search per band, at its largest radius
+    tree = cKDTree(z)
+    band = np.where(ok, np.ceil(np.log2(np.maximum(radius, 1e-300))), 0).astype(np.int64)
+    rows_l, cols_l = [empty], [empty]
+    for b in np.unique(band[ok]):
+        members = np.flatnonzero(ok & (band == b))
+        found = cKDTree(pred_z[members]).sparse_distance_matrix(
+            tree, float(radius[members].max()), output_type="ndarray")
+        rows_l.append(members[found["i"]].astype(np.int64))
+        cols_l.append(found["j"].astype(np.int64))
+    rows, cols = np.concatenate(rows_l), np.concatenate(cols_l)
+    # a track whose mean or covariance is not finite: every detection, as the full array
+    bad = np.flatnonzero(~ok)
+    if len(bad):
+        rows = np.concatenate([rows, np.repeat(bad, D)])
+        cols = np.concatenate([cols, np.tile(np.arange(D), len(bad))])
+    order = np.lexsort((cols, rows))
+    rows, cols = rows[order], cols[order]
+    d2 = kalman.mahalanobis_sq(z[cols] - pred_z[rows], S[rows])
+    keep = np.isfinite(d2) & (d2 < gate)
+    return rows[keep], cols[keep], d2[keep]
+
+
+def associate_pairs(rows: np.ndarray, cols: np.ndarray, cost: np.ndarray, gate: float,
+                    method: str = "global") -> tuple[np.ndarray, np.ndarray]:
+    """:func:`associate` from the admissible pairs only (``rows, cols`` sorted row-major,
+    ``cost < gate``), in ``O(pairs)`` plus the assignment problems.
+
+    ``"greedy"``: the same pairs in the same order, so the same result. ``"global"``:
+    the number of admissible pairs and their total cost are sums over the connected
+    components of the admissibility graph, so each component is solved on its own
+    (``linear_sum_assignment`` on its rows and columns, inadmissible pairs priced as in
+    :func:`associate`), a component of one pair taken as it is. That is the full
+    problem's optimum; when several assignments tie for it exactly, the one chosen
+    may differ from the full problem's.
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    cols = np.asarray(cols, dtype=np.int64)
+    cost = np.asarray(cost, dtype=float)
+    empty = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+    if not len(rows):
+        return empty
+    if method == "greedy":
+        order = np.argsort(cost, kind="stable")
+        row_free, col_free = {}, {}
+        out_r, out_c = [], []
+        for i in order:
+            r, c = int(rows[i]), int(cols[i])
+            if r not in row_free and c not in col_free:
+                row_free[r] = col_free[c] = True
+                out_r.append(r)
+                out_c.append(c)
+        out_r, out_c = np.array(out_r, dtype=np.int64), np.array(out_c, dtype=np.int64)
+    elif method == "global":
+        # components of the bipartite graph: nodes are the rows, then the columns
+        ur, ri = np.unique(rows, return_inverse=True)
+        uc, ci = np.unique(cols, return_inverse=True)
+        n_r = len(ur)
+        graph = coo_matrix((np.ones(len(rows)), (ri, n_r + ci)),
+                           shape=(n_r + len(uc),) * 2)
+        _, label = connected_components(graph, directed=False)
+        comp = label[ri]
+        size = np.bincount(comp)
+        single = size[comp] == 1
+        out_r, out_c = [rows[single]], [cols[single]]
+        multi = np.flatnonzero(~single)
+        if len(multi):
+            part = multi[np.argsort(comp[multi], kind="stable")]
+            pc = comp[part]
+            # each component's rows and columns numbered from 0, ascending (one pass)
+            kr, lr = np.unique(pc * (len(ur) + 1) + ri[part], return_inverse=True)
+            kc, lc = np.unique(pc * (len(uc) + 1) + ci[part], return_inverse=True)
+            first_r = np.searchsorted(kr // (len(ur) + 1), pc)
+            first_c = np.searchsorted(kc // (len(uc) + 1), pc)
+            lr, lc = lr - first_r, lc - first_c
+            starts = np.flatnonzero(np.r_[True, pc[1:] != pc[:-1]])
+            for a, b in zip(starts, np.r_[starts[1:], len(part)], strict=True):
+                n_r, n_c = int(lr[a:b].max()) + 1, int(lc[a:b].max()) + 1
+                big = gate * (min(n_r, n_c) + 1.0)
+                priced = np.full((n_r, n_c), big)
+                priced[lr[a:b], lc[a:b]] = cost[part[a:b]]
+                admissible = np.zeros((n_r, n_c), dtype=bool)
+                admissible[lr[a:b], lc[a:b]] = True
+                rr, cc = linear_sum_assignment(priced)
+                keep = admissible[rr, cc]
+                # back to track and detection indices: local index -> the pair holding it
+                row_of = np.empty(n_r, dtype=np.int64)
+                row_of[lr[a:b]] = rows[part[a:b]]
+                col_of = np.empty(n_c, dtype=np.int64)
+                col_of[lc[a:b]] = cols[part[a:b]]
+                out_r.append(row_of[rr[keep]])
+                out_c.append(col_of[cc[keep]])
+        out_r, out_c = np.concatenate(out_r), np.concatenate(out_c)
+    else:
+        raise ValueError(f"association must be 'global' or 'greedy', got {method!r}")
+    by_row = np.argsort(out_r, kind="stable")
+    return out_r[by_row].astype(np.int64), out_c[by_row].astype(np.int64)
 
 
 @register
@@ -307,12 +445,17 @@ class KFNNTracker(Tracker):
         hit = np.zeros(K, dtype=bool)
         det_used = np.zeros(D, dtype=bool)
         if K and D:
-            # d2[k, j] = y^T S_k^-1 y, y = z_j - H m_k, S_k = H P_k H^T + R
+            # d2[k, j] = y^T S_k^-1 y, y = z_j - H m_k, S_k = H P_k H^T + R, for the pairs
+            # within the gate only (a k-d tree), then the assignment per component
             pred_z, S = kalman.position_marginal(self._m, self._P)
             S = S + self._R  # (K, 2, 2)
-            y = z[None, :, :] - pred_z[:, None, :]  # (K, D, 2)
-            d2 = kalman.mahalanobis_sq(y, S[:, None, :, :])
-            rows, cols = associate(d2, self._gate, self.association)
+            if K * D <= DENSE_PAIRS:  # every pair: small, and the same numbers as always
+                y = z[None, :, :] - pred_z[:, None, :]  # (K, D, 2)
+                d2 = kalman.mahalanobis_sq(y, S[:, None, :, :])
+                rows, cols = associate(d2, self._gate, self.association)
+            else:  # the pairs within the gate only (a k-d tree), solved per component
+                pr, pc, d2 = gated_pairs(pred_z, S, z, self._gate)
+                rows, cols = associate_pairs(pr, pc, d2, self._gate, self.association)
             if len(rows):
                 m_new, P_new, _, _ = kalman.update(self._m[rows], self._P[rows], z[cols],
                                                    _H, self._R)
@@ -321,7 +464,7 @@ class KFNNTracker(Tracker):
                 det_used[cols] = True
 
         # miss: the track's cell was looked at and every look there returned 0
-        miss = ~hit & np.isin(self._cell, looked) & ~np.isin(self._cell, det_cells)
+        miss = ~hit & _member(self._cell, looked) & ~_member(self._cell, det_cells)
         self._misses = np.where(hit, 0, self._misses + miss)
         tentative = ~self._confirmed
         scored = tentative & (hit | miss)
