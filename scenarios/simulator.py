@@ -127,7 +127,7 @@ def pcg64_uniforms(state: int, inc: int, positions: np.ndarray) -> np.ndarray:
     Draw ``n`` is the output of the state after ``n + 1`` steps, ``A s + S inc`` with
     ``(A, S)`` composed from one table entry per 16 bits of ``n + 1`` (the affine maps
     of one LCG commute); XSL-RR gives 64 bits, and ``random`` keeps the top 53. Equal,
-    bit for bit, to ``Generator.random(n + 1)[n]`` (tests/test_simulator.py).
+    bit for bit, to ``Generator.random(n + 1)[n]`` (tests/test_scaling.py).
     """
     m = np.asarray(positions, dtype=np.int64).reshape(-1).astype(np.uint64) + np.uint64(1)
     digit_mask, shift = np.uint64((1 << _DIGIT_BITS) - 1), np.uint64(_DIGIT_BITS)
