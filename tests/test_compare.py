@@ -15,8 +15,9 @@ from mttbench.benchmarks.cli import main
 
 def test_compare_writes_the_report_folder(tmp_path, capsys):
     out = tmp_path / "cmp"
-    rc = main(["compare", "--scenarios", "default", "--trackers", "null", "kfnn", "--seeds", "3",
-               "--steps", "6", "--workers", "1", "--out", str(out), "--no-progress"])
+    rc = main(["compare", "--untuned", "--scenarios", "default", "--trackers", "null", "kfnn",
+               "--seeds", "3", "--steps", "6", "--workers", "1", "--out", str(out),
+               "--no-progress"])
     assert rc == 0
     for name in ("results.parquet", "report.md", "report.html", "manifest.json", "summary.csv",
                  "figures/ospa_over_time.png", "figures/count_error_over_time.png",

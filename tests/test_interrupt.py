@@ -24,7 +24,8 @@ from crashing_tracker import SLOW_GATE_ENV
 from mttbench.benchmarks.cli import EXIT_INTERRUPTED, main
 
 TESTS = Path(__file__).resolve().parent
-ARGS = ["compare", "--scenarios", "default", "--trackers", "null", "kfnn",
+#: --untuned: the defaults, as `run` below (which knows no tuned files) runs them
+ARGS = ["compare", "--untuned", "--scenarios", "default", "--trackers", "null", "kfnn",
         "crashing_tracker:Slow", "--seeds", "4", "--steps", "20", "--workers", "2",
         "--no-progress"]
 TIMING = ["tracker_wall_s", "tracker_cpu_s", "select_wall_s", "select_cpu_s", "peak_rss_mb"]
@@ -103,7 +104,7 @@ def test_ctrl_c_then_the_printed_command_finishes_the_same_report(monkeypatch, t
     # ---- the same numbers as an uninterrupted sweep of the same runs (in-process: tests/
     # is on sys.path; `run` makes compare's jobs without drawing the report)
     whole = Path("whole")
-    assert main(["run", *ARGS[1:], "--out", str(whole)]) == 0
+    assert main(["run", *ARGS[2:], "--out", str(whole)]) == 0
     pd.testing.assert_frame_equal(_results(folder), _results(whole))
 
 
