@@ -4,7 +4,9 @@ Kreucher, Kastella and Hero (Signal Processing, 2005) choose where to look by th
 expected alpha-divergence between the posterior after a look and the prior before
 it. We apply it per cell to the tracker's predicted count distribution ``P_c(t)``
 (``(n_cells, n_counts)``, column ``t`` = probability of ``t`` targets in cell ``c``,
-the last column "that many or more", evaluated at ``t`` = its column index).
+the last column "that many or more", evaluated at ``t`` = its column index), given
+dense or as a :class:`~mttbench.trackers.cells.CellCounts` (own rows plus one default
+row: the gains are then computed once per distinct row, :func:`greedy_looks_sparse`).
 
 One binary look at cell ``c`` returns ``z in {0, 1}`` with ``p(1|t) = p_d(t)``, the
 Rayleigh model's detection probability. The posterior given ``z`` is
