@@ -131,7 +131,7 @@ def test_cell_count_distribution_equals_enumeration_of_particles_and_field():
     sd = np.array([[0.5, 0.4], [0.6, 0.7]])
     P = np.stack([np.diag([sx * sx, 0.01, sy * sy, 0.01]) for sx, sy in sd])
     t.set_particles(w, m, P)
-    got = t.cell_count_distribution()
+    got = t.cell_count_distribution().dense()
     # the field at reset: initial_count_mean / n_cells = 1/6 in every cell
     u = np.full(grid.n_cells, 1.0 / 6.0)
     mass = np.stack([_cell_masses_diagonal(grid, m[i, [0, 2]], sd[i]) for i in range(2)])
@@ -223,7 +223,7 @@ def test_without_births_an_empty_filter_stays_empty():
     t.reset(sc.model, np.random.default_rng(0))
     for k in range(5):
         t.predict()
-        np.testing.assert_allclose(t.cell_count_distribution()[:, 0], 1.0)
+        np.testing.assert_allclose(t.cell_count_distribution().dense()[:, 0], 1.0)
         t.update(run.look(k, np.arange(sc.grid.n_cells)))
         assert t.estimate().count == 0.0
 

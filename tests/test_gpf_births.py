@@ -108,7 +108,7 @@ def test_candidate_in_a_detected_cell_joins_the_particle_that_explains_it(epsilo
     np.testing.assert_allclose(covs, cov[None], atol=EXACT)
     # the candidate's posterior went back into the field: P_0 is the Poisson-binomial of
     # the particle (w_post) and the field (u_post); cell 1 was not looked at (field u)
-    pc = t.cell_count_distribution()
+    pc = t.cell_count_distribution().dense()
     a, b = w_post * m_in, u_post
     np.testing.assert_allclose(pc[0], [(1 - a) * (1 - b), a * (1 - b) + (1 - a) * b, a * b, 0],
                                atol=EXACT)
@@ -140,7 +140,7 @@ def test_candidate_alone_in_a_detected_cell_becomes_a_target_at_the_cell_centre(
     np.testing.assert_allclose(covs, [np.diag([0.25 / 12, bv**2, 0.25 / 12, bv**2])],
                                atol=EXACT)
     # field: u everywhere not looked at, the floor where the target was born, u1 in cell 1
-    pc = t.cell_count_distribution()
+    pc = t.cell_count_distribution().dense()
     field = np.full(grid.n_cells, u)
     field[4], field[1] = floor, u1
     # the new Gaussian's mass per cell (diagonal: product of normal CDF differences)
@@ -164,5 +164,5 @@ def test_candidate_below_the_prune_threshold_is_not_born_even_if_detected():
     post = u * _ratio([True], 1) / (u * _ratio([True], 1) + 1.0 - u)
     assert 1e-5 < post < 1e-3
     assert len(t.particles[0]) == 0
-    np.testing.assert_allclose(t.cell_count_distribution()[3], [1 - post, post, 0, 0],
+    np.testing.assert_allclose(t.cell_count_distribution().dense()[3], [1 - post, post, 0, 0],
                                atol=EXACT)

@@ -19,6 +19,7 @@ from mttbench.scenarios.model import (
     RayleighGridSensor,
     TrackingModel,
 )
+from mttbench.trackers.cells import CellField
 from mttbench.trackers.gpf import GaussianParticleFilter, split_broad, truncate_to_workspace
 from mttbench.trackers.gpf_grid import fold_into_workspace
 
@@ -127,14 +128,15 @@ def test_missing_targets_return_to_the_undetected_field():
         t.reset(model, np.random.default_rng(0))
         m, P = _gaussian((6.0, 0.0, 6.0, 0.0), (0.3, 0.05, 0.3, 0.05))
         t.set_particles([1.0], m[None], P[None])
-        t._u[:] = 1e-4
-        t._u[0] = 2e-4
+        t._u = CellField(model.grid.n_cells, 1e-4)
+        t._u.set([0], [2e-4])
         t.predict()
+        u = t._u.dense()
         if aware:
-            assert np.isclose(t._u.sum(), 3.0 - float(t._w.sum()), rtol=1e-12)
-            assert np.isclose(t._u[0] / t._u[1], 2.0, rtol=1e-9)
+            assert np.isclose(u.sum(), 3.0 - float(t._w.sum()), rtol=1e-12)
+            assert np.isclose(u[0] / u[1], 2.0, rtol=1e-9)
         else:
-            assert t._u.sum() < 0.1
+            assert u.sum() < 0.1
 
 
 def test_default_predict_under_die_weights_by_the_mass_inside_and_truncates():

@@ -257,7 +257,7 @@ def test_fixed_count_model_never_holds_more_tracks_than_targets():
     assert got.sum() < 2.0
     t.predict()
     survival = min(1.0, 1.0 - 0.003)
-    assert t._u.sum() == pytest.approx(max(2.0 - got.sum() * survival, 0.0), rel=1e-9)
+    assert t._u.total() == pytest.approx(max(2.0 - got.sum() * survival, 0.0), rel=1e-9)
 
 
 def test_tracks_sharing_a_detection_report_it_once():
@@ -312,7 +312,7 @@ def test_a_far_detection_starts_a_track_instead_of_moving_a_broad_one():
     t.set_particles([0.99], np.array([[1.0, 0, 1.0, 0]]), _diag_cov(1.5, 1.5)[None])
     t.predict()
     w0, m0, P0 = t.particles
-    u = t._u[29]
+    u = t._u.at([29])[0]
     assert u == pytest.approx((2.0 - w0[0]) / GRID.n_cells, rel=1e-9)
     t.update(Looks(np.array([29]), np.array([True])))  # cell (5, 4)
     mass = _cell_masses(m0[0], P0[0], [29])[0]

@@ -391,6 +391,30 @@ class CellField:
         out[self.cells] = self.values
         return out
 
+    def map(self, f) -> None:
+        """``x <- f(x)`` in every cell, for an element-wise numpy function ``f`` (the same
+        arithmetic as on the dense array)."""
+        self.default = float(f(np.array([self.default]))[0])
+        self.values = np.asarray(f(self.values), dtype=float)
+        self._rejoin()
+
+    def set(self, cells: np.ndarray, values: np.ndarray) -> None:
+        """``x_c <- value_c`` at the unique ``cells`` (any order)."""
+        cells = np.asarray(cells, dtype=np.int64).reshape(-1)
+        if not len(cells):
+            return
+        values = np.broadcast_to(np.asarray(values, dtype=float), cells.shape)
+        keep = ~np.isin(self.cells, cells, assume_unique=True)
+        all_cells = np.concatenate([self.cells[keep], cells])
+        order = np.argsort(all_cells, kind="stable")
+        self.cells = all_cells[order]
+        self.values = np.concatenate([self.values[keep], values])[order]
+        self._rejoin()
+
+    def total(self) -> float:
+        """The sum over every cell."""
+        return self.default * (self.n_cells - len(self.cells)) + float(self.values.sum())
+
     def _rejoin(self) -> None:
         same = self.values == self.default
         if np.any(same):

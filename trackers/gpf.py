@@ -78,7 +78,7 @@ Step (the harness calls predict, then update, then estimate):
 
 Births and the initial prior (``births=False``: empty prior, no births, for reduction tests):
 
-* Grid: an undetected-target field ``u (n_cells,)`` (per cell, the probability of an unseen
+* Grid: an undetected-target field ``u`` (per cell, the probability of an unseen
   target): ``initial_count_mean / n_cells`` at first, ``u <- 1 - (1 - p u)(1 - birth_rate /
   n_cells)`` at each predict, floored at ``birth_floor``; with ``count_aware_births``
   (default; models without arrivals only) the field holds the targets the model expects
@@ -101,9 +101,14 @@ Births and the initial prior (``births=False``: empty prior, no births, for redu
 
 Estimate (``extraction``): ``"round_sum"`` reports the ``round(sum w)`` heaviest particles,
 ``"threshold"`` those with ``w > extraction_threshold``; the count is ``sum w``. ``P_c(t)``:
-per cell, independent Bernoullis -- particle ``i`` with ``w_i m_ic``
-(:func:`trackers.cells.gaussian_cell_mass`) and the field's ``u_c`` -- summed by
-:func:`trackers.cells.poisson_binomial`.
+per cell, independent Bernoullis -- particle ``i`` with ``w_i m_ic`` (its cell masses within
+6 sd of each Gaussian; beyond, below 1e-9, left out) and the field's ``u_c`` -- summed by the
+Poisson-binomial recurrence, as :class:`trackers.cells.CellCounts`: cells no particle reaches
+share the field's common row.
+
+Cost (issue 16): nothing per step is ``O(cells)``. The field is stored as one common value
+plus the cells whose value differs (those looked at); the update meets the looked cells
+within 6 sd of each Gaussian; ``P_c`` covers the Gaussians' 6-sd boxes.
 """
 
 from __future__ import annotations
@@ -118,7 +123,12 @@ from scipy.special import ndtr
 from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
 from . import kalman
 from .base import Estimate, Tracker, register
-from .cells import gaussian_cell_mass, poisson_binomial
+from .cells import (
+    CellCounts,
+    CellField,
+    bernoulli_cell_counts,
+    gaussian_cell_mass_sparse,
+)
 from .gpf_grid import fold_into_workspace, grid_update, rect_state_moments
 from .gpf_linear import superposition_update
 from .params import Param, Search
@@ -498,12 +508,13 @@ class GaussianParticleFilter(Tracker):
         bd = model.birth_death
         n0 = bd.initial_count_mean
         n_cells = model.grid.n_cells
-        self._u = np.zeros(n_cells)
+        #: the undetected-target field, one value per cell (stored sparsely)
+        self._u = CellField(n_cells, 0.0)
         self._k = -1  # steps predicted so far, minus one
         if not self.births:
             return
         if model.is_grid:
-            self._u[:] = max(min(n0 / n_cells, 0.5), self.birth_floor)
+            self._u = CellField(n_cells, max(min(n0 / n_cells, 0.5), self.birth_floor))
         elif n0 > 0:
             n = math.ceil(n0)
             self._add_broad(n, n0 / n)
@@ -595,11 +606,12 @@ class GaussianParticleFilter(Tracker):
         n_cells = self._grid.n_cells
         if self._model.is_grid:
             b = bd.birth_rate / n_cells
-            self._u = 1.0 - (1.0 - self._survival * self._u) * (1.0 - b)
+            p_s = self._survival
+            self._u.map(lambda u: 1.0 - (1.0 - p_s * u) * (1.0 - b))
             if self._count_bound:
                 self._respread_missing()
             else:
-                np.maximum(self._u, self.birth_floor, out=self._u)
+                self._u.map(lambda u: np.maximum(u, self.birth_floor))
         elif bd.birth_rate > 0:
             self._add_broad(1, min(bd.birth_rate, 0.5))
 
@@ -619,12 +631,13 @@ class GaussianParticleFilter(Tracker):
         expected = bd.initial_count_mean * keep + (
             b * self._k if p_s == 1.0 else b * (1.0 - keep) / (1.0 - p_s))
         missing = max(expected - float(self._w.sum()), 0.0)
-        total = float(self._u.sum())
+        total = self._u.total()
         if missing < total:  # no more undetected targets than the count leaves
-            self._u *= missing / total
-            return
-        shape = self._u / total if total > 0 else np.full(len(self._u), 1.0 / len(self._u))
-        np.minimum(missing * shape, 0.5, out=self._u)
+            self._u.map(lambda u: u * (missing / total))
+        elif total > 0:
+            self._u.map(lambda u: np.minimum(missing * (u / total), 0.5))
+        else:
+            self._u = CellField(self._u.n_cells, min(missing * (1.0 / self._u.n_cells), 0.5))
 
     def _reflect_axis(self, axis: int, length: float) -> None:
         """Mirror means outside ``[0, length)`` on one axis: ``p -> -p`` or ``2L - p``,
@@ -642,18 +655,24 @@ class GaussianParticleFilter(Tracker):
         self._P[flip] = self._P[flip] * sign[:, None] * sign[None, :]
 
     # ------------------------------------------------------- count distribution
-    def cell_count_distribution(self) -> np.ndarray:
-        probs = np.zeros((0, self._grid.n_cells))
-        if len(self._w):
-            mass = gaussian_cell_mass(self._grid, *kalman.position_marginal(self._m, self._P))
-            if len(self._m) != len(self._w):  # a track's mass: its components' sum
-                per_track = np.zeros((len(self._w), mass.shape[1]))
-                np.add.at(per_track, self._own, self._a[:, None] * mass)
-                mass = per_track
-            probs = self._w[:, None] * mass
-        if np.any(self._u > 0):
-            probs = np.concatenate([probs, self._u[None]])
-        return poisson_binomial(probs, self.n_counts)
+    def cell_count_distribution(self) -> CellCounts:
+        """Per cell, the Poisson-binomial of the tracks' Bernoullis (``w_t`` times the
+        track's mass in the cell, within 6 sd of each Gaussian, ``cells.BOX_SD``: the mass
+        beyond, below 1e-9, is left out) and the field's ``u_c``; cells no track reaches
+        share the row of the field's common value. ``O(tracks' boxes + field cells)``, not
+        ``O(cells)``."""
+        n_cells = self._grid.n_cells
+        row, cell, mass = gaussian_cell_mass_sparse(
+            self._grid, *kalman.position_marginal(self._m, self._P))
+        # a track's mass in a cell: its components' sum (in row order), times its existence;
+        # listed by track, so each cell adds its tracks' Bernoullis in track order
+        key, inv = np.unique(self._own[row] * n_cells + cell, return_inverse=True)
+        p = np.bincount(inv.reshape(-1), weights=self._a[row] * mass, minlength=len(key))
+        p = self._w[key // n_cells] * p
+        # the field's Bernoulli comes last in each cell, as it did in the dense form
+        return bernoulli_cell_counts(n_cells, self.n_counts, key % n_cells, p,
+                                     last_default=self._u.default, last_cells=self._u.cells,
+                                     last_probs=self._u.values)
 
     # ----------------------------------------------------------------- update
     def update(self, looks: Looks) -> None:
@@ -684,13 +703,13 @@ class GaussianParticleFilter(Tracker):
                 self._a = a
         T, R = len(self._w), len(self._m)
         looked = np.unique(looks.cells)
-        cand = looked[self._u[looked] > 0.0] if self.births else looked[:0]
+        cand = looked[self._u.at(looked) > 0.0] if self.births else looked[:0]
         n_c = len(cand)
         s = self._grid.cell_size
         cm = kalman.at_rest(self._grid.cell_centers(cand))
         vs = self._model.birth_death.birth_velocity_std ** 2
         cP = np.repeat(np.diag([s * s / 12.0, vs, s * s / 12.0, vs])[None], n_c, axis=0)
-        w = np.concatenate([self._w, self._u[cand]])
+        w = np.concatenate([self._w, self._u.at(cand)])
         m = np.concatenate([self._m, cm])
         P = np.concatenate([self._P, cP])
         own = np.concatenate([self._own, T + np.arange(n_c)])
@@ -702,12 +721,11 @@ class GaussianParticleFilter(Tracker):
                           coalescence=not self.avoid_coalescence, owner=own, alpha=alpha,
                           split_share=self.split_share if self.max_components > 1 else 0.0)
         wc = res.weights[T:]
-        detected = np.zeros(self._grid.n_cells, dtype=bool)
-        detected[looks.cells[looks.returns]] = True
-        promote = detected[cand] & (wc > self.prune_threshold)
-        self._u[cand] = np.where(promote, 0.0, wc)
+        detected = np.isin(cand, looks.cells[looks.returns])
+        promote = detected & (wc > self.prune_threshold)
+        self._u.set(cand, np.where(promote, 0.0, wc))
         if self.births and not self._count_bound:
-            np.maximum(self._u, self.birth_floor, out=self._u)
+            self._u.map(lambda u: np.maximum(u, self.birth_floor))
         keep_track = np.concatenate([np.ones(T, dtype=bool), promote])
         new_index = np.cumsum(keep_track) - 1
         keep_row = keep_track[res.owner]
