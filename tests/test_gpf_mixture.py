@@ -45,6 +45,17 @@ def _cell_masses(mean, cov, cells):
                      for a0, a1, b0, b1 in zip(x0, x1, y0, y1, strict=True)])
 
 
+def _options(w, means, covs, cells):
+    """Each Gaussian's options and their priors: absent, elsewhere, or one of ``cells``."""
+    opts = []
+    for i in range(len(w)):
+        mass = _cell_masses(means[i], covs[i], cells)
+        o = {"absent": 1 - w[i], "elsewhere": w[i] * (1 - mass.sum())}
+        o.update({int(c): w[i] * mc for c, mc in zip(cells, mass, strict=True)})
+        opts.append(o)
+    return opts
+
+
 def _ratio(returns, T):
     """``prod over looks p(z | T) / p(z | 0)`` from the sensor's own formula."""
     return float(np.exp(SENSOR.log_likelihood_ratio(np.asarray(returns),
@@ -107,12 +118,7 @@ def test_pooled_misses_equal_enumeration_with_independent_misses():
     returns = np.array([True, False, False, False])
     res = grid_update(w, means, covs, np.array([-1, -1]), cells, returns, GRID, SENSOR,
                       epsilon=0.0, max_combinations=10**6, aggregate_misses=True)
-    opts = []
-    for i in range(2):
-        mass = _cell_masses(means[i], covs[i], cells)
-        o = {"absent": 1 - w[i], "elsewhere": w[i] * (1 - mass.sum())}
-        o.update({int(c): w[i] * mc for c, mc in zip(cells, mass, strict=True)})
-        opts.append(o)
+    opts = _options(w, means, covs, cells)
 
     def lik(choice):
         in_hit = sum(c == 7 for c in choice)
@@ -180,12 +186,7 @@ def test_jpda_star_keeps_one_of_the_swapped_assignments():
     plain = grid_update(w, means, covs, np.full(2, -1), cells, returns, GRID, SENSOR, **kw)
     star = grid_update(w, means, covs, np.full(2, -1), cells, returns, GRID, SENSOR,
                        coalescence=False, **kw)
-    opts = []
-    for i in range(2):
-        mass = _cell_masses(means[i], covs[i], cells)
-        o = {"absent": 1 - w[i], "elsewhere": w[i] * (1 - mass.sum())}
-        o.update({int(c): w[i] * mc for c, mc in zip(cells, mass, strict=True)})
-        opts.append(o)
+    opts = _options(w, means, covs, cells)
 
     def lik(choice):
         return np.prod([_ratio([True], sum(c == cell for c in choice)) for cell in (7, 10)])
