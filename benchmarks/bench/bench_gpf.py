@@ -24,7 +24,6 @@ Run: ``pytest benchmarks/bench/bench_gpf.py --benchmark-only``.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 
 import numpy as np
@@ -46,21 +45,7 @@ OSPA_BOUND = 1.0
 def test_gpf_step(benchmark, name, warm_up, accuracy):
     warm = warm_up(scenarios.get(name), GaussianParticleFilter(), WARM_STEPS, policy=AllCells())
     base, looks = warm.tracker, warm.looks
-    state = {}
-
-    def setup():
-        state["tr"] = copy.deepcopy(base)
-
-    def step():
-        tr = state["tr"]
-        tr.predict()
-        tr.update(looks)
-        return tr.estimate()
-
-    probe = copy.deepcopy(base)  # the timed step's accuracy, outside the timing
-    probe.predict()
-    probe.update(looks)
-    est = probe.estimate()
+    setup, step, est = warm.repeat_step()
     benchmark.extra_info.update(scenario=name, step=warm.step,
                                 n_particles=len(base.particles[0]), n_looks=len(looks.cells),
                                 warm_policy="all", warm_mean_ospa=warm.warm_ospa)

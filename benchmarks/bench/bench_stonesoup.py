@@ -19,8 +19,6 @@ that lost (nearly) every target, not a small regression.
 
 from __future__ import annotations
 
-import copy
-
 import pytest
 
 from mttbench import scenarios
@@ -45,21 +43,7 @@ def _warm(warm_up, name: str):
 @pytest.mark.parametrize("name", TRACKERS)
 def test_step_large(benchmark, warm_up, accuracy, name):
     warm = _warm(warm_up, name)
-    state: dict = {}
-
-    def setup():
-        state["tr"] = copy.deepcopy(warm.tracker)
-
-    def step():
-        tr = state["tr"]
-        tr.predict()
-        tr.update(warm.looks)
-        return tr.estimate()
-
-    probe = copy.deepcopy(warm.tracker)
-    probe.predict()
-    probe.update(warm.looks)
-    est = probe.estimate()
+    setup, step, est = warm.repeat_step()
     benchmark.group = "large"
     benchmark.extra_info.update(tracker=name, scenario="large", step=warm.step,
                                 n_looks=len(warm.looks.cells), warm_policy="raster",

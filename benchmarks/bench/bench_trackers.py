@@ -27,8 +27,6 @@ baseline tracker, ``null``, has no bound: it scores 2), timed or not.
 
 from __future__ import annotations
 
-import copy
-
 import pytest
 
 from mttbench import scenarios, trackers
@@ -81,22 +79,7 @@ def warm_state(warm_up, spec_text: str, size: str):
                          ids=[f"{_id(spec)}-{size}" for spec, size in CASES])
 def test_tracker_step(benchmark, warm_up, accuracy, spec, size):
     warm = warm_state(warm_up, spec, size)
-    state: dict = {}
-
-    def setup():
-        state["tr"] = copy.deepcopy(warm.tracker)
-
-    def step():
-        tr = state["tr"]
-        tr.predict()
-        tr.update(warm.looks)
-        return tr.estimate()
-
-    # accuracy of the timed step, computed once outside the timing (a deterministic copy)
-    probe = copy.deepcopy(warm.tracker)
-    probe.predict()
-    probe.update(warm.looks)
-    est = probe.estimate()
+    setup, step, est = warm.repeat_step()
     bound = None if warm.tracker.baseline else OSPA_BOUND
     benchmark.extra_info.update(
         tracker=spec, scenario=SIZES[size], size=size, step=warm.step,

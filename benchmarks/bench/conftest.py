@@ -40,6 +40,7 @@ its last three runs (by the same clock) and the stored ratio is their median.
 
 from __future__ import annotations
 
+import copy
 import fnmatch
 import json
 import os
@@ -166,6 +167,27 @@ class Warm:
     def looks_at(self, k: int) -> Looks:
         """The looks of step ``k`` (any ``k >= step``) under the timed policy."""
         return _looks_at(self.world, self.timed_policy, k)
+
+    def repeat_step(self):
+        """A repeated benchmark of the timed step: ``setup`` copies :attr:`tracker`,
+        ``step`` runs ``predict``, ``update(looks)``, ``estimate`` on the copy; and the
+        step's estimate, computed once outside the timing on another copy (the same state
+        and random numbers, so each timed round must give it again). Returns
+        ``(setup, step, estimate)``."""
+        state: dict = {}
+
+        def setup():
+            state["tr"] = copy.deepcopy(self.tracker)
+
+        def step():
+            tr = state["tr"]
+            tr.predict()
+            tr.update(self.looks)
+            return tr.estimate()
+
+        setup()
+        est = step()
+        return setup, step, est
 
     def advance(self, n_calls: int, with_estimate: bool = True):
         """The step function of an advancing benchmark: each of its ``n_calls`` calls is
