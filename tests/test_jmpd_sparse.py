@@ -340,7 +340,8 @@ def test_huge_grid_runs_in_the_memory_of_a_small_one(name):
     make = {"jmpd": lambda: JMPDTracker(n_particles=300, t_max=4),
             "jmpd-ip": lambda: JMPDIPTracker(n_particles=300, t_max=4),
             "jmpd-ap": lambda: JMPDAPTracker(n_particles=100, init_fraction=0.5)}[name]
-    _huge_grid_run(make, 50)  # compile the kernels, fill caches
+    for side in (50, 100_000):  # compile the kernels (int32 and int64 cells), fill caches:
+        _huge_grid_run(make, side)  # a cold numba cache traces its compilation (~5 MB)
     peaks = {}
     for side in (50, 100_000):
         tracemalloc.start()
