@@ -499,7 +499,7 @@ def build_parser() -> argparse.ArgumentParser:
                     f"budget, {COMPARE_SEEDS} seeds, in parallel processes. Writes "
                     "results.parquet, summary.csv/.md, report.md, a self-contained "
                     "report.html, figures/ and manifest.json into --out (default "
-                    "reports/compare-<UTC timestamp>). Defaults take about 40 s on 2 "
+                    "reports/compare-<UTC timestamp>). Defaults take about 1.5 minutes on 2 "
                     "cores (longer on a busy machine).",
         epilog=textwrap.dedent("""\
             examples:
