@@ -20,10 +20,11 @@ table bit for bit, timing and memory columns aside.
 * :class:`DaskExecutor` (``--executor dask``; the ``mttbench[dask]`` extra): the runs
   go to a ``dask.distributed`` cluster, an existing one (``--scheduler tcp://HOST:PORT``)
   or a ``LocalCluster`` of ``--workers`` processes with one thread each on this machine;
-  each finished run's table comes back to this process, which writes the part
-  atomically. A worker that dies loses only the run it held (our LocalCluster gives a
-  worker one run at a time: ``worker-saturation`` 1.0); the scheduler runs it again
-  elsewhere until it has been on ``1 + retries`` dying workers (the scheduler's
+  each finished run's table comes back to this process (as its part file's Parquet
+  bytes, encoded on the worker), which writes the part atomically. A worker that dies
+  loses only the run it held (our LocalCluster gives a worker one run at a time:
+  ``worker-saturation`` 1.0); the scheduler runs it again elsewhere until it has been on
+  ``1 + retries`` dying workers (the scheduler's
   ``allowed-failures``: set to ``retries`` on our LocalCluster; an existing cluster's
   scheduler keeps its own setting, Dask's default 3), then the run gets its error row
   (``KilledWorker``). A run that raises is retried ``retries`` times (``retries=`` of
@@ -79,18 +80,25 @@ Outcome = tuple[int, str | None]
 
 @dataclass(frozen=True)
 class Work:
-    """What one run is: ``rows = run_job(job, c, p)``, then ``write(rows, part)``.
-    :func:`~mttbench.benchmarks.harness.run_sweep` passes the harness's ``run_job`` and
-    its atomic Parquet writer (module-level functions: they pickle by reference, and a
-    Dask worker imports them from its own mttbench)."""
+    """What one run is: ``rows = run_job(job, c, p)`` and its part written atomically,
+    ``write(rows, part)`` where it ran (this machine), or ``encode(rows)`` (the part
+    file's bytes) where it ran and ``write_bytes(part, bytes)`` where the parts are.
+    :func:`~mttbench.benchmarks.harness.run_sweep` passes the harness's functions
+    (module-level: they pickle by reference, and a Dask worker imports them from its own
+    mttbench)."""
 
     run_job: Callable[[Job, float, float], Any]
     write: Callable[[Any, Path], None]
+    encode: Callable[[Any], bytes]
+    write_bytes: Callable[[Path, bytes], None]
     c: float = 2.0
     p: float = 2.0
 
     def __call__(self, job: Job, part: Path) -> None:
         self.write(self.run_job(job, self.c, self.p), part)
+
+    def encoded(self, job: Job) -> bytes:
+        return self.encode(self.run_job(job, self.c, self.p))
 
 
 class Executor:
@@ -407,20 +415,22 @@ class DaskExecutor(Executor):
         client = self.client
         token = uuid.uuid4().hex
         keys = [f"{TASK_PREFIX}-{token}-{i}" for i in range(len(todo))]
-        futures = client.map(work.run_job, [job for job, _ in todo], c=work.c, p=work.p,
-                             key=keys, pure=False, retries=self.retries)
+        # the part's bytes come back (Parquet, encoded on the worker: about half the size
+        # of the pickled table, and the encoding's CPU time off this process)
+        futures = client.map(work.encoded, [job for job, _ in todo], key=keys, pure=False,
+                             retries=self.retries)
         index = {fut.key: i for i, fut in enumerate(futures)}
         try:
             for fut in distributed.as_completed(futures, loop=client.loop):
                 i = index[fut.key]
                 try:
-                    frame = fut.result()
+                    data = fut.result()
                 except Exception as exc:  # noqa: BLE001 - KilledWorker after the retries
                     fut.release()
                     yield i, _lost(exc)
                     continue
                 fut.release()
-                work.write(frame, todo[i][1])  # an OSError stops the sweep
+                work.write_bytes(todo[i][1], data)  # an OSError stops the sweep
                 yield i, None
         finally:
             waiting = [fut for fut in futures if not fut.done()]

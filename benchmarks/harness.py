@@ -83,6 +83,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import io
 import json
 import math
 import os
@@ -485,6 +486,19 @@ def _write_parquet(df: pd.DataFrame, path: Path) -> None:
     _write_atomic(path, lambda tmp: df.to_parquet(tmp, index=False))
 
 
+def _parquet_bytes(df: pd.DataFrame) -> bytes:
+    """The bytes :func:`_write_parquet` writes for ``df`` (a part file, made where the job
+    ran)."""
+    buffer = io.BytesIO()
+    df.to_parquet(buffer, index=False)
+    return buffer.getvalue()
+
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    """Write a part's bytes (:func:`_parquet_bytes`) like :func:`_write_parquet`."""
+    _write_atomic(Path(path), lambda tmp: tmp.write_bytes(data))
+
+
 def write_text_atomic(path: Path, text: str) -> None:
     """Write a text file (UTF-8) like :func:`_write_parquet`: all or nothing."""
     _write_atomic(Path(path), lambda tmp: tmp.write_text(text, encoding="utf-8"))
@@ -643,7 +657,7 @@ def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1, progress: 
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), file=sys.stderr,
                disable=not progress, unit="run", desc="runs")
     try:
-        work = Work(run_job, _write_parquet, c, p)
+        work = Work(run_job, _write_parquet, _parquet_bytes, _write_bytes, c, p)
         with contextlib.closing(executor.run(todo, work)) as outcomes:
             for i, error in outcomes:
                 if error is not None:

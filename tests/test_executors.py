@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import os
 import signal
 import sys
@@ -23,7 +24,7 @@ import pandas as pd
 import pytest
 
 from mttbench import scenarios
-from mttbench.benchmarks import executors
+from mttbench.benchmarks import executors, harness
 from mttbench.benchmarks.cli import main
 from mttbench.benchmarks.executors import (
     MISSING_DASK,
@@ -143,6 +144,10 @@ def test_dask_sweep_equals_the_local_executor(dask_two, tmp_path):
     # every run has its part, written by this process, and the tables on disk agree
     parts = sorted((tmp_path / "dask" / "parts").glob("*.parquet"))
     assert len(parts) == len(jobs)
+    for part in parts:
+        pd.testing.assert_frame_equal(
+            strip(pd.read_parquet(part)),
+            strip(pd.read_parquet(tmp_path / "local" / "parts" / part.name)))
     pd.testing.assert_frame_equal(*(strip(pd.read_parquet(tmp_path / kind / "results.parquet"))
                                     for kind in ("dask", "local")))
     # the crashing tracker's error rows are results, the same on both executors
@@ -223,6 +228,27 @@ def test_an_interrupted_dask_sweep_resumes(dask_two, tmp_path):
     assert {p: p.stat().st_mtime_ns for p in done} == done  # not recomputed
     assert len(list((out / "parts").glob("*.parquet"))) == len(jobs)
     pd.testing.assert_frame_equal(strip(again), strip(reference(jobs, tmp_path / "local")))
+
+
+def test_a_part_that_cannot_be_written_stops_a_dask_sweep(dask_two, tmp_path, monkeypatch):
+    jobs = build_jobs([short("default", 20)], [TrackerSpec("kfnn")], None, None, range(6))
+    written = []
+
+    def full_after_two(path, data):
+        if len(written) == 2:
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        written.append(path)
+        real(path, data)
+
+    real = harness._write_bytes
+    monkeypatch.setattr(harness, "_write_bytes", full_after_two)
+    with pytest.raises(OSError, match="No space left"):
+        run_sweep(jobs, tmp_path / "out", executor=dask_two, progress=False)
+    assert sorted((tmp_path / "out" / "parts").glob("*.parquet")) == sorted(written)
+    deadline = time.monotonic() + SETTLE_S
+    while _our_tasks(dask_two) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _our_tasks(dask_two)  # the rest were cancelled
 
 
 def _our_tasks(executor: DaskExecutor) -> list[str]:
