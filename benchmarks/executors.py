@@ -364,10 +364,14 @@ class DaskExecutor(Executor):
         if self.workers is not None:
             # one run per worker thread at a time (no run waits on a worker behind
             # another, so a dying worker takes no queued run with it); no memory limit
-            # of the nanny (the local pool has none; resources.check_jobs checks first)
+            # of the nanny (the local pool has none; resources.check_jobs checks first);
+            # no statistical profiler in the workers (it samples the running run's stack
+            # every 10 ms for a dashboard we do not start: measured 3-9% of a gpf run).
             # Ctrl-C is this process's to handle (it closes the cluster): the worker
             # processes ignore it, from their start (the disposition is inherited) and
             # after a restart (the preload, dask_setup below)
+            # (the workers' setting goes through the nannies' config, which a restarted
+            # worker gets too; a dask.config.set here would reach only the first ones)
             with (dask.config.set({"distributed.scheduler.worker-saturation": 1.0}),
                   _sigint_ignored()):
                 self._cluster = distributed.LocalCluster(
@@ -376,6 +380,7 @@ class DaskExecutor(Executor):
                     # no dashboard, and its HTTP server on a free port (not 8787)
                     scheduler_kwargs={"allowed_failures": self.retries,
                                       "dashboard_address": "127.0.0.1:0"},
+                    config={"distributed.worker.profile.enabled": False},
                     preload=[__name__])
             self._checked = True  # workers of this installation
             return distributed.Client(self._cluster, set_as_default=False)

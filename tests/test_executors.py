@@ -168,6 +168,7 @@ def test_a_worker_killed_mid_sweep_loses_nothing_on_dask(dask_two, tmp_path):
     local = reference(jobs, tmp_path / "local")  # the markers exist: nothing dies here
     pd.testing.assert_frame_equal(strip(on_dask), strip(local))
     # the nanny restarted the worker, which ignores Ctrl-C like the others (the preload)
+    # and runs without the profiler (the cluster's configuration)
     deadline = time.monotonic() + SETTLE_S
     while len(dask_two.client.nthreads()) < 2 and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -175,6 +176,9 @@ def test_a_worker_killed_mid_sweep_loses_nothing_on_dask(dask_two, tmp_path):
     assert len(after) == 2 and after != before
     handlers = dask_two.client.run(lambda: signal.getsignal(signal.SIGINT))
     assert set(handlers.values()) == {signal.SIG_IGN}
+    profiling = dask_two.client.run(
+        lambda: __import__("dask").config.get("distributed.worker.profile.enabled"))
+    assert set(profiling.values()) == {False}
 
 
 def test_a_run_that_kills_every_retry_gets_its_error_row_on_dask(kill_dir, tmp_path):
