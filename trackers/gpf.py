@@ -257,11 +257,15 @@ def merge_groups(w: np.ndarray, m: np.ndarray, P: np.ndarray, threshold: float,
                             None if groups is None else np.asarray(groups)[order])
     label = np.full(K, -1)
     out_w = []
+    lonely = ~(close < threshold).any(axis=1)  # no partner: a group of its own
     for i in range(K):
         if label[i] >= 0:
             continue
         g = len(out_w)
         label[i] = g
+        if lonely[i]:
+            out_w.append(min(w[i], 1.0) if rule != "union" else 1.0 - (1.0 - w[i]))
+            continue
         grp = np.nonzero((close[i] < threshold) & (label < 0))[0]
         if rule == "bounded_sum":
             tot = w[i]

@@ -28,12 +28,14 @@ and, given presence, bin ``b`` with probability ``pi_b``, i.e. density ratio
 
 Truncated moments: the position density is written ``p(px) p(py | px)`` (exact for any
 covariance); the ``py`` integral over ``[y0, y1)`` is closed form and the ``px`` integral is
-24-point Gauss-Legendre over the cell's x-range clipped to ``mu_x +- 7 sigma_x`` (mass
-error ~1e-11 for ``sigma_x >= 0.1`` cell; below that, with a wide, strongly correlated
-``py``, up to 2e-5 for ``sigma_x >= 0.08`` and 2e-3 at ``sigma_x = 0.056``; docs/gpf.md).
-Velocities follow from the linear regression on position,
+Gauss-Legendre over the cell's x-range clipped to ``mu_x +- 7 sigma_x``, 8 to 24 nodes by
+the integrand's difficulty (:func:`rect_position_moments`; as accurate as 24 nodes
+everywhere: mass error ~1e-11 for ``sigma_x >= 0.1`` cell; below that, with a wide,
+strongly correlated ``py``, up to 2e-5 for ``sigma_x >= 0.08`` and 2e-3 at
+``sigma_x = 0.056``; docs/gpf.md). Velocities follow from the linear regression on position,
 ``v = m_v + B (p - m_p) + e``, ``B = S_vp S_pp^-1``, ``e ~ N(0, S_vv - B S_pv)`` independent
-of ``p``.
+of ``p``; the moment match is linear in the cells' position moments, so a row's cells are
+summed first and lifted to the full state once (:func:`lift_to_state`).
 
 Missed cells (``aggregate_misses``, the tracker's default; a deviation from the paper):
 members of a cluster interact only through looked cells that returned a detection, and
@@ -78,9 +80,12 @@ from ..scenarios.model import Grid, RayleighGridSensor
 from .cells import look_log_ratios
 from .gpf_linear import enumerate_combinations, log_normalise
 
-_GL_T, _GL_W = np.polynomial.legendre.leggauss(24)
 _RANGE_SIGMAS = 7.0
 _INV_SQRT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
+#: Gauss-Legendre orders by difficulty ``D`` (see :func:`rect_position_moments`): the
+#: first order whose bound exceeds ``D``; the last (24) for everything harder
+_GL_ORDERS = ((1.0, 8), (2.0, 12), (4.0, 16), (6.0, 20), (math.inf, 24))
+_GL_RULES = {q: np.polynomial.legendre.leggauss(q) for _, q in _GL_ORDERS}
 
 
 def _phi(t: np.ndarray) -> np.ndarray:
@@ -98,7 +103,12 @@ def rect_position_moments(mean_xy: np.ndarray, cov_xy: np.ndarray, x0: np.ndarra
     ``k = cxy / cxx``, ``s^2 = cyy - cxy^2 / cxx`` and ``py - my = k u + s t``, the inner
     integrals over ``t in [alpha, beta]`` are ``Phi(beta) - Phi(alpha)``,
     ``phi(alpha) - phi(beta)`` and ``Phi(beta) - Phi(alpha) + alpha phi(alpha) - beta phi(beta)``
-    (first three moments of the standard normal); the outer one is Gauss-Legendre.
+    (first three moments of the standard normal); the outer one is Gauss-Legendre over the
+    x-range ``[lo, hi]`` clipped to ``+- 7 sigma_x``. Its order follows the integrand's
+    difficulty ``D = max(L / sigma_x, |k| L / s)``, ``L = hi - lo`` (the range in the outer
+    Gaussian's sds and the inner bounds' travel in ``t``): 8 nodes for ``D < 1``, 12, 16, 20
+    below 2, 4, 6, else 24 (each within ~1e-13 of a 96-node rule on its range; docs/gpf.md
+    section 10). A broad Gaussian on a cell, the common case, takes 8.
     """
     mx, my = mean_xy[:, 0], mean_xy[:, 1]
     a = np.maximum(cov_xy[:, 0, 0], 1e-300)
@@ -109,27 +119,78 @@ def rect_position_moments(mean_xy: np.ndarray, cov_xy: np.ndarray, x0: np.ndarra
     lo = np.maximum(x0 - mx, -_RANGE_SIGMAS * sx)
     hi = np.minimum(x1 - mx, _RANGE_SIGMAS * sx)
     half = 0.5 * np.maximum(hi - lo, 0.0)
-    u = (0.5 * (lo + hi))[:, None] + half[:, None] * _GL_T[None, :]  # (N, Q)
-    wq = _GL_W[None, :] * half[:, None] * _phi(u / sx[:, None]) / sx[:, None]
+    n = len(mx)
+    mass, m1, m2 = np.empty(n), np.empty((n, 2)), np.empty((n, 2, 2))
+    difficulty = 2.0 * half * np.maximum(1.0 / sx, np.abs(k) / s)
+    order = np.searchsorted(np.array([b for b, _ in _GL_ORDERS]), difficulty, side="right")
+    for i in np.unique(order):
+        sel = np.nonzero(order == i)[0]
+        nodes, weights = _GL_RULES[_GL_ORDERS[i][1]]
+        mass[sel], m1[sel], m2[sel] = _gl_moments(
+            nodes, weights, mx[sel], my[sel], sx[sel], k[sel], s[sel], lo[sel], half[sel],
+            y0[sel], y1[sel])
+    return mass, m1, m2
+
+
+def _gl_moments(nodes: np.ndarray, weights: np.ndarray, mx: np.ndarray, my: np.ndarray,
+                sx: np.ndarray, k: np.ndarray, s: np.ndarray, lo: np.ndarray,
+                half: np.ndarray, y0: np.ndarray, y1: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`rect_position_moments` with one Gauss-Legendre rule for every pair."""
+    u = (lo + half)[:, None] + half[:, None] * nodes[None, :]  # (N, Q)
+    wq = weights[None, :] * (half / sx)[:, None] * _phi(u / sx[:, None])
     ku = k[:, None] * u
-    al = np.clip((y0[:, None] - my[:, None] - ku) / s[:, None], -40.0, 40.0)
-    be = np.clip((y1[:, None] - my[:, None] - ku) / s[:, None], -40.0, 40.0)
+    sc = s[:, None]
+    al = ((y0 - my)[:, None] - ku) / sc  # finite (s >= 1e-12): phi and ndtr saturate
+    be = ((y1 - my)[:, None] - ku) / sc
     i0 = ndtr(be) - ndtr(al)
     pa, pb = _phi(al), _phi(be)
     j1 = pa - pb
     j2 = i0 + al * pa - be * pb
-    sc = s[:, None]
     ey = ku * i0 + sc * j1  # int (py - my) over the y-range
-    eyy = ku * ku * i0 + 2.0 * ku * sc * j1 + sc * sc * j2
-    mass = np.sum(wq * i0, axis=1)
-    m1 = np.stack([np.sum(wq * u * i0, axis=1), np.sum(wq * ey, axis=1)], axis=-1)
-    mxy = np.sum(wq * u * ey, axis=1)
+    eyy = ku * ey + sc * (ku * j1 + sc * j2)
+    wi = wq * i0
+    wu = wq * u
     m2 = np.empty((len(mx), 2, 2))
-    m2[:, 0, 0] = np.sum(wq * u * u * i0, axis=1)
-    m2[:, 0, 1] = mxy
-    m2[:, 1, 0] = mxy
-    m2[:, 1, 1] = np.sum(wq * eyy, axis=1)
-    return mass, m1, m2
+    m2[:, 0, 0] = np.einsum("nq,nq->n", wu * u, i0)
+    m2[:, 0, 1] = m2[:, 1, 0] = np.einsum("nq,nq->n", wu, ey)
+    m2[:, 1, 1] = np.einsum("nq,nq->n", wq, eyy)
+    m1 = np.stack([np.einsum("nq,nq->n", wu, i0), np.einsum("nq,nq->n", wq, ey)], axis=-1)
+    return wi.sum(axis=1), m1, m2
+
+
+def position_regression(covs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per Gaussian ``covs (K, 4, 4)``: the regression of velocity on position,
+    ``v - m_v = B (p - m_p) + e``: ``B = S_vp S_pp^-1 (K, 2, 2)`` (closed-form 2x2 inverse)
+    and the residual covariance ``S_vv - B S_pv (K, 2, 2)``."""
+    Spp = covs[:, 0::2, 0::2]  # positions are state entries 0, 2; velocities 1, 3
+    Svp = covs[:, 1::2, 0::2]
+    a, b, c = Spp[:, 0, 0], Spp[:, 0, 1], Spp[:, 1, 1]
+    det = a * c - b * b
+    inv = np.empty_like(Spp)
+    inv[:, 0, 0], inv[:, 1, 1] = c / det, a / det
+    inv[:, 0, 1] = inv[:, 1, 0] = -b / det
+    B = Svp @ inv
+    return B, covs[:, 1::2, 1::2] - B @ np.swapaxes(Svp, -1, -2)
+
+
+def lift_to_state(B: np.ndarray, resid: np.ndarray, mass: np.ndarray, m1: np.ndarray,
+                  m2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Full-state moments ``M1 (N, 4)``, ``M2 (N, 4, 4)`` from position moments ``mass (N,)``,
+    ``m1 (N, 2)``, ``m2 (N, 2, 2)`` of a Gaussian with regression ``B``, ``resid`` (rows
+    aligned): ``M1_v = B m1``, ``M2_pv = m2 B^T``, ``M2_vv = B m2 B^T + mass resid``. Linear
+    in ``(mass, m1, m2)``, so sums of pairs of one Gaussian may be lifted once."""
+    Bt = np.swapaxes(B, -1, -2)
+    M1 = np.empty((len(mass), 4))
+    M1[:, 0::2] = m1
+    M1[:, 1::2] = np.einsum("nij,nj->ni", B, m1)
+    M2 = np.empty((len(mass), 4, 4))
+    pv = np.einsum("nij,njk->nik", m2, Bt)
+    M2[:, 0::2, 0::2] = m2
+    M2[:, 0::2, 1::2] = pv
+    M2[:, 1::2, 0::2] = np.swapaxes(pv, -1, -2)
+    M2[:, 1::2, 1::2] = np.einsum("nij,njk->nik", B, pv) + mass[:, None, None] * resid
+    return M1, M2
 
 
 def rect_state_moments(means: np.ndarray, covs: np.ndarray, x0: np.ndarray, x1: np.ndarray,
@@ -140,33 +201,14 @@ def rect_state_moments(means: np.ndarray, covs: np.ndarray, x0: np.ndarray, x1: 
     ``owner (N,)``: the Gaussian (row of ``means``) of each of the ``N`` rectangles (default:
     rectangle ``k`` belongs to Gaussian ``k``, ``N = K``). Returns ``mass (N,)``, ``M1 (N, 4)``
     and ``M2 (N, 4, 4)`` (centred on the owner's mean), with the velocity parts from the
-    regression ``v - m_v = B (p - m_p) + e`` (``B = S_vp S_pp^-1`` and ``S_vv - B S_pv``
-    computed once per Gaussian, closed-form 2x2 inverse): ``M1_v = B m1``,
-    ``M2_pv = m2 B^T``, ``M2_vv = B m2 B^T + mass (S_vv - B S_pv)``.
+    regression on position (:func:`position_regression`, :func:`lift_to_state`).
     """
     if owner is None:
         owner = np.arange(len(means))
-    Spp = covs[:, 0::2, 0::2]  # positions are state entries 0, 2; velocities 1, 3
-    Svp = covs[:, 1::2, 0::2]
-    a, b, c = Spp[:, 0, 0], Spp[:, 0, 1], Spp[:, 1, 1]
-    det = a * c - b * b
-    inv = np.empty_like(Spp)
-    inv[:, 0, 0], inv[:, 1, 1] = c / det, a / det
-    inv[:, 0, 1] = inv[:, 1, 0] = -b / det
-    B = Svp @ inv  # (K, 2, 2)
-    resid = covs[:, 1::2, 1::2] - B @ np.swapaxes(Svp, -1, -2)
-    mass, m1, m2 = rect_position_moments(means[owner][:, 0::2], Spp[owner], x0, x1, y0, y1)
-    Bo = B[owner]
-    Bt = np.swapaxes(Bo, -1, -2)
-    M1 = np.empty((len(mass), 4))
-    M1[:, 0::2] = m1
-    M1[:, 1::2] = (Bo @ m1[..., None])[..., 0]
-    M2 = np.empty((len(mass), 4, 4))
-    pv = m2 @ Bt
-    M2[:, 0::2, 0::2] = m2
-    M2[:, 0::2, 1::2] = pv
-    M2[:, 1::2, 0::2] = np.swapaxes(pv, -1, -2)
-    M2[:, 1::2, 1::2] = Bo @ m2 @ Bt + mass[:, None, None] * resid[owner]
+    B, resid = position_regression(covs)
+    mass, m1, m2 = rect_position_moments(means[owner][:, 0::2], covs[owner][:, 0::2, 0::2],
+                                         x0, x1, y0, y1)
+    M1, M2 = lift_to_state(B[owner], resid[owner], mass, m1, m2)
     return mass, M1, M2
 
 
@@ -428,10 +470,13 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
             & gauss_row[:, None])
     ri_g, pu_g = np.nonzero(near)
     x0, x1, y0, y1 = grid.cell_bounds(U[pu_g])
-    mass_g, M1_g, M2_g = rect_state_moments(m, P, x0.astype(float), x1.astype(float),
-                                            y0.astype(float), y1.astype(float), owner=ri_g)
+    # position moments per pair; the velocity parts are lifted per row after summing
+    # (lift_to_state is linear), and per pair only for the components split off
+    mass_g, p1_g, p2_g = rect_position_moments(
+        m[ri_g][:, 0::2], P[ri_g][:, 0::2, 0::2], x0.astype(float), x1.astype(float),
+        y0.astype(float), y1.astype(float))
     keep = mass_g > 1e-12
-    ri_g, pu_g, mass_g, M1_g, M2_g = ri_g[keep], pu_g[keep], mass_g[keep], M1_g[keep], M2_g[keep]
+    ri_g, pu_g, mass_g, p1_g, p2_g = ri_g[keep], pu_g[keep], mass_g[keep], p1_g[keep], p2_g[keep]
     # uniform rows: one pair, mass 1 (their moments are never used)
     ri_u = np.nonzero(~gauss_row)[0]
     pu_u = np.searchsorted(U, uniform_cell[ri_u])
@@ -555,29 +600,30 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     live = w_new[own[ri_g]] > 0.0
     g_rp = np.where(live, g_pair[gi], 0.0)
     go_r = g_out[own]
-    Z = go_r.copy()
     coef = g_rp - go_r[ri_g]  # (g_c - g_out) per row pair
-    np.add.at(Z, ri_g, coef * mass_g)
-    d = np.zeros((R, 4))
-    np.add.at(d, ri_g, coef[:, None] * M1_g)
-    S2 = go_r[:, None, None] * P
-    np.add.at(S2, ri_g, coef[:, None, None] * M2_g)
-    new_alpha = alp * np.where(gauss_row, Z, 1.0)
+    new_alpha = None
     split = np.zeros(n_gp, dtype=bool)
     if split_share > 0.0:
         # a detected cell's part of a row, if heavy enough, leaves as its own component
+        Z_full = go_r + np.bincount(ri_g, weights=coef * mass_g, minlength=R)
+        new_alpha = alp * np.where(gauss_row, Z_full, 1.0)
         tot = np.bincount(own, weights=new_alpha, minlength=T)
         share = alp[ri_g] * g_rp * mass_g / np.maximum(tot[own[ri_g]], 1e-300)
         split = hit[pu_g] & (share >= split_share) & live
         # ... unless it is (nearly) all of the row: then the row is that component anyway
         split &= alp[ri_g] * g_rp * mass_g < (1.0 - split_share) * new_alpha[ri_g]
-        if np.any(split):
-            Z_full = Z.copy()
-            c = g_rp[split]
-            np.subtract.at(Z, ri_g[split], c * mass_g[split])
-            np.subtract.at(d, ri_g[split], c[:, None] * M1_g[split])
-            np.subtract.at(S2, ri_g[split], c[:, None, None] * M2_g[split])
-            new_alpha = alp * np.where(gauss_row, Z, 1.0)
+    # the rest of each row: sums over its pairs of coef * (mass, m1, m2), lifted once
+    c_rest = np.where(split, coef - g_rp, coef)
+    Z = go_r + np.bincount(ri_g, weights=c_rest * mass_g, minlength=R)
+    sums = [np.bincount(ri_g, weights=c_rest * v, minlength=R)
+            for v in (p1_g[:, 0], p1_g[:, 1], p2_g[:, 0, 0], p2_g[:, 0, 1], p2_g[:, 1, 1])]
+    d1 = np.stack(sums[:2], axis=-1)
+    d2 = np.stack([np.stack(sums[2:4], axis=-1), np.stack(sums[3:], axis=-1)], axis=-2)
+    B, resid = position_regression(P)
+    d, S2 = lift_to_state(B, resid, Z - go_r, d1, d2)
+    S2 += go_r[:, None, None] * P
+    if new_alpha is None or np.any(split):
+        new_alpha = alp * np.where(gauss_row, Z, 1.0)
     means, covs = m.copy(), P.copy()
     upd = gauss_row & (w_new[own] > 0.0) & (Z > 0.0)
     Zs = Z[upd]
@@ -592,10 +638,11 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
         was_split[ri_g[split]] = True
         sane = (covs[:, 0, 0] > 0.0) & (covs[:, 2, 2] > 0.0)
         rest_ok = ~was_split | (upd & (Z > 1e-6 * Z_full) & sane)
-        sm = mass_g[split]
-        sd = M1_g[split] / sm[:, None]
-        sc = M2_g[split] / sm[:, None, None] - sd[:, :, None] * sd[:, None, :]
         srow = ri_g[split]
+        sm = mass_g[split]
+        M1_s, M2_s = lift_to_state(B[srow], resid[srow], sm, p1_g[split], p2_g[split])
+        sd = M1_s / sm[:, None]
+        sc = M2_s / sm[:, None, None] - sd[:, :, None] * sd[:, None, :]
         means = np.concatenate([means[rest_ok], m[srow] + sd])
         covs = np.concatenate([covs[rest_ok], 0.5 * (sc + np.swapaxes(sc, -1, -2))])
         new_alpha = np.concatenate([new_alpha[rest_ok], alp[srow] * g_rp[split] * sm])
@@ -791,6 +838,19 @@ def fold_into_workspace(m: np.ndarray, P: np.ndarray, grid: Grid
     """Mean ``(K, 4)`` and covariance ``(K, 4, 4)`` of ``N(m, P)`` folded into the
     workspace by reflection (:func:`known_existence_update` without looks): the mass
     beyond a wall mirrored back, position and that axis's velocity, as the truth
-    reflects. Used by the GPF's predict and the truth-aided reference."""
-    return known_existence_update(m, P, np.zeros(0, np.int64), np.zeros(0, bool), grid,
-                                  None, workspace="reflect")
+    reflects. Used by the GPF's predict and the truth-aided reference. A Gaussian whose
+    ``RANGE_SIGMAS`` box lies inside the workspace is returned as it is (its images' masses
+    are below :data:`IMAGE_MASS_FLOOR`, so the fold would only symmetrise ``P``)."""
+    m = np.asarray(m, dtype=float).reshape(-1, 4)
+    P = np.asarray(P, dtype=float).reshape(-1, 4, 4)
+    width, height = grid.extent
+    sx = RANGE_SIGMAS * np.sqrt(np.maximum(P[:, 0, 0], 0.0))
+    sy = RANGE_SIGMAS * np.sqrt(np.maximum(P[:, 2, 2], 0.0))
+    edge = np.nonzero((m[:, 0] - sx < 0) | (m[:, 0] + sx > width)
+                      | (m[:, 2] - sy < 0) | (m[:, 2] + sy > height))[0]
+    means, covs = m.copy(), P.copy()
+    if len(edge):
+        means[edge], covs[edge] = known_existence_update(
+            m[edge], P[edge], np.zeros(0, np.int64), np.zeros(0, bool), grid, None,
+            workspace="reflect")
+    return means, covs
