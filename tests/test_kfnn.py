@@ -21,6 +21,7 @@ from mttbench.scenarios.model import (
 )
 from mttbench.scenarios.simulator import simulate
 from mttbench.scenarios.spec import Scenario
+from mttbench.trackers import kalman
 from mttbench.trackers.cells import poisson_binomial
 from mttbench.trackers.kfnn import KFNNTracker, associate
 
@@ -48,6 +49,20 @@ def _cell(px: float, py: float) -> int:
 
 
 # -------------------------------------------------------------- reduction to filterpy
+@pytest.mark.parametrize("r", [2, 3])
+def test_inverse_and_mahalanobis_equal_numpy_solve(r: int) -> None:
+    """The closed-form 2x2 inverse and quadratic form (and the general path for r = 3)
+    equal numpy's solve on random SPD matrices over leading axes, to 1e-12 relative."""
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(5, 7, r, r))
+    S = A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(r)
+    y = rng.normal(size=(5, 7, r))
+    ref = np.einsum("...i,...i->...", y, np.linalg.solve(S, y[..., None])[..., 0])
+    np.testing.assert_allclose(kalman.mahalanobis_sq(y, S), ref, rtol=1e-12)
+    np.testing.assert_allclose(kalman.inverse(S) @ S, np.broadcast_to(np.eye(r), S.shape),
+                               atol=1e-10)
+
+
 def test_single_target_perfect_detection_equals_filterpy() -> None:
     """p_d ~ 1, p_f ~ 0, all cells looked at: the confirmed track IS a Kalman filter.
 

@@ -46,7 +46,7 @@ def update(m: np.ndarray, P: np.ndarray, z: np.ndarray, H: np.ndarray, R: np.nda
     y = z - m @ H.T
     PHt = P @ H.T
     S = H @ PHt + R
-    gain = np.linalg.solve(S, np.swapaxes(PHt, -1, -2)).swapaxes(-1, -2)
+    gain = PHt @ inverse(S)
     m_post = m + (gain @ y[..., None])[..., 0]
     # Joseph form: (I - K H) P (I - K H)^T + K R K^T
     A = np.eye(P.shape[-1]) - gain @ H
@@ -55,6 +55,23 @@ def update(m: np.ndarray, P: np.ndarray, z: np.ndarray, H: np.ndarray, R: np.nda
     return m_post, P_post, y, S
 
 
+def inverse(S: np.ndarray) -> np.ndarray:
+    """``S^-1`` over leading axes; a 2x2 (a position covariance, the common case) by its
+    closed form ``[[d, -b], [-c, a]] / (a d - b c)``, larger ones by ``numpy.linalg.inv``."""
+    if S.shape[-1] != 2:
+        return np.linalg.inv(S)
+    a, b, c, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 0], S[..., 1, 1]
+    det = a * d - b * c
+    out = np.empty(S.shape)
+    out[..., 0, 0], out[..., 0, 1] = d / det, -b / det
+    out[..., 1, 0], out[..., 1, 1] = -c / det, a / det
+    return out
+
+
 def mahalanobis_sq(y: np.ndarray, S: np.ndarray) -> np.ndarray:
     """``y^T S^-1 y`` over broadcast leading axes; ``y (..., r)``, ``S (..., r, r)``."""
+    if S.shape[-1] == 2:  # closed form: (d y0^2 - (b + c) y0 y1 + a y1^2) / det
+        a, b, c, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 0], S[..., 1, 1]
+        y0, y1 = y[..., 0], y[..., 1]
+        return (d * y0 * y0 - (b + c) * y0 * y1 + a * y1 * y1) / (a * d - b * c)
     return np.einsum("...i,...i->...", y, np.linalg.solve(S, y[..., None])[..., 0])
