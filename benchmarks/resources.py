@@ -6,31 +6,75 @@ parameters, and a job that cannot fit in the memory one worker may use is refuse
 with one line naming the estimate and the limit. A sweep estimated to take more than
 :data:`SLOW_SWEEP_S` of wall time gets a one-line warning. Both estimates are simple,
 deliberately conservative (upper) bounds of the current code's behaviour, not
-predictions; the constants below were measured on a 2-core x86-64 Linux machine
-(peak RSS of one ``run_job`` through ``getrusage``, wall time of whole runs) and
-rounded up.
+predictions; the constants below were measured on a 2-core x86-64 Linux machine and
+rounded up: the peak RSS of one ``run_job`` in a fresh process (``getrusage``, the
+high-water mark reset after the imports and a warm-up run) and its wall time, with::
 
-Memory of one job, in bytes (``S`` steps, ``C`` cells, ``M`` looks per step)::
+    python docs/resources_memory.py --sides 12 50 2000 100000 --steps 20
+    python docs/resources_memory.py --sides 100000 --looks 2500 --steps 100 \
+        --trackers null kfnn truth-aided gpf jmpd-ap ss-gnn
+    python docs/resources_memory.py --scale --steps 10
+    python docs/resources_memory.py --policies all --sides 300 700 --steps 5
+    python docs/resources_memory.py --trackers jmpd:n_particles=20000,t_max=30 \
+        jmpd-ip:n_particles=20000,t_max=30 jmpd-ap:n_particles=5000 --sides 50 2000 --steps 3
 
-    WORKER_BASE                                 interpreter, numpy/pandas, numba kernels
+(the tables are in docs/scaling.md, "Memory: the sweep's estimate").
+
+Since issue 16 nothing a run does per step is ``O(cells)`` but what the policy asks for,
+so the estimate is in steps ``S``, looks per step ``M``, targets ``T`` and particles;
+the grid's ``C`` cells enter only as a cap (``min(C, .)``: there are no more distinct
+cells than that), through the bits of a look's position in the simulator's stream,
+and where the code is ``O(cells)``: the ``all`` policy (``M = C`` looks) and renyi's
+dense path on grids of at most ``DENSE_CELLS`` = 2,500 cells
+(:data:`~mttbench.benchmarks.information.DENSE_CELLS`). Memory of one job, in bytes::
+
+    WORKER_BASE                                  interpreter, numpy/pandas, numba kernels
     + RUN_BASE                                   a run's fixed working memory
-    + S * R * C * 8                              sensor world: the simulator keeps R rows of
-                                                 C uniforms per step (``Run._uniform_rows``)
-    + (R + 2) * C * 8                            the same rows stacked, the cell counts
-    + C * CELL_BYTES                             per-cell arrays of the tracker and policy
-    + C * n_counts * 8 * PREDICTION_COPIES       P_c(t) and the gain tables, only when the
-                                                 policy uses the tracker's prediction
-    + tracker state                              JMPD: N * t_max * JMPD_SLOT_BYTES;
-                                                 GPF: max_particles * GPF_PARTICLE_BYTES
-                                                      + max_combinations * max_particles * 32
-    + S * (T * 48 + 256)                         the truth: T targets (initial + births)
+    + S * (T * 48 + 256)                         the truth (simulated up front)
     + S * ROW_BYTES                              the result rows of the run
+    + JUMP_TABLE_BYTES * tables + M * LOOK_BYTES simulator: one jump table per 16 bits of
+                                                 the largest stream position R * C, and
+                                                 each look's arrays (tracker's included)
+    + min(C, 50 M) * 8                           random and oracle: numpy's choice
+                                                 shuffles all cells unless C > 50 M
+    + min(C, S * m) * LOOKED_CELL_BYTES          kfnn, ss-gnn, gpf, jmpd-ap: the
+                                                 undetected field keeps a value for every
+                                                 cell looked at so far
+    + tracker                                    below
+    + prediction                                 below, only when the policy reads P_c(t)
 
-``R``, the rows of uniforms per step, is the most looks one cell can get in a step:
-``ceil(M / C)`` for a policy that spreads its looks (a raster that wraps), ``M`` for a
-policy with a true ``repeats`` parameter (every look may go to one cell). ``n_counts``
-is the tracker's ``n_counts`` parameter, else ``t_max + 1``, at least 4. Trackers
-named by class path and unknown policies count as having no state of their own.
+``m = min(M, C)`` distinct cells are looked at per step. ``R``, the most looks one cell
+can get in a step, is ``ceil(M / C)`` for a policy that spreads its looks (a raster that
+wraps), ``M`` for a policy with a true ``repeats`` parameter (:func:`rows_per_step`);
+``tables = ceil(bits(R C) / 16)``. ``T`` counts the initial targets and the expected
+births over the run. The tracker's own state:
+
+* jmpd, jmpd-ip: ``N t_max (JMPD_SLOT_BYTES + t_max * JMPD_SLOT_T_BYTES)`` (the IP
+  proposal: ``JMPD_IP_SLOT_T_BYTES`` per unit of ``t_max``, as measured) ``+ m (t_max +
+  1) * JMPD_LOOK_BYTES`` (the look tables keyed by the looked cells);
+* jmpd-ap: ``N t_max * AP_SLOT_BYTES + m (t_max + 1) * JMPD_LOOK_BYTES``, ``t_max`` its
+  automatic slots when not given (``trackers.jmpd.ap._auto_slots``);
+* gpf: ``G * GPF_GAUSSIAN_BYTES + max_combinations * max_particles * 32`` with
+  ``G = max_particles * max_components`` Gaussians, and on the grid ``(G + m) m *
+  PAIR_BYTES``: its update's (Gaussian or birth candidate, looked cell) box test;
+* truth-aided: ``T m * PAIR_BYTES`` (the (target image, looked cell) box test);
+* others (kfnn, null, Stone Soup's peers, trackers named by class path): nothing beyond
+  the terms above.
+
+The prediction (``P_c(t)`` and renyi's gains): ``E * ENTRY_BYTES + rows *
+(PREDICTION_ROW_BYTES + n_counts * PREDICTION_COUNT_BYTES)``, with ``E`` the entries
+``P_c`` is built from -- ``N t_max`` particle slots for the JMPDs, ``BOX_CELLS`` cells
+for each of ``2 T + 16`` Gaussians (capped at the gpf's ``G`` and ss-gmphd's
+``max_components``) for the Gaussian trackers, none for null -- and ``rows = min(C, E +
+looked so far)`` (the cells with a row of their own; the looked cells only for the four
+trackers with a field) plus ``C`` on the dense path (``C <= DENSE_CELLS``).
+``n_counts``: ``t_max + 1`` for jmpd and jmpd-ip, ``min(t_max, 4) + 1`` for jmpd-ap,
+the gpf's ``n_counts``, 4 for the other Gaussian trackers, 2 for null, else the
+``n_counts`` parameter or ``t_max + 1``, at least 4. ``(2 T + 16) * BOX_CELLS`` covers
+the entries the Gaussians' 6-sd boxes held under renyi on the presets and on ``large``
+over 1e5 x 1e5 (at most 8,701, gpf on ``large``: 45 Gaussians of 193 cells on average,
+against 66 x 256 counted). It is not a bound: the box of a Gaussian left unobserved for
+many steps grows with its sd (``(12 sd + 1)^2`` cells, at most the grid).
 
 The limit per worker is the memory available now (``MemAvailable`` of
 ``/proc/meminfo``, lowered to the cgroup's ``memory.max - memory.current`` when one is
@@ -40,10 +84,15 @@ also holds the whole results table, ``RESULT_ROW_BYTES`` per step of every run, 
 must fit in what is available. If the available memory cannot be read, nothing is
 refused.
 
-Wall time of one job, in seconds: ``S * (STEP_S + C * R * CELL_S + prediction +
-tracker)``, with ``C * n_counts * PREDICTION_CELL_S`` per step for a policy that uses
-the prediction, ``N * t_max * JMPD_SLOT_S`` (``JMPD_IP_FACTOR`` times that for the IP
-proposal, times ``1 + move_steps``) for the JMPD and ``max_particles * GPF_PARTICLE_S`` for the GPF.
+Wall time of one job, in seconds: ``RUN_S + S * (STEP_S + M * LOOK_S + tracker +
+prediction)`` with ``T * TARGET_S`` for the Gaussian trackers (``PEER_TARGET_S`` for
+Stone Soup's), ``min(C, S m) * LOOKED_CELL_S`` for the four trackers with a field (a step's
+``O(cells looked so far)``, taken at the run's end), ``N t_max (JMPD_SLOT_S + t_max *
+JMPD_SLOT_T_S)`` for jmpd (``JMPD_IP_FACTOR`` times that for the IP proposal, times
+``1 + move_steps``), ``N t_max * AP_SLOT_S`` for jmpd-ap, ``max_particles *
+GPF_PARTICLE_S + (G + m) m * PAIR_S`` for the gpf, ``T m * PAIR_S`` for truth-aided,
+``KFNN_STEP_S`` for kfnn; the prediction ``(E + rows * n_counts) * PREDICTION_S``, and
+for the JMPDs ``N t_max^2 * JMPD_SLOT_T_S`` (their in-particle counts).
 """
 
 from __future__ import annotations
@@ -55,44 +104,100 @@ from pathlib import Path
 from typing import Any
 
 from ..scenarios.model import RayleighGridSensor
+from .information import DENSE_CELLS
 from .specs import UsageError
 
+MIB = 2**20
+
 # ----------------------------------------------------------------- memory constants
-#: resident memory of a worker before its first run: ~170 MB of imports plus ~160 MB
-#: of numba-compiled JMPD kernels, measured
-WORKER_BASE = 384 * 2**20
-#: fixed growth of the peak RSS during any run (frames, metrics, allocator slack): ~20 MB
-#: measured on a 12x12 grid as on a 600x600 one
-RUN_BASE = 32 * 2**20
-#: per-cell arrays of the tracker (undetected-target field, look counts) and the policy
-CELL_BYTES = 16
-#: copies of ``P_c(t)``-sized arrays alive while a policy uses the prediction
-PREDICTION_COPIES = 16
-#: bytes per JMPD particle slot (states, their move and resampling buffers, cells, keys,
-#: the estimate's alignment work): peaks of ~800 B per slot measured on ``large`` with
-#: t_max = 30 (jmpd-ip, N = 2e4: 901 MB; jmpd, N = 1e5: 2.3 GB)
-JMPD_SLOT_BYTES = 1024
-#: bytes per GPF particle (mean, covariance and their working copies)
-GPF_PARTICLE_BYTES = 2048
+#: resident memory of a worker after its imports and a first run: 174-183 MB measured,
+#: 274-284 MB with the JMPDs' numba kernels loaded
+WORKER_BASE = 384 * MIB
+#: fixed growth of the peak RSS during any run (frames, metrics, allocator slack): under
+#: 1 MB measured for null and kfnn on 12x12 as on 1e5 x 1e5 (raster)
+RUN_BASE = 16 * MIB
+#: one jump table of the simulator's PCG64 stream: four arrays of 2^16 uint64 (exact)
+JUMP_TABLE_BYTES = 4 * 2**16 * 8
+#: bits of the stream position per jump table (``scenarios.simulator._DIGIT_BITS``)
+JUMP_TABLE_BITS = 16
+#: per look and step: the simulator's 128-bit arithmetic on uint64 arrays and the
+#: tracker's per-look work; 212-230 B measured (``all`` on 700x700: null, kfnn,
+#: truth-aided)
+LOOK_BYTES = 512
+#: per cell looked at so far, for the trackers with an undetected field (a value per
+#: such cell, inserted with a copy): 25 (kfnn), 27 (ss-gnn), 76 (jmpd-ap) and 96 B
+#: (gpf, its box test included) more than null's growth, over 250,000 looked cells
+#: (raster, 2,500 looks x 100 steps on 1e5 x 1e5)
+LOOKED_CELL_BYTES = 128
+#: bytes per JMPD particle slot, plus per slot and per unit of ``t_max``: bootstrap 268 B
+#: per slot at t_max = 5 (N = 5e4), 478 B at t_max = 30 (N = 2e4); the IP proposal
+#: 282 B and 1,197 B there
+JMPD_SLOT_BYTES = 256
+JMPD_SLOT_T_BYTES = 16
+JMPD_IP_SLOT_T_BYTES = 48
+#: bytes per jmpd-ap slot: 138 B (N = 5000 on ``large``, t_max 54) and 253 B (``scale``,
+#: N = 500, t_max 2,004) measured
+AP_SLOT_BYTES = 384
+#: per looked cell and count column of a JMPD's look tables: 22 B measured (jmpd-ap,
+#: ``all`` on 700x700)
+JMPD_LOOK_BYTES = 32
+#: bytes per GPF Gaussian (mean, covariance and their working copies)
+GPF_GAUSSIAN_BYTES = 2048
+#: per (Gaussian or candidate, looked cell) pair of a box test (boolean temporaries)
+PAIR_BYTES = 8
+#: per entry P_c(t) is built from (a particle slot or a Gaussian's cell in its box)
+ENTRY_BYTES = 192
+#: per row of P_c(t) and per row and count column: the rows, their copies and renyi's
+#: gain tables: 454 B per row at 4 columns (kfnn: 250,000 looked cells under renyi),
+#: 581 B at 5 (jmpd-ap, the same) and 2,650 B at 31 (jmpd, 48,041 rows) measured
+PREDICTION_ROW_BYTES = 384
+PREDICTION_COUNT_BYTES = 96
+#: cells of a Gaussian's 6-sd box counted per Gaussian (module docstring)
+BOX_CELLS = 256
 #: one step's result row inside the worker (a dict of ~45 entries, then a DataFrame row)
-ROW_BYTES = 4096
+#: and its truth: 2.5-4.0 KB per step measured over 20,000 steps (null, kfnn on 12x12)
+ROW_BYTES = 6144
 #: one step's result row in the main process (parts read back, concatenated, sorted)
 RESULT_ROW_BYTES = 4096
 
 # ------------------------------------------------------------------- time constants
 STEP_S = 1e-3
-CELL_S = 1e-7
-PREDICTION_CELL_S = 3e-7
-#: seconds per JMPD slot and step (bootstrap; measured 0.22 s at N = 2e4, t_max = 30)
-JMPD_SLOT_S = 4e-7
+#: per look: the simulator's ~1 us and the trackers' per-look work
+LOOK_S = 2e-6
+#: per cell looked at so far and step (the undetected field's update)
+LOOKED_CELL_S = 1e-8
+#: per JMPD slot and step, plus per slot and unit of t_max (the O(N t_max^2) passes):
+#: 50-66 ms per step measured at N = 2000, t_max = 30
+JMPD_SLOT_S = 5e-7
+JMPD_SLOT_T_S = 2e-8
 #: the IP proposal's cost relative to the bootstrap (measured 0.9 s against 0.22 s there)
 JMPD_IP_FACTOR = 4.0
+#: per jmpd-ap slot and step: 0.35 s for 1e6 slots (``scale``), ~25 ms for 27,000
+AP_SLOT_S = 1e-6
 GPF_PARTICLE_S = 1e-4
+#: per target and step of the trackers with a Gaussian per target (kfnn, truth-aided,
+#: gpf): truth-aided 3 ms per step with 25 targets on 12x12
+TARGET_S = 2e-4
+#: per target and step of Stone Soup's peers (Python objects per track and detection):
+#: ss-gmphd 210 ms per step with 25 targets on 12x12, ss-gnn 26 ms
+PEER_TARGET_S = 1e-2
+#: per run: the truth's simulation, the tracker's reset, the rows' DataFrame
+RUN_S = 0.1
+#: per pair of a box test (truth-aided on ``scale``: 54 ms for 2.5e6 pairs)
+PAIR_S = 3e-8
 KFNN_STEP_S = 5e-4
+#: per entry and per row and column of the prediction (kfnn under renyi: ~60 ms per
+#: step with 250,000 rows of 4 columns)
+PREDICTION_S = 1e-7
 #: a sweep estimated to take longer than this on its workers gets a warning
 SLOW_SWEEP_S = 3600.0
 
 MEMORY_ENV = "MTTBENCH_MEMORY_LIMIT_GB"
+
+#: trackers whose undetected field (and P_c rows) keeps every cell looked at so far
+FIELD_TRACKERS = frozenset({"kfnn", "ss-gnn", "gpf", "jmpd-ap"})
+#: trackers whose P_c(t) comes from Gaussians' boxes
+GAUSSIAN_TRACKERS = frozenset({"kfnn", "ss-gnn", "ss-gmphd", "gpf", "truth-aided"})
 
 
 @dataclass(frozen=True)
@@ -130,10 +235,27 @@ def _number(params: dict[str, Any], key: str, default: float) -> float:
 
 
 def rows_per_step(n_looks: int, n_cells: int, repeats: bool) -> int:
-    """Rows of uniforms the simulator keeps per step: the most looks one cell can get."""
+    """The most looks one cell can get in a step (the simulator's repeat index runs
+    below it): ``ceil(M / C)`` spread, ``M`` with repeats."""
     if n_looks <= 0 or n_cells <= 0:
         return 1
     return max(1, n_looks if repeats else math.ceil(n_looks / n_cells))
+
+
+def jump_tables(n_positions: int) -> int:
+    """Jump tables the simulator builds for stream positions below ``n_positions``: one
+    per 16 bits of the largest ``position + 1`` (at least one)."""
+    return max(1, math.ceil(int(n_positions).bit_length() / JUMP_TABLE_BITS))
+
+
+def _slots(name: str, params: dict[str, Any], model: Any) -> tuple[float, float]:
+    """``(N, t_max)`` of a JMPD; jmpd-ap's automatic ``t_max`` when none is given."""
+    n = _number(params, "n_particles", 2000)
+    t_max = params.get("t_max")
+    if name == "jmpd-ap" and t_max is None:
+        from ..trackers.jmpd.ap import _auto_slots
+        return n, float(_auto_slots(model))
+    return n, _number(params, "t_max", 5)
 
 
 def estimate_job(job: Any) -> Estimate:
@@ -150,38 +272,101 @@ def estimate_job(job: Any) -> Estimate:
         "truth": steps * (targets * 48.0 + 256.0),
         "result rows": steps * ROW_BYTES,
     }
-    seconds_per_step = STEP_S
+    per_step = STEP_S  # seconds
 
-    tparams, _ = _params("tracker", job.tracker.name, dict(job.tracker.params))
     tname = job.tracker.name
-    if tname.startswith("jmpd"):
-        slots = _number(tparams, "n_particles", 2000) * _number(tparams, "t_max", 5)
-        parts["tracker"] = slots * JMPD_SLOT_BYTES
-        factor = JMPD_IP_FACTOR if tparams.get("proposal") == "ip" else 1.0
-        seconds_per_step += slots * JMPD_SLOT_S * factor * (1 + _number(tparams, "move_steps", 0))
+    if tname in ("ss-gnn", "ss-gmphd"):
+        per_step += targets * PEER_TARGET_S
+    elif tname in GAUSSIAN_TRACKERS:
+        per_step += targets * TARGET_S
+    tparams, _ = _params("tracker", tname, dict(job.tracker.params))
+    jmpd = tname in ("jmpd", "jmpd-ip", "jmpd-ap")
+    n, t_max = _slots(tname, tparams, model) if jmpd else (0.0, 0.0)
+    gaussians = 0.0
+    tracker_bytes = 0.0
+    if tname == "jmpd-ap":
+        tracker_bytes = n * t_max * AP_SLOT_BYTES
+        per_step += n * t_max * AP_SLOT_S
+    elif jmpd:
+        ip = tname == "jmpd-ip" or tparams.get("proposal") == "ip"
+        per_t = JMPD_IP_SLOT_T_BYTES if ip else JMPD_SLOT_T_BYTES
+        tracker_bytes = n * t_max * (JMPD_SLOT_BYTES + t_max * per_t)
+        per_step += (n * t_max * (JMPD_SLOT_S + t_max * JMPD_SLOT_T_S)
+                     * (JMPD_IP_FACTOR if ip else 1.0)
+                     * (1 + _number(tparams, "move_steps", 0)))
     elif tname == "gpf":
-        n = _number(tparams, "max_particles", 100)
-        parts["tracker"] = n * GPF_PARTICLE_BYTES + _number(
-            tparams, "max_combinations", 512) * n * 32.0
-        seconds_per_step += n * GPF_PARTICLE_S
+        particles = _number(tparams, "max_particles", 100)
+        gaussians = particles * max(1.0, _number(tparams, "max_components", 1))
+        tracker_bytes = (gaussians * GPF_GAUSSIAN_BYTES
+                         + _number(tparams, "max_combinations", 512) * particles * 32.0)
+        per_step += particles * GPF_PARTICLE_S
     elif tname == "kfnn":
-        seconds_per_step += KFNN_STEP_S
+        per_step += KFNN_STEP_S
 
     if isinstance(model.sensor, RayleighGridSensor):
         cells = float(model.grid.n_cells)
-        looks = int(job.looks_per_step if job.looks_per_step is not None
-                    else model.sensor.looks_per_step)
-        pparams, pcls = _params("policy", job.policy.name, dict(job.policy.params))
-        rows = rows_per_step(looks, int(min(cells, 2**62)), bool(pparams.get("repeats", False)))
-        parts["sensor world"] = steps * rows * cells * 8.0
-        parts["per-cell arrays"] = (rows + 2) * cells * 8.0 + cells * CELL_BYTES
-        seconds_per_step += cells * rows * CELL_S
+        pname = job.policy.name
+        pparams, pcls = _params("policy", pname, dict(job.policy.params))
+        looks = float(job.looks_per_step if job.looks_per_step is not None
+                      else model.sensor.looks_per_step)
+        if pname == "all":
+            looks = cells
+        distinct = min(looks, cells)  # distinct cells looked at per step
+        looked = min(cells, steps * distinct)  # by the run's end
+        repeats = bool(pparams.get("repeats", False))
+        rows = rows_per_step(int(min(looks, 2**62)), int(min(cells, 2**62)), repeats)
+        parts["simulator"] = (jump_tables(int(rows * cells)) * JUMP_TABLE_BYTES
+                              + looks * LOOK_BYTES)
+        per_step += looks * LOOK_S
+        if pname in ("random", "oracle"):
+            parts["policy"] = min(cells, 50.0 * looks) * 8.0
+        field = tname in FIELD_TRACKERS
+        if field:
+            parts["looked cells"] = looked * LOOKED_CELL_BYTES
+            per_step += looked * LOOKED_CELL_S
+        if jmpd:
+            tracker_bytes += distinct * (t_max + 1) * JMPD_LOOK_BYTES
+        elif tname == "gpf":
+            tracker_bytes += (gaussians + distinct) * distinct * PAIR_BYTES
+            per_step += (gaussians + distinct) * distinct * PAIR_S
+        elif tname == "truth-aided":
+            tracker_bytes += targets * distinct * PAIR_BYTES
+            per_step += targets * distinct * PAIR_S
         if pcls is not None and getattr(pcls, "uses_prediction", False):
-            n_counts = max(4.0, _number(tparams, "n_counts", 0),
-                           _number(tparams, "t_max", 0) + 1)
-            parts["predicted cell counts"] = cells * n_counts * 8.0 * PREDICTION_COPIES
-            seconds_per_step += cells * n_counts * PREDICTION_CELL_S
-    return Estimate(sum(parts.values()), steps * seconds_per_step, parts)
+            n_counts, entries = _prediction_size(tname, tparams, n, t_max, targets, gaussians)
+            own = min(cells, entries + (looked if field else 0.0))
+            pc_rows = own + (cells if cells <= DENSE_CELLS else 0.0)
+            parts["predicted cell counts"] = (
+                entries * ENTRY_BYTES
+                + pc_rows * (PREDICTION_ROW_BYTES + n_counts * PREDICTION_COUNT_BYTES))
+            per_step += (entries + pc_rows * n_counts) * PREDICTION_S
+            if jmpd:
+                per_step += n * t_max * t_max * JMPD_SLOT_T_S
+    if tracker_bytes:
+        parts["tracker"] = tracker_bytes
+    return Estimate(sum(parts.values()), RUN_S + steps * per_step, parts)
+
+
+def _prediction_size(tname: str, tparams: dict[str, Any], n: float, t_max: float,
+                     targets: float, gpf_gaussians: float) -> tuple[float, float]:
+    """``(n_counts, entries)`` of a tracker's ``P_c(t)`` (module docstring)."""
+    if tname in ("jmpd", "jmpd-ip"):
+        return t_max + 1, n * t_max
+    if tname == "jmpd-ap":
+        return min(t_max, 4) + 1, n * t_max
+    if tname == "null":
+        return 2.0, 0.0
+    gaussians = 2.0 * targets + 16.0
+    if tname == "gpf":
+        gaussians = min(gaussians, gpf_gaussians)
+    elif tname == "ss-gmphd":
+        gaussians = min(gaussians, _number(tparams, "max_components", 200))
+    if tname in GAUSSIAN_TRACKERS:
+        n_counts = _number(tparams, "n_counts", 4) if tname == "gpf" else 4.0
+        return max(2.0, n_counts), gaussians * BOX_CELLS
+    # a tracker named by class path: its parameters' counts, Gaussians' boxes
+    return (max(4.0, _number(tparams, "n_counts", 0), _number(tparams, "t_max", 0) + 1),
+            gaussians * BOX_CELLS)
 
 
 # --------------------------------------------------------------- available memory
@@ -274,10 +459,10 @@ def check_jobs(jobs: list[Any], workers: int, available: float | None = None) ->
         est = estimates[worst]
         if est.memory > per_worker:
             limit = (f"the {fmt_bytes(per_worker)} per worker ({fmt_bytes(available)} "
-                     f"available / {at_once} workers); use a smaller grid, fewer --steps or "
-                     "fewer --workers" if at_once > 1 else
-                     f"the {fmt_bytes(available)} available; use a smaller grid or fewer "
-                     "--steps")
+                     f"available / {at_once} workers); use fewer particles or looks, fewer "
+                     "--steps or fewer --workers" if at_once > 1 else
+                     f"the {fmt_bytes(available)} available; use fewer particles or looks "
+                     "or fewer --steps")
             raise UsageError(
                 f"{_describe(jobs[worst])}: one run needs about {fmt_bytes(est.memory)} of "
                 f"memory (mostly the {est.largest_part()}, {fmt_bytes(max(est.parts.values()))}"

@@ -136,7 +136,7 @@ def refused_cases(tmp: Path) -> list[tuple[str, list[str], str]]:
         ("unknown-policy", _run("--policy", "wild"), r"wild"),
         ("unknown-scenario", _run(scenario="nowhere"), r"nowhere"),
         # scenario files
-        ("grid-1e6", _run(scenario=str(huge)),
+        ("grid-1e6", _run("--policy", "all", scenario=str(huge)),  # every cell looked at
          r"scenario 'default' \(1000000x1000000 grid.*needs about [\d.]+ TiB of memory.*more than "
          r"the [\d.]+ [GMT]iB"),
         ("snr-db-overflow", _run(scenario=str(scenario_file(
@@ -256,13 +256,14 @@ def test_bad_memory_override_is_refused(monkeypatch, earlier, capsys):
 
 
 def test_a_grid_too_large_for_the_memory_left(monkeypatch, tmp_path, capsys):
-    """1e4 x 1e4 cells for 100 steps: 80 GB of sensor world; refused under an 8 GiB limit
-    (the limit is set, so the test means the same on any machine)."""
+    """1e4 x 1e4 cells, every one looked at each step (the all policy): about 48 GiB of
+    looks; refused under an 8 GiB limit (the limit is set, so the test means the same on
+    any machine)."""
     monkeypatch.setenv(resources.MEMORY_ENV, "8")
     big = scenario_file(tmp_path, "big", _sub(r"^nx = \d+", "nx = 10000"))
     big = scenario_file(tmp_path, "big", _sub(r"^ny = \d+", "ny = 10000"), text=big.read_text())
-    rc = main(["run", "--scenarios", str(big), "--trackers", "null", "--seeds", "2",
-               "--workers", "2", "--no-progress", "--out", str(tmp_path / "never")])
+    rc = main(["run", "--scenarios", str(big), "--trackers", "null", "--policy", "all",
+               "--seeds", "2", "--workers", "2", "--no-progress", "--out", str(tmp_path / "never")])
     err = lines(capsys.readouterr().err)
     assert rc == 2 and len(err) == 1, err
     assert "more than the 4 GiB per worker (8 GiB available / 2 workers)" in err[0], err[0]
