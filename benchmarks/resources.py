@@ -8,20 +8,17 @@ with one line naming the estimate and the limit. A sweep estimated to take more 
 deliberately conservative (upper) bounds of the current code's behaviour, not
 predictions; the constants below were measured on a 2-core x86-64 Linux machine and
 rounded up: the peak RSS of one ``run_job`` in a fresh process (``getrusage``, the
-high-water mark reset after the imports and a warm-up run) and its wall time, with::
+high-water mark reset after the imports and a warm-up run) and its wall time, with
+``docs/resources_memory.py`` (every command, the tables and what is still ``O(cells)``:
+docs/resources.md), for example::
 
     python docs/resources_memory.py --sides 12 50 2000 100000 --steps 20
     python docs/resources_memory.py --sides 100000 --looks 2500 --steps 100 \
         --trackers null kfnn truth-aided gpf jmpd-ap ss-gnn
-    python docs/resources_memory.py --scale --steps 10
-    python docs/resources_memory.py --policies all --sides 300 700 --steps 5
-    python docs/resources_memory.py --trackers jmpd:n_particles=20000,t_max=30 \
-        jmpd-ip:n_particles=20000,t_max=30 jmpd-ap:n_particles=5000 --sides 50 2000 --steps 3
 
-(the tables are in docs/scaling.md, "Memory: the sweep's estimate").
-
-Since issue 16 nothing a run does per step is ``O(cells)`` but what the policy asks for,
-so the estimate is in steps ``S``, looks per step ``M``, targets ``T`` and particles;
+Since issue 16 a run's step costs ``O(looks + targets + particles)`` unless its policy
+asks for every cell, so the estimate is in steps ``S``, looks per step ``M``, targets ``T``
+and particles;
 the grid's ``C`` cells enter only as a cap (``min(C, .)``: there are no more distinct
 cells than that), through the bits of a look's position in the simulator's stream,
 and where the code is ``O(cells)``: the ``all`` policy (``M = C`` looks) and renyi's

@@ -4,6 +4,8 @@ which the estimate must accept and a run must not need ``O(cells)`` memory for."
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import dataclasses
 import gc
 import math
@@ -247,14 +249,19 @@ def _peak_growth(warm: Job, j: Job) -> float:
     """Bytes the peak RSS grows by while ``j`` runs, in a process forked from a warm one.
     ``warm`` runs first in the child too (the pages of code and data the parent shares
     are mapped into the child as they are touched: ~19 MB that are the fork's, not the
-    run's), then the high-water mark is reset (``/proc/self/clear_refs``) and compared
-    with the resident size before the run. The address space may grow by 4 GiB at most,
+    run's), the allocator's free memory goes back to the system (``malloc_trim``: what
+    earlier tests freed would otherwise hide the run's arrays), then the high-water mark
+    is reset (``/proc/self/clear_refs``) and compared with the resident size before the
+    run. The address space may grow by 4 GiB at most,
     so that an ``O(cells)`` array on a huge grid fails at once (MemoryError: an error
     row)."""
     room = int((_status_mb("VmSize") + 4096) * MIB)
     resource.setrlimit(resource.RLIMIT_AS, (room, room))
     run_job(warm)
     gc.collect()
+    # the free memory earlier tests left in the allocator's heap back to the system, so
+    # that the run's arrays are counted when they touch it again
+    ctypes.CDLL(ctypes.util.find_library("c")).malloc_trim(0)
     Path("/proc/self/clear_refs").write_text("5")
     before = _status_mb("VmRSS")
     rows = run_job(j)
