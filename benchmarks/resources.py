@@ -52,9 +52,12 @@ births over the run. The tracker's own state:
 * jmpd-ap: ``N t_max * AP_SLOT_BYTES + m (t_max + 1) * JMPD_LOOK_BYTES``, ``t_max`` its
   automatic slots when not given (``trackers.jmpd.ap._auto_slots``);
 * gpf: ``G * GPF_GAUSSIAN_BYTES + max_combinations * max_particles * 32`` with
-  ``G = max_particles * max_components`` Gaussians, and on the grid ``(G + m) m *
-  PAIR_BYTES``: its update's (Gaussian or birth candidate, looked cell) box test;
-* truth-aided: ``T m * PAIR_BYTES`` (the (target image, looked cell) box test);
+  ``G = max_particles * max_components`` Gaussians, and on the grid ``g min(BOX_CELLS, m)
+  * PAIR_BYTES + m * GPF_LOOK_BYTES``: its update's (Gaussian, looked cell) pairs in the
+  Gaussians' boxes (``g = min(G, 2 T + 16)`` Gaussians, as for ``P_c`` below) and a birth
+  candidate per looked cell;
+* truth-aided: ``(2 T + 16) min(BOX_CELLS, m) * PAIR_BYTES`` (its targets' images'
+  pairs);
 * others (kfnn, null, Stone Soup's peers, trackers named by class path): nothing beyond
   the terms above.
 
@@ -87,9 +90,10 @@ Stone Soup's), ``min(C, S m) * LOOKED_CELL_S`` for the four trackers with a fiel
 ``O(cells looked so far)``, taken at the run's end), ``N t_max (JMPD_SLOT_S + t_max *
 JMPD_SLOT_T_S)`` for jmpd (``JMPD_IP_FACTOR`` times that for the IP proposal, times
 ``1 + move_steps``), ``N t_max * AP_SLOT_S`` for jmpd-ap, ``max_particles *
-GPF_PARTICLE_S + (G + m) m * PAIR_S`` for the gpf, ``T m * PAIR_S`` for truth-aided,
-``KFNN_STEP_S`` for kfnn; the prediction ``(E + rows * n_counts) * PREDICTION_S``, and
-for the JMPDs ``N t_max^2 * JMPD_SLOT_T_S`` (their in-particle counts).
+GPF_PARTICLE_S + pairs * PAIR_S + m * GPF_LOOK_S`` for the gpf, ``pairs * PAIR_S`` for
+truth-aided (``pairs`` as in the memory terms), ``KFNN_STEP_S`` for kfnn; the prediction
+``(E + rows * n_counts) * PREDICTION_S``, and for the JMPDs ``N t_max^2 * JMPD_SLOT_T_S``
+(their in-particle counts).
 """
 
 from __future__ import annotations
@@ -140,8 +144,16 @@ AP_SLOT_BYTES = 384
 JMPD_LOOK_BYTES = 32
 #: bytes per GPF Gaussian (mean, covariance and their working copies)
 GPF_GAUSSIAN_BYTES = 2048
-#: per (Gaussian or candidate, looked cell) pair of a box test (boolean temporaries)
-PAIR_BYTES = 8
+#: per (Gaussian, looked cell) pair: its quadrature's temporaries (16 arrays of up to
+#: 24 nodes) and moments
+PAIR_BYTES = 3072
+#: per looked cell of the gpf: its birth candidate (a uniform row with its 4x4
+#: covariance) and the update's per-cell arrays: 970-1,400 B measured above null (the
+#: ``all`` policy on 300x300 and 700x700)
+GPF_LOOK_BYTES = 2048
+#: per looked cell of the gpf and step (its birth candidate): 3.4 us measured (``all`` on
+#: 700x700: 5.0 s for 3 steps)
+GPF_LOOK_S = 4e-6
 #: per entry P_c(t) is built from (a particle slot or a Gaussian's cell in its box)
 ENTRY_BYTES = 192
 #: per row of P_c(t) and per row and count column: the rows, their copies and renyi's
@@ -180,8 +192,9 @@ TARGET_S = 2e-4
 PEER_TARGET_S = 1e-2
 #: per run: the truth's simulation, the tracker's reset, the rows' DataFrame
 RUN_S = 0.1
-#: per pair of a box test (truth-aided on ``scale``: 54 ms for 2.5e6 pairs)
-PAIR_S = 3e-8
+#: per (Gaussian, looked cell) pair: its truncated moments (gpf on ``large``: 3-5 ms for
+#: 4,000 pairs) or a birth candidate's update
+PAIR_S = 1e-6
 KFNN_STEP_S = 5e-4
 #: per entry and per row and column of the prediction (kfnn under renyi: ~60 ms per
 #: step with 250,000 rows of 4 columns)
@@ -323,12 +336,16 @@ def estimate_job(job: Any) -> Estimate:
             per_step += looked * LOOKED_CELL_S
         if jmpd:
             tracker_bytes += distinct * (t_max + 1) * JMPD_LOOK_BYTES
-        elif tname == "gpf":
-            tracker_bytes += (gaussians + distinct) * distinct * PAIR_BYTES
-            per_step += (gaussians + distinct) * distinct * PAIR_S
-        elif tname == "truth-aided":
-            tracker_bytes += targets * distinct * PAIR_BYTES
-            per_step += targets * distinct * PAIR_S
+        elif tname in ("gpf", "truth-aided"):
+            present = 2.0 * targets + 16.0  # Gaussians (or target images) at once
+            if tname == "gpf":
+                present = min(present, gaussians)
+            pairs = present * min(float(BOX_CELLS), distinct)
+            tracker_bytes += pairs * PAIR_BYTES
+            per_step += pairs * PAIR_S
+            if tname == "gpf":
+                tracker_bytes += distinct * GPF_LOOK_BYTES
+                per_step += distinct * GPF_LOOK_S
         if pcls is not None and getattr(pcls, "uses_prediction", False):
             n_counts, entries = _prediction_size(tname, tparams, n, t_max, targets, gaussians)
             own = min(cells, entries + (looked if field else 0.0))

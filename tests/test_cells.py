@@ -9,7 +9,7 @@ import pytest
 from scipy import integrate, stats
 
 from mttbench.scenarios.model import Grid
-from mttbench.trackers.cells import gaussian_cell_mass, poisson_binomial
+from mttbench.trackers.cells import gaussian_cell_mass, looked_in_boxes, poisson_binomial
 
 #: one tolerance for quadrature comparisons (dblquad/quad absolute error ~1e-10)
 QUAD_ATOL = 1e-8
@@ -123,3 +123,29 @@ def test_cell_counts_rows_dense_and_default_cells_agree_with_brute_force():
         np.testing.assert_array_equal(cc.default_cell(np.arange(len(free))), free)
     with pytest.raises(ValueError, match="sorted, unique"):
         CellCounts(5, [3, 1], np.eye(2), np.eye(2)[0])
+
+
+def test_looked_in_boxes_equals_the_dense_box_test() -> None:
+    """The sparse box-by-look pairs equal ``np.nonzero`` of the dense test, order included,
+    for boxes small (enumerated) and large (tested against every look), partly or wholly
+    off the grid, empty, infinite and NaN."""
+    rng = np.random.default_rng(11)
+    nx, ny = 37, 23
+    for n_looks in (1, 5, 60, 400):
+        looked = np.unique(rng.integers(0, nx * ny, n_looks))
+        K = 50
+        lo_x = np.floor(rng.uniform(-10, nx + 5, K))
+        lo_y = np.floor(rng.uniform(-10, ny + 5, K))
+        hi_x = lo_x + np.floor(rng.exponential(8, K)) - (rng.random(K) < 0.1) * 30
+        hi_y = lo_y + np.floor(rng.exponential(8, K))
+        hi_x[:3] = np.inf
+        lo_y[3:5] = -np.inf
+        lo_x[5] = np.nan
+        hi_y[6] = np.nan
+        ux, uy = looked % nx, looked // nx
+        dense = ((ux[None] >= lo_x[:, None]) & (ux[None] <= hi_x[:, None])
+                 & (uy[None] >= lo_y[:, None]) & (uy[None] <= hi_y[:, None]))
+        ref_box, ref_i = np.nonzero(dense)
+        box, i = looked_in_boxes(lo_x, hi_x, lo_y, hi_y, looked, nx, ny)
+        np.testing.assert_array_equal(box, ref_box)
+        np.testing.assert_array_equal(i, ref_i)

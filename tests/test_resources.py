@@ -276,6 +276,7 @@ MEASURED = [  # (tracker, params, policy, grid side, steps)
     ("jmpd", {}, "renyi", HUGE, 5),  # int64 cells, P_c rows for the particles' cells
     ("jmpd", {"n_particles": 50_000}, "raster", 12, 5),  # the particles
     ("null", {}, "all", 300, 3),  # 90,000 looks per step
+    ("gpf", {}, "all", 300, 3),  # a birth candidate per look, pairs in the boxes only
 ]
 
 

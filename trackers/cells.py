@@ -250,6 +250,45 @@ def _axis_boxes(mean: np.ndarray, sd: np.ndarray, n: int, s: float, n_sd: float
     return i0, width, mass
 
 
+def looked_in_boxes(ix_lo: np.ndarray, ix_hi: np.ndarray, iy_lo: np.ndarray,
+                    iy_hi: np.ndarray, looked: np.ndarray, nx: int, ny: int
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The looked cells inside each box: pairs ``(box, i)`` with ``looked[i]`` (sorted
+    unique flat cells) in ``[ix_lo, ix_hi] x [iy_lo, iy_hi]`` (inclusive cell indices,
+    floats allowed, any range; NaN bounds hold nothing). Boxes ascend, and ``i`` within a
+    box, as ``np.nonzero`` of the dense box-by-look test orders them. A box holding at most
+    ``len(looked)`` cells enumerates its cells, a larger one tests every look: time and
+    memory ``O(sum over boxes of min(box cells, looks))``, never boxes x looks."""
+    n_u, K = len(looked), len(ix_lo)
+    empty = np.zeros(0, dtype=np.int64)
+    if n_u == 0 or K == 0:
+        return empty, empty
+    with np.errstate(invalid="ignore"):
+        hit = (ix_hi >= 0) & (ix_lo <= nx - 1) & (iy_hi >= 0) & (iy_lo <= ny - 1)
+    hit &= (ix_hi >= ix_lo) & (iy_hi >= iy_lo)
+    x0 = np.clip(np.nan_to_num(ix_lo, nan=0.0), 0, nx - 1).astype(np.int64)
+    x1 = np.clip(np.nan_to_num(ix_hi, nan=0.0), 0, nx - 1).astype(np.int64)
+    y0 = np.clip(np.nan_to_num(iy_lo, nan=0.0), 0, ny - 1).astype(np.int64)
+    y1 = np.clip(np.nan_to_num(iy_hi, nan=0.0), 0, ny - 1).astype(np.int64)
+    w = np.where(hit, x1 - x0 + 1, 0)
+    area = w * np.where(hit, y1 - y0 + 1, 0)
+    small = area <= n_u
+    seg, t = _concat_ranges(np.zeros(K, dtype=np.int64), np.where(small, area, 0))
+    ws = np.maximum(w[seg], 1)
+    cells = (y0[seg] + t // ws) * nx + x0[seg] + t % ws
+    pos = np.minimum(np.searchsorted(looked, cells), n_u - 1)
+    inside = looked[pos] == cells
+    big = np.nonzero(~small)[0]
+    ux, uy = looked % nx, looked // nx
+    near = ((ux[None] >= x0[big, None]) & (ux[None] <= x1[big, None])
+            & (uy[None] >= y0[big, None]) & (uy[None] <= y1[big, None]))
+    b, i_big = np.nonzero(near)
+    box = np.concatenate([seg[inside], big[b]])
+    i = np.concatenate([pos[inside], i_big])
+    order = np.argsort(box, kind="stable")
+    return box[order], i[order]
+
+
 def gaussian_cell_mass_sparse(grid: Grid, means_xy: np.ndarray, cov_xy: np.ndarray,
                               n_sd: float = BOX_SD
                               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

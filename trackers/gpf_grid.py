@@ -77,7 +77,7 @@ import numpy as np
 from scipy.special import ndtr
 
 from ..scenarios.model import Grid, RayleighGridSensor
-from .cells import look_log_ratios
+from .cells import look_log_ratios, looked_in_boxes
 from .gpf_linear import enumerate_combinations, log_normalise
 
 _RANGE_SIGMAS = 7.0
@@ -453,7 +453,6 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     s = grid.cell_size
     U = np.unique(cells)
     n_u = len(U)
-    ux, uy = U % grid.nx, U // grid.nx
     gauss_row = uniform_cell < 0
     gauss = np.ones(T, dtype=bool)
     gauss[own[~gauss_row]] = False
@@ -461,14 +460,13 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     # ---- (row, looked cell) pairs
     sx = np.sqrt(np.maximum(P[:, 0, 0], 0.0))
     sy = np.sqrt(np.maximum(P[:, 2, 2], 0.0))
-    ix_lo = np.floor((m[:, 0] - range_sigmas * sx) / s)
-    ix_hi = np.floor((m[:, 0] + range_sigmas * sx) / s)
-    iy_lo = np.floor((m[:, 2] - range_sigmas * sy) / s)
-    iy_hi = np.floor((m[:, 2] + range_sigmas * sy) / s)
-    near = ((ux[None] >= ix_lo[:, None]) & (ux[None] <= ix_hi[:, None])
-            & (uy[None] >= iy_lo[:, None]) & (uy[None] <= iy_hi[:, None])
-            & gauss_row[:, None])
-    ri_g, pu_g = np.nonzero(near)
+    gr = np.nonzero(gauss_row)[0]  # a uniform row pairs with its own cell only (below)
+    box, pu_g = looked_in_boxes(
+        np.floor((m[gr, 0] - range_sigmas * sx[gr]) / s),
+        np.floor((m[gr, 0] + range_sigmas * sx[gr]) / s),
+        np.floor((m[gr, 2] - range_sigmas * sy[gr]) / s),
+        np.floor((m[gr, 2] + range_sigmas * sy[gr]) / s), U, grid.nx, grid.ny)
+    ri_g = gr[box]
     x0, x1, y0, y1 = grid.cell_bounds(U[pu_g])
     # position moments per pair; the velocity parts are lifted per row after summing
     # (lift_to_state is linear), and per pair only for the components split off
@@ -776,12 +774,11 @@ def known_existence_update(m: np.ndarray, P: np.ndarray, cells: np.ndarray,
         n_all = np.bincount(inv, minlength=len(U)).astype(float)
         # log Lambda of one positive and of one negative look, one target in the cell
         ll_pos, ll_neg = sensor.log_likelihood_ratio(np.array([True, False]), np.ones(2))
-        ux, uy = U % grid.nx, U // grid.nx
-        near = ((ux[None] >= np.floor((cm[:, 0] - range_sigmas * sx) / s)[:, None])
-                & (ux[None] <= np.floor((cm[:, 0] + range_sigmas * sx) / s)[:, None])
-                & (uy[None] >= np.floor((cm[:, 2] - range_sigmas * sy) / s)[:, None])
-                & (uy[None] <= np.floor((cm[:, 2] + range_sigmas * sy) / s)[:, None]))
-        pj, pu = np.nonzero(near)
+        pj, pu = looked_in_boxes(np.floor((cm[:, 0] - range_sigmas * sx) / s),
+                                 np.floor((cm[:, 0] + range_sigmas * sx) / s),
+                                 np.floor((cm[:, 2] - range_sigmas * sy) / s),
+                                 np.floor((cm[:, 2] + range_sigmas * sy) / s), U,
+                                 grid.nx, grid.ny)
         seen_pos = n_pos[pu]
         if own_cells is not None:  # a positive look elsewhere than its own cell is a miss
             own = np.asarray(own_cells, dtype=np.int64).reshape(-1)
