@@ -92,8 +92,8 @@ JMPD_SLOT_T_S)`` for jmpd (``JMPD_IP_FACTOR`` times that for the IP proposal, ti
 ``1 + move_steps``), ``N t_max * AP_SLOT_S`` for jmpd-ap, ``max_particles *
 GPF_PARTICLE_S + pairs * PAIR_S + m * GPF_LOOK_S`` for the gpf, ``pairs * PAIR_S`` for
 truth-aided (``pairs`` as in the memory terms), ``KFNN_STEP_S`` for kfnn; the prediction
-``(E + rows * n_counts) * PREDICTION_S``, and for the JMPDs ``N t_max^2 * JMPD_SLOT_T_S``
-(their in-particle counts).
+``(E + rows * n_counts) * PREDICTION_S``, and for the JMPDs ``N t_max log2(t_max + 1) *
+JMPD_SLOT_T_S`` (their in-particle counts, from sorted runs).
 """
 
 from __future__ import annotations
@@ -355,7 +355,7 @@ def estimate_job(job: Any) -> Estimate:
                 + pc_rows * (PREDICTION_ROW_BYTES + n_counts * PREDICTION_COUNT_BYTES))
             per_step += (entries + pc_rows * n_counts) * PREDICTION_S
             if jmpd:
-                per_step += n * t_max * t_max * JMPD_SLOT_T_S
+                per_step += n * t_max * math.log2(t_max + 1.0) * JMPD_SLOT_T_S
     if tracker_bytes:
         parts["tracker"] = tracker_bytes
     return Estimate(sum(parts.values()), RUN_S + steps * per_step, parts)

@@ -241,7 +241,7 @@ class JMPDTracker(Tracker):
 
     def cell_count_distribution(self) -> CellCounts:
         """``P_c(t)`` with rows for the cells the particles' targets occupy
-        (:func:`.estimation.cell_count_distribution_from`), ``O(N t_max^2)``."""
+        (:func:`.estimation.cell_count_distribution_from`), ``O(N t_max log t_max)``."""
         p = self._particles
         return cell_count_distribution_from(p.cells().T, p.w, p.grid.n_cells, p.t_max + 1)
 
