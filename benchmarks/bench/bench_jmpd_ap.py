@@ -35,7 +35,7 @@ from mttbench.benchmarks.policies import AllCells
 from mttbench.scenarios.spec import Scenario
 from mttbench.trackers.jmpd import JMPDAPTracker
 
-from .bench_jmpd import GRID_LOOKS, GRID_ROUNDS, GRID_SIDES, GRID_WARM, grid_world, managed_steps
+from .bench_jmpd import GRID_SIDES, time_grid_step
 
 #: (scenario, particles)
 CONFIGS = [("kreucher-50", 250), ("kreucher", 250), ("kreucher", 1000)]
@@ -88,21 +88,5 @@ def start_ap_on_truth(tracker: JMPDAPTracker, sc: Scenario, truth: np.ndarray,
 def test_jmpd_ap_grid_scaling(benchmark, accuracy, side):
     """The managed step at 25 targets and 250 looks on a ``side x side`` grid (module
     docstring, "Grid scaling")."""
-    sc, states = grid_world(side)
-    tracker = JMPDAPTracker(n_particles=500)
-    tracker.reset(sc.model, np.random.default_rng(np.random.SeedSequence([side, 1])))
-    rng = np.random.default_rng(np.random.SeedSequence([side, 2]))
-    start_ap_on_truth(tracker, sc, states[0], rng)
-    rounds, warmup = GRID_ROUNDS
-    step, done = managed_steps(tracker, sc, states, 0,
-                               GRID_WARM + (1 if benchmark.disabled else rounds + warmup), rng)
-    for _ in range(GRID_WARM):
-        step()
-    benchmark.extra_info.update(scenario=f"large on {side}x{side}", n_particles=500,
-                                looks=GRID_LOOKS, warm_steps=GRID_WARM, warm_from_truth=True)
-    benchmark.pedantic(step, rounds=rounds, warmup_rounds=warmup)
-    k0, est0 = done[GRID_WARM]
-    accuracy(states[k0], est0, OSPA_BOUND)
-    k1, est1 = done[-1]
-    if k1 != k0:
-        accuracy(states[k1], est1, None, prefix="last_")
+    time_grid_step(benchmark, accuracy, JMPDAPTracker(n_particles=500), start_ap_on_truth,
+                   side, OSPA_BOUND, n_particles=500)
