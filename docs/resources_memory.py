@@ -30,8 +30,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
+
+from scaling_memory import fmt, run_child  # docs/, the script's folder
 
 DEFAULT_TRACKERS = ["null", "kfnn", "truth-aided", "gpf", "jmpd:t_max=30",
                     "jmpd-ip:t_max=30", "jmpd-ap", "ss-gnn", "ss-gmphd"]
@@ -106,19 +107,10 @@ print(json.dumps({
 def run_one(tracker: str, policy: str, world: str, steps: int, preset: str,
             limit_gb: float, looks: int | None, timeout_s: float) -> dict:
     """One case in a fresh process; its JSON line (or why there is none)."""
-    head = {"tracker": tracker, "policy": policy, "world": world, "steps": steps}
-    try:
-        out = subprocess.run([sys.executable, "-c", _CHILD, tracker, policy, world,
-                              str(steps), preset, str(limit_gb),
+    return run_child(_CHILD, [tracker, policy, world, str(steps), preset, str(limit_gb),
                               "-" if looks is None else str(looks)],
-                             capture_output=True, text=True, timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        return {**head, "status": "timeout"}
-    lines = [ln for ln in out.stdout.splitlines() if ln.startswith("{")]
-    if not lines:
-        tail = (out.stderr.strip().splitlines() or ["no output"])[-1][:120]
-        return {**head, "status": tail}
-    return json.loads(lines[-1])
+                     {"tracker": tracker, "policy": policy, "world": world, "steps": steps},
+                     timeout_s)
 
 
 def boxes(trackers: list[str], presets: list[str], sides: list[int], steps: int) -> None:
@@ -165,10 +157,6 @@ def boxes(trackers: list[str], presets: list[str], sides: list[int], steps: int)
                   f"{max(rows, default=0)} |", flush=True)
 
 
-def _fmt(v, spec: str = ".1f") -> str:
-    return "-" if v is None else format(v, spec)
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--trackers", nargs="+", default=DEFAULT_TRACKERS)
@@ -205,11 +193,11 @@ def main(argv: list[str] | None = None) -> int:
                 ratio = e / max(g, 1.0) if g is not None and e is not None else None
                 label = world if world == "scale" else f"{world}x{world}"
                 print(f"| {spec} | {policy} | {label} | {r['steps']} | "
-                      f"{_fmt(r.get('imports_mb'))} | {_fmt(r.get('warm_mb'))} | {_fmt(g)} | "
-                      f"{_fmt(e)} | "
-                      f"{_fmt(ratio, '.2f')} | {_fmt(r.get('peak_mb'))} | "
-                      f"{_fmt(r.get('full_estimate_mb'))} | {_fmt(r.get('wall_s'), '.3g')} | "
-                      f"{_fmt(r.get('estimate_s'), '.3g')} | {r['status']} |", flush=True)
+                      f"{fmt(r.get('imports_mb'))} | {fmt(r.get('warm_mb'))} | {fmt(g)} | "
+                      f"{fmt(e)} | "
+                      f"{fmt(ratio, '.2f')} | {fmt(r.get('peak_mb'))} | "
+                      f"{fmt(r.get('full_estimate_mb'))} | {fmt(r.get('wall_s'), '.3g')} | "
+                      f"{fmt(r.get('estimate_s'), '.3g')} | {r['status']} |", flush=True)
     return 0
 
 

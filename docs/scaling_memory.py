@@ -68,23 +68,30 @@ print(json.dumps({
 """
 
 
-def run_one(spec: str, policy: str, world: str, steps: int, limit_gb: float,
-            timeout_s: float) -> dict:
-    """One run in a fresh process; its JSON line (or why there is none)."""
+def run_child(script: str, args: list[str], head: dict, timeout_s: float) -> dict:
+    """``python -c script *args`` in a fresh process; its last JSON line, or ``head`` with
+    the reason there is none (a timeout, the last line of stderr) as ``status``. Shared
+    with docs/resources_memory.py."""
     try:
-        out = subprocess.run([sys.executable, "-c", _CHILD, spec, policy, world, str(steps),
-                              str(limit_gb)], capture_output=True, text=True,
-                             timeout=timeout_s)
+        out = subprocess.run([sys.executable, "-c", script, *args], capture_output=True,
+                             text=True, timeout=timeout_s)
     except subprocess.TimeoutExpired:
-        return {"tracker": spec, "policy": policy, "world": world, "status": "timeout"}
+        return {**head, "status": "timeout"}
     lines = [ln for ln in out.stdout.splitlines() if ln.startswith("{")]
     if not lines:
         tail = (out.stderr.strip().splitlines() or ["no output"])[-1][:120]
-        return {"tracker": spec, "policy": policy, "world": world, "status": tail}
+        return {**head, "status": tail}
     return json.loads(lines[-1])
 
 
-def _fmt(v, spec: str = ".1f") -> str:
+def run_one(spec: str, policy: str, world: str, steps: int, limit_gb: float,
+            timeout_s: float) -> dict:
+    """One run in a fresh process; its JSON line (or why there is none)."""
+    return run_child(_CHILD, [spec, policy, world, str(steps), str(limit_gb)],
+                     {"tracker": spec, "policy": policy, "world": world}, timeout_s)
+
+
+def fmt(v, spec: str = ".1f") -> str:
     return "-" if v is None else format(v, spec)
 
 
@@ -110,9 +117,9 @@ def main(argv: list[str] | None = None) -> int:
                 own = (r["peak_mb"] - r["after_imports_mb"]) if "peak_mb" in r else None
                 label = world if world == "scale" else f"{world}x{world}"
                 print(f"| {spec} | {policy} | {label} | {r.get('steps', '-')} | "
-                      f"{_fmt(r.get('peak_mb'))} | {_fmt(r.get('after_imports_mb'))} | "
-                      f"{_fmt(own)} | {_fmt(r.get('step_ms'), '.3g')} | "
-                      f"{_fmt(r.get('select_ms'), '.3g')} | {r['status']} |", flush=True)
+                      f"{fmt(r.get('peak_mb'))} | {fmt(r.get('after_imports_mb'))} | "
+                      f"{fmt(own)} | {fmt(r.get('step_ms'), '.3g')} | "
+                      f"{fmt(r.get('select_ms'), '.3g')} | {r['status']} |", flush=True)
     return 0
 
 
