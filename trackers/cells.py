@@ -31,6 +31,18 @@ from ..scenarios.model import Grid, RayleighGridSensor
 _MIN_STD_CELLS = 1e-12
 
 
+def _position_sds(grid: Grid, means_xy: np.ndarray, cov_xy: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``means (K, 2)``, ``covs (K, 2, 2)`` as float arrays and the marginal sds of x and y,
+    floored at ``_MIN_STD_CELLS`` cells (a degenerate Gaussian stays in its cell)."""
+    means_xy = np.asarray(means_xy, dtype=float).reshape(-1, 2)
+    cov_xy = np.asarray(cov_xy, dtype=float).reshape(-1, 2, 2)
+    floor = _MIN_STD_CELLS * grid.cell_size
+    sx = np.maximum(np.sqrt(np.maximum(cov_xy[:, 0, 0], 0.0)), floor)
+    sy = np.maximum(np.sqrt(np.maximum(cov_xy[:, 1, 1], 0.0)), floor)
+    return means_xy, cov_xy, sx, sy
+
+
 def gaussian_cell_mass(grid: Grid, means_xy: np.ndarray, cov_xy: np.ndarray) -> np.ndarray:
     """Mass of each Gaussian position density in every cell of ``grid``.
 
@@ -62,12 +74,8 @@ def gaussian_cell_mass(grid: Grid, means_xy: np.ndarray, cov_xy: np.ndarray) -> 
     -------
     ``(K, n_cells)`` float64, non-negative.
     """
-    means_xy = np.asarray(means_xy, dtype=float).reshape(-1, 2)
-    cov_xy = np.asarray(cov_xy, dtype=float).reshape(-1, 2, 2)
+    means_xy, cov_xy, sx, sy = _position_sds(grid, means_xy, cov_xy)
     s = grid.cell_size
-    floor = _MIN_STD_CELLS * s
-    sx = np.maximum(np.sqrt(np.maximum(cov_xy[:, 0, 0], 0.0)), floor)
-    sy = np.maximum(np.sqrt(np.maximum(cov_xy[:, 1, 1], 0.0)), floor)
     x_edges = np.arange(grid.nx + 1) * s  # (nx+1,)
     y_edges = np.arange(grid.ny + 1) * s  # (ny+1,)
     # CDF at every edge, then differences: (K, nx) and (K, ny)
@@ -302,12 +310,8 @@ def gaussian_cell_mass_sparse(grid: Grid, means_xy: np.ndarray, cov_xy: np.ndarr
     most ``2 Phi(-n_sd)`` of mass per axis (``4e-9`` in all at ``n_sd = 6``). A Gaussian
     whose box misses the grid has no entries.
     """
-    means_xy = np.asarray(means_xy, dtype=float).reshape(-1, 2)
-    cov_xy = np.asarray(cov_xy, dtype=float).reshape(-1, 2, 2)
+    means_xy, cov_xy, sx, sy = _position_sds(grid, means_xy, cov_xy)
     s = grid.cell_size
-    floor = _MIN_STD_CELLS * s
-    sx = np.maximum(np.sqrt(np.maximum(cov_xy[:, 0, 0], 0.0)), floor)
-    sy = np.maximum(np.sqrt(np.maximum(cov_xy[:, 1, 1], 0.0)), floor)
     ix0, wx, mass_x = _axis_boxes(means_xy[:, 0], sx, grid.nx, s, n_sd)
     iy0, wy, mass_y = _axis_boxes(means_xy[:, 1], sy, grid.ny, s, n_sd)
     size = wx * wy
