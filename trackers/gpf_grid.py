@@ -599,20 +599,19 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     g_rp = np.where(live, g_pair[gi], 0.0)
     go_r = g_out[own]
     coef = g_rp - go_r[ri_g]  # (g_c - g_out) per row pair
-    new_alpha = None
+    Z_full = go_r + np.bincount(ri_g, weights=coef * mass_g, minlength=R)
     split = np.zeros(n_gp, dtype=bool)
     if split_share > 0.0:
         # a detected cell's part of a row, if heavy enough, leaves as its own component
-        Z_full = go_r + np.bincount(ri_g, weights=coef * mass_g, minlength=R)
-        new_alpha = alp * np.where(gauss_row, Z_full, 1.0)
-        tot = np.bincount(own, weights=new_alpha, minlength=T)
+        full_alpha = alp * np.where(gauss_row, Z_full, 1.0)
+        tot = np.bincount(own, weights=full_alpha, minlength=T)
         share = alp[ri_g] * g_rp * mass_g / np.maximum(tot[own[ri_g]], 1e-300)
         split = hit[pu_g] & (share >= split_share) & live
         # ... unless it is (nearly) all of the row: then the row is that component anyway
-        split &= alp[ri_g] * g_rp * mass_g < (1.0 - split_share) * new_alpha[ri_g]
+        split &= alp[ri_g] * g_rp * mass_g < (1.0 - split_share) * full_alpha[ri_g]
     # the rest of each row: sums over its pairs of coef * (mass, m1, m2), lifted once
     c_rest = np.where(split, coef - g_rp, coef)
-    Z = go_r + np.bincount(ri_g, weights=c_rest * mass_g, minlength=R)
+    Z = go_r + np.bincount(ri_g, weights=c_rest * mass_g, minlength=R) if np.any(split) else Z_full
     sums = [np.bincount(ri_g, weights=c_rest * v, minlength=R)
             for v in (p1_g[:, 0], p1_g[:, 1], p2_g[:, 0, 0], p2_g[:, 0, 1], p2_g[:, 1, 1])]
     d1 = np.stack(sums[:2], axis=-1)
@@ -620,8 +619,7 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     B, resid = position_regression(P)
     d, S2 = lift_to_state(B, resid, Z - go_r, d1, d2)
     S2 += go_r[:, None, None] * P
-    if new_alpha is None or np.any(split):
-        new_alpha = alp * np.where(gauss_row, Z, 1.0)
+    new_alpha = alp * np.where(gauss_row, Z, 1.0)
     means, covs = m.copy(), P.copy()
     upd = gauss_row & (w_new[own] > 0.0) & (Z > 0.0)
     Zs = Z[upd]
