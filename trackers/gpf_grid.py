@@ -77,6 +77,7 @@ import numpy as np
 from scipy.special import ndtr
 
 from ..scenarios.model import Grid, RayleighGridSensor
+from . import kalman
 from .cells import look_log_ratios, looked_in_boxes
 from .gpf_linear import enumerate_combinations, log_normalise
 
@@ -163,14 +164,8 @@ def position_regression(covs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per Gaussian ``covs (K, 4, 4)``: the regression of velocity on position,
     ``v - m_v = B (p - m_p) + e``: ``B = S_vp S_pp^-1 (K, 2, 2)`` (closed-form 2x2 inverse)
     and the residual covariance ``S_vv - B S_pv (K, 2, 2)``."""
-    Spp = covs[:, 0::2, 0::2]  # positions are state entries 0, 2; velocities 1, 3
-    Svp = covs[:, 1::2, 0::2]
-    a, b, c = Spp[:, 0, 0], Spp[:, 0, 1], Spp[:, 1, 1]
-    det = a * c - b * b
-    inv = np.empty_like(Spp)
-    inv[:, 0, 0], inv[:, 1, 1] = c / det, a / det
-    inv[:, 0, 1] = inv[:, 1, 0] = -b / det
-    B = Svp @ inv
+    Svp = covs[:, 1::2, 0::2]  # positions are state entries 0, 2; velocities 1, 3
+    B = Svp @ kalman.inverse(covs[:, 0::2, 0::2])
     return B, covs[:, 1::2, 1::2] - B @ np.swapaxes(Svp, -1, -2)
 
 
