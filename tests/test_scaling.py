@@ -194,6 +194,19 @@ def _steps(sc, tracker, seed: int, n_steps: int):
         tracker.update(looks)
 
 
+def _steps_with_dense_intensity(sc, tracker, seed: int, n_steps: int):
+    """:func:`_steps`, yielding after each predict the undetected intensity the former
+    dense rules give (``p_s lambda + b / n`` per predict, ``(1 - p_d)^looks`` per look)."""
+    bd, n, p_d = sc.model.birth_death, sc.grid.n_cells, sc.model.sensor.p_d
+    lam = np.full(n, bd.initial_count_mean / n)
+    for _k, looks in _steps(sc, tracker, seed, n_steps):
+        if looks is not None:
+            cells, counts = np.unique(looks.cells, return_counts=True)
+            lam[cells] = lam[cells] * (1.0 - p_d) ** counts
+        lam = bd.survival_probability * lam + bd.birth_rate / n
+        yield lam
+
+
 @pytest.mark.parametrize("name", ["births", "large"])
 def test_kfnn_counts_equal_the_dense_computation(name):
     """The undetected intensity followed densely by the former rules (``p_s lambda + b /
@@ -202,14 +215,9 @@ def test_kfnn_counts_equal_the_dense_computation(name):
     bit for bit, and within the boxes' tail of the uncut one."""
     sc = _scenario(name, 30)
     tr = trackers.make("kfnn")
-    bd, n, p_d = sc.model.birth_death, sc.grid.n_cells, sc.model.sensor.p_d
-    lam = np.full(n, bd.initial_count_mean / n)
+    n = sc.grid.n_cells
     tracks = 0
-    for _k, looks in _steps(sc, tr, 2, 30):
-        if looks is not None:
-            cells, counts = np.unique(looks.cells, return_counts=True)
-            lam[cells] = lam[cells] * (1.0 - p_d) ** counts
-        lam = bd.survival_probability * lam + bd.birth_rate / n
+    for lam in _steps_with_dense_intensity(sc, tr, 2, 30):
         np.testing.assert_array_equal(tr.undetected_intensity().dense(), lam)
         cc = tr.cell_count_distribution()
         assert isinstance(cc, CellCounts) and cc.n_cells == n
@@ -275,14 +283,8 @@ def test_ss_gnn_counts_equal_the_dense_computation():
 
     sc = _scenario("births", 30)
     tr = trackers.make("ss-gnn")
-    bd, n, p_d = sc.model.birth_death, sc.grid.n_cells, sc.model.sensor.p_d
-    lam = np.full(n, bd.initial_count_mean / n)
     tracks = 0
-    for _k, looks in _steps(sc, tr, 4, 30):
-        if looks is not None:
-            cells, counts = np.unique(looks.cells, return_counts=True)
-            lam[cells] = lam[cells] * (1.0 - p_d) ** counts
-        lam = bd.survival_probability * lam + bd.birth_rate / n
+    for lam in _steps_with_dense_intensity(sc, tr, 4, 30):
         holding = sorted(tr._initiator.holding_tracks, key=track_key)
         m, P = tr._predicted(tr._tracks + holding)
         exist = np.r_[np.ones(len(tr._tracks)), np.full(len(holding), HOLDING_EXISTENCE)]
