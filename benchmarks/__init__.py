@@ -1,1 +1,4 @@
-"""Harness, metrics, cell-selection policies, reports and the command line."""
+"""Benchmarks in two layers: ``engine`` (jobs, the one step loop, metrics, policies,
+executors, the result store) and ``app`` on top of it (command line, compare, tune,
+reproduce, resources, summaries, reports). ``bench/`` holds the runtime benchmarks
+(pytest-benchmark; not installed)."""

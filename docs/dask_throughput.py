@@ -1,7 +1,7 @@
 """Throughput of a sweep on a Dask LocalCluster of 1 and of 2 worker processes (docs/dask.md).
 
 Runs the same sweep (by default 200 runs: the GPF on ``default`` for 100 steps, seeds
-0..199) with :class:`~mttbench.benchmarks.executors.DaskExecutor` on a LocalCluster of 1
+0..199) with :class:`~mttbench.benchmarks.engine.executors.DaskExecutor` on a LocalCluster of 1
 worker, on one of 2 workers, and on the local process pool of 2 workers, each time into a
 fresh folder, ``--repeat`` times in turn; prints every wall time, the best of each
 (the repetition least disturbed by other processes on a shared machine), runs per second
@@ -27,9 +27,10 @@ from pathlib import Path
 import pandas as pd
 
 from mttbench import scenarios
-from mttbench.benchmarks.executors import DaskExecutor, LocalExecutor
-from mttbench.benchmarks.harness import Job, build_jobs, run_job, run_sweep
-from mttbench.benchmarks.specs import TrackerSpec
+from mttbench.benchmarks.engine.executors import DaskExecutor, LocalExecutor
+from mttbench.benchmarks.engine.loop import Job, build_jobs, run_job
+from mttbench.benchmarks.engine.specs import TrackerSpec
+from mttbench.benchmarks.engine.sweep import run_sweep
 
 TIMING = ["tracker_wall_s", "tracker_cpu_s", "select_wall_s", "select_cpu_s", "peak_rss_mb"]
 
@@ -43,7 +44,7 @@ def warm_up(job: Job) -> None:
 
 def timed(jobs: list[Job], folder: Path, executor) -> tuple[float, pd.DataFrame]:
     t0 = time.perf_counter()
-    df = run_sweep(jobs, folder, executor=executor, progress=False)
+    df = run_sweep(jobs, folder, executor=executor)
     return time.perf_counter() - t0, df
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from mttbench.benchmarks.summary import mean_ci95
+from mttbench.benchmarks.app.summary import mean_ci95
 
 
 def read(folder: Path) -> pd.DataFrame:

@@ -1,4 +1,4 @@
-"""Calibration of ``benchmarks/resources.py``: the peak memory and wall time of one
+"""Calibration of ``benchmarks/app/resources.py``: the peak memory and wall time of one
 ``run_job`` against the estimate the sweep check makes for it.
 
 Each case runs in a fresh Python process, as a worker would: the imports (the command
@@ -8,7 +8,7 @@ steps (numba's kernels loaded, the first jump table of the simulator built; agai
 case's grid when it has more than 2^31 - 1 cells, whose kernels take int64 cells), then
 the peak-RSS high-water mark is reset (``/proc/self/clear_refs``) and the case's
 ``run_job`` runs. Reported, in MB (2^20 bytes): the resident size after the imports and
-after the warm-up (the worker's base, :data:`~mttbench.benchmarks.resources.WORKER_BASE`),
+after the warm-up (the worker's base, :data:`~mttbench.benchmarks.app.resources.WORKER_BASE`),
 the run's growth (peak during the run, ``getrusage(RUSAGE_SELF).ru_maxrss``, minus the
 resident size before it) against the estimate without the worker's base, the peak
 against the whole estimate; and the run's wall time against the estimated seconds. The
@@ -47,11 +47,11 @@ def status():
     return {k: int(re.search(k + r":\s+(\d+)", text).group(1)) / 1024.0
             for k in ("VmRSS", "VmHWM")}
 
-import mttbench.benchmarks.cli  # noqa: F401 - what a worker forked from mttbench holds
+import mttbench.benchmarks.app.cli  # noqa: F401 - what a worker forked from mttbench holds
 from mttbench import scenarios
-from mttbench.benchmarks import resources
-from mttbench.benchmarks.harness import Job, run_job
-from mttbench.benchmarks.specs import PolicySpec, TrackerSpec
+from mttbench.benchmarks.app import resources
+from mttbench.benchmarks.engine.loop import Job, run_job
+from mttbench.benchmarks.engine.specs import PolicySpec, TrackerSpec
 from mttbench.scenarios.model import Grid
 
 tracker, policy, world, steps = (TrackerSpec.parse(sys.argv[1]), PolicySpec.parse(sys.argv[2]),
@@ -116,12 +116,12 @@ def run_one(tracker: str, policy: str, world: str, steps: int, preset: str,
 def boxes(trackers: list[str], presets: list[str], sides: list[int], steps: int) -> None:
     """Under renyi, the most Gaussians a ``P_c(t)`` was built from, the most entries (cells
     in their 6-sd boxes) and the most own rows, per tracker and world (in this process):
-    what :data:`~mttbench.benchmarks.resources.BOX_CELLS` is measured on."""
+    what :data:`~mttbench.benchmarks.app.resources.BOX_CELLS` is measured on."""
     import dataclasses
 
     from mttbench import scenarios
-    from mttbench.benchmarks.harness import play
-    from mttbench.benchmarks.specs import PolicySpec, TrackerSpec
+    from mttbench.benchmarks.engine.loop import play
+    from mttbench.benchmarks.engine.specs import PolicySpec, TrackerSpec
     from mttbench.scenarios.model import Grid
     from mttbench.trackers import cells
 

@@ -2,7 +2,7 @@
 in the memory of a 50x50 one), and of the ``scale`` preset, each run in a fresh process.
 
 Every run plays ``--steps`` steps of a world through the harness
-(:func:`~mttbench.benchmarks.harness.play`) in its own Python process and reports that
+(:func:`~mttbench.benchmarks.engine.loop.play`) in its own Python process and reports that
 process's peak resident memory (``resource.getrusage(RUSAGE_SELF).ru_maxrss``), its
 resident memory after the imports (the interpreter, numpy, scipy, numba's kernels: the
 same for every run), and the per-step medians of the tracker's time and of the
@@ -33,9 +33,9 @@ limit = int(float(sys.argv[5]) * 2**30)
 resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
 import numpy as np
 from mttbench import scenarios
-from mttbench.benchmarks.harness import play
-from mttbench.benchmarks.policies import make_policy
-from mttbench.benchmarks.specs import TrackerSpec
+from mttbench.benchmarks.engine.loop import play
+from mttbench.benchmarks.engine.policies import make_policy
+from mttbench.benchmarks.engine.specs import TrackerSpec
 from mttbench.scenarios.model import Grid
 
 spec, policy, side, steps = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])

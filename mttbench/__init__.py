@@ -4,7 +4,8 @@ The package has three layers, each a folder of the repository::
 
     mttbench.scenarios    model types, scenario files (TOML) and presets, the simulator
     mttbench.trackers     the Tracker interface, its registry, the trackers
-    mttbench.benchmarks   harness, metrics, cell-selection policies, reports, command line
+    mttbench.benchmarks   engine/: jobs, the step loop, metrics, policies, executors, store;
+                          app/: command line, compare, tune, reproduce, summaries, reports
 
 and a small public face, importable from here (loaded on first use, so
 ``import mttbench`` stays cheap)::
@@ -43,16 +44,17 @@ _API = {
     "Looks": ("mttbench.scenarios.model", "Looks"),
     "TrackingModel": ("mttbench.scenarios.model", "TrackingModel"),
     "simulate": ("mttbench.scenarios.simulator", "simulate"),
-    "Policy": ("mttbench.benchmarks.policies", "Policy"),
-    "register_policy": ("mttbench.benchmarks.policies", "register_policy"),
-    "TrackerSpec": ("mttbench.benchmarks.specs", "TrackerSpec"),
-    "PolicySpec": ("mttbench.benchmarks.specs", "PolicySpec"),
-    "Job": ("mttbench.benchmarks.harness", "Job"),
-    "build_jobs": ("mttbench.benchmarks.harness", "build_jobs"),
-    "play": ("mttbench.benchmarks.harness", "play"),
-    "run_job": ("mttbench.benchmarks.harness", "run_job"),
-    "run_sweep": ("mttbench.benchmarks.harness", "run_sweep"),
-    "summarize": ("mttbench.benchmarks.summary", "summarize"),
+    "Policy": ("mttbench.benchmarks.engine.policies", "Policy"),
+    "register_policy": ("mttbench.benchmarks.engine.policies", "register_policy"),
+    "TrackerSpec": ("mttbench.benchmarks.engine.specs", "TrackerSpec"),
+    "PolicySpec": ("mttbench.benchmarks.engine.specs", "PolicySpec"),
+    "Job": ("mttbench.benchmarks.engine.loop", "Job"),
+    "build_jobs": ("mttbench.benchmarks.engine.loop", "build_jobs"),
+    "play": ("mttbench.benchmarks.engine.loop", "play"),
+    "run_job": ("mttbench.benchmarks.engine.loop", "run_job"),
+    "run_sweep": ("mttbench.benchmarks.engine.sweep", "run_sweep"),
+    "ConfigError": ("mttbench.benchmarks.engine.errors", "ConfigError"),
+    "summarize": ("mttbench.benchmarks.app.summary", "summarize"),
 }
 
 __all__ = sorted(_API)

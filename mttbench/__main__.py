@@ -1,5 +1,5 @@
 """``python -m mttbench``: the same as the ``mttbench`` command."""
 
-from mttbench.benchmarks.cli import main
+from mttbench.benchmarks.app.cli import main
 
 raise SystemExit(main())

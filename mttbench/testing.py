@@ -4,7 +4,7 @@ In the spirit of scikit-learn's ``check_estimator``: the checks ship inside the
 package, so the author of a tracker written elsewhere runs them in their own
 tests. Each check takes the tracker *class* (registered or not), builds instances
 with ``cls()`` and ``cls(**params)``, and drives them only through the harness's
-step loop (:func:`mttbench.benchmarks.harness.play`). A failing check raises
+step loop (:func:`mttbench.benchmarks.engine.loop.play`). A failing check raises
 ``AssertionError`` naming the check and what went wrong.
 
 An outside author's test file::
@@ -57,9 +57,9 @@ from typing import Any
 
 import numpy as np
 
-from mttbench.benchmarks.harness import StepRecord, play
-from mttbench.benchmarks.metrics import step_metrics
-from mttbench.benchmarks.policies import AllCells, Raster
+from mttbench.benchmarks.engine.loop import StepRecord, play
+from mttbench.benchmarks.engine.metrics import step_metrics
+from mttbench.benchmarks.engine.policies import AllCells, Raster
 from mttbench.scenarios.spec import Scenario
 from mttbench.scenarios.spec import get as get_scenario
 from mttbench.trackers.base import Estimate, Tracker, available, get_class, make

@@ -21,8 +21,10 @@ import pandas as pd
 import pytest
 
 from mttbench import scenarios
-from mttbench.benchmarks import cli, harness, report, resources
-from mttbench.benchmarks.cli import main
+from mttbench.benchmarks.app import cli, report, resources
+from mttbench.benchmarks.app.cli import main
+from mttbench.benchmarks.engine import loop as harness
+from mttbench.benchmarks.engine import sweep
 from mttbench.scenarios.spec import dumps
 
 SMALL = ["--seeds", "1", "--steps", "2", "--workers", "1", "--no-progress"]
@@ -333,7 +335,7 @@ def test_interrupt_in_process_prints_the_resume_command(monkeypatch, tmp_path, c
             raise KeyboardInterrupt
         return real(job, c, p)
 
-    monkeypatch.setattr(harness, "run_job", interrupt_second)
+    monkeypatch.setattr(sweep, "run_job", interrupt_second)
     argv = ["run", "--scenarios", "default", "--trackers", "null", "--seeds", "3", "--steps",
             "2", "--workers", "1", "--no-progress", "--out", str(out)]
     rc = main(argv)
@@ -343,7 +345,7 @@ def test_interrupt_in_process_prints_the_resume_command(monkeypatch, tmp_path, c
     assert err[-1] == (f"mttbench run: interrupted; finished runs are kept in {out}/parts; "
                        f"resume with: mttbench {' '.join(argv[:])} --resume"), err
     assert len(list((out / "parts").glob("*.parquet"))) == 1 and not temp_files(out)
-    monkeypatch.setattr(harness, "run_job", real)
+    monkeypatch.setattr(sweep, "run_job", real)
     assert main([*argv, "--resume"]) == 0
     assert len(pd.read_parquet(out / "results.parquet")) == 3 * 2
 

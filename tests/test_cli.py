@@ -8,9 +8,9 @@ import pandas as pd
 import pytest
 
 from mttbench import scenarios, trackers
-from mttbench.benchmarks import policies
-from mttbench.benchmarks.cli import COMPARE_SCENARIOS, main
-from mttbench.benchmarks.harness import COLUMNS
+from mttbench.benchmarks.app.cli import COMPARE_SCENARIOS, main
+from mttbench.benchmarks.engine import policies
+from mttbench.benchmarks.engine.loop import COLUMNS
 from mttbench.scenarios.spec import dumps
 
 

@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 
 from mttbench import trackers
-from mttbench.benchmarks import compare
-from mttbench.benchmarks.cli import main
+from mttbench.benchmarks.app import compare
+from mttbench.benchmarks.app.cli import main
 
 
 def test_compare_writes_the_report_folder(tmp_path, capsys):
@@ -63,7 +63,7 @@ def test_default_trackers_cover_the_registry_with_budget_params():
 
 
 def test_reference_by_bare_name_picks_the_setting():
-    from mttbench.benchmarks.specs import TrackerSpec
+    from mttbench.benchmarks.engine.specs import TrackerSpec
     specs = [TrackerSpec("kfnn"), TrackerSpec("null", {})]
     assert compare._resolve_reference("kfnn", specs) == "kfnn"
     specs = [TrackerSpec("null"), TrackerSpec("kfnn", {"max_misses": 5})]
@@ -88,7 +88,7 @@ def test_reference_defaults_to_the_first_tracker_without_kfnn(tmp_path):
 def test_a_failed_compare_is_marked_in_its_manifest(tmp_path, monkeypatch):
     """A comparison that stops (here the report cannot be drawn) leaves a manifest with
     status "failed" and its session's wall time, so the folder counts as unfinished."""
-    from mttbench.benchmarks import report
+    from mttbench.benchmarks.app import report
 
     def broken(*args, **kwargs):
         raise RuntimeError("no figures today")

@@ -1,4 +1,4 @@
-"""Executors (benchmarks/executors.py): the local pool and a real Dask LocalCluster give the
+"""Executors (benchmarks/engine/executors.py): the local pool and a real Dask LocalCluster give the
 same tables; a worker killed mid-sweep loses nothing; an interrupted Dask sweep resumes;
 the command-line wiring and its one-line errors.
 
@@ -24,16 +24,19 @@ import pandas as pd
 import pytest
 
 from mttbench import scenarios
-from mttbench.benchmarks import executors, harness
-from mttbench.benchmarks.cli import main
-from mttbench.benchmarks.executors import (
+from mttbench.benchmarks.app.cli import main
+from mttbench.benchmarks.engine import executors
+from mttbench.benchmarks.engine import sweep as harness
+from mttbench.benchmarks.engine.errors import ConfigError
+from mttbench.benchmarks.engine.executors import (
     MISSING_DASK,
     DaskExecutor,
     Executor,
     LocalExecutor,
 )
-from mttbench.benchmarks.harness import build_jobs, run_sweep
-from mttbench.benchmarks.specs import TrackerSpec, UsageError
+from mttbench.benchmarks.engine.loop import build_jobs
+from mttbench.benchmarks.engine.specs import TrackerSpec
+from mttbench.benchmarks.engine.sweep import run_sweep
 from mttbench.trackers.kfnn import KFNNTracker
 
 TIMING = ["tracker_wall_s", "tracker_cpu_s", "select_wall_s", "select_cpu_s", "peak_rss_mb"]
@@ -129,7 +132,7 @@ def dask_two():
 
 def reference(jobs, folder: Path) -> pd.DataFrame:
     """The local executor's table (one worker, in this process)."""
-    return run_sweep(jobs, folder, executor=LocalExecutor(1), progress=False)
+    return run_sweep(jobs, folder, executor=LocalExecutor(1))
 
 
 # ------------------------------------------------------------------ same numbers
@@ -138,7 +141,7 @@ def test_dask_sweep_equals_the_local_executor(dask_two, tmp_path):
         TrackerSpec("null"), TrackerSpec("kfnn"), TrackerSpec("gpf"),
         TrackerSpec("crashing_tracker:Crash")], None, None, [0, 1])
     jobs += build_jobs([short("superposition", 4)], [TrackerSpec("null")], None, None, [0])
-    on_dask = run_sweep(jobs, tmp_path / "dask", executor=dask_two, progress=False)
+    on_dask = run_sweep(jobs, tmp_path / "dask", executor=dask_two)
     local = reference(list(reversed(jobs)), tmp_path / "local")
     pd.testing.assert_frame_equal(strip(on_dask), strip(local))
     # every run has its part, written by this process, and the tables on disk agree
@@ -160,7 +163,7 @@ def test_a_worker_killed_mid_sweep_loses_nothing_on_dask(dask_two, tmp_path):
     before = set(dask_two.client.nthreads())
     jobs = jobs_of(short("default", 10), [("test_executors:KillOnce", [0]),
                                           ("kfnn", [0, 1, 2]), ("null", [0, 1])])
-    on_dask = run_sweep(jobs, tmp_path / "dask", executor=dask_two, progress=False)
+    on_dask = run_sweep(jobs, tmp_path / "dask", executor=dask_two)
     assert deaths(folder, KillOnce) == 1  # one worker died mid-run ...
     assert (on_dask["status"] == "ok").all()  # ... and every run finished
     assert len(list((tmp_path / "dask" / "parts").glob("*.parquet"))) == len(jobs)
@@ -186,14 +189,14 @@ def test_a_run_that_kills_every_retry_gets_its_error_row_on_dask(kill_dir, tmp_p
     jobs = jobs_of(short("default", 6), [("test_executors:KillOnce", [0]), ("kfnn", [0, 1])])
     # no retry: KillOnce's one death is its run's last chance (kfnn runs are untouched)
     with DaskExecutor(workers=1, retries=0) as executor:
-        first = run_sweep(jobs, tmp_path / "out", executor=executor, progress=False)
+        first = run_sweep(jobs, tmp_path / "out", executor=executor)
         failed = first[first["status"] == "error"]
         assert len(failed) == 1 and failed["tracker"].iloc[0] == "test_executors:KillOnce"
         assert failed["step"].iloc[0] == -1 and "KilledWorker" in failed["error"].iloc[0]
         assert (first[first["tracker"] == "kfnn"]["status"] == "ok").all()
         assert len(list((tmp_path / "out" / "parts").glob("*.parquet"))) == len(jobs) - 1
         # the failed run has no part: --resume runs it again (its worker lives now)
-        again = run_sweep(jobs, tmp_path / "out", executor=executor, progress=False,
+        again = run_sweep(jobs, tmp_path / "out", executor=executor,
                           resume=True)
     assert deaths(kill_dir, KillOnce) == 1 and (again["status"] == "ok").all()
     pd.testing.assert_frame_equal(strip(again), strip(reference(jobs, tmp_path / "local")))
@@ -219,7 +222,7 @@ def test_an_interrupted_dask_sweep_resumes(dask_two, tmp_path):
                       None, None, [0, 1, 2, 3])
     out = tmp_path / "out"
     with pytest.raises(KeyboardInterrupt):
-        run_sweep(jobs, out, executor=Interrupting(dask_two, at=2), progress=False)
+        run_sweep(jobs, out, executor=Interrupting(dask_two, at=2))
     # three runs came back (the third's part is written before it is handed on), the
     # rest were cancelled: the scheduler forgets them
     done = {p: p.stat().st_mtime_ns for p in (out / "parts").glob("*.parquet")}
@@ -228,7 +231,7 @@ def test_an_interrupted_dask_sweep_resumes(dask_two, tmp_path):
     while _our_tasks(dask_two) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not _our_tasks(dask_two)
-    again = run_sweep(jobs, out, executor=dask_two, progress=False, resume=True)
+    again = run_sweep(jobs, out, executor=dask_two, resume=True)
     assert {p: p.stat().st_mtime_ns for p in done} == done  # not recomputed
     assert len(list((out / "parts").glob("*.parquet"))) == len(jobs)
     pd.testing.assert_frame_equal(strip(again), strip(reference(jobs, tmp_path / "local")))
@@ -247,7 +250,7 @@ def test_a_part_that_cannot_be_written_stops_a_dask_sweep(dask_two, tmp_path, mo
     real = harness._write_bytes
     monkeypatch.setattr(harness, "_write_bytes", full_after_two)
     with pytest.raises(OSError, match="No space left"):
-        run_sweep(jobs, tmp_path / "out", executor=dask_two, progress=False)
+        run_sweep(jobs, tmp_path / "out", executor=dask_two)
     assert sorted((tmp_path / "out" / "parts").glob("*.parquet")) == sorted(written)
     deadline = time.monotonic() + SETTLE_S
     while _our_tasks(dask_two) and time.monotonic() < deadline:
@@ -268,8 +271,7 @@ def test_the_local_pool_retries_a_run_whose_worker_died(kill_dir, tmp_path, monk
                                          ("kfnn", [0, 1, 2])])
     # retries=1: KillOnce dies once and finishes on its retry; KillAlways dies on its
     # retry too and gets its error row
-    out = run_sweep(jobs, tmp_path / "pool", executor=LocalExecutor(2, retries=1),
-                    progress=False)
+    out = run_sweep(jobs, tmp_path / "pool", executor=LocalExecutor(2, retries=1))
     assert deaths(kill_dir, KillOnce) == 1 and deaths(kill_dir, KillAlways) >= 2
     failed = out[out["status"] == "error"]
     assert list(failed["tracker"]) == ["test_executors:KillAlways"]
@@ -284,7 +286,7 @@ def test_the_local_pool_retries_a_run_whose_worker_died(kill_dir, tmp_path, monk
     assert len(done) == len(jobs) - 1
     # --resume runs only it again; without the marker folder it lives: the serial table
     monkeypatch.delenv(KILL_DIR_ENV)
-    again = run_sweep(jobs, tmp_path / "pool", executor=LocalExecutor(2), progress=False,
+    again = run_sweep(jobs, tmp_path / "pool", executor=LocalExecutor(2),
                       resume=True)
     assert {p: p.stat().st_mtime_ns for p in done} == done
     pd.testing.assert_frame_equal(strip(again), strip(reference(jobs, tmp_path / "local")))
@@ -315,7 +317,7 @@ def test_workers_with_other_sources_are_refused(dask_two, monkeypatch, how):
     monkeypatch.setattr(executors, "source_digest", lambda: "0123456789abcdef")
     executor = (DaskExecutor(scheduler=dask_two.client.scheduler.address) if how == "scheduler"
                 else DaskExecutor(client=dask_two.client))
-    with pytest.raises(UsageError, match=r"runs mttbench .* this process .*0123456789abcdef"):
+    with pytest.raises(ConfigError, match=r"runs mttbench .* this process .*0123456789abcdef"):
         executor.client  # noqa: B018 - connecting checks the workers
     executor.close()
     assert dask_two.client.status == "running"  # a caller's client is the caller's to close
@@ -325,7 +327,7 @@ def test_a_callers_client_runs_the_sweep(dask_two, tmp_path):
     jobs = build_jobs([short("crossing", 6)], [TrackerSpec("kfnn")], None, None, [0, 1, 2])
     with DaskExecutor(client=dask_two.client) as executor:
         assert executor.describe() == f"the Dask cluster at {dask_two.client.scheduler.address}"
-        on_dask = run_sweep(jobs, tmp_path / "dask", executor=executor, progress=False)
+        on_dask = run_sweep(jobs, tmp_path / "dask", executor=executor)
     assert dask_two.client.status == "running"
     pd.testing.assert_frame_equal(strip(on_dask), strip(reference(jobs, tmp_path / "local")))
 
@@ -338,7 +340,7 @@ def test_an_unreachable_scheduler_is_one_line():
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
     executor = DaskExecutor(scheduler=f"tcp://127.0.0.1:{port}", connect_timeout=0.5)
-    with pytest.raises(UsageError, match=f"cannot reach the Dask scheduler at tcp://127.0.0.1:"
+    with pytest.raises(ConfigError, match=f"cannot reach the Dask scheduler at tcp://127.0.0.1:"
                                          f"{port}: ") as info:
         executor.client  # noqa: B018
     assert "\n" not in str(info.value)
@@ -346,7 +348,7 @@ def test_an_unreachable_scheduler_is_one_line():
 
 def test_missing_distributed_is_one_line(monkeypatch, tmp_path, capsys):
     monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed fails
-    with pytest.raises(UsageError, match="pip install 'mttbench\\[dask\\]'"):
+    with pytest.raises(ConfigError, match="pip install 'mttbench\\[dask\\]'"):
         DaskExecutor(workers=2)
     out = tmp_path / "never"
     assert main(["run", "--scenarios", "default", "--trackers", "null", "--out", str(out),
@@ -374,7 +376,7 @@ def test_bad_executor_options_are_refused(extra, message, tmp_path, capsys):
 def test_every_sweep_command_takes_the_executor_options():
     import argparse
 
-    from mttbench.benchmarks.cli import build_parser
+    from mttbench.benchmarks.app.cli import build_parser
 
     parser = build_parser()
     (commands,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]

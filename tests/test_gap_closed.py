@@ -14,9 +14,9 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from mttbench.benchmarks import compare, report, summary
-from mttbench.benchmarks.harness import COLUMNS
-from mttbench.benchmarks.specs import TrackerSpec
+from mttbench.benchmarks.app import compare, report, summary
+from mttbench.benchmarks.engine.loop import COLUMNS
+from mttbench.benchmarks.engine.specs import TrackerSpec
 from mttbench.trackers.base import register, unregister
 from mttbench.trackers.null import NullTracker
 

@@ -12,17 +12,18 @@ import pytest
 from scipy import stats
 
 from mttbench import scenarios
-from mttbench.benchmarks import harness
-from mttbench.benchmarks.harness import COLUMNS, Job, build_jobs, run_job, run_sweep
-from mttbench.benchmarks.metrics import step_metrics
-from mttbench.benchmarks.specs import PolicySpec, TrackerSpec, parse_value, split_specs
-from mttbench.benchmarks.summary import (
+from mttbench.benchmarks.app.summary import (
     mean_ci95,
     paired_difference,
     per_run,
     summarize,
     to_markdown,
 )
+from mttbench.benchmarks.engine import loop as harness
+from mttbench.benchmarks.engine.loop import COLUMNS, Job, build_jobs, run_job
+from mttbench.benchmarks.engine.metrics import step_metrics
+from mttbench.benchmarks.engine.specs import PolicySpec, TrackerSpec, parse_value, split_specs
+from mttbench.benchmarks.engine.sweep import run_sweep
 from mttbench.scenarios.simulator import simulate
 from mttbench.trackers.base import Estimate, Tracker, register, unregister
 
@@ -241,7 +242,7 @@ def test_unsupported_gives_one_marked_row(test_trackers):
 def test_sweep_keeps_other_results_when_a_tracker_crashes(test_trackers, tmp_path):
     sc = short("default", 6)
     jobs = build_jobs([sc], [TrackerSpec("null"), TrackerSpec("test_crash")], None, None, [0, 1])
-    df = run_sweep(jobs, tmp_path, progress=False)
+    df = run_sweep(jobs, tmp_path)
     null = df[df["tracker"] == "null"]
     assert len(null) == 2 * 6 and (null["status"] == "ok").all()
     crash = df[df["tracker"] == "test_crash"]
@@ -263,18 +264,18 @@ def test_sweep_keeps_other_results_when_a_tracker_crashes(test_trackers, tmp_pat
 def test_resume_skips_finished_parts(test_trackers, tmp_path):
     sc = short("default", 5)
     spec = [TrackerSpec("test_recorder")]
-    first = run_sweep(build_jobs([sc], spec, None, None, [0, 1]), tmp_path, progress=False)
+    first = run_sweep(build_jobs([sc], spec, None, None, [0, 1]), tmp_path)
     assert Recorder.resets == 2
-    again = run_sweep(build_jobs([sc], spec, None, None, [0, 1]), tmp_path, progress=False,
+    again = run_sweep(build_jobs([sc], spec, None, None, [0, 1]), tmp_path,
                       resume=True)
     assert Recorder.resets == 2
     pd.testing.assert_frame_equal(first, again)
     # a larger sweep only runs the new job
-    more = run_sweep(build_jobs([sc], spec, None, None, [0, 1, 2]), tmp_path, progress=False,
+    more = run_sweep(build_jobs([sc], spec, None, None, [0, 1, 2]), tmp_path,
                      resume=True)
     assert Recorder.resets == 3 and sorted(more["seed"].unique()) == [0, 1, 2]
     # without resume everything runs again
-    run_sweep(build_jobs([sc], spec, None, None, [0]), tmp_path, progress=False)
+    run_sweep(build_jobs([sc], spec, None, None, [0]), tmp_path)
     assert Recorder.resets == 4
 
 
@@ -282,8 +283,8 @@ def test_results_do_not_depend_on_the_number_of_workers(tmp_path):
     scs = [short("default", 8), short("superposition", 4)]
     trs = [TrackerSpec("null"), TrackerSpec("kfnn")]
     jobs = build_jobs(scs, trs, [PolicySpec("random"), PolicySpec("renyi")], [10], [0, 1])
-    serial = run_sweep(jobs, tmp_path / "one", workers=1, progress=False)
-    parallel = run_sweep(list(reversed(jobs)), tmp_path / "two", workers=2, progress=False)
+    serial = run_sweep(jobs, tmp_path / "one", workers=1)
+    parallel = run_sweep(list(reversed(jobs)), tmp_path / "two", workers=2)
     pd.testing.assert_frame_equal(strip_timing(serial), strip_timing(parallel))
     # grid: 2 trackers x 2 policies x 2 seeds x 8 steps; superposition: null 2 x 4 steps,
     # kfnn one "unsupported" row per seed

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.stats import entropy
 
-from mttbench.benchmarks.information import (
+from mttbench.benchmarks.engine.information import (
     binomial_likelihood,
     expected_gain,
     gain_of_looks,

@@ -21,7 +21,7 @@ from pathlib import Path
 import pandas as pd
 from crashing_tracker import SLOW_GATE_ENV
 
-from mttbench.benchmarks.cli import EXIT_INTERRUPTED, main
+from mttbench.benchmarks.app.cli import EXIT_INTERRUPTED, main
 
 TESTS = Path(__file__).resolve().parent
 #: --untuned: the defaults, as `run` below (which knows no tuned files) runs them

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from mttbench import scenarios
-from mttbench.benchmarks.policies import make_policy
+from mttbench.benchmarks.engine.policies import make_policy
 from mttbench.scenarios.model import (
     BirthDeath,
     Dynamics,

@@ -10,7 +10,7 @@ from filterpy.kalman import KalmanFilter
 from scipy import stats
 
 from mttbench import scenarios
-from mttbench.benchmarks.metrics import ospa
+from mttbench.benchmarks.engine.metrics import ospa
 from mttbench.scenarios.model import (
     BirthDeath,
     Dynamics,

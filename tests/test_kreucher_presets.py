@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from mttbench import scenarios
-from mttbench.benchmarks.reproduce_kreucher import KREUCHER_CROSSINGS
+from mttbench.benchmarks.app.reproduce_kreucher import KREUCHER_CROSSINGS
 from mttbench.scenarios.model import Dynamics, RayleighGridSensor
 from mttbench.scenarios.simulator import simulate_truth
 from mttbench.scenarios.spec import dumps, loads

@@ -15,7 +15,7 @@ import pytest
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial.distance import cdist
 
-from mttbench.benchmarks.metrics import (
+from mttbench.benchmarks.engine.metrics import (
     GOSPA,
     OSPA,
     assigned_rmse,

@@ -161,7 +161,7 @@ _WHERE = textwrap.dedent("""
     import importlib, importlib.resources, json, sys
     import mttbench
     out = {"mttbench": mttbench.__file__}
-    for name in ("trackers", "scenarios", "benchmarks", "benchmarks.cli", "trackers.base"):
+    for name in ("trackers", "scenarios", "benchmarks", "benchmarks.app.cli", "trackers.base"):
         out["mttbench." + name] = importlib.import_module("mttbench." + name).__file__
     out["reference"] = str(importlib.resources.files("mttbench.reference"))
     bare = {}
@@ -231,7 +231,7 @@ PLUGIN_SOURCE = '''\
 
 import numpy as np
 
-from mttbench.benchmarks.policies import Policy
+from mttbench.benchmarks.engine.policies import Policy
 from mttbench.trackers.base import Estimate, Tracker
 
 
@@ -386,12 +386,13 @@ def _is_type_checking(test: ast.expr) -> bool:
             or (isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"))
 
 
-def _imports(tree: ast.AST):
-    """Every Import/ImportFrom node, in functions too, but not under ``if TYPE_CHECKING:``."""
+def _imports(tree: ast.AST, type_checking: bool = True):
+    """Every Import/ImportFrom node, in functions and under ``if TYPE_CHECKING:`` too (a
+    reader follows those edges as well); ``type_checking=False`` skips the latter."""
     stack = [tree]
     while stack:
         node = stack.pop()
-        if isinstance(node, ast.If) and _is_type_checking(node.test):
+        if not type_checking and isinstance(node, ast.If) and _is_type_checking(node.test):
             stack.extend(node.orelse)
             continue
         if isinstance(node, ast.Import | ast.ImportFrom):
@@ -409,13 +410,15 @@ def _deepest_known(name: str, known: set[str]) -> str | None:
     return None
 
 
-def import_edges(module: str, path: Path, known: set[str]) -> set[str]:
-    """The mttbench modules ``module`` imports (relative imports resolved)."""
+def import_edges(module: str, path: Path, known: set[str], type_checking: bool = True
+                 ) -> set[str]:
+    """The mttbench modules ``module`` imports (relative imports resolved; those under
+    ``if TYPE_CHECKING:`` only with ``type_checking``)."""
     is_package = path.name == "__init__.py"
     package = module if is_package else module.rpartition(".")[0]
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
     targets: set[str] = set()
-    for node in _imports(tree):
+    for node in _imports(tree, type_checking):
         if isinstance(node, ast.Import):
             bases = [alias.name for alias in node.names]
             names: list[str] = []
@@ -504,7 +507,7 @@ def test_find_cycle_on_hand_made_graphs(graph, cyclic):
 def test_import_edges_resolve_relative_and_absolute_imports(tmp_path):
     known = {"mttbench", "mttbench.trackers", "mttbench.trackers.base", "mttbench.trackers.gpf",
              "mttbench.scenarios", "mttbench.scenarios.model", "mttbench.benchmarks",
-             "mttbench.benchmarks.cli", "mttbench.benchmarks.specs"}
+             "mttbench.benchmarks.app.cli", "mttbench.benchmarks.engine.specs"}
     src = tmp_path / "mod.py"
     src.write_text(textwrap.dedent("""
         from __future__ import annotations
@@ -513,19 +516,23 @@ def test_import_edges_resolve_relative_and_absolute_imports(tmp_path):
         from . import base, nothing_here
         from ..scenarios.model import Looks
         from .. import benchmarks
-        import mttbench.benchmarks.specs
+        import mttbench.benchmarks.engine.specs
         if TYPE_CHECKING:
-            from ..benchmarks.cli import main
+            from ..benchmarks.app.cli import main
         else:
             from mttbench import scenarios
 
         def lazy():
-            from mttbench.benchmarks.cli import main  # a lazy import is still an import
+            from mttbench.benchmarks.app.cli import main  # a lazy import is still an import
     """))
-    edges = import_edges("mttbench.trackers.gpf", src, known)
+    edges = import_edges("mttbench.trackers.gpf", src, known, type_checking=False)
     assert edges == {"mttbench.trackers.base", "mttbench.trackers", "mttbench.scenarios.model",
-                     "mttbench.benchmarks", "mttbench.benchmarks.specs", "mttbench.scenarios",
-                     "mttbench.benchmarks.cli"}
+                     "mttbench.benchmarks", "mttbench.benchmarks.engine.specs",
+                     "mttbench.scenarios", "mttbench.benchmarks.app.cli"}
+    src.write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+                   "    from mttbench.benchmarks.app import cli\n")
+    assert import_edges("mttbench.trackers.gpf", src, known) == {"mttbench.benchmarks.app.cli"}
+    assert import_edges("mttbench.trackers.gpf", src, known, type_checking=False) == set()
     init = tmp_path / "__init__.py"
     init.write_text("from . import gpf\nfrom .base import Tracker\n")
     assert import_edges("mttbench.trackers", init, known) == {"mttbench.trackers.gpf",
@@ -536,7 +543,7 @@ def test_every_layer_and_module_is_found():
     modules = source_modules()
     for name in ("mttbench", "mttbench.__main__", "mttbench.trackers", "mttbench.trackers.base",
                  "mttbench.scenarios", "mttbench.scenarios.model", "mttbench.benchmarks",
-                 "mttbench.benchmarks.cli"):
+                 "mttbench.benchmarks.app.cli"):
         assert name in modules, name
     assert not any(m.startswith("mttbench.benchmarks.bench") for m in modules)
 
@@ -561,8 +568,16 @@ def _layer_violations(graph: dict[str, set[str]]) -> list[str]:
             if within(module, "mttbench.trackers") and not (
                     within(target, "mttbench.trackers") or target == "mttbench.scenarios.model"):
                 bad.append(f"{edge} (trackers may import only mttbench.scenarios.model)")
-            if target == "mttbench.benchmarks.cli" and not module.endswith(".__main__"):
+            if target == "mttbench.benchmarks.app.cli" and not module.endswith(".__main__"):
                 bad.append(f"{edge} (only __main__ may import the command line)")
+            if within(module, "mttbench.benchmarks.engine") and within(
+                    target, "mttbench.benchmarks.app"):
+                bad.append(f"{edge} (the engine imports nothing of the application)")
+            if (module == "mttbench.testing" or within(module, "mttbench.trackers")
+                    or within(module, "mttbench.scenarios")) and within(
+                    target, "mttbench.benchmarks.app"):
+                bad.append(f"{edge} (only the command line and __main__ build on the "
+                           "application)")
     return bad
 
 
@@ -575,10 +590,27 @@ def test_layering_check_catches_violations():
     graph = {"mttbench.scenarios.spec": {"mttbench.trackers.base"},
              "mttbench.trackers.gpf": {"mttbench.scenarios.simulator", "mttbench.trackers.base",
                                        "mttbench.scenarios.model"},
-             "mttbench.benchmarks.report": {"mttbench.benchmarks.cli"},
-             "mttbench.__main__": {"mttbench.benchmarks.cli"}}
+             "mttbench.benchmarks.app.report": {"mttbench.benchmarks.app.cli"},
+             "mttbench.benchmarks.engine.loop": {"mttbench.benchmarks.app.summary"},
+             "mttbench.testing": {"mttbench.benchmarks.app.report"},
+             "mttbench.benchmarks.app.tune": {"mttbench.benchmarks.engine.store"},
+             "mttbench.__main__": {"mttbench.benchmarks.app.cli"}}
     bad = _layer_violations(graph)
-    assert len(bad) == 3, bad
+    assert len(bad) == 5, bad
+
+
+def test_the_public_names_load_no_application_module():
+    """``from mttbench import play`` (and every other public name, and the conformance
+    kit) imports nothing of the command line, compare, tune, reproduce or report."""
+    code = ("import sys, mttbench, mttbench.testing\n"
+            "for name in mttbench.__all__: getattr(mttbench, name)\n"
+            "app = ('cli', 'compare', 'tune', 'tuned', 'reproduce', 'reproduce_kreucher', "
+            "'report', 'figures', 'figures_kreucher', 'resources', 'executor_options')\n"
+            "print(sorted(m for m in sys.modules\n"
+            "             if m.startswith('mttbench.') and m.rpartition('.')[2] in app))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=REPO).stdout.strip()
+    assert out == "[]", out
 
 
 def _python_sources() -> list[Path]:
@@ -598,7 +630,7 @@ _IMPORTING_CALLS = {"import_module", "__import__", "find_spec", "patch", "setatt
 
 def bare_layer_imports(text: str, where: str = "<text>") -> list[str]:
     """``where:line`` of every absolute import of a bare layer name (``import trackers``,
-    ``from scenarios.spec import x``, ``import_module("benchmarks.cli")``, ...)."""
+    ``from scenarios.spec import x``, ``import_module("benchmarks.app.cli")``, ...)."""
     tree = ast.parse(text, filename=where)
     hits = []
     for node in ast.walk(tree):
@@ -624,8 +656,8 @@ def bare_layer_imports(text: str, where: str = "<text>") -> list[str]:
     ("import trackers.gpf", True),
     ("import numpy, scenarios", True),
     ("from scenarios import spec", True),
-    ("from benchmarks.cli import main", True),
-    ("importlib.import_module('benchmarks.cli')", True),
+    ("from benchmarks.app.cli import main", True),
+    ("importlib.import_module('benchmarks.app.cli')", True),
     ("monkeypatch.setattr('trackers.gpf.np', None)", True),
     ("from mttbench import trackers", False),
     ("import mttbench.trackers", False),

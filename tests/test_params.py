@@ -14,13 +14,14 @@ import numpy as np
 import pytest
 
 from mttbench import scenarios, trackers
-from mttbench.benchmarks import harness, policies
-from mttbench.benchmarks.cli import main
-from mttbench.benchmarks.harness import TIMING_COLUMNS, Job, play, run_job
-from mttbench.benchmarks.specs import (
+from mttbench.benchmarks.app.cli import main
+from mttbench.benchmarks.engine import loop as harness
+from mttbench.benchmarks.engine import policies
+from mttbench.benchmarks.engine.errors import ConfigError
+from mttbench.benchmarks.engine.loop import TIMING_COLUMNS, Job, play, run_job
+from mttbench.benchmarks.engine.specs import (
     PolicySpec,
     TrackerSpec,
-    UsageError,
     resolve_policies,
     resolve_trackers,
 )
@@ -116,7 +117,7 @@ def test_bad_value_refused_naming_owner_parameter_value_and_allowed_set(text):
     shown, allowed = (BAD_TRACKERS if is_tracker else BAD_POLICIES)[text]
     name = text.partition(":")[0]
     kind = "tracker" if is_tracker else "policy"
-    with pytest.raises(UsageError) as err:
+    with pytest.raises(ConfigError) as err:
         (resolve_trackers if is_tracker else resolve_policies)([text])
     msg = _one_line(str(err.value))
     assert msg.startswith(f"{kind} {name!r}: parameter {shown} refused; allowed: {allowed}"), msg
@@ -134,7 +135,7 @@ def test_bad_value_refused_naming_owner_parameter_value_and_allowed_set(text):
     ("jmpd-ip:move_steps=2", "move_steps=2 with proposal='ip'"),
 ])
 def test_inconsistent_combinations_refused(text, shown):
-    with pytest.raises(UsageError) as err:
+    with pytest.raises(ConfigError) as err:
         resolve_trackers([text])
     msg = _one_line(str(err.value))
     name = text.partition(":")[0]
@@ -142,7 +143,7 @@ def test_inconsistent_combinations_refused(text, shown):
 
 
 def test_unknown_parameter_names_the_known_ones():
-    with pytest.raises(UsageError) as err:
+    with pytest.raises(ConfigError) as err:
         resolve_trackers(["kfnn:gate=0.9"])
     msg = _one_line(str(err.value))
     assert "'gate'" in msg and "gate_probability" in msg and "max_misses" in msg
@@ -218,7 +219,7 @@ def test_labels_use_the_canonical_values():
     (a, b) = resolve_trackers(["jmpd:n_particles=1e3", "kfnn:birth_velocity_std=none"])
     assert a.label == "jmpd(n_particles=1000)"
     assert b.label == "kfnn(birth_velocity_std=None)"
-    with pytest.raises(UsageError, match="more than once"):
+    with pytest.raises(ConfigError, match="more than once"):
         resolve_trackers(["jmpd:n_particles=1000", "jmpd:n_particles=1000.0"])
 
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from mttbench import scenarios, trackers
-from mttbench.benchmarks.information import expected_gain, greedy_looks
-from mttbench.benchmarks.policies import available_policies, make_policy
+from mttbench.benchmarks.engine.information import expected_gain, greedy_looks
+from mttbench.benchmarks.engine.policies import available_policies, make_policy
 from mttbench.scenarios.simulator import simulate, tracker_seed
 from mttbench.trackers.cells import as_cell_counts
 

@@ -18,11 +18,11 @@ import pytest
 from scipy import stats
 
 from mttbench import scenarios
-from mttbench.benchmarks import figures, report
-from mttbench.benchmarks.harness import COLUMNS, Job, run_job
-from mttbench.benchmarks.metrics import step_metrics
-from mttbench.benchmarks.snapshot import trace_run
-from mttbench.benchmarks.specs import PolicySpec, TrackerSpec
+from mttbench.benchmarks.app import figures, report
+from mttbench.benchmarks.engine.loop import COLUMNS, Job, run_job
+from mttbench.benchmarks.engine.metrics import step_metrics
+from mttbench.benchmarks.engine.snapshot import trace_run
+from mttbench.benchmarks.engine.specs import PolicySpec, TrackerSpec
 
 DISPLAY_TOL = 5e-4 + 1e-12  # half a unit in the 3rd decimal of a ".3f" cell
 NUM_TOL = 1e-10
@@ -83,7 +83,7 @@ def built(tmp_path_factory):
 
 def test_accuracy_table_rows_and_intervals_match_scipy(built):
     results, _, _ = built
-    from mttbench.benchmarks import summary
+    from mttbench.benchmarks.app import summary
     table = report.summary_table(summary.summarize(results),
                                  report.ACCURACY_COLUMNS + report.GOSPA_COLUMNS)
     assert len(table) == len(SCENARIOS) * len(TRACKERS)
@@ -164,7 +164,7 @@ def test_failed_runs_listed_and_excluded(tmp_path):
     files = report.build_report(results, tmp_path, reference="kfnn", draw=False)
     md = files.markdown.read_text()
     assert "Failed or unsupported runs" in md and "RuntimeError: boom" in md
-    from mttbench.benchmarks import summary
+    from mttbench.benchmarks.app import summary
     summ = summary.summarize(results)
     assert set(summ.loc[summ["tracker_label"] == "third", "n_seeds"]) == {len(SEEDS) - 1}
 
@@ -239,7 +239,7 @@ def test_report_flags_the_baseline_in_its_own_section(tmp_path):
 
 
 def test_markdown_tables_escape_pipes_and_show_the_looks_made():
-    from mttbench.benchmarks import summary
+    from mttbench.benchmarks.app import summary
     summ = summary.summarize(synthetic_results())
     summ["looks_made"] = np.where(summ["tracker_label"] == "kfnn", 144.0, 24.0)
     summ.loc[summ["tracker_label"] == "other", "scenario"] = "a|b"

@@ -15,9 +15,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mttbench.benchmarks import reproduce
-from mttbench.benchmarks.cli import main
-from mttbench.benchmarks.specs import PolicySpec, TrackerSpec
+from mttbench.benchmarks.app import reproduce
+from mttbench.benchmarks.app.cli import main
+from mttbench.benchmarks.engine.specs import PolicySpec, TrackerSpec
 
 REFERENCE = reproduce.REFERENCE_DIR / "paper_reduced.csv"
 #: x86 dispatch targets at the AVX2 level or below, in numpy >= 2.4's grouped names
@@ -145,8 +145,8 @@ def _env(**extra: str) -> dict[str, str]:
 
 def test_cpu_dispatch_and_cache_key_follow_npy_enable_cpu_features():
     features, keep = _restricted_dispatch()
-    code = ("import json; from mttbench.benchmarks import reproduce as r; "
-            "from mttbench.benchmarks.specs import PolicySpec, TrackerSpec; "
+    code = ("import json; from mttbench.benchmarks.app import reproduce as r; "
+            "from mttbench.benchmarks.engine.specs import PolicySpec, TrackerSpec; "
             "s = r.SETTINGS['reduced']; "
             "print(json.dumps([r.cpu_dispatch(), "
             "r.cache_key(s, [TrackerSpec('kfnn')], PolicySpec('renyi'))]))")
@@ -164,7 +164,7 @@ def test_reduced_check_passes_under_restricted_simd_dispatch(tmp_path):
     setting moved there (paper, step 11, est_count 1.333 -> 1.667) and ``--check --exact``
     failed, while ``--check`` passed with its largest curve mean at 0.01 (limit 1); with
     the seeds of f9ad50f the reduced numbers stay and 78 of the full setting's move
-    (module docstring of :mod:`mttbench.benchmarks.reproduce`)."""
+    (module docstring of :mod:`mttbench.benchmarks.app.reproduce`)."""
     features, _ = _restricted_dispatch()
     proc = subprocess.run(
         [sys.executable, "-m", "mttbench", "reproduce", "paper", "--reduced", "--check",

@@ -12,13 +12,13 @@ import pandas as pd
 import pytest
 
 from mttbench import scenarios
-from mttbench.benchmarks import reproduce
-from mttbench.benchmarks import reproduce_kreucher as rk
-from mttbench.benchmarks.cli import main
-from mttbench.benchmarks.harness import Job, run_job
-from mttbench.benchmarks.policies import make_policy
-from mttbench.benchmarks.resources import check_jobs
-from mttbench.benchmarks.specs import PolicySpec, TrackerSpec, resolve_trackers
+from mttbench.benchmarks.app import reproduce
+from mttbench.benchmarks.app import reproduce_kreucher as rk
+from mttbench.benchmarks.app.cli import main
+from mttbench.benchmarks.app.resources import check_jobs
+from mttbench.benchmarks.engine.loop import Job, run_job
+from mttbench.benchmarks.engine.policies import make_policy
+from mttbench.benchmarks.engine.specs import PolicySpec, TrackerSpec, resolve_trackers
 
 KREUCHER = scenarios.get("kreucher")
 #: a setting that runs in about a second: one seed, three steps, two raster budgets

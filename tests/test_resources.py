@@ -1,4 +1,4 @@
-"""Resource estimates (``benchmarks/resources.py``): the formulas, the refusal, the warning,
+"""Resource estimates (``benchmarks/app/resources.py``): the formulas, the refusal, the warning,
 and that the memory estimate bounds what a run really takes -- on a 1e5 x 1e5 grid too,
 which the estimate must accept and a run must not need ``O(cells)`` memory for."""
 
@@ -19,12 +19,13 @@ from pathlib import Path
 import pytest
 
 from mttbench import scenarios, trackers
-from mttbench.benchmarks import resources
-from mttbench.benchmarks.cli import main
-from mttbench.benchmarks.compare import default_tracker_texts
-from mttbench.benchmarks.harness import Job, build_jobs, run_job
-from mttbench.benchmarks.information import DENSE_CELLS
-from mttbench.benchmarks.specs import PolicySpec, TrackerSpec, UsageError, resolve_trackers
+from mttbench.benchmarks.app import resources
+from mttbench.benchmarks.app.cli import main
+from mttbench.benchmarks.app.compare import default_tracker_texts
+from mttbench.benchmarks.engine.errors import ConfigError
+from mttbench.benchmarks.engine.information import DENSE_CELLS
+from mttbench.benchmarks.engine.loop import Job, build_jobs, run_job
+from mttbench.benchmarks.engine.specs import PolicySpec, TrackerSpec, resolve_trackers
 from mttbench.scenarios import simulator
 from mttbench.scenarios.model import Grid
 from mttbench.scenarios.spec import dumps
@@ -156,7 +157,7 @@ def test_a_job_that_cannot_fit_is_refused_on_any_machine():
     even with 1 TiB available (512 GiB per worker)."""
     jobs = build_jobs([scenario(12)], [TrackerSpec("jmpd", {"n_particles": 10**9})], None,
                       None, [0, 1])
-    with pytest.raises(UsageError) as err:
+    with pytest.raises(ConfigError) as err:
         resources.check_jobs(jobs, workers=2, available=1024 * GIB)
     msg = str(err.value)
     assert "\n" not in msg
@@ -167,7 +168,7 @@ def test_a_job_that_cannot_fit_is_refused_on_any_machine():
                      r"fewer particles or looks, fewer --steps or fewer --workers$", msg), msg
     # looking at every cell of a 1e6 x 1e6 grid is O(cells): refused too
     every = build_jobs([scenario(10**6)], [TrackerSpec("null")], [PolicySpec("all")], None, [0])
-    with pytest.raises(UsageError, match=r"mostly the simulator, [\d.]+ TiB"):
+    with pytest.raises(ConfigError, match=r"mostly the simulator, [\d.]+ TiB"):
         resources.check_jobs(every, workers=1, available=1024 * GIB)
 
 
@@ -189,7 +190,7 @@ def test_limit_is_shared_by_the_runs_that_execute_at_once():
     jobs = build_jobs([sc], [TrackerSpec("jmpd", {"n_particles": 10**6})], None, None,
                       [0, 1, 2])
     resources.check_jobs(jobs, workers=3, available=3.01 * need)
-    with pytest.raises(UsageError, match="per worker"):
+    with pytest.raises(ConfigError, match="per worker"):
         resources.check_jobs(jobs, workers=3, available=2.99 * need)
     # more workers than jobs: only three runs at once
     resources.check_jobs(jobs, workers=64, available=3.01 * need)
@@ -202,7 +203,7 @@ def test_results_table_must_fit_in_the_main_process():
     table = 1000 * 1000 * resources.RESULT_ROW_BYTES
     assert table > 4 * resources.estimate_job(jobs[0]).memory  # the table is the limit here
     resources.check_jobs(jobs, workers=1, available=1.01 * table)
-    with pytest.raises(UsageError, match=r"results table of 1000 runs \(1000000 steps\)"):
+    with pytest.raises(ConfigError, match=r"results table of 1000 runs \(1000000 steps\)"):
         resources.check_jobs(jobs, workers=1, available=0.99 * table)
 
 
@@ -223,7 +224,7 @@ def test_memory_override_and_available_memory(monkeypatch):
     assert resources.available_memory() == 1.5 * GIB
     for bad in ("lots", "0", "-1", "nan", "inf"):
         monkeypatch.setenv(resources.MEMORY_ENV, bad)
-        with pytest.raises(UsageError, match=resources.MEMORY_ENV):
+        with pytest.raises(ConfigError, match=resources.MEMORY_ENV):
             resources.available_memory()
     monkeypatch.delenv(resources.MEMORY_ENV)
     found = resources.available_memory()

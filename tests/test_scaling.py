@@ -14,14 +14,14 @@ import pytest
 from scipy import stats
 
 from mttbench import scenarios, trackers
-from mttbench.benchmarks.harness import play
-from mttbench.benchmarks.information import (
+from mttbench.benchmarks.engine.information import (
     DENSE_CELLS,
     expected_gain,
     gain_of_looks,
     greedy_looks,
 )
-from mttbench.benchmarks.policies import Oracle, make_policy
+from mttbench.benchmarks.engine.loop import play
+from mttbench.benchmarks.engine.policies import Oracle, make_policy
 from mttbench.scenarios.model import Grid
 from mttbench.scenarios.simulator import pcg64_uniforms, simulate, tracker_seed
 from mttbench.testing import _assert_count_distribution_valid

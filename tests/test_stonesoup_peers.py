@@ -26,10 +26,10 @@ import pytest
 from scipy.stats import multivariate_normal, norm
 
 from mttbench import testing, trackers
-from mttbench.benchmarks import cli
-from mttbench.benchmarks.compare import default_tracker_texts
-from mttbench.benchmarks.harness import Job, run_job
-from mttbench.benchmarks.specs import TrackerSpec
+from mttbench.benchmarks.app import cli
+from mttbench.benchmarks.app.compare import default_tracker_texts
+from mttbench.benchmarks.engine.loop import Job, run_job
+from mttbench.benchmarks.engine.specs import TrackerSpec
 from mttbench.scenarios.model import Dynamics, Looks
 from mttbench.scenarios.spec import get as get_scenario
 from mttbench.trackers import stonesoup_peers as sp
@@ -104,8 +104,8 @@ def test_every_tuned_parameter_searches_values_it_accepts():
 _DETERMINISM_SCRIPT = textwrap.dedent("""
     import dataclasses, sys
     import numpy as np
-    from mttbench.benchmarks.harness import play
-    from mttbench.benchmarks.policies import AllCells, make_policy
+    from mttbench.benchmarks.engine.loop import play
+    from mttbench.benchmarks.engine.policies import AllCells, make_policy
     from mttbench.scenarios.spec import get
     from mttbench.trackers import make
     from mttbench.trackers.cells import as_cell_counts

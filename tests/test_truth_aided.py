@@ -10,10 +10,10 @@ import pytest
 from scipy import stats
 
 from mttbench import scenarios
-from mttbench.benchmarks.harness import Job, play, run_job
-from mttbench.benchmarks.metrics import step_metrics
-from mttbench.benchmarks.policies import AllCells
-from mttbench.benchmarks.specs import PolicySpec, TrackerSpec
+from mttbench.benchmarks.engine.loop import Job, play, run_job
+from mttbench.benchmarks.engine.metrics import step_metrics
+from mttbench.benchmarks.engine.policies import AllCells
+from mttbench.benchmarks.engine.specs import PolicySpec, TrackerSpec
 from mttbench.scenarios.model import Grid, RayleighGridSensor
 from mttbench.testing import check_tracker
 from mttbench.trackers import make

@@ -1,4 +1,4 @@
-"""``mttbench tune`` and the tuned files ``compare`` runs (benchmarks/tune.py, tuned.py).
+"""``mttbench tune`` and the tuned files ``compare`` runs (benchmarks/app/tune.py, tuned.py).
 
 1. Search spaces: each kind of :class:`Search` maps to optuna's distribution of the
    matching ``suggest_*``; a range outside what its :class:`Param` accepts is refused when
@@ -30,9 +30,19 @@ from test_packaging import installed_site as plain_install  # noqa: F401 - a fix
 from test_packaging import ok, run_python
 
 from mttbench import Estimate, Tracker, trackers
-from mttbench.benchmarks import cli, compare, harness, reproduce, reproduce_kreucher, tune, tuned
-from mttbench.benchmarks.specs import PolicySpec, TrackerSpec, UsageError, resolve_scenarios
-from mttbench.benchmarks.summary import per_run
+from mttbench.benchmarks.app import (
+    cli,
+    compare,
+    progress,
+    reproduce,
+    reproduce_kreucher,
+    tune,
+    tuned,
+)
+from mttbench.benchmarks.app.summary import per_run
+from mttbench.benchmarks.engine import loop as harness
+from mttbench.benchmarks.engine.errors import ConfigError
+from mttbench.benchmarks.engine.specs import PolicySpec, TrackerSpec, resolve_scenarios
 from mttbench.trackers.params import Param, Search
 
 STEPS = 8
@@ -141,7 +151,7 @@ def test_every_shipped_search_space_yields_accepted_settings():
 
 
 def test_a_tracker_without_search_space_is_refused_in_one_line(tmp_path):
-    with pytest.raises(UsageError, match="'null' has no search space") as info:
+    with pytest.raises(ConfigError, match="'null' has no search space") as info:
         tune.tune_tracker(settings("null"), tmp_path / "out", tuned_dir=tmp_path / "tuned",
                           progress=False)
     assert "\n" not in str(info.value)
@@ -175,7 +185,7 @@ def test_the_stored_objective_is_that_of_a_direct_sweep(study, tmp_path):
     def direct(params: dict) -> float:
         jobs = harness.build_jobs(sc, [TrackerSpec("kfnn", params)], [PolicySpec("raster")],
                                   None, list(SEEDS))
-        runs = per_run(harness.run_sweep(jobs, tmp_path / str(len(params)), progress=False))
+        runs = per_run(progress.run_sweep(jobs, tmp_path / str(len(params)), progress=False))
         assert sorted(runs["seed"]) == list(SEEDS) and (runs["status"] == "ok").all()
         return float(np.mean(runs["ospa"]))
 
@@ -211,9 +221,9 @@ class _Interrupt:
     def __call__(self, jobs, out_dir, **kw):
         self.calls += 1
         if self.calls == self.at:
-            harness.run_sweep(jobs[: len(jobs) // 2], out_dir, **kw)
+            progress.run_sweep(jobs[: len(jobs) // 2], out_dir, **kw)
             raise KeyboardInterrupt
-        return harness.run_sweep(jobs, out_dir, **kw)
+        return progress.run_sweep(jobs, out_dir, **kw)
 
 
 def test_an_interrupt_in_a_batch_resumes_to_the_uninterrupted_trials(study, tmp_path):
@@ -225,7 +235,7 @@ def test_an_interrupt_in_a_batch_resumes_to_the_uninterrupted_trials(study, tmp_
     states = [t.state.name for t in stored.get_trials()]
     assert states == ["COMPLETE", "COMPLETE", "RUNNING", "RUNNING"]  # batch 1 cut short
     assert not (tuned_dir / "kfnn.toml").exists()
-    with pytest.raises(UsageError, match="--resume"):
+    with pytest.raises(ConfigError, match="--resume"):
         tune.tune_tracker(st, out, tuned_dir=tuned_dir, progress=False)
     done = tune.tune_tracker(st, out, tuned_dir=tuned_dir, progress=False, resume=True)
     assert trial_rows(done.trials) == trial_rows(res.trials)
@@ -255,7 +265,7 @@ def test_an_interrupt_between_asks_resumes_to_the_uninterrupted_trials(study, tm
 
 def test_a_resumed_study_must_keep_its_settings(study, tmp_path):
     st, _, root = study
-    with pytest.raises(UsageError, match="made with seeds"):
+    with pytest.raises(ConfigError, match="made with seeds"):
         tune.tune_tracker(dataclasses.replace(st, seeds=(SEEDS[0],)), root / "out",
                           tuned_dir=tmp_path, progress=False, resume=True)
 
@@ -271,12 +281,12 @@ def test_tuning_seeds_never_meet_evaluation_seeds(study):
     for module in (reproduce, reproduce_kreucher):
         for setting in module.SETTINGS.values():
             assert max(setting.seeds) < base
-    with pytest.raises(UsageError, match="tuning seeds must be >= 1000000"):
+    with pytest.raises(ConfigError, match="tuning seeds must be >= 1000000"):
         dataclasses.replace(settings(), seeds=(base - 1, base))
     assert cli.main(["tune", "kfnn", "--seed-start", str(base - 1), "--out", "x"]) == 2
     # compare refuses evaluation seeds a tuned file was tuned on
     spec = [TrackerSpec("kfnn")]
-    with pytest.raises(UsageError, match="were used to tune kfnn"):
+    with pytest.raises(ConfigError, match="were used to tune kfnn"):
         tuned.plan_tuning(spec, root / "tuned", seeds=[0, SEEDS[1]])
     tuned.plan_tuning(spec, root / "tuned", seeds=list(range(100)))
 
@@ -334,7 +344,7 @@ def test_a_bad_tuned_file_is_refused_in_one_line(tmp_path):
     (tmp_path / "kfnn.toml").write_text(
         'tracker = "kfnn"\n[params]\nmax_misses = 0\n[objective]\nmetric = "ospa"\n'
         'value = 1.0\n[budget]\ntuning_seeds = [1000000]\n', encoding="utf-8")
-    with pytest.raises(UsageError, match=r"kfnn.toml: .*max_misses=0 refused") as info:
+    with pytest.raises(ConfigError, match=r"kfnn.toml: .*max_misses=0 refused") as info:
         tuned.plan_tuning([TrackerSpec("kfnn")], tmp_path)
     assert "\n" not in str(info.value)
 
@@ -386,7 +396,7 @@ def test_given_parameters_win_over_the_tuned_file(tmp_path):
     assert spec.params == {"max_misses": 9, "confirm_m": 1}
     # a given value that breaks a rule with the tuned ones: one line naming the file
     tuned_dir = _tuned_dir(tmp_path, {"confirm_m": 3})
-    with pytest.raises(UsageError, match=r"confirm_m=3 with confirm_n=2.*kfnn.toml"):
+    with pytest.raises(ConfigError, match=r"confirm_m=3 with confirm_n=2.*kfnn.toml"):
         tuned.plan_tuning([TrackerSpec("kfnn", {"confirm_n": 2})], tuned_dir)
 
 
@@ -444,7 +454,7 @@ def test_tuned_files_live_in_the_checkout_or_ship_with_the_package(
     repo = Path(__file__).resolve().parents[1]
     assert tuned.default_tuned_dir() == repo / "tuned" and tuned.is_checkout()
     assert tuned.default_write_dir() == repo / "tuned"
-    code = ("from mttbench.benchmarks import tuned; print(tuned.default_tuned_dir()); "
+    code = ("from mttbench.benchmarks.app import tuned; print(tuned.default_tuned_dir()); "
             "print(tuned.is_checkout()); print(tuned.default_write_dir())")
     proc = ok(run_python(["-c", code], tmp_path, [plain_install]))
     read_dir, checkout, write_dir = proc.stdout.split()

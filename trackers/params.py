@@ -18,7 +18,7 @@ run), ``mttbench trackers`` and the seed of a run (:meth:`Configurable.canonical
 all read it.
 
 Values and how they are read (spec text is first turned into ``bool``/``int``/``float``/
-``str`` by :func:`mttbench.benchmarks.specs.parse_value`):
+``str`` by :func:`mttbench.benchmarks.engine.specs.parse_value`):
 
 * ``int``: an ``int`` (not a bool), or a float with an integral value, converted
   (``1000.0`` and ``1e3`` -> ``1000``); ``2.5``, ``nan``, text are refused.

@@ -1,7 +1,7 @@
 """A registry of classes by name, filled by decorators and by other packages' entry points.
 
 Trackers (:mod:`~mttbench.trackers.base`) and cell-selection policies
-(:mod:`~mttbench.benchmarks.policies`) each keep one. An entry point
+(:mod:`~mttbench.benchmarks.engine.policies`) each keep one. An entry point
 ``name = "package.module:Class"`` in the registry's group names a subclass of the
 registry's base class whose ``name`` attribute is ``name``; entry points are loaded on
 the first look-up, once per process. One that fails to load is kept with its reason

@@ -30,7 +30,7 @@ import numpy as np
 import pytest
 
 from mttbench import scenarios
-from mttbench.benchmarks.policies import AllCells
+from mttbench.benchmarks.engine.policies import AllCells
 from mttbench.scenarios.model import Grid, Looks
 from mttbench.trackers.gpf import GaussianParticleFilter
 

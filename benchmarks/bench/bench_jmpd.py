@@ -3,7 +3,7 @@
 The speed goal (README, "Runtime benchmarks"): a bootstrap step at ``N = 1e5`` costing
 at most 1.5 times drawing its ``4 t_max N`` process-noise standard normals with the same
 kind of Generator into a preallocated buffer (the floor of any bootstrap step). The step
-is everything the harness times (:func:`~mttbench.benchmarks.harness.play`)::
+is everything the harness times (:func:`~mttbench.benchmarks.engine.loop.play`)::
 
     tracker.predict(); tracker.update(looks); tracker.estimate()
 
@@ -61,7 +61,7 @@ import numpy as np
 import pytest
 
 from mttbench import scenarios
-from mttbench.benchmarks.policies import AllCells, Oracle
+from mttbench.benchmarks.engine.policies import AllCells, Oracle
 from mttbench.scenarios.model import Grid, Looks
 from mttbench.scenarios.simulator import simulate_truth
 from mttbench.scenarios.spec import Scenario

@@ -7,7 +7,7 @@ every cell looked every step) at ``N = 250`` in at most 10 ms per step. Also
 State: the tracker starts from its own prior (no target; it acquires them) and the
 harness plays ``WARM_STEPS`` untimed steps with every cell looked at; then each round is
 the next step of the same world with every cell looked at (the timed step is
-``predict(); update(looks); estimate()``, as in :func:`~mttbench.benchmarks.harness.play`).
+``predict(); update(looks); estimate()``, as in :func:`~mttbench.benchmarks.engine.loop.play`).
 The OSPA of the first timed step must be below ``OSPA_BOUND`` (the tracker holds its
 targets); the last one is recorded.
 
@@ -31,7 +31,7 @@ import numpy as np
 import pytest
 
 from mttbench import scenarios
-from mttbench.benchmarks.policies import AllCells
+from mttbench.benchmarks.engine.policies import AllCells
 from mttbench.scenarios.spec import Scenario
 from mttbench.trackers.jmpd import JMPDAPTracker
 

@@ -13,7 +13,7 @@ grids of side 50, 100, 200, 500, 1,000 and 2,000.
 Looks: the ``oracle`` policy (the targets' cells first, then distinct random cells), so
 that every tracker holds its targets and a step carries the work of tracking them (a
 raster over a large grid would leave the trackers almost nothing to do). Warm state:
-``WARM_STEPS`` untimed steps through the harness (:func:`~mttbench.benchmarks.harness.
+``WARM_STEPS`` untimed steps through the harness (:func:`~mttbench.benchmarks.engine.loop.
 play`), the JMPDs started from the truth (``conftest.start_from_truth``); each benchmark
 then works on its own deep copy of that state.
 
@@ -51,7 +51,7 @@ import numpy as np
 import pytest
 
 from mttbench import scenarios, trackers
-from mttbench.benchmarks.policies import Oracle, make_policy
+from mttbench.benchmarks.engine.policies import Oracle, make_policy
 from mttbench.scenarios.model import Grid
 from mttbench.scenarios.simulator import iter_truth, simulate
 from mttbench.scenarios.spec import Scenario
@@ -124,7 +124,7 @@ def _warm(warm_up, series: str, spec_text: str, size: int):
     """The warm state of ``(series, tracker, size)`` (module docstring), built once."""
     key = (series, spec_text, size)
     if key not in _WARM:
-        from mttbench.benchmarks.specs import TrackerSpec
+        from mttbench.benchmarks.engine.specs import TrackerSpec
 
         spec = TrackerSpec.parse(spec_text)
         tracker = spec.make()

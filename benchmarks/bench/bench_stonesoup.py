@@ -22,7 +22,7 @@ from __future__ import annotations
 import pytest
 
 from mttbench import scenarios
-from mttbench.benchmarks.specs import TrackerSpec
+from mttbench.benchmarks.engine.specs import TrackerSpec
 
 TRACKERS = ("kfnn", "ss-gnn", "gpf", "ss-gmphd")
 WARM_STEPS = 60

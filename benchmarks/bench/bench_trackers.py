@@ -30,8 +30,8 @@ from __future__ import annotations
 import pytest
 
 from mttbench import scenarios, trackers
-from mttbench.benchmarks.policies import AllCells
-from mttbench.benchmarks.specs import TrackerSpec
+from mttbench.benchmarks.engine.policies import AllCells
+from mttbench.benchmarks.engine.specs import TrackerSpec
 
 #: untimed warm-up steps, every cell looked at: started from the prior, or from the
 #: truth for the trackers in FROM_TRUTH (module docstring)

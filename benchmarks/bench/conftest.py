@@ -54,9 +54,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from mttbench.benchmarks.harness import play
-from mttbench.benchmarks.metrics import step_metrics
-from mttbench.benchmarks.policies import Policy, Raster
+from mttbench.benchmarks.engine.loop import play
+from mttbench.benchmarks.engine.metrics import step_metrics
+from mttbench.benchmarks.engine.policies import Policy, Raster
 from mttbench.scenarios.model import Looks
 from mttbench.scenarios.simulator import Run
 from mttbench.scenarios.spec import Scenario
@@ -224,12 +224,12 @@ def warm_up(scenario: Scenario, tracker: Tracker, n_steps: int, seed: int = 0, *
             policy: Policy | None = None, from_truth: bool = False,
             timed_policy: Policy | None = None) -> Warm:
     """Play ``n_steps`` steps of world ``seed`` through the harness's step loop
-    (:func:`~mttbench.benchmarks.harness.play`) so that a timed step starts from a
+    (:func:`~mttbench.benchmarks.engine.loop.play`) so that a timed step starts from a
     realistic state; skips the benchmark (with the tracker's reason) when the tracker
     cannot run the scenario.
 
     ``policy``: the warm-up's cell selection (default the harness's raster at the
-    scenario's budget; the benchmarks pass :class:`~mttbench.benchmarks.policies.
+    scenario's budget; the benchmarks pass :class:`~mttbench.benchmarks.engine.policies.
     AllCells`, every cell once per step). ``from_truth``: after the harness's reset,
     :func:`start_from_truth` (seeded from ``seed``). ``timed_policy``: the looks of the
     timed step(s) (default a raster at the scenario's look budget; it must not need the

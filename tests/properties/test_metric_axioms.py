@@ -13,7 +13,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mttbench.benchmarks.metrics import gospa, ospa
+from mttbench.benchmarks.engine.metrics import gospa, ospa
 
 SETTINGS = settings(max_examples=150, deadline=None)
 TOL = 1e-9  # the one tolerance here: rounding of sums of up to 4 powers

@@ -4,7 +4,7 @@ One command runs every registered tracker on the standard scenarios (``default``
 ``crossing``, ``births``, ``kreucher``: scenarios where trackers can be ranked, the
 floor ``null`` far above the trackers; ``paper`` is a stress test that cannot rank them
 and is run only on request) over several seeds, in parallel processes
-(:func:`benchmarks.harness.run_sweep`: the results do not depend on the number of
+(:func:`benchmarks.engine.sweep.run_sweep`: the results do not depend on the number of
 workers, timings aside), and writes a report folder::
 
     reports/compare-<UTC timestamp>/
@@ -33,7 +33,7 @@ runtime figure shows the particle-count trade-off. ``--seeds``, ``--steps``,
 ``--trackers`` (with ``name:key=val`` parameters), ``--scenarios`` scale it.
 
 Parameters: a tracker with a tuned file (``tuned/<tracker>.toml``, written by ``mttbench
-tune`` on seeds held apart; :mod:`~mttbench.benchmarks.tuned`) runs those parameters,
+tune`` on seeds held apart; :mod:`~mttbench.benchmarks.app.tuned`) runs those parameters,
 labelled ``name(tuned)``; ``--untuned`` runs the defaults; ``--tuning-effect`` runs both
 and reports tuned minus default per tracker. The summary and the report list the
 parameters each tracker ran.
@@ -57,11 +57,14 @@ from typing import TYPE_CHECKING, Any
 
 import pandas as pd
 
-from .. import trackers
+from ... import trackers
+from ..engine.executors import describe_current
+from ..engine.loop import build_jobs
+from ..engine.specs import PolicySpec, TrackerSpec, resolve_scenarios, resolve_trackers
+from ..engine.store import prepare_out_dir, write_text_atomic
 from . import resources, summary, tuned
-from .executors import describe_current
-from .harness import build_jobs, prepare_out_dir, run_sweep, write_text_atomic
-from .specs import PolicySpec, TrackerSpec, UsageError, resolve_scenarios, resolve_trackers
+from .progress import run_sweep
+from .usage import UsageError
 
 if TYPE_CHECKING:
     from .report import ReportFiles
@@ -169,14 +172,14 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
     the truth (a truth-aided tracker is a reference for the share of the gap closed,
     never the default reference of the paired differences; given explicitly it is
     accepted), else no paired differences. Raises
-    :class:`~mttbench.benchmarks.specs.UsageError` on bad names, including an unknown
+    :class:`~mttbench.benchmarks.engine.specs.UsageError` on bad names, including an unknown
     reference, on runs that cannot fit in memory
-    (:func:`~mttbench.benchmarks.resources.check_jobs`) and on an output folder that
+    (:func:`~mttbench.benchmarks.app.resources.check_jobs`) and on an output folder that
     cannot be written, all before any run and before the folder is touched.
     ``resume=True`` keeps the parts already in the folder and adds this session to the
     manifest's ``sessions``.
 
-    Tuned parameters (:mod:`~mttbench.benchmarks.tuned`): a tracker with a file
+    Tuned parameters (:mod:`~mttbench.benchmarks.app.tuned`): a tracker with a file
     ``<tuned_dir>/<name>.toml`` (None: the package's ``tuned/``) runs its parameters under
     the label ``name(tuned)`` unless ``untuned``; ``tuning_effect`` also runs its defaults
     (label ``name``) for the report's "Effect of tuning". A bare ``reference`` name means
@@ -332,8 +335,8 @@ def _seed_text(seeds: list[int]) -> str:
 
 def _snapshot_trace(scs, specs: list[TrackerSpec], seeds: list[int]):
     """Trace seed ``seeds[0]`` of the first grid scenario for the preferred tracker."""
-    from ..scenarios.model import RayleighGridSensor
-    from .snapshot import trace_run
+    from ...scenarios.model import RayleighGridSensor
+    from ..engine.snapshot import trace_run
 
     grid_scs = [sc for sc in scs if isinstance(sc.model.sensor, RayleighGridSensor)]
     if not grid_scs or not seeds:

@@ -41,7 +41,7 @@ import heapq
 import numpy as np
 from scipy.stats import binom
 
-from ..trackers.cells import CellCounts
+from ...trackers.cells import CellCounts
 
 
 def expected_gain(counts: np.ndarray, likelihood: np.ndarray, alpha: float = 0.5) -> np.ndarray:

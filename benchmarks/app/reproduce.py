@@ -137,14 +137,17 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .. import reference, scenarios, trackers
-from ..scenarios.spec import dumps
+from ... import reference, scenarios, trackers
+from ...scenarios.spec import dumps
+from .. import engine
+from ..engine.loop import build_jobs
+from ..engine.snapshot import trace_run
+from ..engine.specs import PolicySpec, TrackerSpec
+from ..engine.store import write_text_atomic
 from . import figures
 from .compare import package_versions
-from .harness import build_jobs, run_sweep, write_text_atomic
+from .progress import run_sweep
 from .report import Document
-from .snapshot import trace_run
-from .specs import PolicySpec, TrackerSpec
 
 #: ``--check --exact``: relative and absolute tolerance (printing only)
 RTOL = 1e-9
@@ -169,8 +172,9 @@ REFERENCE_DIR = Path(reference.__file__).parent
 FINGERPRINT_GLOBS = {
     trackers: ("**/*.py",),
     scenarios: ("*.py", "presets/*.toml"),
-    sys.modules[__package__]: ("harness.py", "metrics.py", "policies.py", "information.py",
-                               "snapshot.py", "reproduce.py", "specs.py"),
+    engine: ("loop.py", "metrics.py", "policies.py", "information.py", "snapshot.py",
+             "specs.py"),
+    sys.modules[__package__]: ("reproduce.py",),
 }
 
 #: where our reading of the paper departs from its text (shown in the report and README)
@@ -197,8 +201,8 @@ DEPARTURES = [
     "the Gaussian density and the derivation's result (trackers/gpf_linear.py).",
     "Cell selection. The paper's alpha-divergence information value is computed on the joint "
     "density; we score each cell by the expected Renyi gain (alpha = 0.5) of its predicted "
-    "count distribution P_c(t) and add gains over cells (benchmarks/information.py), so every "
-    "tracker can share the policy.",
+    "count distribution P_c(t) and add gains over cells (benchmarks/engine/information.py), so "
+    "every tracker can share the policy.",
     "Undefined error measures. The paper does not define its state error or how many runs it "
     "averages; we plot OSPA (c = 2 cells, p = 2) on positions as the state error and "
     "|N_est - N| as the number error, as means over pinned seeds with 95% t bands.",

@@ -2,7 +2,7 @@
 
 A **job** is one Monte Carlo run: ``(scenario, tracker spec, policy spec,
 looks_per_step, seed)``. :func:`play` is the one step loop of the suite (the rows of
-:func:`run_job`, the traces of :mod:`~mttbench.benchmarks.snapshot`, the warm states
+:func:`run_job`, the traces of :mod:`~mttbench.benchmarks.engine.snapshot`, the warm states
 of the runtime benchmarks and the conformance kit all come from it); it yields a
 :class:`StepRecord` per step::
 
@@ -76,40 +76,35 @@ A job whose tracker raises at step ``k`` keeps its rows ``0..k-1`` (status
 ``"ok"``) and gets one row at step ``k`` with ``status = "error"`` and NaN metrics;
 the other jobs of the sweep are unaffected.
 
-Tracker and policy specifications are described in :mod:`~mttbench.benchmarks.specs`.
+Tracker and policy specifications are described in :mod:`~mttbench.benchmarks.engine.specs`.
 """
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
-import io
 import json
 import math
-import os
-import re
 import resource
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
-from ..scenarios.model import Looks, RayleighGridSensor
-from ..scenarios.simulator import simulate, tracker_seed
-from ..scenarios.spec import Scenario, dumps
-from ..trackers.base import Estimate, Tracker
-from ..trackers.cells import CellCounts
+from ...scenarios.model import Looks, RayleighGridSensor
+from ...scenarios.simulator import simulate, tracker_seed
+from ...scenarios.spec import Scenario, dumps
+from ...trackers.base import Estimate, Tracker
+from ...trackers.cells import CellCounts
 from .metrics import step_metrics
 from .policies import Policy, Raster
-from .specs import PolicySpec, TrackerSpec, UsageError
+from .specs import PolicySpec, TrackerSpec
 
 if TYPE_CHECKING:
-    from .executors import Executor
+    pass
 
 METRIC_COLUMNS = [
     "count_error", "ospa", "ospa_loc", "ospa_card", "gospa", "gospa_loc", "gospa_missed",
@@ -366,7 +361,7 @@ def play(scenario: Scenario, tracker: Tracker, seed: int, *, policy: Policy | No
     :class:`Playback` attributes); they change no number. Parameters the declaration
     refuses raise :class:`~mttbench.trackers.params.ParameterError` (a ``ValueError``).
     On a grid sensor the
-    policy defaults to :class:`~mttbench.benchmarks.policies.Raster` and
+    policy defaults to :class:`~mttbench.benchmarks.engine.policies.Raster` and
     ``looks_per_step`` to the sensor's budget; the superposition sensor takes
     neither. ``n_steps`` stops early (default: the scenario's length). The tracker is
     used as given, not copied: after the loop it holds the last state.
@@ -471,215 +466,3 @@ def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
         true_count = float(len(playback.world.states[k])) if k >= 0 else math.nan
         rows.append(_special_row(base, k, "error", message, true_count))
     return finish()
-
-
-# -------------------------------------------------------------------------- sweeps
-#: temporary file of :func:`_write_parquet`: ``.<name>.<pid of the writer>.tmp``
-_TEMP_FILE = re.compile(r"^\..+\.(\d+)\.tmp$")
-
-
-def _write_parquet(df: pd.DataFrame, path: Path) -> None:
-    """Write atomically: a temp file ``.<name>.<pid>.tmp`` in the same folder, then
-    ``os.replace``. On any failure (disk full, read-only folder, an interrupt) the temp
-    file is removed and ``path`` is left as it was; an ``OSError`` is re-raised naming
-    ``path`` (``exc.filename``)."""
-    _write_atomic(path, lambda tmp: df.to_parquet(tmp, index=False))
-
-
-def _parquet_bytes(df: pd.DataFrame) -> bytes:
-    """The bytes :func:`_write_parquet` writes for ``df`` (a part file, made where the job
-    ran)."""
-    buffer = io.BytesIO()
-    df.to_parquet(buffer, index=False)
-    return buffer.getvalue()
-
-
-def _write_bytes(path: Path, data: bytes) -> None:
-    """Write a part's bytes (:func:`_parquet_bytes`) like :func:`_write_parquet`."""
-    _write_atomic(Path(path), lambda tmp: tmp.write_bytes(data))
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write a text file (UTF-8) like :func:`_write_parquet`: all or nothing."""
-    _write_atomic(Path(path), lambda tmp: tmp.write_text(text, encoding="utf-8"))
-
-
-def _write_atomic(path: Path, write: Callable[[Path], object]) -> None:
-    """``write`` a temp file in the same folder, then ``os.replace`` it onto ``path``;
-    on any failure remove the temp file and re-raise (an ``OSError`` naming ``path``)."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException as exc:
-        with contextlib.suppress(OSError):
-            tmp.unlink(missing_ok=True)
-        if isinstance(exc, OSError):
-            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
-        raise
-
-
-def prepare_out_dir(out_dir: str | Path, parts: bool = True) -> Path:
-    """Create the output folder (and its ``parts/`` unless ``parts=False``) and check
-    that files can be written there, before any run; a problem (the path is a file, a
-    parent is a file, no permission, a read-only file system) raises
-    :class:`~mttbench.benchmarks.specs.UsageError` in one line."""
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"output folder {out} exists and is not a folder")
-    for folder in (out, out / "parts") if parts else (out,):
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise UsageError(f"cannot create the output folder {folder}: "
-                             f"{exc.strerror or exc}") from None
-        probe = folder / f".write-test.{os.getpid()}.tmp"
-        try:
-            probe.write_bytes(b"")
-            probe.unlink()
-        except OSError as exc:
-            raise UsageError(f"cannot write into the output folder {folder}: "
-                             f"{exc.strerror or exc}") from None
-    return out
-
-
-def _pid_alive(pid: int) -> bool:
-    if pid == os.getpid():
-        return False  # this process writes nothing before the sweep starts
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:  # e.g. another user's process
-        return True
-    return True
-
-
-def remove_stale_temp_files(folder: Path) -> list[Path]:
-    """Remove the temp files of :func:`_write_parquet` left in ``folder`` by processes
-    that are gone (a killed sweep); returns them. A live process's file is kept."""
-    removed = []
-    try:
-        candidates = [p for p in folder.iterdir() if _TEMP_FILE.match(p.name)]
-    except OSError:
-        return removed
-    for path in candidates:
-        if not _pid_alive(int(_TEMP_FILE.match(path.name).group(1))):
-            with contextlib.suppress(OSError):
-                path.unlink()
-                removed.append(path)
-    return removed
-
-
-def _read_part(path: Path) -> pd.DataFrame:
-    """A part file as a table; ``ValueError`` (one line) if it is damaged or not a part."""
-    try:
-        df = pd.read_parquet(path)
-    except Exception as exc:  # noqa: BLE001 - pyarrow raises many types for a bad file
-        first = (str(exc).strip().splitlines() or [""])[0].replace(f" '{path}'", "")
-        raise ValueError(f"{type(exc).__name__}: {first}") from None
-    missing = [c for c in (*RUN_KEYS, "step", "status") if c not in df.columns]
-    if df.empty or missing:
-        raise ValueError("no rows" if df.empty else f"not a results part (no {missing[0]})")
-    return df
-
-
-def sort_results(df: pd.DataFrame) -> pd.DataFrame:
-    """Deterministic row order: by run keys, tracker parameters and step."""
-    keys = [*RUN_KEYS, "tracker_params", "policy_params", "step"]
-    return df.sort_values(keys, kind="stable").reset_index(drop=True)
-
-
-def _concat(frames: list[pd.DataFrame]) -> pd.DataFrame:
-    df = pd.concat(frames, ignore_index=True)
-    params = sorted(c for c in df.columns if c.startswith("param_"))
-    extra = [c for c in df.columns if c not in COLUMNS and c not in params]
-    df = df[COLUMNS + params + extra]
-    for col in params:
-        # two trackers may share a parameter name with different value types
-        values = df[col].dropna()
-        if df[col].dtype == object and values.map(type).nunique() > 1:
-            df[col] = df[col].map(lambda v: None if v is None else str(v))
-    return sort_results(df)
-
-
-def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1, progress: bool = True,
-              resume: bool = False, c: float = 2.0, p: float = 2.0,
-              executor: Executor | None = None) -> pd.DataFrame:
-    """Run ``jobs`` and write ``out_dir/results.parquet``; returns the table.
-
-    Every finished job is written at once to ``out_dir/parts/<job hash>.parquet``,
-    so an interrupted sweep keeps what it finished; with ``resume=True`` the jobs
-    whose part exists are not run again. The jobs run on ``executor``
-    (:mod:`~mttbench.benchmarks.executors`); None means the current one
-    (:func:`~mttbench.benchmarks.executors.use_executor`, set by the command line), else
-    a local pool of ``workers`` processes (``workers <= 1``: in this process). The
-    results do not depend on the executor or the number of workers (timings aside). A
-    run lost with its worker process is run again (``retries`` of the executor); one lost
-    every time gets an error row that is not saved as a part, so ``--resume`` runs it
-    again; finished parts are kept.
-
-    On resume a part that cannot be read (damaged, empty, not a part) is reported in
-    one line on stderr and recomputed. Temp files left by a killed earlier sweep are
-    removed at the start. Ctrl-C (``KeyboardInterrupt``) drops the queued runs, ends the
-    running ones and propagates; finished parts stay. A part that cannot be written
-    (disk full, read-only) raises ``OSError`` naming the file, and stops the sweep.
-    """
-    from .executors import LocalExecutor, Work, current_executor
-
-    out_dir = Path(out_dir)
-    parts_dir = out_dir / "parts"
-    parts_dir.mkdir(parents=True, exist_ok=True)
-    remove_stale_temp_files(out_dir)
-    remove_stale_temp_files(parts_dir)
-    paths = [parts_dir / f"{job.key(c, p)}.parquet" for job in jobs]
-    done: dict[Path, pd.DataFrame] = {}
-    damaged: list[str] = []
-    if resume:
-        for path in dict.fromkeys(paths):
-            if path.exists():
-                try:
-                    done[path] = _read_part(path)
-                except ValueError as exc:
-                    damaged.append(f"{path}: {exc}")
-    if damaged:
-        print(f"{len(damaged)} damaged part file(s) will be recomputed (first: {damaged[0]})",
-              file=sys.stderr)
-    todo = [(job, path) for job, path in zip(jobs, paths, strict=True) if path not in done]
-    lost: dict[Path, pd.DataFrame] = {}
-    if executor is None:
-        executor = current_executor() or LocalExecutor(workers)
-
-    from tqdm.auto import tqdm
-
-    # no monitor thread: worker processes are forked after the bar exists
-    tqdm.monitor_interval = 0
-    bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), file=sys.stderr,
-               disable=not progress, unit="run", desc="runs")
-    try:
-        work = Work(run_job, _write_parquet, _parquet_bytes, _write_bytes, c, p)
-        with contextlib.closing(executor.run(todo, work)) as outcomes:
-            for i, error in outcomes:
-                if error is not None:
-                    job, path = todo[i]
-                    lost[path] = _lost_job_frame(job, error, c, p)
-                bar.update()
-    except BaseException:
-        # Ctrl-C or a write error: the executor dropped the queued runs and ended the
-        # running ones; the finished parts stay for --resume
-        remove_stale_temp_files(parts_dir)  # what the ended workers were writing
-        raise
-    finally:
-        bar.close()
-
-    frames = [lost[path] if path in lost else done[path] if path in done
-              else pd.read_parquet(path) for path in paths]
-    df = _concat(frames) if frames else pd.DataFrame(columns=COLUMNS)
-    _write_parquet(df, out_dir / "results.parquet")
-    return df
-
-
-def _lost_job_frame(job: Job, message: str, c: float, p: float) -> pd.DataFrame:
-    """The one error row of a job lost with its worker process (not saved as a part)."""
-    row = _special_row(_base_row(job, c, p), -1, "error", message, math.nan)
-    return _frame([{**row, "peak_rss_mb": math.nan}])

@@ -13,8 +13,8 @@ policies with ``uses_truth = True`` (the oracle), which are marked as such in ev
 Cost per step: ``raster``, ``random`` and ``oracle`` ``O(looks)`` (plus the true targets)
 whatever the grid; ``renyi`` ``O(own rows of P_c + looks log looks)`` on a
 :class:`~mttbench.trackers.cells.CellCounts` over more than
-:data:`~mttbench.benchmarks.information.DENSE_CELLS` cells
-(:func:`~mttbench.benchmarks.information.greedy_looks_sparse`), ``O(cells)`` on a dense
+:data:`~mttbench.benchmarks.engine.information.DENSE_CELLS` cells
+(:func:`~mttbench.benchmarks.engine.information.greedy_looks_sparse`), ``O(cells)`` on a dense
 array or a smaller grid; ``all`` looks at every cell, ``O(cells)`` by definition.
 """
 
@@ -25,10 +25,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..scenarios.model import RayleighGridSensor, TrackingModel
-from ..trackers.cells import CellCounts
-from ..trackers.params import Configurable, Param
-from ..trackers.registry import Registry
+from ...scenarios.model import RayleighGridSensor, TrackingModel
+from ...trackers.cells import CellCounts
+from ...trackers.params import Configurable, Param
+from ...trackers.registry import Registry
 from .information import greedy_looks
 
 
@@ -183,9 +183,9 @@ class RenyiGain(Policy):
     ``crossing``: docs/policies.md).
 
     Given a :class:`~mttbench.trackers.cells.CellCounts` on a grid of more than
-    :data:`~mttbench.benchmarks.information.DENSE_CELLS` cells, the gains are computed
+    :data:`~mttbench.benchmarks.engine.information.DENSE_CELLS` cells, the gains are computed
     once per own row and once for the default row, and default cells are drawn without
-    being listed (:func:`~mttbench.benchmarks.information.greedy_looks_sparse`): the
+    being listed (:func:`~mttbench.benchmarks.engine.information.greedy_looks_sparse`): the
     same rule, other random tie-breaks. A dense array, or a smaller grid, chooses
     exactly as before (the dense path).
     """

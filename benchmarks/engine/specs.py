@@ -1,9 +1,9 @@
 """Specifications of trackers and policies (``name:key=val,...``) and their resolution.
 
-This module sits below every command (:mod:`~mttbench.benchmarks.cli` imports it,
+This module sits below every command (:mod:`~mttbench.benchmarks.app.cli` imports it,
 nothing here imports the command line), so the harness, ``compare`` and
 ``reproduce`` share one way of turning user text into checked objects and one error
-type for bad input, :class:`UsageError` (reported by the command line in one line
+type for bad input, :class:`ConfigError` (reported by the command line in one line
 with exit status 2).
 
 Spec text: ``name`` or ``name:key=val,key=val``. ``name`` is a registered name
@@ -28,20 +28,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Self
 
-from .. import scenarios, trackers
-from ..scenarios.spec import Scenario
-from ..trackers.params import Configurable, ParameterError
+from ... import scenarios, trackers
+from ...scenarios.spec import Scenario
+from ...trackers.params import Configurable, ParameterError
 from . import policies
-
-
-class UsageError(Exception):
-    """Bad user input (a name, parameter, value or file); one line, exit status 2."""
-
-
-def first_line(exc: BaseException) -> str:
-    """The first line of an exception's message (KeyError without its quotes)."""
-    msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
-    return str(msg).strip().splitlines()[0] if str(msg).strip() else type(exc).__name__
+from .errors import ConfigError, first_line
 
 
 # ------------------------------------------------------------------------ parsing
@@ -196,14 +187,14 @@ def resolve_scenarios(names: Sequence[str], steps: int | None = None) -> list[Sc
         try:
             sc = scenarios.get(name)
         except (scenarios.ScenarioError, OSError, UnicodeDecodeError) as exc:
-            raise UsageError(f"scenario {name!r}: {first_line(exc)}") from None
+            raise ConfigError(f"scenario {name!r}: {first_line(exc)}") from None
         if steps is not None:
             sc = dataclasses.replace(sc, n_steps=steps)
         out.append(sc)
     seen = [sc.name for sc in out]
     dupes = sorted({n for n in seen if seen.count(n) > 1})
     if dupes:
-        raise UsageError(f"scenario name(s) {dupes} given more than once")
+        raise ConfigError(f"scenario name(s) {dupes} given more than once")
     return out
 
 
@@ -216,19 +207,19 @@ def _resolve(texts: Sequence[str], spec_type: type[Spec]) -> list:
             spec = spec_type.parse(text)
             spec.target()
         except (ValueError, KeyError, TypeError, ImportError, AttributeError) as exc:
-            raise UsageError(f"{spec_type.kind} {text!r}: {first_line(exc)}") from None
+            raise ConfigError(f"{spec_type.kind} {text!r}: {first_line(exc)}") from None
         try:  # these messages name the tracker or policy, the parameter and the value
             spec = spec.validated()
         except (ParameterError, TypeError) as exc:
-            raise UsageError(first_line(exc)) from None
+            raise ConfigError(first_line(exc)) from None
         try:
             spec.make()
         except (ValueError, KeyError, TypeError, ImportError, AttributeError) as exc:
-            raise UsageError(f"{spec_type.kind} {text!r}: {first_line(exc)}") from None
+            raise ConfigError(f"{spec_type.kind} {text!r}: {first_line(exc)}") from None
         specs.append(spec)
     labels = [s.label for s in specs]
     if len(set(labels)) != len(labels):
-        raise UsageError(f"a {spec_type.kind} is given more than once: {labels}")
+        raise ConfigError(f"a {spec_type.kind} is given more than once: {labels}")
     return specs
 
 

@@ -1,7 +1,7 @@
 """Figures: one small function per figure; each reads tables and draws (STYLE.md pattern 12).
 
 Every function takes tidy data (the results table, a summary, or the frames of a
-:class:`benchmarks.snapshot.Trace`), writes one PNG to ``path`` and returns it. No
+:class:`benchmarks.engine.snapshot.Trace`), writes one PNG to ``path`` and returns it. No
 function runs a tracker. Figures are built as :class:`matplotlib.figure.Figure` objects,
 never through pyplot, so drawing neither switches the process's backend nor leaves
 figures open.

@@ -3,8 +3,8 @@
 The harness keeps only per-step numbers; a snapshot figure (paper Fig. "Snapshot of
 simulations") needs the looks, the returns, the true states and the estimates with
 their covariances. :func:`trace_run` keeps them from the harness's step loop
-(:func:`~mttbench.benchmarks.harness.play`), seeded as
-:func:`~mttbench.benchmarks.harness.run_job` seeds it, so the traced run is the same run
+(:func:`~mttbench.benchmarks.engine.loop.play`), seeded as
+:func:`~mttbench.benchmarks.engine.loop.run_job` seeds it, so the traced run is the same run
 as the harness's rows for ``(scenario, tracker label, policy label, looks, seed)``.
 
 :meth:`Trace.frames` flattens the trace into three tidy tables (looks, truth,
@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from ..scenarios.spec import Scenario
-from .harness import Job, play
+from ...scenarios.spec import Scenario
+from .loop import Job, play
 from .specs import PolicySpec, TrackerSpec
 
 
@@ -89,7 +89,7 @@ def trace_run(scenario: Scenario, tracker: TrackerSpec, seed: int,
               n_steps: int | None = None) -> Trace:
     """Run one ``(scenario, tracker, policy, looks, seed)`` and record every step.
 
-    The run is :func:`~mttbench.benchmarks.harness.play` with the harness's labels, so
+    The run is :func:`~mttbench.benchmarks.engine.loop.play` with the harness's labels, so
     it is the same run as the harness's rows for that job. ``n_steps`` shortens the
     run (the truth of the first steps does not depend on the run length). Raises if
     the tracker cannot run the scenario.

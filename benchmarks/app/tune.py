@@ -8,11 +8,11 @@ optuna's ``suggest_*`` (:func:`suggest`): numbers to ``suggest_float(low, high, 
 step)`` or, for an ``int`` parameter, ``suggest_int``; choices to ``suggest_categorical``.
 
 **Objective** (minimised): for a parameter setting, every scenario x tuning seed is one
-harness run (:func:`~mttbench.benchmarks.harness.run_job`: the raster policy at each
+harness run (:func:`~mttbench.benchmarks.engine.loop.run_job`: the raster policy at each
 scenario's look budget unless ``policy``/``looks`` say otherwise); each run's per-step
 OSPA (``objective="gospa"``: GOSPA) is averaged over its steps, then over the seeds, then
 over the scenarios (:func:`objective_value`, the convention of
-:mod:`~mttbench.benchmarks.summary`). A run that fails (an ``error`` or ``unsupported``
+:mod:`~mttbench.benchmarks.app.summary`). A run that fails (an ``error`` or ``unsupported``
 row) fails the trial (optuna state FAIL, its message kept in the trial's ``message``
 attribute and in ``trials.csv``); a setting that breaks a rule between parameters
 (``param_conflict``) fails without runs. The study goes on either way.
@@ -31,7 +31,7 @@ gained). Trials in a failed or repeated setting count against the budget.
 ``startup_trials`` trials are random, multivariate with the constant liar for trials
 asked together). Trials go in batches of ``batch_size`` (default: the workers): the
 batch's trials are asked, all their runs (trials x scenarios x seeds, and the defaults'
-with the first batch) go to one :func:`~mttbench.benchmarks.harness.run_sweep` call on
+with the first batch) go to one :func:`~mttbench.benchmarks.engine.sweep.run_sweep` call on
 its executor, then each trial is told its value. The sampler of trial ``n`` is seeded
 from ``(seed, n)`` (:func:`trial_seed`) rather than drawn from one stream, so the trials
 depend only on the seed, the batch size and the values of the earlier trials: the same
@@ -45,7 +45,7 @@ interrupt are run again with their stored parameters; finished runs are read bac
 study once it is finished) and per tracker ``<tracker>/study.journal`` (optuna's journal
 storage: ``--resume`` continues it), ``<tracker>/trials.csv`` (every trial) and
 ``<tracker>/tuned.toml``; the best parameters go to ``<tuned_dir>/<tracker>.toml``
-(:mod:`~mttbench.benchmarks.tuned`: format, location, how ``compare`` uses them). When no
+(:mod:`~mttbench.benchmarks.app.tuned`: format, location, how ``compare`` uses them). When no
 trial beats the defaults on the tuning seeds, the file says so and holds no parameters
 (``compare`` then runs the defaults, labelled tuned).
 """
@@ -69,14 +69,17 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..scenarios.spec import Scenario
-from ..trackers.params import Param, Search
-from . import harness
+from ...scenarios.spec import Scenario
+from ...trackers.params import Param, Search
+from ..engine.errors import first_line
+from ..engine.loop import Job, build_jobs
+from ..engine.specs import PolicySpec, TrackerSpec
+from ..engine.store import prepare_out_dir, write_text_atomic
 from .compare import git_commit, package_versions, read_manifest
-from .harness import Job, build_jobs, prepare_out_dir, write_text_atomic
-from .specs import PolicySpec, TrackerSpec, UsageError, first_line
+from .progress import run_sweep
 from .summary import per_run
 from .tuned import FORMAT, TUNING_SEED_BASE, default_write_dir, tuned_path, write_tuned
+from .usage import UsageError
 
 #: defaults of ``mttbench tune`` (the budget is the same for every tracker): about 20
 #: minutes for kfnn, gpf, jmpd-ap (N = 250), ss-gnn and ss-gmphd on a quiet 2-core
@@ -351,8 +354,8 @@ def tune_tracker(settings: TuneSettings, out_dir: str | Path, *,
                  argv: Sequence[str] | None = None,
                  sweep: Callable[..., pd.DataFrame] | None = None) -> TuneResult:
     """Tune one tracker (module docstring); write ``<tuned_dir>/<tracker>.toml`` (None:
-    :func:`~mttbench.benchmarks.tuned.default_write_dir`) and the study's files under
-    ``out_dir``. ``executor_options`` go to :func:`~mttbench.benchmarks.harness.run_sweep`
+    :func:`~mttbench.benchmarks.app.tuned.default_write_dir`) and the study's files under
+    ``out_dir``. ``executor_options`` go to :func:`~mttbench.benchmarks.engine.sweep.run_sweep`
     with ``workers``; ``sweep`` replaces ``run_sweep`` (tests). ``UsageError`` for a
     tracker without search space or a resumed study with other settings."""
     _quiet_optuna()
@@ -366,7 +369,7 @@ def tune_tracker(settings: TuneSettings, out_dir: str | Path, *,
     study_dir = out_dir / settings.name
     study_dir.mkdir(parents=True, exist_ok=True)
     study, storage = _open_study(settings, study_dir, resume)
-    run = sweep or harness.run_sweep
+    run = sweep or run_sweep
     options = dict(executor_options or {})
     default_spec = settings.spec({})
     B = settings.batch_size
@@ -489,7 +492,7 @@ def trials_table(study: Any, settings: TuneSettings) -> pd.DataFrame:
 
 
 def versions() -> dict[str, str]:
-    """:func:`~mttbench.benchmarks.compare.package_versions` and optuna's."""
+    """:func:`~mttbench.benchmarks.app.compare.package_versions` and optuna's."""
     out = package_versions()
     try:
         out["optuna"] = metadata.version("optuna")
@@ -500,7 +503,7 @@ def versions() -> dict[str, str]:
 
 def tuned_record(study: Any, settings: TuneSettings, space: Mapping[str, tuple[Param, Search]],
                  study_dir: Path, argv: Sequence[str] | None) -> dict[str, Any] | None:
-    """The tuned file's content (:mod:`~mttbench.benchmarks.tuned`), or None when no trial
+    """The tuned file's content (:mod:`~mttbench.benchmarks.app.tuned`), or None when no trial
     finished."""
     from optuna.trial import TrialState
 
@@ -634,7 +637,7 @@ def run_tune(settings: Sequence[TuneSettings], out_dir: str | Path, *,
                         all_jobs.setdefault(key, job)
         if all_jobs:
             c, p = settings[0].c, settings[0].p
-            harness.run_sweep(list(all_jobs.values()), out, workers=1, progress=False,
+            run_sweep(list(all_jobs.values()), out, workers=1, progress=False,
                               resume=True, c=c, p=p)
     except BaseException as exc:
         status = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"

@@ -1,12 +1,12 @@
 """Where a sweep's runs execute: a local process pool, or a Dask cluster.
 
-:func:`~mttbench.benchmarks.harness.run_sweep` hands an executor the runs still to do,
+:func:`~mttbench.benchmarks.engine.sweep.run_sweep` hands an executor the runs still to do,
 each with the part file it must end in, and consumes what :meth:`Executor.run` yields,
 one ``(index, error)`` per run as it finishes: ``error`` is None once the part is
 written, else the message of a run lost after its retries (the sweep gives it an
 ``error`` row that is not saved as a part, so ``--resume`` runs it again). Resume, the
 summaries and the reports never see which executor ran: a run's rows depend only on
-its job (:func:`~mttbench.benchmarks.harness.run_job`), so both executors give the same
+its job (:func:`~mttbench.benchmarks.engine.loop.run_job`), so both executors give the same
 table bit for bit, timing and memory columns aside.
 
 * :class:`LocalExecutor` (``--executor local``, the default): ``workers`` processes of
@@ -28,7 +28,7 @@ table bit for bit, timing and memory columns aside.
   ``allowed-failures``: set to ``retries`` on our LocalCluster; an existing cluster's
   scheduler keeps its own setting, Dask's default 3), then the run gets its error row
   (``KilledWorker``). A run that raises is retried ``retries`` times (``retries=`` of
-  ``Client.submit``; :func:`~mttbench.benchmarks.harness.run_job` itself turns a
+  ``Client.submit``; :func:`~mttbench.benchmarks.engine.loop.run_job` itself turns a
   tracker's failure into rows, so this is for e.g. a worker that cannot load the job).
 
 Ctrl-C (or a part that cannot be written) stops either executor: queued runs are
@@ -36,14 +36,14 @@ dropped, the local pool's running ones are ended, a Dask cluster's are released 
 already running on an existing cluster's worker finishes there and is discarded), and
 the finished parts stay.
 
-The command line builds the executor once per command (:func:`executor_scope`) and
+The command line builds the executor once per command
+(:func:`mttbench.benchmarks.app.executor_options.executor_scope`) and
 makes it the current one (:func:`use_executor`): every ``run_sweep`` of the command
 (``compare``, ``reproduce``, ``tune``'s batches) uses it, so a LocalCluster starts once.
 """
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import hashlib
 import logging
@@ -60,10 +60,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from .specs import UsageError
+from .errors import ConfigError
 
 if TYPE_CHECKING:
-    from .harness import Job
+    from .loop import Job
 
 #: retries of a lost run (a dead worker, or on Dask a run that raised); Dask's own default
 DEFAULT_RETRIES = 3
@@ -83,7 +83,7 @@ class Work:
     """What one run is: ``rows = run_job(job, c, p)`` and its part written atomically,
     ``write(rows, part)`` where it ran (this machine), or ``encode(rows)`` (the part
     file's bytes) where it ran and ``write_bytes(part, bytes)`` where the parts are.
-    :func:`~mttbench.benchmarks.harness.run_sweep` passes the harness's functions
+    :func:`~mttbench.benchmarks.engine.sweep.run_sweep` passes the harness's functions
     (module-level: they pickle by reference, and a Dask worker imports them from its own
     mttbench)."""
 
@@ -179,7 +179,7 @@ class LocalExecutor(Executor):
 
     def __init__(self, workers: int = 1, retries: int = DEFAULT_RETRIES) -> None:
         self.workers = max(1, int(workers))
-        self.retries = _check_retries(retries)
+        self.retries = check_retries(retries)
 
     def describe(self, n_runs: int | None = None) -> str:
         return f"{min(self.workers, n_runs or self.workers)} worker(s)"
@@ -251,11 +251,11 @@ class LocalExecutor(Executor):
 
 # ---------------------------------------------------------------------------- Dask
 def import_distributed() -> Any:
-    """The ``distributed`` module, or :class:`UsageError` naming the extra to install."""
+    """The ``distributed`` module, or :class:`ConfigError` naming the extra to install."""
     try:
         import distributed
     except ImportError:
-        raise UsageError(MISSING_DASK) from None
+        raise ConfigError(MISSING_DASK) from None
     return distributed
 
 
@@ -318,7 +318,7 @@ class DaskExecutor(Executor):
     means Dask's ``distributed.comm.timeouts.connect``.
 
     An existing cluster's workers are checked at connection: each must import the same
-    mttbench (version and :func:`source_digest`), else :class:`UsageError`.
+    mttbench (version and :func:`source_digest`), else :class:`ConfigError`.
     """
 
     def __init__(self, scheduler: str | None = None, workers: int | None = None,
@@ -326,14 +326,14 @@ class DaskExecutor(Executor):
                  connect_timeout: float | None = None) -> None:
         import_distributed()
         if scheduler and workers:
-            raise UsageError("--workers starts a LocalCluster and --scheduler names an "
+            raise ConfigError("--workers starts a LocalCluster and --scheduler names an "
                              "existing cluster: give one of them")
         if workers is not None and int(workers) < 1:
-            raise UsageError(f"--workers {workers} is not allowed: expected an integer >= 1")
+            raise ConfigError(f"--workers {workers} is not allowed: expected an integer >= 1")
         self.scheduler = scheduler
         self.workers = None if scheduler or client is not None else int(
             workers or os.cpu_count() or 1)
-        self.retries = _check_retries(retries)
+        self.retries = check_retries(retries)
         self.connect_timeout = connect_timeout
         self._client = client
         self._own_client = client is None
@@ -388,7 +388,7 @@ class DaskExecutor(Executor):
             timeout = {} if self.connect_timeout is None else {"timeout": self.connect_timeout}
             client = distributed.Client(self.scheduler, set_as_default=False, **timeout)
         except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError, ValueError
-            raise UsageError(f"cannot reach the Dask scheduler at {self.scheduler}: "
+            raise ConfigError(f"cannot reach the Dask scheduler at {self.scheduler}: "
                              f"{_one_line(exc)}") from None
         try:
             self._check_workers(client)
@@ -403,12 +403,12 @@ class DaskExecutor(Executor):
         try:
             theirs = client.run(_worker_identity)
         except Exception as exc:  # noqa: BLE001 - e.g. ModuleNotFoundError on a worker
-            raise UsageError(f"the workers of {self.describe()} cannot run mttbench "
+            raise ConfigError(f"the workers of {self.describe()} cannot run mttbench "
                              f"({type(exc).__name__}: {_one_line(exc)}): install mttbench "
                              f"{mine[0]} on every worker") from None
         for worker, ident in sorted(theirs.items()):
             if tuple(ident) != mine:
-                raise UsageError(
+                raise ConfigError(
                     f"Dask worker {worker} runs mttbench {ident[0]} (sources {ident[1]}), "
                     f"this process {mine[0]} (sources {mine[1]}): install the same mttbench "
                     "on every worker, or the numbers could differ")
@@ -480,54 +480,12 @@ def use_executor(executor: Executor) -> Iterator[Executor]:
         executor.close()
 
 
-# ---------------------------------------------------------------- command line
-def add_executor_arguments(parser: argparse.ArgumentParser, workers: bool = False) -> None:
-    """``--executor``, ``--scheduler`` and ``--retries`` (and ``--workers`` if asked: the
-    run, compare and reproduce commands have their own)."""
-    parser.add_argument("--executor", choices=EXECUTORS, default="local",
-                        help="where the runs go: local processes (default) or a Dask "
-                             "cluster (pip install 'mttbench[dask]')")
-    parser.add_argument("--scheduler", metavar="ADDRESS",
-                        help="with --executor dask: an existing cluster's scheduler, "
-                             "tcp://HOST:PORT (default: a LocalCluster of --workers "
-                             "processes on this machine)")
-    parser.add_argument("--retries", type=int, default=DEFAULT_RETRIES, metavar="N",
-                        help="times a run lost with its worker process is run again "
-                             f"before it counts as failed (default {DEFAULT_RETRIES})")
-    if workers:
-        parser.add_argument("--workers", type=int, default=None, metavar="N",
-                            help="parallel worker processes (default: the number of CPUs)")
-
-
-def executor_from_args(args: argparse.Namespace) -> Executor:
-    """The executor the options ask for (:class:`UsageError` on a bad combination or a
-    missing ``distributed``); ``--workers`` None means the number of CPUs."""
-    workers = getattr(args, "workers", None)
-    retries = getattr(args, "retries", DEFAULT_RETRIES)
-    scheduler = getattr(args, "scheduler", None)
-    _check_retries(retries)
-    if getattr(args, "executor", "local") == "dask":
-        return DaskExecutor(scheduler=scheduler, workers=workers, retries=retries)
-    if scheduler:
-        raise UsageError("--scheduler needs --executor dask")
-    return LocalExecutor(workers or os.cpu_count() or 1, retries=retries)
-
-
-@contextlib.contextmanager
-def executor_scope(args: argparse.Namespace) -> Iterator[Executor | None]:
-    """For a command with :func:`add_executor_arguments`: its executor, current while
-    the command runs and closed after; other commands: nothing."""
-    if not hasattr(args, "executor"):
-        yield None
-        return
-    with use_executor(executor_from_args(args)) as executor:
-        yield executor
-
-
-def _check_retries(retries: int) -> int:
+def check_retries(retries: int) -> int:
     if int(retries) < 0:
-        raise UsageError(f"--retries {retries} is not allowed: expected an integer >= 0")
+        raise ConfigError(f"--retries {retries} is not allowed: expected an integer >= 0")
     return int(retries)
+
+
 
 
 def _one_line(exc: BaseException) -> str:

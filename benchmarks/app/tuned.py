@@ -1,7 +1,7 @@
 """Tuned parameter files (``tuned/<tracker>.toml``): their format, where they live, and
 how ``mttbench compare`` runs them.
 
-``mttbench tune`` (:mod:`~mttbench.benchmarks.tune`) writes one file per tracker with the
+``mttbench tune`` (:mod:`~mttbench.benchmarks.app.tune`) writes one file per tracker with the
 best parameters it found and their provenance; ``compare`` runs every tracker that has a
 file with those parameters (``--untuned``: the defaults) and says so in every table: the
 tracker's label reads ``kfnn(tuned)`` (``jmpd-ap(tuned,n_particles=250)`` with parameters
@@ -47,9 +47,11 @@ from typing import Any
 
 import pandas as pd
 
-from .harness import write_text_atomic
-from .specs import TrackerSpec, UsageError, first_line
+from ..engine.errors import first_line
+from ..engine.specs import TrackerSpec
+from ..engine.store import write_text_atomic
 from .summary import mean_ci95, paired_difference, per_run
+from .usage import UsageError
 
 #: first seed of the tuning seeds; evaluation seeds (``--seeds N``: ``0..N-1``, at most
 #: 1,000,000 of them) never reach it
@@ -58,7 +60,7 @@ TUNING_SEED_BASE = 1_000_000
 FORMAT = 1
 #: the mark in the label of a tracker run with tuned parameters
 TUNED_MARK = "tuned"
-_PACKAGE_ROOT = Path(__file__).resolve().parents[1]
+_PACKAGE_ROOT = Path(__file__).resolve().parents[2]
 
 
 def default_tuned_dir() -> Path:
@@ -381,7 +383,7 @@ def _pm(mean: float, half: float) -> str:
 
 
 def report_sections(plan: TuningPlan, results: pd.DataFrame) -> list[tuple[Any, ...]]:
-    """Report blocks (:class:`~mttbench.benchmarks.report.Document`): "Parameters" (which
+    """Report blocks (:class:`~mttbench.benchmarks.app.report.Document`): "Parameters" (which
     ran, tuned or not) and "Effect of tuning" (on the tuning seeds from the files; on the
     evaluation seeds when the defaults ran beside the tuned settings)."""
     blocks: list[tuple[Any, ...]] = [

@@ -234,11 +234,11 @@ def _declares_truth(kind: str, name: str) -> bool | None:
     the name is not registered here (e.g. a table read from another installation)."""
     try:
         if kind == "tracker":
-            from .. import trackers
+            from ... import trackers
 
             cls: type = trackers.get_class(name)
         else:
-            from . import policies
+            from ..engine import policies
 
             cls = policies.get_policy_class(name)
     except Exception:  # noqa: BLE001 - unknown here: fall back to the rows' flag
@@ -582,7 +582,7 @@ def write_summary(results: pd.DataFrame, out_dir: str | Path, title: str,
     """Write ``summary.csv`` and ``summary.md`` (headed ``title``) of ``results`` into
     ``out_dir``, each all or nothing; return the Markdown text. ``notes``: more lines
     listed under the table (``compare``: which parameters each tracker ran)."""
-    from .harness import write_text_atomic
+    from ..engine.store import write_text_atomic
 
     out_dir = Path(out_dir)
     table = with_gap_closed(summarize(results), gc := gap_closed(results))

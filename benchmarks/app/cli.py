@@ -18,7 +18,7 @@ Exit status, always with at most one line on stderr saying why (never a tracebac
   full: the line names the file; nothing finished is lost);
 * 2: bad input, refused before any run and before the output folder is touched: an
   unknown tracker, parameter, scenario or policy, a bad value or scenario file, a run
-  that cannot fit in memory (:mod:`~mttbench.benchmarks.resources`), an output folder
+  that cannot fit in memory (:mod:`~mttbench.benchmarks.app.resources`), an output folder
   that cannot be created or written;
 * 130: interrupted (Ctrl-C): the queued runs are dropped, finished runs kept, and the
   line gives the exact command that resumes.
@@ -39,8 +39,14 @@ from pathlib import Path
 
 import pandas as pd
 
-from .. import scenarios, trackers
-from . import policies, resources
+from ... import scenarios, trackers
+from ..engine import policies
+from ..engine.errors import ConfigError
+from ..engine.executors import describe_current
+from ..engine.loop import build_jobs
+from ..engine.specs import resolve_policies, resolve_scenarios, resolve_trackers, split_specs
+from ..engine.store import prepare_out_dir
+from . import resources
 from .compare import (
     COMPARE_REFERENCE,
     COMPARE_SCENARIOS,
@@ -48,16 +54,10 @@ from .compare import (
     OUTPUT_FILES,
     is_finished,
 )
-from .executors import add_executor_arguments, describe_current, executor_scope
-from .harness import build_jobs, prepare_out_dir, run_sweep
-from .specs import (
-    UsageError,
-    resolve_policies,
-    resolve_scenarios,
-    resolve_trackers,
-    split_specs,
-)
+from .executor_options import add_executor_arguments, executor_scope
+from .progress import run_sweep
 from .summary import run_failures, write_summary
+from .usage import UsageError
 
 # ------------------------------------------------------------------ validation
 #: largest seed (and look budget): the results table stores them as int64
@@ -207,7 +207,7 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
 def _print_entry(name: str, cls: type) -> None:
     """A tracker or policy: its summary, then one line per parameter with its default and
     what it accepts (the class's declaration, :mod:`mttbench.trackers.params`)."""
-    from ..trackers.params import describe
+    from ...trackers.params import describe
 
     print(f"  {name:<8} {cls.summary}")
     rows = describe(cls)
@@ -253,7 +253,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    """The head-to-head report (:mod:`benchmarks.compare`)."""
+    """The head-to-head report (:mod:`benchmarks.app.compare`)."""
     from .compare import run_compare
 
     _check_common(args)
@@ -279,7 +279,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def cmd_tune(args: argparse.Namespace) -> int:
-    """Tune trackers' parameters under one budget (:mod:`benchmarks.tune`): exit 0; 1 when
+    """Tune trackers' parameters under one budget (:mod:`benchmarks.app.tune`): exit 0; 1 when
     a tracker has no finished trial; 2 for bad input."""
     from . import tune
 
@@ -333,8 +333,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    """Reviewer reproduction (:mod:`~mttbench.benchmarks.reproduce`: the paper's figures;
-    :mod:`~mttbench.benchmarks.reproduce_kreucher`: Kreucher's managed-versus-periodic
+    """Reviewer reproduction (:mod:`~mttbench.benchmarks.app.reproduce`: the paper's figures;
+    :mod:`~mttbench.benchmarks.app.reproduce_kreucher`: Kreucher's managed-versus-periodic
     curve): exit 0; 1 when ``--check`` finds moved numbers or a run failed; 2 for bad
     input."""
     from . import reproduce
@@ -616,7 +616,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "managed-versus-periodic result on the `kreucher` preset at snr 2 and 10 "
                     "(renyi at 24 looks against raster at 24-312 looks, the raster looks that "
                     "match the managed scan, for the literature-strength JMPD and the GPF) "
-                    "into reports/kreucher (module mttbench.benchmarks.reproduce_kreucher). "
+                    "into reports/kreucher (module mttbench.benchmarks.app.reproduce_kreucher). "
                     "Runs are cached by their "
                     "configuration, code, package versions, platform and numpy CPU dispatch "
                     "(.cache/reproduce); figures only plot. --check compares the curves "
@@ -696,7 +696,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with executor_scope(args):  # --executor: every sweep of the command runs there
             return args.func(args)
-    except UsageError as exc:
+    except ConfigError as exc:  # the engine's, and UsageError, its subclass
         print(f"{who}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -717,6 +717,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{who}: error: {_os_error_text(exc)}{kept}", file=sys.stderr)
         return 1
     except MemoryError:
-        print(f"{who}: error: out of memory (the estimate of mttbench.benchmarks.resources "
+        print(f"{who}: error: out of memory (the estimate of mttbench.benchmarks.app.resources "
               "was too low: run fewer --workers or a smaller scenario)", file=sys.stderr)
         return 1

@@ -29,7 +29,7 @@ runs that comparison on the ``kreucher`` preset:
   scan ``raster`` at :data:`RASTER_LOOKS` = 24, 48, 72, 144, 216, 312 looks: a pointer
   advancing M cells per step, row by row from the bottom row, wrapping around, so 216 and
   312 looks revisit cells within a step (216: every cell once and 72 twice; 312: every
-  cell twice and 24 three times; :class:`~mttbench.benchmarks.policies.Raster`).
+  cell twice and 24 three times; :class:`~mttbench.benchmarks.engine.policies.Raster`).
 * **Metric.** Per run (one seed): the mean OSPA (the harness's c = 2 cells, p = 2, on
   positions) over the steps ``k >= BURN_IN`` (10: acquisition from the tracker's own
   prior is not what the curve measures). Over the seeds: the **median** (Kreucher plots
@@ -53,15 +53,15 @@ runs that comparison on the ``kreucher`` preset:
 Outputs in ``reports/kreucher/`` (``--out``): ``fig_managed_vs_periodic.png``,
 ``curve.csv`` (one row per scenario, tracker, policy and looks), ``matched.csv``,
 ``crossings.csv``, ``numbers_<setting>.csv`` (every number, one long table with the
-columns of :data:`~mttbench.benchmarks.reproduce.KEYS`), ``report.md`` and ``report.html``.
+columns of :data:`~mttbench.benchmarks.app.reproduce.KEYS`), ``report.md`` and ``report.html``.
 
-Cache and checks reuse :mod:`~mttbench.benchmarks.reproduce`: the runs are cached under
+Cache and checks reuse :mod:`~mttbench.benchmarks.app.reproduce`: the runs are cached under
 ``<cache>/kreucher-<key>/`` where the key hashes the setting, the resolved trackers and
 policies, the scenarios as run (the SNR-2 variant and the step count included), the
-code fingerprint (:func:`~mttbench.benchmarks.reproduce.code_fingerprint`) and the
-environment (:func:`~mttbench.benchmarks.reproduce.environment`); everything in this
+code fingerprint (:func:`~mttbench.benchmarks.app.reproduce.code_fingerprint`) and the
+environment (:func:`~mttbench.benchmarks.app.reproduce.environment`); everything in this
 module besides the jobs only summarises the cached table, so it is not hashed.
-``--check`` is :func:`~mttbench.benchmarks.reproduce.check_numbers` on the long table,
+``--check`` is :func:`~mttbench.benchmarks.app.reproduce.check_numbers` on the long table,
 laid out so that its Monte Carlo bands apply: the rows of ``figure = "error"`` hold, per
 scenario and ``tracker = "<tracker> / <policy>"``, the mean over seeds of each run's
 mean OSPA (``state_error``), count error and estimated count with their 95% half-widths,
@@ -93,13 +93,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .. import scenarios
-from ..scenarios.simulator import simulate
-from ..scenarios.spec import Scenario, dumps
+from ... import scenarios
+from ...scenarios.simulator import simulate
+from ...scenarios.spec import Scenario, dumps
+from ..engine.loop import Job, build_jobs
+from ..engine.specs import PolicySpec, TrackerSpec
 from . import figures_kreucher, reproduce
-from .harness import Job, build_jobs, run_sweep
+from .progress import run_sweep
 from .report import Document
-from .specs import PolicySpec, TrackerSpec
 from .summary import mean_ci95
 
 #: the trackers compared: the literature-strength JMPD with Kreucher's 500 particles,
@@ -439,7 +440,7 @@ def truth_rows(setting: KreucherSetting, seed: int) -> pd.DataFrame:
 
 def long_numbers(curve: pd.DataFrame, matched: pd.DataFrame, crossings: pd.DataFrame,
                  truth: pd.DataFrame) -> pd.DataFrame:
-    """Every number as one long table with :data:`~mttbench.benchmarks.reproduce.KEYS`
+    """Every number as one long table with :data:`~mttbench.benchmarks.app.reproduce.KEYS`
     and ``value`` (module docstring: the ``error`` rows carry the look budget as
     ``step``, so --check's Monte Carlo bands run along the curve)."""
     parts = []

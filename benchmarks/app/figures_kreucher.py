@@ -1,8 +1,8 @@
 """The figure of ``mttbench reproduce kreucher``: OSPA against looks per step.
 
-Reads the curve table of :func:`~mttbench.benchmarks.reproduce_kreucher.curve_table`
+Reads the curve table of :func:`~mttbench.benchmarks.app.reproduce_kreucher.curve_table`
 (one row per scenario, tracker, policy and looks) and draws; it runs nothing. Built on
-the helpers of :mod:`~mttbench.benchmarks.figures` (plain Figure objects, no pyplot).
+the helpers of :mod:`~mttbench.benchmarks.app.figures` (plain Figure objects, no pyplot).
 """
 
 from __future__ import annotations

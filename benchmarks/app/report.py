@@ -1,7 +1,7 @@
 """Report builder: tables with 95% intervals, paired differences, figures, Markdown + HTML.
 
 :func:`build_report` turns a results table (one row per scenario x tracker x policy x
-looks x seed x step, see :mod:`benchmarks.harness`) into a report folder::
+looks x seed x step, see :mod:`benchmarks.engine.loop`) into a report folder::
 
     report.md       tables and links to figures/*.png
     report.html     the same, self-contained (figures embedded as base64 PNG)
@@ -10,7 +10,7 @@ looks x seed x step, see :mod:`benchmarks.harness`) into a report folder::
 
 Every number is a mean over seeds of per-run values (each run's steps averaged
 first; times are the run's median per-step time) with the half-width of the 95%
-Student-t interval, ``t_{0.975, n-1} * sd / sqrt(n)`` (:func:`benchmarks.summary.mean_ci95`).
+Student-t interval, ``t_{0.975, n-1} * sd / sqrt(n)`` (:func:`benchmarks.app.summary.mean_ci95`).
 Paired differences subtract the reference tracker's per-run value from the same seed's
 run of each other tracker before averaging (common random numbers make the pairs
 strongly correlated, so paired intervals are much narrower than the difference of
@@ -19,7 +19,7 @@ two unpaired ones).
 When the floor ``null`` and the ceiling ``truth-aided`` ran, a section puts them side
 by side with every tracker and gives each tracker's share of the OSPA gap closed,
 ``(OSPA_null - OSPA) / (OSPA_null - OSPA_truth-aided)``, with a delta-method 95%
-interval over the paired seeds (:func:`benchmarks.summary.gap_closed`), and flags every
+interval over the paired seeds (:func:`benchmarks.app.summary.gap_closed`), and flags every
 scenario whose gap is too small to rank trackers (below 0.15, or its interval reaching
 0). Without them the section says which did not run. Trackers and policies given the
 truth are marked `` (uses truth)`` in every table.
@@ -44,9 +44,9 @@ from typing import Any
 
 import pandas as pd
 
-from .. import trackers
+from ... import trackers
+from ..engine.store import write_text_atomic
 from . import figures, summary
-from .harness import write_text_atomic
 
 #: (column stem, header, scale, format) of the accuracy table
 ACCURACY_COLUMNS = [
@@ -106,9 +106,9 @@ def _keys(df: pd.DataFrame) -> list[str]:
 
 
 def summary_table(summ: pd.DataFrame, columns: list[tuple[str, str, float, str]]) -> pd.DataFrame:
-    """Display table of a :func:`benchmarks.summary.summarize` output: key columns,
+    """Display table of a :func:`benchmarks.app.summary.summarize` output: key columns,
     ``seeds`` and one ``mean ± half-width`` text column per ``columns`` entry. Trackers
-    and policies that use the truth are marked (:func:`benchmarks.summary.truth_labels`)."""
+    and policies that use the truth are marked (:func:`benchmarks.app.summary.truth_labels`)."""
     keys = _keys(summ)
     out = summ[keys].rename(columns=_KEY_HEADERS).copy()
     truth_trackers, truth_policies = summary.truth_labels(summ)
@@ -135,9 +135,9 @@ def summary_table(summ: pd.DataFrame, columns: list[tuple[str, str, float, str]]
 def paired_differences(results: pd.DataFrame, reference: str,
                        metrics: list[str] | None = None) -> pd.DataFrame:
     """Long table of paired differences ``tracker - reference`` for each metric
-    (:func:`benchmarks.summary.paired_difference`); empty if the reference has no ok run.
+    (:func:`benchmarks.app.summary.paired_difference`); empty if the reference has no ok run.
 
-    ``results`` is the step table or its :func:`benchmarks.summary.per_run` table.
+    ``results`` is the step table or its :func:`benchmarks.app.summary.per_run` table.
     """
     metrics = metrics or [m for m, *_ in PAIRED_COLUMNS]
     parts = []
@@ -154,7 +154,7 @@ def paired_table(paired: pd.DataFrame,
     """Wide display table of :func:`paired_differences`: one row per scenario x
     policy x looks x tracker, one ``mean ± half-width`` column per metric. ``truth``
     is ``(tracker labels, policy labels)`` that use the truth, marked in their cells
-    (:func:`benchmarks.summary.truth_labels` of the runs)."""
+    (:func:`benchmarks.app.summary.truth_labels` of the runs)."""
     if paired.empty:
         return pd.DataFrame()
     keys = ["scenario", "policy_label", "looks_per_step", "tracker_label"]
@@ -411,7 +411,7 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
 
     ``reference`` is the tracker label that paired differences subtract (skipped
     with a note when absent or None). ``settings`` is shown as a list (what was run);
-    ``trace`` a :class:`benchmarks.snapshot.Trace` for the snapshot figure;
+    ``trace`` a :class:`benchmarks.engine.snapshot.Trace` for the snapshot figure;
     ``notes`` extra paragraphs at the end; ``draw=False`` skips the figures (tables only);
     ``sections`` blocks (:class:`Document`) shown after the settings (``compare``: the
     parameters each tracker ran and the effect of tuning).

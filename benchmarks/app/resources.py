@@ -23,7 +23,7 @@ the grid's ``C`` cells enter only as a cap (``min(C, .)``: there are no more dis
 cells than that), through the bits of a look's position in the simulator's stream,
 and where the code is ``O(cells)``: the ``all`` policy (``M = C`` looks) and renyi's
 dense path on grids of at most ``DENSE_CELLS`` = 2,500 cells
-(:data:`~mttbench.benchmarks.information.DENSE_CELLS`). Memory of one job, in bytes::
+(:data:`~mttbench.benchmarks.engine.information.DENSE_CELLS`). Memory of one job, in bytes::
 
     WORKER_BASE                                  interpreter, numpy/pandas, numba kernels
     + RUN_BASE                                   a run's fixed working memory
@@ -104,9 +104,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..scenarios.model import RayleighGridSensor
-from .information import DENSE_CELLS
-from .specs import UsageError
+from ...scenarios.model import RayleighGridSensor
+from ..engine.information import DENSE_CELLS
+from .usage import UsageError
 
 MIB = 2**20
 
@@ -227,10 +227,10 @@ def _params(kind: str, name: str, given: dict[str, Any]) -> tuple[dict[str, Any]
     """All parameters (defaults filled in) and the class, or ``(given, None)`` if unknown."""
     try:
         if kind == "tracker":
-            from .. import trackers
+            from ... import trackers
             cls = trackers.get_class(name)
         else:
-            from . import policies
+            from ..engine import policies
             cls = policies.get_policy_class(name)
         return {**cls.param_defaults(), **given}, cls
     except Exception:  # noqa: BLE001 - an unknown class has no known cost
@@ -263,13 +263,13 @@ def _slots(name: str, params: dict[str, Any], model: Any) -> tuple[float, float]
     n = _number(params, "n_particles", 2000)
     t_max = params.get("t_max")
     if name == "jmpd-ap" and t_max is None:
-        from ..trackers.jmpd.ap import _auto_slots
+        from ...trackers.jmpd.ap import _auto_slots
         return n, float(_auto_slots(model))
     return n, _number(params, "t_max", 5)
 
 
 def estimate_job(job: Any) -> Estimate:
-    """The memory and time estimate of one :class:`~mttbench.benchmarks.harness.Job`
+    """The memory and time estimate of one :class:`~mttbench.benchmarks.engine.loop.Job`
     (formulas in the module docstring)."""
     sc = job.scenario
     model = sc.model
@@ -455,7 +455,7 @@ def _describe(job: Any) -> str:
 
 # ------------------------------------------------------------------------ checks
 def check_jobs(jobs: list[Any], workers: int, available: float | None = None) -> list[str]:
-    """Refuse (:class:`~mttbench.benchmarks.specs.UsageError`, one line) a sweep whose
+    """Refuse (:class:`~mttbench.benchmarks.engine.specs.UsageError`, one line) a sweep whose
     largest job cannot fit in the memory of one worker, or whose results table cannot
     fit in the main process; return warning lines (a sweep estimated to be very slow).
 

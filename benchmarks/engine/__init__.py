@@ -1,0 +1,19 @@
+"""The engine: what a sweep is and how it runs, with no command line in it.
+
+================  =============================================================
+module            what it holds
+================  =============================================================
+``errors``        :class:`~.errors.ConfigError`, the one error for a bad configuration
+``specs``         tracker and policy specifications (``name:key=value``), resolved
+``loop``          :class:`~.loop.Job`, the results table's columns, the one step loop
+                  :func:`~.loop.play` and one run's rows :func:`~.loop.run_job`
+``metrics``       per-step scores and the metric registry
+``policies``      cell-selection policies; ``information``: the Renyi gains
+``executors``     where runs go: local processes or a Dask cluster
+``store``         parts written atomically, read back, the results table
+``sweep``         :func:`~.sweep.run_sweep`: jobs -> parts -> ``results.parquet``
+``snapshot``      a traced run (the step loop's states, for figures)
+================  =============================================================
+
+Nothing here imports :mod:`mttbench.benchmarks.app` (a test enforces it).
+"""
