@@ -1,4 +1,4 @@
-"""The public conformance kit: checks that every tracker must pass (STYLE.md patterns 8, 13).
+"""The public conformance kit: checks that every tracker must pass.
 
 In the spirit of scikit-learn's ``check_estimator``: the checks ship inside the
 package, so the author of a tracker written elsewhere runs them in their own

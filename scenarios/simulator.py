@@ -1,6 +1,6 @@
 """The simulator: ``(scenario, seed) -> Run`` with the truth and a sensor world.
 
-Common random numbers (DESIGN.md). The world of a run depends on
+Common random numbers (docs/architecture.md). The world of a run depends on
 ``(scenario name, seed)`` only. For every step ``k`` the world holds uniforms
 ``U[k, j, c]``: the ``j``-th look at cell ``c`` during step ``k`` returns
 ``U[k, j, c] < p_d(T_kc)``. ``U[k, j, c]`` is draw number ``j n_cells + c`` of

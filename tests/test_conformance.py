@@ -1,10 +1,11 @@
 """Conformance: the public kit (:mod:`mttbench.testing`) over every registered tracker.
 
-One test item per tracker and check, id ``<tracker>-<check>`` (STYLE.md pattern 8),
-so ``pytest -k "gpf-check_zero_targets"`` selects one. A tracker that legitimately
-cannot pass a check declares ``conformance_exceptions = {"check_name": "reason"}``
-and the item is skipped with that reason; a ``baseline`` tracker (``null``) skips the
-tracking checks. The kit drives trackers only through the harness's step loop.
+One test item per tracker and check, id ``<tracker>-<check>`` (as scikit-learn's
+``parametrize_with_checks``), so ``pytest -k "gpf-check_zero_targets"`` selects one. A
+tracker that legitimately cannot pass a check declares ``conformance_exceptions =
+{"check_name": "reason"}`` and the item is skipped with that reason; a ``baseline`` tracker
+(``null``) skips the tracking checks. The kit drives trackers only through the harness's
+step loop.
 
 The second half tests the kit itself: the tracking checks fail the ``null`` tracker
 when forced, and deliberately broken trackers are caught by the check that covers

@@ -15,7 +15,7 @@ import pytest
 from scipy import stats
 
 from mttbench.benchmarks.app import compare, report, summary
-from mttbench.benchmarks.engine.loop import COLUMNS
+from mttbench.benchmarks.engine.loop import COLUMNS, spec_uses_truth
 from mttbench.benchmarks.engine.specs import TrackerSpec
 from mttbench.trackers.base import register, unregister
 from mttbench.trackers.null import NullTracker
@@ -27,8 +27,9 @@ OFFSETS = np.array([-0.05, 0.05, -0.02, 0.02])  # steps of a run: mean 0
 def frame(per_seed: dict[tuple[str, str], list[float]], policy: str = "raster",
           truth: tuple[str, ...] = ("truth-aided",)) -> pd.DataFrame:
     """A results table with the harness columns: ``(scenario, tracker label) -> the
-    per-run mean OSPA of seeds 0..n-1``. Trackers in ``truth`` (and every run of the
-    ``oracle`` policy) carry ``uses_truth = True``."""
+    per-run mean OSPA of seeds 0..n-1``. Trackers in ``truth`` carry
+    ``tracker_uses_truth = True``, every run of the ``oracle`` policy
+    ``policy_uses_truth = True``."""
     rows = []
     for (sc, label), values in per_seed.items():
         name = label.split("(")[0]
@@ -37,9 +38,11 @@ def frame(per_seed: dict[tuple[str, str], list[float]], policy: str = "raster",
                 rows.append({
                     "scenario": sc, "tracker": name, "tracker_label": label,
                     "tracker_params": "{}", "policy": policy, "policy_label": policy,
-                    "policy_params": "{}", "uses_truth": name in truth or policy == "oracle",
+                    "policy_params": "{}", "tracker_uses_truth": name in truth,
+                    "policy_uses_truth": policy == "oracle",
                     "looks_per_step": 24, "seed": seed, "step": step, "true_count": 3.0,
-                    "est_count": 3.0, "count_error": 0.0, "ospa": v + off, "ospa_loc": v,
+                    "est_count": 3.0, "count_error": 0.0, "own_count_error": 0.0,
+                    "ospa": v + off, "ospa_loc": v,
                     "ospa_card": 0.0, "gospa": v, "gospa_loc": v, "gospa_missed": 0.0,
                     "gospa_false": 0.0, "rmse": v, "n_looks": 24, "n_positive": 1,
                     "tracker_wall_s": 1e-3, "tracker_cpu_s": 1e-3, "select_wall_s": 1e-5,
@@ -234,10 +237,19 @@ def test_rows_that_use_the_truth_are_marked_in_every_table(tmp_path):
 
 
 def test_the_oracle_alone_still_marks_the_policy_not_the_tracker():
-    assert summary.truth_users("kfnn", "oracle", True) == (False, True)
-    assert summary.truth_users("kfnn", "raster", False) == (False, False)
-    # a tracker not registered here takes the flag when its policy does not explain it
-    assert summary.truth_users("not-registered-here", "raster", True) == (True, False)
+    """Each side is marked from its own column, never from the registries: the oracle
+    marks its policy only; a tracker flagged in its rows is marked whatever its name (one
+    not registered here too), one not flagged is not (even the ceiling's name); a table
+    without the columns marks nothing."""
+    one = {("s", "kfnn"): [1.0]}
+    assert summary.truth_labels(frame(one, policy="oracle")) == (set(), {"oracle"})
+    assert summary.truth_labels(frame(one)) == (set(), set())
+    told = frame({("s", "not-registered-here"): [1.0]}, truth=("not-registered-here",))
+    assert summary.truth_labels(told) == ({"not-registered-here"}, set())
+    assert summary.truth_labels(frame({("s", "truth-aided"): [1.0]}, truth=())) == (set(), set())
+    unmarked = frame(one, policy="oracle").drop(columns=["tracker_uses_truth",
+                                                         "policy_uses_truth"])
+    assert summary.truth_labels(unmarked) == (set(), set())
 
 
 def test_the_default_reference_never_uses_the_truth():
@@ -248,7 +260,7 @@ def test_the_default_reference_never_uses_the_truth():
 
     register(Told)
     try:
-        assert summary.truth_users(Told.name, "raster", False) == (True, False)
+        assert spec_uses_truth(TrackerSpec(Told.name))
         specs = [TrackerSpec(Told.name), TrackerSpec("truth-aided"), TrackerSpec("gpf"),
                  TrackerSpec("kfnn")]
         assert compare.default_reference(specs) == "kfnn"
@@ -264,3 +276,41 @@ def test_figures_draw_floor_and_ceiling(tmp_path):
     files = report.build_report(df, tmp_path, reference="kfnn")
     for path in files.figures.values():
         assert path.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_wide_gap_that_no_contestant_beats_the_floor_on_cannot_rank():
+    """Floor 2.0, ceiling 0.5 (a wide, certain gap); the contestants scatter around the
+    floor, so none has a paired difference with the floor whose interval lies above 0:
+    the scenario cannot rank. One that beats the floor on every seed makes it rankable.
+    The truth-aided ceiling is not a contestant."""
+    floor = [2.0, 2.0, 2.0, 2.0]
+    base = {("s", "null"): floor, ("s", "truth-aided"): [0.5, 0.6, 0.4, 0.5]}
+    level = {**base, ("s", "kfnn"): [2.1, 1.9, 2.05, 1.95], ("s", "gpf"): [1.8, 2.2, 2.0, 2.0]}
+    gaps = summary.gap_closed(frame(level)).gaps.set_index("scenario")
+    assert not gaps.loc["s", "rankable"]
+    assert gaps.loc["s", "reason"] == ("this scenario cannot rank trackers: no contestant's "
+                                       "OSPA beats the floor `null` within its 95% interval.")
+    better = {**level, ("s", "gpf"): [1.5, 1.6, 1.4, 1.5]}
+    gaps = summary.gap_closed(frame(better)).gaps.set_index("scenario")
+    assert gaps.loc["s", "rankable"] and gaps.loc["s", "reason"] == ""
+
+
+def test_tables_mark_the_rows_a_tuned_file_did_not_see():
+    table = pd.DataFrame({"scenario": ["a", "b", "b"],
+                          "tracker": ["gpf(tuned)", "gpf(tuned)", "kfnn"]})
+    marked = report.mark_out_of_sample(table, {"gpf(tuned)": frozenset({"a"})})
+    assert list(marked["tracker"]) == ["gpf(tuned)", "gpf(tuned)" + report.OUT_OF_SAMPLE_MARK,
+                                       "kfnn"]
+    assert report.mark_out_of_sample(table, None) is table
+
+
+def test_runtime_per_run_keeps_the_slow_steps():
+    """The median hides single slow steps: the run's 95th percentile and slowest step are
+    numpy's over its ok steps."""
+    df = frame({("s", "kfnn"): [1.0]})
+    df["tracker_wall_s"] = [1e-3, 1e-3, 1e-3, 0.5]
+    run = summary.per_run(df).iloc[0]
+    wall = df["tracker_wall_s"].to_numpy()
+    assert run["tracker_wall_s"] == np.median(wall)
+    assert run["tracker_wall_p95_s"] == np.quantile(wall, 0.95)
+    assert run["tracker_wall_max_s"] == 0.5

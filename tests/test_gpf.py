@@ -21,7 +21,8 @@ from mttbench.scenarios.model import (
 )
 from mttbench.scenarios.simulator import simulate
 from mttbench.trackers.cells import gaussian_cell_mass
-from mttbench.trackers.gpf import DEFAULT_DEATH_FLOOR, merge_particles
+from mttbench.trackers.gpf import DEFAULT_DEATH_FLOOR, EmptyPriorGPF, merge_particles
+from mttbench.trackers.gpf_grid import fold_into_workspace
 
 #: round-off only (a few products and sums of O(1) numbers)
 EXACT = 1e-12
@@ -36,9 +37,7 @@ def test_merge_rules_keep_weights_probabilities():
     m = np.array([[3.0, 0.1, 3.0, 0.0], [3.05, 0.1, 2.98, 0.0], [9.0, 0.0, 9.0, 0.0]])
     P = np.stack([_cov()] * 3)
     wc, mc, Pc = merge_particles(w, m, P, 4.0, "capped_sum")
-    wu, _, _ = merge_particles(w, m, P, 4.0, "union")
     assert sorted(wc) == pytest.approx([0.9, 1.0])
-    assert sorted(wu) == pytest.approx([1 - 0.3 * 0.4, 0.9])
     # the merged Gaussian is the weighted moment match of the pair
     i = int(np.argmin(np.abs(mc[:, 0] - 3.0)))
     mean = (0.7 * m[0] + 0.6 * m[1]) / 1.3
@@ -48,6 +47,8 @@ def test_merge_rules_keep_weights_probabilities():
     np.testing.assert_allclose(Pc[i], cov, atol=1e-12)
     # nothing merges at threshold 0
     assert len(merge_particles(w, m, P, 0.0)[0]) == 3
+    with pytest.raises(ValueError, match="rule"):
+        merge_particles(w, m, P, 4.0, "union")
 
 
 def test_bounded_sum_merge_keeps_the_count():
@@ -86,7 +87,7 @@ def test_prune_cap_and_extraction_rules():
     m = np.stack([[1.0 + 2 * i, 0.0, 1.0 + 2 * i, 0.0] for i in range(5)])
     P = np.stack([_cov()] * 5)
     for extraction, expected in (("round_sum", [0, 1]), ("threshold", [0, 1])):
-        t = trackers.make("gpf", births=False, max_particles=3, extraction=extraction)
+        t = EmptyPriorGPF(max_particles=3, extraction=extraction)
         t.reset(sc.model, rng)
         t.set_particles(w, m, P)
         t.update(Looks(np.array([143]), np.array([False])))  # far away: only merge/prune act
@@ -95,7 +96,7 @@ def test_prune_cap_and_extraction_rules():
         est = t.estimate()
         assert est.count == pytest.approx(1.85)
         np.testing.assert_allclose(est.states, m[expected])
-    t = trackers.make("gpf", births=False, extraction="threshold", extraction_threshold=0.35)
+    t = EmptyPriorGPF(extraction="threshold", extraction_threshold=0.35)
     t.reset(sc.model, rng)
     t.set_particles(w, m, P)
     assert len(t.estimate().states) == 3
@@ -153,7 +154,7 @@ def _predict_one_step(boundary: str, w, m, P, **params):
     returns the particles and the model."""
     model = TrackingModel(Grid(5, 4, 1.0), Dynamics(wna_intensity=2e-3),
                           BirthDeath(boundary=boundary), RayleighGridSensor())
-    t = trackers.make("gpf", births=False, death_probability=0.0, **params)
+    t = EmptyPriorGPF(death_probability=0.0, **params)
     t.reset(model, np.random.default_rng(0))
     t.set_particles(w, m, P)
     t.predict()
@@ -166,60 +167,34 @@ _CROSSING_MEANS = np.array([[4.8, 0.5, 2.0, 0.1], [0.2, -0.45, 1.5, 0.0],
                             [2.5, 0.1, 2.0, -0.1]])
 
 
-def test_predict_reflect_mirrors_mean_velocity_and_covariance():
-    """Boundary "reflect" with ``truncate=False`` (the rule before issue 14): a predicted
-    mean ``F m`` outside the workspace is mirrored in the wall it crossed (``-p`` or
-    ``2 L - p``), that axis's velocity changes sign, and the covariance becomes ``J (F P
-    F^T + Q) J`` with ``J`` negating that axis's position and velocity; a mean inside is
-    only predicted. Weights keep survival 1. Exact up to round-off. (The default folds
-    the mass beyond the wall: tests/test_gpf_mass.py.)"""
+def test_predict_reflect_folds_each_gaussian_into_the_workspace():
+    """Boundary "reflect": each predicted Gaussian ``N(F m, F P F^T + Q)`` is folded into
+    the workspace (:func:`fold_into_workspace`, checked against folded samples in
+    tests/test_gpf_mass.py): the means that crossed a wall come back inside, and the
+    weights keep survival 1 (no mass is lost at a reflecting wall). Exact up to
+    round-off. (Under "die": tests/test_gpf_mass.py, the default predict under "die".)"""
     rng = np.random.default_rng(2)
     A = rng.normal(0.0, 0.1, (5, 4, 4))
     P = A @ np.swapaxes(A, -1, -2) + 0.01 * np.eye(4)
     w = np.array([0.9, 0.8, 0.7, 0.6, 0.5])
-    (w1, m1, P1), model = _predict_one_step("reflect", w, _CROSSING_MEANS, P, truncate=False)
+    (w1, m1, P1), model = _predict_one_step("reflect", w, _CROSSING_MEANS, P)
     F, Q = model.dynamics.F, model.dynamics.Q
     width, height = model.grid.extent
-    for i in range(5):
-        mean, cov = F @ _CROSSING_MEANS[i], F @ P[i] @ F.T + Q
-        J = np.ones(4)
-        for axis, length in ((0, width), (2, height)):
-            if mean[axis] < 0.0 or mean[axis] >= length:
-                mean[axis] = -mean[axis] if mean[axis] < 0.0 else 2.0 * length - mean[axis]
-                mean[axis + 1] = -mean[axis + 1]
-                J[axis:axis + 2] = -1.0
-        np.testing.assert_allclose(m1[i], mean, atol=EXACT)
-        np.testing.assert_allclose(P1[i], cov * J[:, None] * J[None, :], atol=EXACT)
-        assert np.all((m1[i, [0, 2]] >= 0.0) & (m1[i, [0, 2]] < [width, height]))
-    assert (m1[:4, [1, 3]] * (F @ _CROSSING_MEANS[:4].T).T[:, [1, 3]] < 0).any(axis=1).all()
+    mean = _CROSSING_MEANS @ F.T
+    cov = F @ P @ F.T + Q
+    want_m, want_P = fold_into_workspace(mean, cov, model.grid)
+    np.testing.assert_allclose(m1, want_m, atol=EXACT)
+    np.testing.assert_allclose(P1, want_P, atol=EXACT)
+    assert np.all((m1[:, [0, 2]] >= 0.0) & (m1[:, [0, 2]] < [width, height]))
+    crossed = np.any((mean[:, [0, 2]] < 0.0) | (mean[:, [0, 2]] >= [width, height]), axis=1)
+    np.testing.assert_array_equal(crossed, [True, True, True, True, False])
     np.testing.assert_allclose(w1, w, atol=0)
-
-
-def test_predict_die_weights_by_the_mass_inside():
-    """Boundary "die" with ``truncate=False`` (the rule before issue 14): means are only
-    predicted, and each weight is multiplied by the predicted Gaussian's mass inside the
-    workspace, the product of its marginal masses (normal CDFs from scipy). (The default
-    also truncates the Gaussian to the workspace: tests/test_gpf_mass.py.)"""
-    P = np.stack([np.diag([0.09, 0.01, 0.04, 0.01])] * 5)
-    w = np.array([0.9, 0.8, 0.7, 0.6, 0.5])
-    (w1, m1, P1), model = _predict_one_step("die", w, _CROSSING_MEANS, P, truncate=False)
-    F, Q = model.dynamics.F, model.dynamics.Q
-    width, height = model.grid.extent
-    for i in range(5):
-        mean, cov = F @ _CROSSING_MEANS[i], F @ P[i] @ F.T + Q
-        fx = stats.norm(mean[0], np.sqrt(cov[0, 0]))
-        fy = stats.norm(mean[2], np.sqrt(cov[2, 2]))
-        inside = (fx.cdf(width) - fx.cdf(0.0)) * (fy.cdf(height) - fy.cdf(0.0))
-        assert w1[i] == pytest.approx(w[i] * inside, rel=1e-12, abs=1e-15)
-        np.testing.assert_allclose(m1[i], mean, atol=EXACT)
-        np.testing.assert_allclose(P1[i], cov, atol=EXACT)
-    assert w1[0] < 0.5 * w[0] and w1[4] == pytest.approx(w[4], rel=1e-6)
 
 
 def test_without_births_an_empty_filter_stays_empty():
     sc = dataclasses.replace(scenarios.get("default"), n_steps=5)
     run = simulate(sc, 0)
-    t = trackers.make("gpf", births=False)
+    t = EmptyPriorGPF()
     t.reset(sc.model, np.random.default_rng(0))
     for k in range(5):
         t.predict()
@@ -276,23 +251,21 @@ def test_2000_steps_stay_finite_and_positive_definite(name):
 
 def test_superposition_keeps_the_prior_count():
     """Superposition: z is a mean, so the count must come from the prior weights and merging
-    must not lose it. The default (``auto`` -> ``bounded_sum`` here) keeps 2 for 2 targets;
-    ``capped_sum`` merges the two broad starting particles into one (count 1)."""
+    must not lose it. The merge there is ``bounded_sum``, which keeps 2 for 2 targets
+    (``capped_sum`` would merge the two broad starting particles into one of weight 1)."""
     sc = dataclasses.replace(scenarios.get("superposition"), n_steps=20)
     run = simulate(sc, 0)
-    counts = {}
-    for rule in ("auto", "capped_sum"):
-        t = trackers.make("gpf", merge_weight=rule)
-        t.reset(sc.model, np.random.default_rng(0))
-        counts[rule] = []
-        for k in range(sc.n_steps):
-            t.predict()
-            t.update(run.measure(k))
-            counts[rule].append(t.estimate().count)
-    np.testing.assert_allclose(counts["auto"], 2.0, atol=1e-9)
-    assert counts["capped_sum"][-1] == pytest.approx(1.0)
-    with pytest.raises(ValueError, match="merge_weight"):
-        trackers.make("gpf", merge_weight="sum").reset(sc.model, np.random.default_rng(0))
+    t = trackers.make("gpf")
+    t.reset(sc.model, np.random.default_rng(0))
+    w0, m0, P0 = t.particles
+    assert len(w0) == 2 and merge_particles(w0, m0, P0, 4.0, "capped_sum")[0] == \
+        pytest.approx([1.0])  # what capped_sum would do to the starting particles
+    counts = []
+    for k in range(sc.n_steps):
+        t.predict()
+        t.update(run.measure(k))
+        counts.append(t.estimate().count)
+    np.testing.assert_allclose(counts, 2.0, atol=1e-9)
 
 
 def _still_particle_model(name: str = "default"):
@@ -315,7 +288,7 @@ def test_death_floor_lets_a_saturated_weight_fall_after_negative_looks(floor):
     """
     model = _still_particle_model()
     sensor = model.sensor
-    t = trackers.make("gpf", births=False, death_probability=floor)
+    t = EmptyPriorGPF(death_probability=floor)
     t.reset(model, np.random.default_rng(0))
     cell = model.grid.cell_of(5.5, 6.5)
     t.set_particles([0.5], [[5.5, 0.0, 6.5, 0.0]], _cov(0.05, 1e-4)[None])
@@ -344,17 +317,18 @@ def test_death_floor_default_only_on_the_grid_with_births():
     grid = _still_particle_model()
     births = scenarios.get("births").model  # p_s = 0.98 is below 1 - floor
     sup = scenarios.get("superposition").model
-    cases = [({}, grid, 1.0 - DEFAULT_DEATH_FLOOR), ({"births": False}, grid, 1.0),
-             ({}, sup, 1.0), ({}, births, 0.98),
-             ({"births": False, "death_probability": 0.05}, grid, 0.95),
-             ({"death_probability": 0.05}, sup, 0.95)]
-    for kwargs, model, survival in cases:
-        t = trackers.make("gpf", **kwargs)
+    gpf = trackers.get_class("gpf")
+    cases = [(gpf, {}, grid, 1.0 - DEFAULT_DEATH_FLOOR), (EmptyPriorGPF, {}, grid, 1.0),
+             (gpf, {}, sup, 1.0), (gpf, {}, births, 0.98),
+             (EmptyPriorGPF, {"death_probability": 0.05}, grid, 0.95),
+             (gpf, {"death_probability": 0.05}, sup, 0.95)]
+    for cls, kwargs, model, survival in cases:
+        t = cls(**kwargs)
         t.reset(model, np.random.default_rng(0))
         t.set_particles([1.0], [[5.5, 0.0, 6.5, 0.0]], _cov(0.05, 1e-4)[None])
         t.predict()
-        assert t.particles[0][0] == pytest.approx(survival, abs=1e-15), kwargs
-    t = trackers.make("gpf", births=False, death_probability=0.0)
+        assert t.particles[0][0] == pytest.approx(survival, abs=1e-15), (cls, kwargs)
+    t = EmptyPriorGPF(death_probability=0.0)
     t.reset(grid, np.random.default_rng(0))
     t.set_particles([1.0], [[5.5, 0.0, 6.5, 0.0]], _cov(0.05, 1e-4)[None])
     cell = grid.grid.cell_of(5.5, 6.5)

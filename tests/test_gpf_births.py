@@ -7,8 +7,10 @@ candidate always joins the cluster of the particles that occupy the cell, so tha
 an existing particle explains is not also credited to a new target. After the update a
 candidate whose cell returned a detection and whose posterior weight exceeds
 ``prune_threshold`` becomes a Gaussian (cell centre, position variance ``cell^2 / 12``,
-velocity sd ``birth_velocity_std``, at rest) and the field there drops to ``birth_floor``;
-every other candidate's posterior weight goes back into the field.
+velocity sd ``birth_velocity_std``, at rest) and the field there drops to ``birth_floor``
+(on a model with arrivals, whose field is floored; the tests below use one with a tiny
+rate, which no update-only step reads otherwise); every other candidate's posterior weight
+goes back into the field.
 
 The references below enumerate the joint options of the few Bernoulli variables by hand
 (absent / in the looked cell / elsewhere) with the sensor's likelihood ratios
@@ -38,10 +40,13 @@ EXACT = 1e-12
 SENSOR = RayleighGridSensor(p_d=0.5, snr=10.0, looks_per_step=4)
 
 
-def _model(grid: Grid, birth_velocity_std: float = 0.1, n_initial: int = 0) -> TrackingModel:
-    """The field starts at ``max(n_initial / n_cells, birth_floor)`` in every cell."""
+def _model(grid: Grid, birth_velocity_std: float = 0.1, n_initial: int = 0,
+           birth_rate: float = 0.0) -> TrackingModel:
+    """The field starts at ``max(n_initial / n_cells, birth_floor)`` in every cell.
+    ``birth_rate > 0`` (arrivals): the field is floored at ``birth_floor`` after an update
+    and no count bound applies."""
     return TrackingModel(grid, Dynamics(wna_intensity=1e-3),
-                         BirthDeath(n_random_initial=n_initial, birth_rate=0.0,
+                         BirthDeath(n_random_initial=n_initial, birth_rate=birth_rate,
                                     birth_velocity_std=birth_velocity_std), SENSOR)
 
 
@@ -56,15 +61,21 @@ def _joint_posterior(priors: list[dict[str, float]], returns: list[bool], epsilo
                      ) -> list[float]:
     """Posterior existence probability of each Bernoulli variable by enumeration.
 
-    ``priors[i]`` maps the options ``"absent"``, ``"cell"`` (the looked cell) and
-    ``"elsewhere"`` to their prior probabilities; the likelihood of a joint choice is
-    ``l(T)`` with ``T`` the number in the looked cell; joint choices of prior ``<=
-    epsilon`` are dropped and the rest renormalised (the paper's cut, ``epsilon > 0``)."""
+    ``priors[i]`` maps the options ``"absent"``, ``"cell"`` (the looked cell, which
+    returned a detection) and ``"elsewhere"`` to their prior probabilities; the likelihood
+    of a joint choice is ``l(T)`` with ``T`` the number in the looked cell. The cut acts on
+    the likelihood-tilted probabilities (trackers/gpf_grid.py, "missed cells"): per
+    variable ``q_o ∝ p_o l_o`` with ``l = l(1)`` in the cell and 1 for the other options;
+    joint choices with ``prod q <= epsilon`` are dropped and the rest renormalised."""
+    tilt = [{o: p * (_ratio(returns, 1) if o == "cell" else 1.0) for o, p in pr.items()}
+            for pr in priors]
+    tilt = [{o: q / sum(t.values()) for o, q in t.items()} for t in tilt]
     post = np.zeros(len(priors))
     total = 0.0
     for choice in itertools.product(*[list(p.items()) for p in priors]):
         prior = float(np.prod([pr for _, pr in choice]))
-        if prior <= epsilon or prior == 0.0:
+        q = float(np.prod([t[o] for t, (o, _) in zip(tilt, choice, strict=True)]))
+        if q <= epsilon or prior == 0.0:
             continue
         T = sum(opt == "cell" for opt, _ in choice)
         weight = prior * _ratio(returns, T)
@@ -80,15 +91,12 @@ def test_candidate_in_a_detected_cell_joins_the_particle_that_explains_it(epsilo
     share one positive look. Jointly, the detection is explained by the particle and the
     candidate's posterior is ~7.5e-4 (below prune_threshold: it stays in the field);
     updated alone it would be u l(1) / (u l(1) + 1 - u) = 0.34 and become a second
-    target. With epsilon = 1e-4 the joint choice (particle absent, candidate present),
-    prior 5e-5, is cut as the paper's rule says."""
+    target. With epsilon = 1e-4 the joint choices with the particle absent (tilted
+    probabilities ~7e-5 and ~4e-5) are cut."""
     grid = Grid(2, 1, 1.0)
     u, w = 5e-4, 0.9
-    # the paper's prior cut on every looked cell (aggregate_misses=False); the field's own
-    # rule without the model's count (count_aware_births=False)
-    t = trackers.make("gpf", epsilon=epsilon, birth_floor=u, aggregate_misses=False,
-                      count_aware_births=False)
-    t.reset(_model(grid), np.random.default_rng(0))
+    t = trackers.make("gpf", epsilon=epsilon, birth_floor=u)
+    t.reset(_model(grid, birth_rate=1e-3), np.random.default_rng(0))
     mean = np.array([0.5, 0.0, 0.5, 0.0])
     cov = np.diag([0.05**2, 0.01, 0.05**2, 0.01])
     t.set_particles([w], mean[None], cov[None])
@@ -126,8 +134,9 @@ def test_candidate_alone_in_a_detected_cell_becomes_a_target_at_the_cell_centre(
     The field starts at 1/6 (one expected target on six cells)."""
     grid = Grid(3, 2, 0.5)
     u, bv, floor = 1.0 / 6.0, 0.07, 1e-3
-    t = trackers.make("gpf", epsilon=0.0, birth_floor=floor, count_aware_births=False)
-    t.reset(_model(grid, birth_velocity_std=bv, n_initial=1), np.random.default_rng(0))
+    t = trackers.make("gpf", epsilon=0.0, birth_floor=floor)
+    t.reset(_model(grid, birth_velocity_std=bv, n_initial=1, birth_rate=1e-3),
+            np.random.default_rng(0))
     t.update(Looks(np.array([4, 1, 4]), np.array([True, False, False])))
 
     l4 = _ratio([True, False], 1)

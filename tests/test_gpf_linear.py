@@ -15,8 +15,9 @@ import pytest
 from filterpy.kalman import KalmanFilter
 from scipy.stats import multivariate_normal
 
-from mttbench import scenarios, trackers
+from mttbench import scenarios
 from mttbench.scenarios.model import Grid, Looks
+from mttbench.trackers.gpf import EmptyPriorGPF
 from mttbench.trackers.gpf_linear import enumerate_combinations, superposition_update
 
 TOL = dict(rtol=1e-10, atol=1e-10)
@@ -43,7 +44,7 @@ def test_one_certain_particle_equals_filterpy_kalman_filter():
     # a workspace large enough that the boundary rule (reflection) never acts
     model = dataclasses.replace(sc.model, grid=Grid(1000, 1000))
     rng = np.random.default_rng(7)
-    gpf = trackers.make("gpf", births=False)
+    gpf = EmptyPriorGPF()
     gpf.reset(model, np.random.default_rng(0))
     x0 = np.array([500.0, 0.1, 505.0, -0.05])
     P0 = np.diag([1.0, 0.1, 2.0, 0.05])

@@ -1,7 +1,6 @@
 """GPF mass accounting (issue 14): reflecting walls fold each Gaussian's mass back into the
-workspace, absorbing walls truncate it (the mass outside is death), a broad Gaussian can
-be split keeping the mixture's first two moments, and targets the model expects but no
-particle holds return to the undetected field.
+workspace, absorbing walls truncate it (the mass outside is death), and targets the model
+expects but no particle holds return to the undetected field.
 
 References are independent: Monte Carlo samples folded or truncated by hand (400,000
 draws; tolerances of 5 standard errors of each moment), and exact moment algebra.
@@ -20,7 +19,12 @@ from mttbench.scenarios.model import (
     TrackingModel,
 )
 from mttbench.trackers.cells import CellField
-from mttbench.trackers.gpf import GaussianParticleFilter, split_broad, truncate_to_workspace
+from mttbench.trackers.gpf import (
+    DEFAULT_DEATH_FLOOR,
+    EmptyPriorGPF,
+    GaussianParticleFilter,
+    truncate_to_workspace,
+)
 from mttbench.trackers.gpf_grid import fold_into_workspace
 
 N_MC = 400_000
@@ -88,66 +92,50 @@ def test_truncate_matches_the_samples_inside(mean):
     _mc_check(x[inside], tm[0], tP[0])
 
 
-def test_split_keeps_the_first_two_moments_exactly():
-    """The mixture of the split Gaussians has the weight, mean and covariance of the
-    original; every piece is narrower than the threshold after enough splits."""
-    m, P = _gaussian((6.0, 0.1, 5.0, -0.1), (3.0, 0.2, 2.0, 0.3))
-    w = np.array([0.8])
-    sw, sm, sP = split_broad(w, m[None], P[None], max_sd=1.0, max_particles=1000)
-    assert len(sw) > 3
-    assert np.isclose(sw.sum(), 0.8, rtol=0, atol=1e-12)
-    mean = (sw[:, None] * sm).sum(axis=0) / sw.sum()
-    dev = sm - mean
-    cov = ((sw[:, None, None] * (sP + dev[:, :, None] * dev[:, None, :])).sum(axis=0)
-           / sw.sum())
-    np.testing.assert_allclose(mean, m, atol=1e-12)
-    np.testing.assert_allclose(cov, P, atol=1e-10)
-    sd = np.sqrt(np.linalg.eigvalsh(sP[:, [0, 2]][:, :, [0, 2]])[:, -1])
-    assert np.all(sd <= 1.0 + 1e-12)
-
-
-def test_split_respects_the_particle_cap():
-    m, P = _gaussian((6.0, 0.1, 5.0, -0.1), (3.0, 0.2, 2.0, 0.3))
-    sw, _, _ = split_broad(np.array([1.0]), m[None], P[None], max_sd=0.1, max_particles=7)
-    assert len(sw) <= 7 and np.isclose(sw.sum(), 1.0)
-
-
-def _fixed_count_model(n0=3):
+def _fixed_count_model(n0=3, birth_rate=0.0):
     return TrackingModel(
         grid=Grid(12, 12, 1.0), dynamics=Dynamics(tau=1.0, wna_intensity=5e-4),
-        birth_death=BirthDeath(initial_states=tuple((1.0 + i, 0.0, 1.0, 0.0) for i in range(n0))),
+        birth_death=BirthDeath(initial_states=tuple((1.0 + i, 0.0, 1.0, 0.0) for i in range(n0)),
+                               birth_rate=birth_rate),
         sensor=RayleighGridSensor())
 
 
-def test_missing_targets_return_to_the_undetected_field():
-    """With three targets expected and one particle of weight 1, the field's sum after a
-    predict is at least 2 (its shape kept); with the option off it is the old recursion."""
-    model = _fixed_count_model()
-    for aware in (True, False):
-        t = GaussianParticleFilter(count_aware_births=aware)
-        t.reset(model, np.random.default_rng(0))
-        m, P = _gaussian((6.0, 0.0, 6.0, 0.0), (0.3, 0.05, 0.3, 0.05))
-        t.set_particles([1.0], m[None], P[None])
-        t._u = CellField(model.grid.n_cells, 1e-4)
-        t._u.set([0], [2e-4])
-        t.predict()
-        u = t._u.dense()
-        if aware:
-            assert np.isclose(u.sum(), 3.0 - float(t._w.sum()), rtol=1e-12)
-            assert np.isclose(u[0] / u[1], 2.0, rtol=1e-9)
-        else:
-            assert u.sum() < 0.1
+@pytest.mark.parametrize("birth_rate", [0.0, 0.01])
+def test_missing_targets_return_to_the_undetected_field(birth_rate):
+    """Three targets expected and one particle of weight 1. Without arrivals the field's
+    sum after a predict is the two targets no particle holds (its shape kept); with
+    arrivals the field follows its own recursion ``u <- 1 - (1 - p u)(1 - b / n)``,
+    floored at ``birth_floor``, and stays far below that."""
+    model = _fixed_count_model(birth_rate=birth_rate)
+    t = GaussianParticleFilter()
+    t.reset(model, np.random.default_rng(0))
+    m, P = _gaussian((6.0, 0.0, 6.0, 0.0), (0.3, 0.05, 0.3, 0.05))
+    t.set_particles([1.0], m[None], P[None])
+    t._u = CellField(model.grid.n_cells, 1e-4)
+    t._u.set([0], [2e-4])
+    t.predict()
+    u = t._u.dense()
+    if birth_rate == 0.0:
+        assert np.isclose(u.sum(), 3.0 - float(t._w.sum()), rtol=1e-12)
+        assert np.isclose(u[0] / u[1], 2.0, rtol=1e-9)
+    else:
+        p, b = 1.0 - DEFAULT_DEATH_FLOOR, birth_rate / model.grid.n_cells
+        before = np.full(model.grid.n_cells, 1e-4)
+        before[0] = 2e-4
+        want = np.maximum(1.0 - (1.0 - p * before) * (1.0 - b), t.birth_floor)
+        np.testing.assert_allclose(u, want, rtol=1e-12)
+        assert u.sum() < 0.1
 
 
 def test_default_predict_under_die_weights_by_the_mass_inside_and_truncates():
-    """The GPF's predict under "die" (default ``truncate=True``): each weight times the
+    """The GPF's predict under "die": each weight times the
     predicted Gaussian's mass inside (here with uncorrelated axes, the product of the
     marginal CDFs), and the Gaussian becomes its truncation to the workspace."""
     from scipy import stats
 
     model = TrackingModel(Grid(5, 4, 1.0), Dynamics(wna_intensity=2e-3),
                           BirthDeath(boundary="die"), RayleighGridSensor())
-    t = GaussianParticleFilter(births=False, death_probability=0.0)
+    t = EmptyPriorGPF(death_probability=0.0)
     t.reset(model, np.random.default_rng(0))
     m = np.array([[4.8, 0.5, 2.0, 0.1], [2.5, 0.05, 2.0, 0.0]])
     P = np.stack([np.diag([0.09, 0.01, 0.04, 0.01])] * 2)

@@ -25,7 +25,8 @@ from mttbench.scenarios.model import (
     RayleighGridSensor,
     TrackingModel,
 )
-from mttbench.trackers.gpf import collapse, condition_on_count_bound
+from mttbench.trackers import gpf
+from mttbench.trackers.gpf import collapse, condition_on_count_bound, merge_particles
 from mttbench.trackers.gpf_grid import grid_update
 
 GRID = Grid(6, 5, cell_size=1.0)
@@ -81,12 +82,13 @@ def test_count_bound_conditioning_equals_enumeration():
         np.testing.assert_allclose(condition_on_count_bound(w, n_max), want, atol=1e-12)
 
 
-def _enumerate(w, opts, lik_of, jpda_star=False):
-    """Posterior existence of each member by listing every joint choice.
+def _combinations(opts, lik_of, jpda_star=False):
+    """Every joint choice with its unnormalised posterior weight, ``[(choice, weight)]``.
 
     ``opts[i]``: ``{option: prior}`` with options ``"absent"``, ``"elsewhere"`` or a cell
     index; ``lik_of(choice)``: the likelihood ratio of a joint choice. ``jpda_star``: keep
-    only the most probable of the joint choices that swap detected cells between members."""
+    only the most probable of the joint choices that swap detected cells between members
+    (every cell option here is a detected cell)."""
     combos = []
     for choice in itertools.product(*[list(o) for o in opts]):
         prior = np.prod([o[c] for o, c in zip(opts, choice, strict=True)])
@@ -101,9 +103,39 @@ def _enumerate(w, opts, lik_of, jpda_star=False):
             if key not in best or p > best[key][1]:
                 best[key] = (choice, p)
         combos = list(best.values())
+    return combos
+
+
+def _enumerate(w, opts, lik_of, jpda_star=False):
+    """Posterior existence of each member by listing every joint choice
+    (:func:`_combinations`)."""
+    combos = _combinations(opts, lik_of, jpda_star)
     total = sum(p for _, p in combos)
     return np.array([sum(p for c, p in combos if c[i] != "absent") / total
                      for i in range(len(w))])
+
+
+def _posterior_mean(i, means, covs, cells, combos):
+    """Member ``i``'s posterior position mean given existence: each bin's share of the
+    combinations times the mean of its Gaussian in that bin (scipy ``truncnorm`` per axis,
+    diagonal covariances; "elsewhere" is the rest of the Gaussian)."""
+    sd = np.sqrt(np.diag(covs[i])[[0, 2]])
+    mu = means[i][[0, 2]]
+    x0, x1, y0, y1 = (b.astype(float) for b in GRID.cell_bounds(np.asarray(cells)))
+    cell_mean = np.array([[stats.truncnorm((a - mu[0]) / sd[0], (b - mu[0]) / sd[0],
+                                           loc=mu[0], scale=sd[0]).mean(),
+                           stats.truncnorm((c - mu[1]) / sd[1], (d - mu[1]) / sd[1],
+                                           loc=mu[1], scale=sd[1]).mean()]
+                          for a, b, c, d in zip(x0, x1, y0, y1, strict=True)])
+    mass = _cell_masses(means[i], covs[i], cells)
+    rest_mean = (mu - (mass[:, None] * cell_mean).sum(axis=0)) / (1 - mass.sum())
+    share = dict.fromkeys(["elsewhere", *map(int, cells)], 0.0)
+    for choice, p in combos:
+        if choice[i] != "absent":
+            share[choice[i]] += p
+    total = sum(share.values())
+    return (share["elsewhere"] * rest_mean
+            + sum(share[int(c)] * cell_mean[k] for k, c in enumerate(cells))) / total
 
 
 def test_pooled_misses_equal_enumeration_with_independent_misses():
@@ -117,7 +149,8 @@ def test_pooled_misses_equal_enumeration_with_independent_misses():
     cells = np.array([7, 8, 13, 14])
     returns = np.array([True, False, False, False])
     res = grid_update(w, means, covs, np.array([-1, -1]), cells, returns, GRID, SENSOR,
-                      epsilon=0.0, max_combinations=10**6, aggregate_misses=True)
+                      epsilon=0.0, max_combinations=10**6)
+    assert res.max_cluster == 2
     opts = _options(w, means, covs, cells)
 
     def lik(choice):
@@ -128,64 +161,52 @@ def test_pooled_misses_equal_enumeration_with_independent_misses():
                 out *= _ratio([False], 1)
         return out
 
+    combos = _combinations(opts, lik)
     np.testing.assert_allclose(res.weights, _enumerate(w, opts, lik), rtol=MASS_TOL)
-    # posterior position means given existence: each bin's share (the enumeration) times
-    # the mean of the Gaussian in that bin (scipy truncnorm per axis, diagonal covariances;
-    # "elsewhere" is the rest of the Gaussian)
+    # posterior position means given existence
     for i in range(2):
-        sd = np.sqrt(np.diag(covs[i])[[0, 2]])
-        mu = means[i][[0, 2]]
-        x0, x1, y0, y1 = (b.astype(float) for b in GRID.cell_bounds(cells))
-        cell_mean = np.array([[stats.truncnorm((a - mu[0]) / sd[0], (b - mu[0]) / sd[0],
-                                               loc=mu[0], scale=sd[0]).mean(),
-                               stats.truncnorm((c - mu[1]) / sd[1], (d - mu[1]) / sd[1],
-                                               loc=mu[1], scale=sd[1]).mean()]
-                              for a, b, c, d in zip(x0, x1, y0, y1, strict=True)])
-        mass = _cell_masses(means[i], covs[i], cells)
-        rest_mean = (mu - (mass[:, None] * cell_mean).sum(axis=0)) / (1 - mass.sum())
-        share = dict.fromkeys(["elsewhere", *map(int, cells)], 0.0)
-        for choice in itertools.product(*[list(o) for o in opts]):
-            if choice[i] != "absent":
-                prior = np.prod([o[c] for o, c in zip(opts, choice, strict=True)])
-                share[choice[i]] += prior * lik(choice)
-        total = sum(share.values())
-        want = (share["elsewhere"] * rest_mean
-                + sum(share[int(c)] * cell_mean[k] for k, c in enumerate(cells))) / total
-        np.testing.assert_allclose(res.means[i, [0, 2]], want, rtol=1e-7)
+        np.testing.assert_allclose(res.means[i, [0, 2]],
+                                   _posterior_mean(i, means, covs, cells, combos), rtol=1e-7)
 
 
-def test_pooling_changes_nothing_when_every_looked_cell_returned_a_detection():
-    """Without cells that returned nothing, pooling only reorders the options: the same
-    posterior weights, means and covariances (no combination cut)."""
+def test_every_looked_cell_detected_equals_the_exact_enumeration():
+    """Without cells that returned nothing, pooling only reorders the options: three
+    tracks and four detected cells give the enumeration with every cell's exact ``l(T)``
+    (no combination cut), under JPDA*: weights and posterior position means."""
     w = np.array([0.7, 0.5, 0.9])
     means = np.array([[2.3, 0.0, 1.6, 0.0], [2.8, 0.0, 1.4, 0.0], [3.4, 0.0, 2.2, 0.0]])
     covs = np.stack([_diag_cov(0.4, 0.35), _diag_cov(0.35, 0.45), _diag_cov(0.5, 0.5)])
     cells = np.array([7, 8, 14, 15])
     returns = np.ones(4, dtype=bool)
-    kw = dict(epsilon=0.0, max_combinations=10**6)
-    a = grid_update(w, means, covs, np.full(3, -1), cells, returns, GRID, SENSOR, **kw)
-    b = grid_update(w, means, covs, np.full(3, -1), cells, returns, GRID, SENSOR,
-                    aggregate_misses=True, **kw)
-    assert a.max_cluster == 3
-    np.testing.assert_allclose(b.weights, a.weights, rtol=1e-12)
-    np.testing.assert_allclose(b.means, a.means, rtol=1e-10, atol=1e-12)
-    np.testing.assert_allclose(b.covs, a.covs, rtol=1e-9, atol=1e-12)
+    res = grid_update(w, means, covs, np.full(3, -1), cells, returns, GRID, SENSOR,
+                      epsilon=0.0, max_combinations=10**6)
+    assert res.max_cluster == 3
+    opts = _options(w, means, covs, cells)
+
+    def lik(choice):
+        return np.prod([_ratio([True], sum(c == cell for c in choice)) for cell in cells])
+
+    combos = _combinations(opts, lik, jpda_star=True)
+    np.testing.assert_allclose(res.weights, _enumerate(w, opts, lik, jpda_star=True),
+                               rtol=MASS_TOL)
+    for i in range(3):
+        np.testing.assert_allclose(res.means[i, [0, 2]],
+                                   _posterior_mean(i, means, covs, cells, combos), rtol=1e-7)
 
 
 def test_jpda_star_keeps_one_of_the_swapped_assignments():
-    """Two equal broad tracks, two detected cells. JPDA* (coalescence=False) equals the
+    """Two equal broad tracks, two detected cells. The update (JPDA*) equals the
     enumeration that keeps the more probable of the two swapped assignments; the tracks
-    then sit on different cells, while the plain rule puts both on the same blend."""
+    then sit on different cells, while the plain rule (every assignment kept) would put
+    both on the same blend."""
     w = np.array([0.9, 0.9])
     mean = np.array([3.0, 0.0, 2.5, 0.0])
     means = np.stack([mean, mean + [0.05, 0, 0, 0]])  # a nearly equal pair, not a tie
     covs = np.stack([_diag_cov(1.5, 1.5)] * 2)
     cells = np.array([7, 10])  # (1, 1) and (4, 1)
     returns = np.array([True, True])
-    kw = dict(epsilon=0.0, max_combinations=10**6, aggregate_misses=True)
-    plain = grid_update(w, means, covs, np.full(2, -1), cells, returns, GRID, SENSOR, **kw)
     star = grid_update(w, means, covs, np.full(2, -1), cells, returns, GRID, SENSOR,
-                       coalescence=False, **kw)
+                       epsilon=0.0, max_combinations=10**6)
     opts = _options(w, means, covs, cells)
 
     def lik(choice):
@@ -193,8 +214,14 @@ def test_jpda_star_keeps_one_of_the_swapped_assignments():
 
     np.testing.assert_allclose(star.weights, _enumerate(w, opts, lik, jpda_star=True),
                                rtol=MASS_TOL)
-    np.testing.assert_allclose(plain.weights, _enumerate(w, opts, lik), rtol=MASS_TOL)
-    assert abs(plain.means[0, 0] - plain.means[1, 0]) < 0.2  # coalesced
+    for i in range(2):
+        np.testing.assert_allclose(
+            star.means[i, [0, 2]],
+            _posterior_mean(i, means, covs, cells, _combinations(opts, lik, jpda_star=True)),
+            rtol=1e-7)
+    plain = [_posterior_mean(i, means, covs, cells, _combinations(opts, lik))
+             for i in range(2)]
+    assert abs(plain[0][0] - plain[1][0]) < 0.2  # every assignment kept: coalesced
     assert abs(star.means[0, 0] - star.means[1, 0]) > 1.0  # one on each side
 
 
@@ -209,7 +236,7 @@ def test_split_component_is_the_gaussian_cut_to_the_detected_cell():
     cov = _diag_cov(1.2, 0.9)
     cells = np.array([29, 7, 8])  # (5, 4) detected; (1, 1), (2, 1) missed
     returns = np.array([True, False, False])
-    kw = dict(epsilon=0.0, aggregate_misses=True)
+    kw = dict(epsilon=0.0)
     one = grid_update(w, mean[None], cov[None], np.array([-1]), cells, returns, GRID, SENSOR,
                       **kw)
     mix = grid_update(w, mean[None], cov[None], np.array([-1]), cells, returns, GRID, SENSOR,
@@ -274,41 +301,41 @@ def test_tracks_sharing_a_detection_report_it_once():
     np.testing.assert_allclose(est.states[:, [0, 2]], [[2.5, 2.5], [5.5, 4.5]])
 
 
-@pytest.mark.parametrize("params", [{}, {"merge_weight": "capped_sum",
-                                         "merge_metric": "bhattacharyya"}])
-def test_a_confident_narrow_track_is_not_merged_into_a_broad_one(params):
+def test_a_confident_narrow_track_is_not_merged_into_a_broad_one():
     """A narrow confident track inside a broad confident one (squared Mahalanobis distance
-    of the pair ~0.3, far below the threshold 4). The default rule (``bounded_sum``: a
-    group's weights may not exceed 1) keeps both, and so does ``capped_sum`` with the
-    Bhattacharyya distance (its shape term, 2 ln(det S_bar / sqrt(det S_1 det S_2)), is ~14
-    here); ``capped_sum`` with the Mahalanobis distance merges them into one track."""
+    of the pair ~0.3, far below the threshold 4). The tracker's rule on a model without
+    arrivals (``bounded_sum``: a group's weights may not exceed 1) keeps both, and so does
+    ``capped_sum`` with the Bhattacharyya distance, the rule of a track's components (its
+    shape term, 2 ln(det S_bar / sqrt(det S_1 det S_2)), is ~14 here); ``capped_sum`` with
+    the Mahalanobis distance merges them into one."""
     model = _fixed_count_model(3)
-    P = [_diag_cov(0.3, 0.3), _diag_cov(3.0, 3.0)]
+    P = np.stack([_diag_cov(0.3, 0.3), _diag_cov(3.0, 3.0)])
     m = np.array([[2.5, 0, 2.5, 0], [3.2, 0, 2.9, 0]])
-    t = trackers.make("gpf", **params)
+    w0 = np.array([0.97, 0.95])
+    t = trackers.make("gpf")
     t.reset(model, np.random.default_rng(0))
-    t.set_particles([0.97, 0.95], m, np.stack(P))
+    t.set_particles(w0, m, P)
     t.update(Looks(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool)))
     w, means, _ = t.particles
     np.testing.assert_allclose(sorted(w), [0.95, 0.97])
-    bad = trackers.make("gpf", merge_weight="capped_sum", merge_metric="mahalanobis")
-    bad.reset(model, np.random.default_rng(0))
-    bad.set_particles([0.97, 0.95], m, np.stack(P))
-    bad.update(Looks(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool)))
-    assert len(bad.particles[0]) == 1 and bad.particles[0][0] == 1.0
+    wb, _, _ = merge_particles(w0, m, P, 4.0, "capped_sum", "bhattacharyya")
+    np.testing.assert_allclose(sorted(wb), [0.95, 0.97])
+    wm, _, _ = merge_particles(w0, m, P, 4.0, "capped_sum", "mahalanobis")
+    assert len(wm) == 1 and wm[0] == 1.0
 
 
-def test_a_far_detection_starts_a_track_instead_of_moving_a_broad_one():
+def test_a_far_detection_starts_a_track_instead_of_moving_a_broad_one(monkeypatch):
     """A broad confident track, and one target the model expects that no track holds
     (two targets, no arrivals): after a predict the field holds ``2 - sum w`` spread over
     the cells. A detection far from the track's mean is better explained by a new target
     than by the track: the candidate's posterior (enumeration over the track's options
     absent / in the detected cell / elsewhere and the candidate's absent / present, masses
     from scipy) makes a new track, and the broad track keeps its existence. (The track's
-    occupancy of the cell, ~2e-5, is below the default interaction threshold, which would
-    update the two apart, and the default cut drops a combination of probability below
-    1e-4; with both at 0 the joint update is exact.)"""
-    t = trackers.make("gpf", interaction_threshold=0.0, epsilon=0.0)
+    occupancy of the cell, ~2e-5, is below ``INTERACTION_THRESHOLD``, which would update
+    the two apart, and the default cut drops a combination of probability below 1e-4;
+    with both at 0 the joint update is exact.)"""
+    monkeypatch.setattr(gpf, "INTERACTION_THRESHOLD", 0.0)
+    t = trackers.make("gpf", epsilon=0.0)
     t.reset(_fixed_count_model(2), np.random.default_rng(0))
     t.set_particles([0.99], np.array([[1.0, 0, 1.0, 0]]), _diag_cov(1.5, 1.5)[None])
     t.predict()

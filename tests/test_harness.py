@@ -183,7 +183,7 @@ def test_run_job_rows_and_metrics_match_direct_computation(test_trackers):
     assert json.loads(df["tracker_params"].iloc[0]) == {"tag": 7}
     assert (df["param_tag"] == 7).all()
     assert (df["n_looks"] == 30).all() and (df["ospa_c"] == 3.0).all()
-    assert not df["uses_truth"].any()
+    assert not df[["tracker_uses_truth", "policy_uses_truth"]].any().any()
     # recompute every step independently: truth from the simulator, looks from the
     # raster sweep, the estimate from the recorder's rule
     run = simulate(sc, 4)
@@ -220,7 +220,8 @@ def test_policy_randomness_is_shared_by_trackers_and_tracker_randomness_is_not(t
 
 def test_oracle_policy_marks_rows_as_using_truth():
     df = run_job(Job(short("default", 4), TrackerSpec("null"), PolicySpec("oracle"), 5, 0))
-    assert df["uses_truth"].all() and (df["status"] == "ok").all()
+    assert df["policy_uses_truth"].all() and (df["status"] == "ok").all()
+    assert not df["tracker_uses_truth"].any()
     assert "| oracle (uses truth) |" in to_markdown(summarize(df))
 
 
@@ -302,7 +303,8 @@ def hand_table() -> pd.DataFrame:
                 failed = tracker == "B" and seed == 3 and step == 2
                 rows.append({
                     "scenario": "s", "tracker": tracker, "tracker_label": tracker,
-                    "policy": "raster", "policy_label": "raster", "uses_truth": False,
+                    "policy": "raster", "policy_label": "raster", "tracker_uses_truth": False,
+                    "policy_uses_truth": False,
                     "looks_per_step": 24, "seed": seed, "step": step,
                     **{m: (math.nan if failed else rng.random()) for m in
                        ("ospa", "ospa_loc", "ospa_card", "gospa", "gospa_loc", "gospa_missed",

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import itertools
 import math
-from typing import ClassVar, Literal
 
 import filterpy.monte_carlo.resampling as fp_resampling
 import numpy as np
@@ -27,7 +26,6 @@ from mttbench.scenarios.model import (
     SuperpositionSensor,
     TrackingModel,
 )
-from mttbench.testing import INTERFACE_CHECKS
 from mttbench.trackers import kalman
 from mttbench.trackers.jmpd import (
     JMPDTracker,
@@ -571,8 +569,7 @@ def test_registered_with_parameters():
     assert ip.get_params()["proposal"] == "ip"
     assert trackers.make("jmpd").get_params() == {
         "n_particles": 2000, "t_max": 5, "birth_rate": None, "death_probability": None,
-        "resample_threshold": 0.5, "proposal": "bootstrap", "initial_count": None,
-        "move_steps": 0, "move_scale": 1.0}
+        "resample_threshold": 0.5, "proposal": "bootstrap", "initial_count": None}
 
 
 def test_moves_after_resampling_reach_the_particles():
@@ -611,233 +608,3 @@ def test_ip_update_when_no_particle_occupies_a_looked_cell():
     free = np.setdiff1d(np.arange(144), cells[cells < 144])[:1]
     tr.update(Looks(free, np.array([False])))
     assert tr.log_weights.dtype == np.float64 and np.all(np.isfinite(tr.log_weights))
-
-
-# ------------------------------------------------------------------ resample-move
-def _one_target_after_predict(model, x0, n, move_steps, move_scale=1.0, seed=0):
-    """Every particle holds one target whose parent is ``x0``; after ``predict`` the
-    states are draws from the kinematic prior ``N(F x0, Q)`` (then the boundary rule)."""
-    tr = JMPDTracker(n_particles=n, t_max=1, birth_rate=0.0, death_probability=0.0,
-                     initial_count=1, resample_threshold=0.0, move_steps=move_steps,
-                     move_scale=move_scale)
-    tr.reset(model, np.random.default_rng(seed))
-    tr.states[:, 0, :] = x0
-    tr.predict()
-    return tr
-
-
-def _move(tr, looks):
-    """Weigh (no resampling: threshold 0), then run the tracker's MH sweeps on the
-    equally weighted prior draws: a start that is far from the target distribution."""
-    tr.update(looks)
-    assert tr.n_resamples == 0
-    tr.move()
-
-
-def _gaussian_conditional(model, x0, z):
-    """Exact p(x_k | x_{k-1} = x0, z): N(m, S), S = (Q^-1 + H^T R^-1 H)^-1."""
-    F, Q, H, R = model.dynamics.F, model.dynamics.Q, model.sensor.H, model.sensor.R
-    Qi, Ri = np.linalg.inv(Q), np.linalg.inv(R)
-    S = np.linalg.inv(Qi + H.T @ Ri @ H)
-    return S @ (Qi @ F @ x0 + H.T @ Ri @ z), S
-
-
-def _assert_gaussian_moments(samples, m, S):
-    """Monte Carlo bands for n independent draws of N(m, S): each mean within 4.5
-    standard errors sqrt(S_ii / n); each covariance entry within 5 standard errors
-    sqrt((S_ii S_jj + S_ij^2) / n) (the sample covariance's for a Gaussian). With 4 + 10
-    checks the chance that a correct sampler fails is below 1e-4."""
-    n = samples.shape[0]
-    se_m = np.sqrt(np.diag(S) / n)
-    assert np.all(np.abs(samples.mean(axis=0) - m) < 4.5 * se_m), (samples.mean(0) - m) / se_m
-    C = np.cov(samples.T)
-    se_c = np.sqrt((np.outer(np.diag(S), np.diag(S)) + S**2) / n)
-    assert np.all(np.abs(C - S) < 5.0 * se_c), (C - S) / se_c
-
-
-_LG_MODEL = TrackingModel(Grid(40, 40), Dynamics(wna_intensity=0.5),
-                          BirthDeath(initial_states=((20.0, 0.0, 20.0, 0.0),)),
-                          SuperpositionSensor())
-_X0 = np.array([20.0, 0.3, 20.0, -0.2])
-_Z = _LG_MODEL.sensor.H @ _LG_MODEL.dynamics.F @ _X0 + np.array([1.0, -0.8])
-
-
-def test_move_converges_to_the_gaussian_conditional():
-    """One target on the superposition sensor, parent x0 known: the kernel's target
-    p(x_k | x0, z) is the Kalman update of N(F x0, Q). Started from the prior draws
-    (posterior mean ~1.3 sd away in px), 150 sweeps of 20000 independent chains give
-    draws whose mean and covariance match it (bands in _assert_gaussian_moments). A
-    kernel that does not move, or that targets the prior, fails this."""
-    n = 20000
-    tr = _one_target_after_predict(_LG_MODEL, _X0, n, move_steps=150, move_scale=0.7)
-    m, S = _gaussian_conditional(_LG_MODEL, _X0, _Z)
-    prior = tr.states[:, 0, :].copy()
-    assert np.abs(prior.mean(axis=0) - m)[0] > 50 * np.sqrt(S[0, 0] / n)  # start is off
-    _move(tr, Looks(np.zeros(0, np.int64), np.zeros(0, bool), _Z))
-    _assert_gaussian_moments(tr.states[:, 0, :], m, S)
-    assert 0.2 < tr.move_acceptance < 0.95
-    assert np.all(np.isfinite(tr.states)) and np.all(np.isfinite(tr.log_weights))
-    # the stored parent and noise still rebuild the state: x = F x0 + L e
-    assert np.array_equal(tr.parent_states[:, 0, :], np.broadcast_to(_X0, (n, 4)))
-    e = tr.process_noises[:, 0, :].T
-    x = _LG_MODEL.dynamics.F @ _X0[:, None] + tr.prior.L @ e
-    assert np.allclose(x, tr.states[:, 0, :].T, atol=1e-12)
-
-
-def test_move_leaves_exact_conditional_draws_invariant():
-    """Started from exact draws of p(x_k | x0, z) (noise e = L^-1 (x - F x0) stored
-    with them), 30 sweeps keep the mean and covariance (same bands) while most
-    particles move."""
-    n = 20000
-    tr = _one_target_after_predict(_LG_MODEL, _X0, n, move_steps=30)
-    m, S = _gaussian_conditional(_LG_MODEL, _X0, _Z)
-    start = np.random.default_rng(1).multivariate_normal(m, S, n)
-    tr.update(Looks(np.zeros(0, np.int64), np.zeros(0, bool), _Z))
-    tr.states[:, 0, :] = start
-    F = _LG_MODEL.dynamics.F
-    tr.process_noises[:, 0, :] = np.linalg.solve(tr.prior.L, start.T - (F @ _X0)[:, None]).T
-    tr.move()
-    out = tr.states[:, 0, :]
-    _assert_gaussian_moments(out, m, S)
-    assert np.mean(np.any(out != start, axis=1)) > 0.9
-
-
-def _cell_mass(lo, hi, mean, sd, length, boundary):
-    """Mass of the position marginal N(mean, sd^2) in [lo, hi) after the boundary
-    rule: reflection adds the mirror images of the interval at 0 and at ``length``;
-    dying truncates to [0, length) (normalised by the mass inside)."""
-    from scipy.stats import norm
-
-    def mass(a, b):
-        return norm.cdf(b, mean, sd) - norm.cdf(a, mean, sd)
-    if boundary == "reflect":
-        return mass(lo, hi) + mass(-hi, -lo) + mass(2 * length - hi, 2 * length - lo)
-    return mass(lo, hi) / mass(0.0, length)
-
-
-@pytest.mark.parametrize("boundary", ["reflect", "die"])
-def test_move_matches_exact_cell_posterior_on_the_grid(boundary):
-    """One target near the left edge of a 12x12 grid (px sd 1 after one step, so
-    ~38% of the prior mass leaves: reflected back, partly into the next cell, or
-    killed), three mildly informative looks (SNR 1). The exact p(cell | x0, z) is the
-    prior mass of the cell (normal masses, see _cell_mass; the axes are independent)
-    times exp(log l_c(1)) over the looks at it, normalised. From the prior draws, 100
-    sweeps: every cell's fraction (over the particles whose target is alive; cells
-    expected to hold < 10 particles pooled) is within 4.5 binomial standard errors of
-    the exact value. The kernel never revives or kills a target."""
-    model = TrackingModel(Grid(12, 12), Dynamics(wna_intensity=3.0),
-                          BirthDeath(initial_states=((0.3, 0.0, 5.5, 0.0),), boundary=boundary),
-                          RayleighGridSensor(p_d=0.5, snr=1.0))
-    x0 = np.array([0.3, 0.0, 5.5, 0.0])
-    n = 20000
-    tr = _one_target_after_predict(model, x0, n, move_steps=100)
-    alive = tr.mask[:, 0].copy()
-    look_cells = np.array([5 * 12 + 1, 5 * 12 + 0, 6 * 12 + 2])
-    returns = np.array([True, False, True])
-    _move(tr, Looks(look_cells, returns))
-    assert np.array_equal(tr.mask[:, 0], alive)
-    assert (boundary == "die") == (alive.mean() < 0.75)
-    F, Q = model.dynamics.F, model.dynamics.Q
-    mean = F @ x0
-    sd_x, sd_y = math.sqrt(Q[0, 0]), math.sqrt(Q[2, 2])
-    cells = (tr.states[alive, 0, 2].astype(int) * 12 + tr.states[alive, 0, 0].astype(int))
-    got = np.bincount(cells, minlength=144) / alive.sum()
-    lcell = np.zeros(144)
-    np.add.at(lcell, look_cells, model.sensor.log_likelihood_ratio(returns, np.ones(3)))
-    prior = np.array([[_cell_mass(ix, ix + 1, mean[0], sd_x, 12.0, boundary)
-                       * _cell_mass(iy, iy + 1, mean[2], sd_y, 12.0, boundary)
-                       for ix in range(12)] for iy in range(12)]).ravel()
-    exact = prior * np.exp(lcell)
-    exact /= exact.sum()
-    # cells expected to hold fewer than 10 particles are pooled into one bin, where the
-    # normal approximation of the binomial holds again
-    rare = exact * alive.sum() < 10
-    got = np.append(got[~rare], got[rare].sum())
-    exact_b = np.append(exact[~rare], exact[rare].sum())
-    se = np.sqrt(exact_b * (1 - exact_b) / alive.sum())
-    assert np.all(np.abs(got - exact_b) < 4.5 * se), np.max(np.abs(got - exact_b) / se)
-    se = np.sqrt(exact * (1 - exact) / alive.sum())
-    # the looks change the answer well beyond the band (the test can tell them apart)
-    assert np.max(np.abs(prior / prior.sum() - exact) / (se + 1e-12)) > 10
-    assert 0.0 < tr.move_acceptance < 1.0
-
-
-class JMPDWithMove(JMPDTracker):
-    """``jmpd`` with one resample-move sweep by default (not registered); every
-    instance is recorded in ``made`` so that a test can look at the trackers a check
-    built."""
-
-    name = "jmpd-move"
-    summary = "JMPD, bootstrap proposal, one resample-move sweep (tests only)"
-    made: ClassVar[list[JMPDTracker]] = []
-
-    def __init__(self, n_particles: int = 2000, t_max: int = 5,
-                 birth_rate: float | None = None, death_probability: float | None = None,
-                 resample_threshold: float = 0.5,
-                 proposal: Literal["bootstrap", "ip"] = "bootstrap",
-                 initial_count: int | None = None, move_steps: int = 1,
-                 move_scale: float = 1.0) -> None:
-        super().__init__(n_particles=n_particles, t_max=t_max, birth_rate=birth_rate,
-                         death_probability=death_probability,
-                         resample_threshold=resample_threshold, proposal=proposal,
-                         initial_count=initial_count, move_steps=move_steps,
-                         move_scale=move_scale)
-        JMPDWithMove.made.append(self)
-
-
-@pytest.mark.parametrize("check", INTERFACE_CHECKS, ids=lambda c: c.__name__)
-def test_conformance_with_move(check):
-    """The conformance kit's interface checks (:mod:`mttbench.testing`) with
-    ``move_steps=1``: declarations, parameters, 200 steps without NaN, determinism, no
-    state leak across reset, zero targets, steps without looks, P_c on ``large``, the
-    superposition sensor."""
-    JMPDWithMove.made.clear()
-    check(JMPDWithMove)
-    made = JMPDWithMove.made
-    if check.__name__ != "check_declarations":  # the only check that builds no tracker
-        assert made and all(t.move_steps == 1 for t in made)
-    if check.__name__ in ("check_runs_200_steps", "check_superposition_or_reason"):
-        assert 0.0 < made[0].move_acceptance < 1.0
-
-
-def test_move_needs_the_bootstrap_proposal():
-    model = scenarios.get("default").model
-    with pytest.raises(ValueError, match="bootstrap"):
-        JMPDTracker(proposal="ip", move_steps=1).reset(model, np.random.default_rng(0))
-    with pytest.raises(ValueError, match="move_scale"):
-        JMPDTracker(move_steps=1, move_scale=0.0).reset(model, np.random.default_rng(0))
-
-
-def test_move_bookkeeping_only_with_move_steps():
-    """Without ``move_steps`` no parents or noises are kept and ``move()`` refuses; with
-    it, the views appear after the first predict (not before)."""
-    model = scenarios.get("default").model
-    tr = JMPDTracker(n_particles=50)
-    tr.reset(model, np.random.default_rng(0))
-    tr.predict()
-    assert tr.parent_states is None and tr.process_noises is None
-    with pytest.raises(RuntimeError, match="move_steps"):
-        tr.move()
-    tr = JMPDTracker(n_particles=50, move_steps=1)
-    tr.reset(model, np.random.default_rng(0))
-    assert tr.parent_states is None
-    tr.predict()
-    assert tr.parent_states.shape == tr.process_noises.shape == (50, 5, 4)
-
-
-def test_move_off_draws_nothing_extra():
-    """``move_steps=0`` is the plain bootstrap: same random stream, same results as a
-    tracker built without the parameter; ``move_steps=1`` changes them."""
-    sc = scenarios.get("crossing")
-    from mttbench.scenarios.simulator import simulate
-    run = simulate(sc, 0)
-    outs = []
-    for params in ({}, {"move_steps": 0, "move_scale": 3.0}, {"move_steps": 1}):
-        tr = JMPDTracker(n_particles=300, **params)
-        tr.reset(sc.model, np.random.default_rng(2))
-        for k in range(15):
-            tr.predict()
-            tr.update(run.look(k, np.arange(24) + 24 * (k % 6)))
-        outs.append(tr.states.copy())
-    assert np.array_equal(outs[0], outs[1])
-    assert not np.array_equal(outs[0], outs[2])

@@ -214,7 +214,7 @@ def _edge_scenario():
 
 
 @pytest.mark.parametrize("case", [
-    ("default", {}), ("default", {"proposal": "ip"}), ("crossing", {"move_steps": 1}),
+    ("default", {}), ("default", {"proposal": "ip"}), ("crossing", {}),
     ("large", {}), ("superposition", {}), ("edges", {}),
 ])
 def test_tracker_runs_are_identical_with_and_without_kernels(case):

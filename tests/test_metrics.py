@@ -228,7 +228,7 @@ def test_step_metrics_keys_and_values():
     row = step_metrics(x, y, estimated_count=3.7, c=1.5, p=1.0)
     assert set(row) == {
         "ospa", "ospa_loc", "ospa_card", "gospa", "gospa_loc", "gospa_missed",
-        "gospa_false", "rmse", "count_error", "true_count", "n_estimated",
+        "gospa_false", "rmse", "count_error", "own_count_error", "true_count", "n_estimated",
     }
     assert all(isinstance(v, float) for v in row.values())
     o, g = ospa(x, y, c=1.5, p=1.0), gospa(x, y, c=1.5, p=1.0)
@@ -237,7 +237,8 @@ def test_step_metrics_keys_and_values():
     assert (row["gospa"], row["gospa_loc"], row["gospa_missed"], row["gospa_false"]) == (
         g.total, g.localisation, g.missed, g.false)
     assert_close(row["rmse"], brute_rmse(x, y))
-    assert_close(row["count_error"], 0.7)
+    assert_close(row["count_error"], 1.0)  # 4 states reported for 3 targets
+    assert_close(row["own_count_error"], 0.7)  # the tracker's own count, 3.7
     assert row["true_count"] == 3.0 and row["n_estimated"] == 4.0
 
 
@@ -245,7 +246,8 @@ def test_step_metrics_empty():
     row = step_metrics(np.zeros((0, 2)), np.zeros((0,)), estimated_count=0.2)
     assert row["ospa"] == 0.0 and row["gospa"] == 0.0
     assert math.isnan(row["rmse"])
-    assert_close(row["count_error"], 0.2)
+    assert_close(row["count_error"], 0.0)
+    assert_close(row["own_count_error"], 0.2)
     assert row["true_count"] == 0.0 and row["n_estimated"] == 0.0
 
 

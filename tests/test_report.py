@@ -46,10 +46,12 @@ def synthetic_results(seed: int = 1) -> pd.DataFrame:
                     rows.append({
                         "scenario": sc, "tracker": tr, "tracker_label": tr,
                         "tracker_params": "{}", "policy": "raster", "policy_label": "raster",
-                        "policy_params": "{}", "uses_truth": False, "looks_per_step": 24,
+                        "policy_params": "{}", "tracker_uses_truth": False,
+                        "policy_uses_truth": False, "looks_per_step": 24,
                         "seed": s, "step": k, "true_count": 3.0,
                         "est_count": 3.0 + rng.normal(0, 1),
-                        "count_error": abs(rng.normal(0, 1)), "ospa": ospa,
+                        "count_error": abs(rng.normal(0, 1)),
+                        "own_count_error": abs(rng.normal(0, 1)), "ospa": ospa,
                         "ospa_loc": ospa / 2, "ospa_card": ospa / 3, "gospa": 2 * ospa,
                         "gospa_loc": ospa, "gospa_missed": 0.1 * ti, "gospa_false": 0.2,
                         "rmse": ospa / 4, "n_looks": 24, "n_positive": 3,
@@ -221,7 +223,7 @@ def test_baseline_best_or_inside_the_best_interval_is_flagged():
 def test_a_tracker_given_the_truth_is_not_the_best_the_baseline_is_measured_against():
     rows = _summary_rows({"null": (2.05, 0.0), "truth-aided": (2.0, 0.06),
                           "kfnn": (2.5, 0.1)})
-    rows["uses_truth"] = rows["tracker"] == "truth-aided"
+    rows["tracker_uses_truth"] = rows["tracker"] == "truth-aided"
     notes = report.baseline_notes(rows)
     assert len(notes) == 1 and "has the best GOSPA" in notes[0] and "truth-aided" not in notes[0]
 

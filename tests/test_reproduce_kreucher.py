@@ -143,7 +143,8 @@ def test_cache_key_follows_the_setting():
 
 def test_per_seed_means_after_the_burn_in_and_lost_seeds():
     base = {"scenario": "s", "tracker_label": "t", "policy": "raster", "policy_label": "raster",
-            "looks_per_step": 24, "status": "ok", "count_error": 0.0, "est_count": 3.0,
+            "looks_per_step": 24, "status": "ok", "count_error": 0.0, "own_count_error": 0.0,
+            "est_count": 3.0,
             "true_count": 3.0}
     rows = [{**base, "seed": 0, "step": k, "ospa": 2.0 if k < 3 else 0.5} for k in range(8)]
     rows += [{**base, "seed": 1, "step": k, "ospa": 0.2 if k < 5 else 1.5} for k in range(8)]

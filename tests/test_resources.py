@@ -22,14 +22,28 @@ from mttbench import scenarios, trackers
 from mttbench.benchmarks.app import resources
 from mttbench.benchmarks.app.cli import main
 from mttbench.benchmarks.app.compare import default_tracker_texts
+from mttbench.benchmarks.engine import policies
 from mttbench.benchmarks.engine.errors import ConfigError
 from mttbench.benchmarks.engine.information import DENSE_CELLS
 from mttbench.benchmarks.engine.loop import Job, build_jobs, run_job
-from mttbench.benchmarks.engine.specs import PolicySpec, TrackerSpec, resolve_trackers
+from mttbench.benchmarks.engine.specs import (
+    PolicySpec,
+    TrackerSpec,
+    parse_spec,
+    resolve_trackers,
+)
 from mttbench.scenarios import simulator
 from mttbench.scenarios.model import Grid
 from mttbench.scenarios.spec import dumps
-from mttbench.trackers.jmpd.ap import _auto_slots
+from mttbench.trackers.base import BOX_CELLS, LOOKED_CELL_BYTES, ResourceTerms
+from mttbench.trackers.jmpd.ap import AP_SLOT_BYTES, _auto_slots
+from mttbench.trackers.jmpd.tracker import (
+    JMPD_IP_SLOT_T_BYTES,
+    JMPD_LOOK_BYTES,
+    JMPD_SLOT_BYTES,
+    JMPD_SLOT_T_BYTES,
+)
+from mttbench.trackers.null import NullTracker
 
 GIB = 2.0**30
 MIB = 2.0**20
@@ -115,30 +129,30 @@ def test_tracker_and_prediction_terms_follow_the_parameters():
     r = resources
     small = r.estimate_job(job(sc, "jmpd", n_particles=1000))
     big = r.estimate_job(job(sc, "jmpd", n_particles=4000, t_max=10))
-    assert small.parts["tracker"] == (1000 * 5 * (r.JMPD_SLOT_BYTES + 5 * r.JMPD_SLOT_T_BYTES)
-                                      + 24 * 6 * r.JMPD_LOOK_BYTES)
-    assert big.parts["tracker"] == (4000 * 10 * (r.JMPD_SLOT_BYTES + 10 * r.JMPD_SLOT_T_BYTES)
-                                    + 24 * 11 * r.JMPD_LOOK_BYTES)
+    assert small.parts["tracker"] == (1000 * 5 * (JMPD_SLOT_BYTES + 5 * JMPD_SLOT_T_BYTES)
+                                      + 24 * 6 * JMPD_LOOK_BYTES)
+    assert big.parts["tracker"] == (4000 * 10 * (JMPD_SLOT_BYTES + 10 * JMPD_SLOT_T_BYTES)
+                                    + 24 * 11 * JMPD_LOOK_BYTES)
     ip = r.estimate_job(job(sc, "jmpd-ip", n_particles=1000))
-    assert ip.parts["tracker"] == (1000 * 5 * (r.JMPD_SLOT_BYTES + 5 * r.JMPD_IP_SLOT_T_BYTES)
-                                   + 24 * 6 * r.JMPD_LOOK_BYTES)
+    assert ip.parts["tracker"] == (1000 * 5 * (JMPD_SLOT_BYTES + 5 * JMPD_IP_SLOT_T_BYTES)
+                                   + 24 * 6 * JMPD_LOOK_BYTES)
     assert ip.seconds > small.seconds
     assert "predicted cell counts" not in small.parts
     # jmpd-ap without t_max: its automatic slots
     t_ap = _auto_slots(sc.model)
     ap = r.estimate_job(job(sc, "jmpd-ap"))
-    assert ap.parts["tracker"] == 500 * t_ap * r.AP_SLOT_BYTES + 24 * (t_ap + 1) * r.JMPD_LOOK_BYTES
+    assert ap.parts["tracker"] == 500 * t_ap * AP_SLOT_BYTES + 24 * (t_ap + 1) * JMPD_LOOK_BYTES
     # renyi on 144 cells (the dense path): the gpf's 2 T + 16 = 22 Gaussians' boxes, its
     # own rows capped by the grid, plus the dense rows
     renyi = r.estimate_job(job(sc, "gpf", "renyi", n_counts=7))
-    entries = 22 * r.BOX_CELLS
+    entries = 22 * BOX_CELLS
     rows = min(144, entries + 144) + 144
     assert renyi.parts["predicted cell counts"] == (
         entries * r.ENTRY_BYTES + rows * (r.PREDICTION_ROW_BYTES + 7 * r.PREDICTION_COUNT_BYTES))
     # the fields of the cells looked at so far: 24 per step, at most the grid
-    assert renyi.parts["looked cells"] == 144 * r.LOOKED_CELL_BYTES
+    assert renyi.parts["looked cells"] == 144 * LOOKED_CELL_BYTES
     huge = r.estimate_job(job(scenario(HUGE, steps=10), "kfnn"))
-    assert huge.parts["looked cells"] == 10 * 24 * r.LOOKED_CELL_BYTES
+    assert huge.parts["looked cells"] == 10 * 24 * LOOKED_CELL_BYTES
     assert "looked cells" not in r.estimate_job(job(scenario(HUGE), "truth-aided")).parts
     # renyi with repeats: a cell may take all 24 looks, positions up to 24 x 1e10
     repeats = r.estimate_job(job(scenario(HUGE), "null", "renyi", policy_params={"repeats": True}))
@@ -150,6 +164,432 @@ def test_tracker_and_prediction_terms_follow_the_parameters():
     # random: numpy's choice shuffles every cell when there are fewer than 50 per look
     assert r.estimate_job(job(scenario(12), "null", "random")).parts["policy"] == 144 * 8
     assert r.estimate_job(job(scenario(HUGE), "null", "random")).parts["policy"] == 50 * 24 * 8
+
+
+#: the worlds of :data:`OLD_ESTIMATES`: (grid side, steps, preset)
+WORLDS = {"12": (12, 100, "default"), "1e5": (HUGE, 100, "large"), "scale": (500, 10, "scale"),
+          "superposition": (12, 100, "superposition")}
+
+
+def world_job(world: str, tracker: str, policy: str | None, looks: int | None) -> Job:
+    side, steps, preset = WORLDS[world]
+    return Job(scenario(side, steps=steps, preset=preset),
+               TrackerSpec(*parse_spec(tracker, "tracker")),
+               PolicySpec(*parse_spec(policy, "policy")) if policy else None, looks, 0)
+
+
+#: (world, tracker, policy, looks) -> (memory, seconds, parts) as ``estimate_job`` gave them
+#: before issue 22, when resources.py still knew every tracker and policy by name: computed
+#: by that function (commit c68a429, run from a copy while the classes took their costs
+#: over) and pasted here. The classes' terms must give the same numbers, bit for bit
+OLD_ESTIMATES: dict[tuple[str, str, str | None, int | None], tuple[float, float, dict]] = {
+    ('12', 'null', 'raster', None): (
+        422194240.0, 0.2048,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0}),
+    ('12', 'null', 'renyi', None): (
+        422277184.0, 0.20768000000000003,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'predicted cell counts': 82944.0}),
+    ('1e5', 'null', 'renyi', None): (
+        426609856.0, 0.25,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
+         'simulator': 6419456.0, 'predicted cell counts': 0.0}),
+    ('superposition', 'null', None, None): (
+        420080000.0, 0.2,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0}),
+    ('12', 'kfnn', 'raster', None): (
+        422212672.0, 0.314944,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'looked cells': 18432.0}),
+    ('12', 'kfnn', 'renyi', None): (
+        423515200.0, 0.382784,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'looked cells': 18432.0, 'predicted cell counts': 1302528.0}),
+    ('1e5', 'kfnn', 'renyi', None): (
+        465230016.0, 2.6698,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
+         'simulator': 6419456.0, 'looked cells': 3200000.0, 'predicted cell counts': 35420160.0}),
+    ('superposition', 'kfnn', None, None): (
+        420080000.0, 0.29000000000000004,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0}),
+    ('12', 'truth-aided', 'raster', None): (
+        423816256.0, 0.3176,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'tracker': 1622016.0}),
+    ('12', 'truth-aided', 'renyi', None): (
+        425118784.0, 0.38544,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'predicted cell counts': 1302528.0, 'tracker': 1622016.0}),
+    ('1e5', 'truth-aided', 'renyi', None): (
+        493518016.0, 3.2447999999999997,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
+         'simulator': 6419456.0, 'predicted cell counts': 16220160.0, 'tracker': 50688000.0}),
+    ('superposition', 'truth-aided', None, None): (
+        420080000.0, 0.24,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0}),
+    ('12', 'gpf', 'raster', None): (
+        426341440.0, 1.3273440000000003,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'looked cells': 18432.0, 'tracker': 4128768.0}),
+    ('12', 'gpf', 'renyi', None): (
+        427643968.0, 1.3951840000000004,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'looked cells': 18432.0, 'predicted cell counts': 1302528.0,
+         'tracker': 4128768.0}),
+    ('1e5', 'gpf', 'renyi', None): (
+        518887616.0, 5.3698,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
+         'simulator': 6419456.0, 'looked cells': 3200000.0, 'predicted cell counts': 35420160.0,
+         'tracker': 53657600.0}),
+    ('superposition', 'gpf', None, None): (
+        422537600.0, 1.2400000000000002,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0,
+         'tracker': 2457600.0}),
+    ('12',
+     'gpf:n_counts=7,max_components=2,max_combinations=100,max_particles=50',
+     'raster', None): (
+        424248640.0, 0.827344,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'looked cells': 18432.0, 'tracker': 2035968.0}),
+    ('12',
+     'gpf:n_counts=7,max_components=2,max_combinations=100,max_particles=50',
+     'renyi', None): (
+        425634112.0, 0.903824,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'looked cells': 18432.0, 'predicted cell counts': 1385472.0,
+         'tracker': 2035968.0}),
+    ('1e5',
+     'gpf:n_counts=7,max_components=2,max_combinations=100,max_particles=50',
+     'renyi', None): (
+        528860864.0, 6.1266799999999995,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
+         'simulator': 6419456.0, 'looked cells': 3200000.0, 'predicted cell counts': 47486208.0,
+         'tracker': 51564800.0}),
+    ('superposition',
+     'gpf:n_counts=7,max_components=2,max_combinations=100,max_particles=50',
+     None, None): (
+        420444800.0, 0.74,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0,
+         'tracker': 364800.0}),
+    ('12', 'jmpd', 'raster', None): (
+        425558848.0, 0.8048000000000001,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'tracker': 3364608.0}),
+    ('12', 'jmpd', 'renyi', None): (
+        427755328.0, 0.9737792500144231,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'predicted cell counts': 2196480.0, 'tracker': 3364608.0}),
+    ('1e5', 'jmpd', 'renyi', None): (
+        441537856.0, 1.6016992500144231,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
+         'simulator': 6419456.0, 'predicted cell counts': 11520000.0, 'tracker': 3408000.0}),
+    ('superposition', 'jmpd', None, None): (
+        423440000.0, 0.8,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0,
+         'tracker': 3360000.0}),
+    ('12', 'jmpd:t_max=10,n_particles=500', 'raster', None): (
+        424282688.0, 0.5548,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'tracker': 2088448.0}),
+    ('12', 'jmpd:t_max=10,n_particles=500', 'renyi', None): (
+        425657408.0, 0.6710743161863729,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'predicted cell counts': 1374720.0, 'tracker': 2088448.0}),
+    ('1e5', 'jmpd:t_max=10,n_particles=500', 'renyi', None): (
+        436937856.0, 1.234594316186373,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
+         'simulator': 6419456.0, 'predicted cell counts': 8160000.0, 'tracker': 2168000.0}),
+    ('superposition', 'jmpd:t_max=10,n_particles=500', None, None): (
+        422160000.0, 0.5499999999999999,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0,
+         'tracker': 2080000.0}),
+    ('12', 'jmpd:proposal=ip', 'raster', None): (
+        427158848.0, 2.6048,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'tracker': 4964608.0}),
+    ('12', 'jmpd:proposal=ip', 'renyi', None): (
+        429355328.0, 2.7737792500144236,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'predicted cell counts': 2196480.0, 'tracker': 4964608.0}),
+    ('1e5', 'jmpd:proposal=ip', 'renyi', None): (
+        443137856.0, 3.4016992500144236,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
+         'simulator': 6419456.0, 'predicted cell counts': 11520000.0, 'tracker': 5008000.0}),
+    ('superposition', 'jmpd:proposal=ip', None, None): (
+        425040000.0, 2.6,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0,
+         'tracker': 4960000.0}),
+    ('12', 'jmpd-ip', 'raster', None): (
+        427158848.0, 2.6048,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'tracker': 4964608.0}),
+    ('12', 'jmpd-ip', 'renyi', None): (
+        429355328.0, 2.7737792500144236,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'predicted cell counts': 2196480.0, 'tracker': 4964608.0}),
+    ('1e5', 'jmpd-ip', 'renyi', None): (
+        443137856.0, 3.4016992500144236,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
+         'simulator': 6419456.0, 'predicted cell counts': 11520000.0, 'tracker': 5008000.0}),
+    ('superposition', 'jmpd-ip', None, None): (
+        425040000.0, 2.6,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0,
+         'tracker': 4960000.0}),
+    ('12', 'jmpd-ap', 'raster', None): (
+        424141120.0, 0.704944,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'looked cells': 18432.0, 'tracker': 1928448.0}),
+    ('12', 'jmpd-ap', 'renyi', None): (
+        425349952.0, 0.8039383161863729,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'looked cells': 18432.0, 'predicted cell counts': 1208832.0,
+         'tracker': 1928448.0}),
+    ('1e5', 'jmpd-ap', 'renyi', None): (
+        490729856.0, 6.157193424530331,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
+         'simulator': 6419456.0, 'looked cells': 3200000.0, 'predicted cell counts': 50112000.0,
+         'tracker': 10808000.0}),
+    ('superposition', 'jmpd-ap', None, None): (
+        421616000.0, 0.6,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0,
+         'tracker': 1536000.0}),
+    ('12', 'jmpd-ap:t_max=8,n_particles=300', 'raster', None): (
+        423141184.0, 0.444944,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'looked cells': 18432.0, 'tracker': 928512.0}),
+    ('12', 'jmpd-ap:t_max=8,n_particles=300', 'renyi', None): (
+        423850816.0, 0.4985596400069231,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'looked cells': 18432.0, 'predicted cell counts': 709632.0,
+         'tracker': 928512.0}),
+    ('1e5', 'jmpd-ap:t_max=8,n_particles=300', 'renyi', None): (
+        454937856.0, 1.924215640006923,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
+         'simulator': 6419456.0, 'looked cells': 3200000.0, 'predicted cell counts': 24134400.0,
+         'tracker': 993600.0}),
+    ('superposition', 'jmpd-ap:t_max=8,n_particles=300', None, None): (
+        421001600.0, 0.43999999999999995,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0,
+         'tracker': 921600.0}),
+    ('12', 'ss-gnn', 'raster', None): (
+        422212672.0, 3.204944,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'looked cells': 18432.0}),
+    ('12', 'ss-gnn', 'renyi', None): (
+        423515200.0, 3.272784,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'looked cells': 18432.0, 'predicted cell counts': 1302528.0}),
+    ('1e5', 'ss-gnn', 'renyi', None): (
+        465230016.0, 27.1198,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
+         'simulator': 6419456.0, 'looked cells': 3200000.0, 'predicted cell counts': 35420160.0}),
+    ('superposition', 'ss-gnn', None, None): (
+        420080000.0, 2.2,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0}),
+    ('12', 'ss-gmphd', 'raster', None): (
+        422194240.0, 3.2048,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0}),
+    ('12', 'ss-gmphd', 'renyi', None): (
+        423496768.0, 3.2726400000000004,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'predicted cell counts': 1302528.0}),
+    ('1e5', 'ss-gmphd', 'renyi', None): (
+        442830016.0, 26.094800000000003,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
+         'simulator': 6419456.0, 'predicted cell counts': 16220160.0}),
+    ('superposition', 'ss-gmphd', None, None): (
+        420080000.0, 2.2,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0}),
+    ('12', 'ss-gmphd:max_components=50', 'raster', None): (
+        422194240.0, 3.2048,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0}),
+    ('12', 'ss-gmphd:max_components=50', 'renyi', None): (
+        423496768.0, 3.2726400000000004,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'predicted cell counts': 1302528.0}),
+    ('1e5', 'ss-gmphd:max_components=50', 'renyi', None): (
+        438897856.0, 25.890000000000004,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
+         'simulator': 6419456.0, 'predicted cell counts': 12288000.0}),
+    ('superposition', 'ss-gmphd:max_components=50', None, None): (
+        420080000.0, 2.2,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0}),
+    ('12', 'crashing_tracker:Crash', 'raster', None): (
+        422194240.0, 0.2048,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0}),
+    ('12', 'crashing_tracker:Crash', 'renyi', None): (
+        423496768.0, 0.27264,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'predicted cell counts': 1302528.0}),
+    ('1e5', 'crashing_tracker:Crash', 'renyi', None): (
+        442830016.0, 1.0948,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
+         'simulator': 6419456.0, 'predicted cell counts': 16220160.0}),
+    ('superposition', 'crashing_tracker:Crash', None, None): (
+        420080000.0, 0.2,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0}),
+    ('12', 'nowhere.at_all:Thing:n_counts=9,t_max=3', 'raster', None): (
+        422194240.0, 0.2048,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0}),
+    ('12', 'nowhere.at_all:Thing:n_counts=9,t_max=3', 'renyi', None): (
+        423635008.0, 0.28703999999999996,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2109440.0, 'predicted cell counts': 1440768.0}),
+    ('1e5', 'nowhere.at_all:Thing:n_counts=9,t_max=3', 'renyi', None): (
+        450940096.0, 1.9396,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
+         'simulator': 6419456.0, 'predicted cell counts': 24330240.0}),
+    ('superposition', 'nowhere.at_all:Thing:n_counts=9,t_max=3', None, None): (
+        420080000.0, 0.2,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0}),
+    ('12', 'null', 'all', 200): (
+        422255680.0, 0.2288,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2170880.0}),
+    ('12', 'null', 'random', 200): (
+        422285504.0, 0.24,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2199552.0, 'policy': 1152.0}),
+    ('12', 'null', 'oracle', 200): (
+        422285504.0, 0.24,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2199552.0, 'policy': 1152.0}),
+    ('12', 'null', 'renyi:repeats=true', 200): (
+        422367296.0, 0.24288,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2199552.0, 'predicted cell counts': 82944.0}),
+    ('12', 'null', 'crashing_tracker:FirstCells', 200): (
+        422284352.0, 0.24,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2199552.0}),
+    ('12', 'gpf', 'all', 200): (
+        434758720.0, 1.6633440000000004,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2170880.0, 'looked cells': 18432.0, 'tracker': 12484608.0}),
+    ('12', 'gpf', 'random', 200): (
+        434788544.0, 1.674544,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2199552.0, 'policy': 1152.0, 'looked cells': 18432.0,
+         'tracker': 12484608.0}),
+    ('12', 'gpf', 'oracle', 200): (
+        434788544.0, 1.674544,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2199552.0, 'policy': 1152.0, 'looked cells': 18432.0,
+         'tracker': 12484608.0}),
+    ('12', 'gpf', 'renyi:repeats=true', 200): (
+        436089920.0, 1.742384,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2199552.0, 'looked cells': 18432.0, 'predicted cell counts': 1302528.0,
+         'tracker': 12484608.0}),
+    ('12', 'gpf', 'crashing_tracker:FirstCells', 200): (
+        434787392.0, 1.674544,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2199552.0, 'looked cells': 18432.0, 'tracker': 12484608.0}),
+    ('12', 'jmpd-ap', 'all', 200): (
+        424244800.0, 0.728944,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2170880.0, 'looked cells': 18432.0, 'tracker': 1970688.0}),
+    ('12', 'jmpd-ap', 'random', 200): (
+        424274624.0, 0.740144,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2199552.0, 'policy': 1152.0, 'looked cells': 18432.0, 'tracker': 1970688.0}),
+    ('12', 'jmpd-ap', 'oracle', 200): (
+        424274624.0, 0.740144,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2199552.0, 'policy': 1152.0, 'looked cells': 18432.0, 'tracker': 1970688.0}),
+    ('12', 'jmpd-ap', 'renyi:repeats=true', 200): (
+        425482304.0, 0.8391383161863729,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2199552.0, 'looked cells': 18432.0, 'predicted cell counts': 1208832.0,
+         'tracker': 1970688.0}),
+    ('12', 'jmpd-ap', 'crashing_tracker:FirstCells', 200): (
+        424273472.0, 0.740144,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2199552.0, 'looked cells': 18432.0, 'tracker': 1970688.0}),
+    ('12', 'truth-aided', 'all', 200): (
+        431987776.0, 0.6055999999999999,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2170880.0, 'tracker': 9732096.0}),
+    ('12', 'truth-aided', 'random', 200): (
+        432017600.0, 0.6168,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2199552.0, 'policy': 1152.0, 'tracker': 9732096.0}),
+    ('12', 'truth-aided', 'oracle', 200): (
+        432017600.0, 0.6168,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2199552.0, 'policy': 1152.0, 'tracker': 9732096.0}),
+    ('12', 'truth-aided', 'renyi:repeats=true', 200): (
+        433318976.0, 0.6846399999999999,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2199552.0, 'predicted cell counts': 1302528.0, 'tracker': 9732096.0}),
+    ('12', 'truth-aided', 'crashing_tracker:FirstCells', 200): (
+        432016448.0, 0.6168,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
+         'simulator': 2199552.0, 'tracker': 9732096.0}),
+    ('scale', 'gpf', 'raster', None): (
+        750847104.0, 3.5865000000000005,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 530560.0, 'result rows': 61440.0,
+         'simulator': 5474304.0, 'looked cells': 3200000.0, 'tracker': 322150400.0}),
+    ('scale', 'jmpd-ap', 'raster', None): (
+        973864704.0, 10.1825,
+        {'worker': 402653184.0, 'run': 16777216.0, 'truth': 530560.0, 'result rows': 61440.0,
+         'simulator': 5474304.0, 'looked cells': 3200000.0, 'tracker': 545168000.0}),
+}
+
+
+@pytest.mark.parametrize("case", list(OLD_ESTIMATES), ids=lambda c: "|".join(map(str, c)))
+def test_the_classes_terms_give_the_estimates_resources_py_gave_by_name(case):
+    """Every shipped tracker (and settings of their cost parameters), trackers named by
+    class path (one that cannot be found), every policy, on a dense and a sparse grid, the
+    superposition sensor and ``scale``."""
+    memory, seconds, parts = OLD_ESTIMATES[case]
+    est = resources.estimate_job(world_job(*case))
+    assert (est.memory, est.seconds, est.parts) == (memory, seconds, parts)
+    assert list(est.parts) == list(parts)
+
+
+def test_a_tracker_and_a_policy_from_elsewhere_declare_their_own_terms(monkeypatch):
+    """The hooks are all resources.py asks: a tracker's and a policy's overrides are
+    counted where their terms go, by no name."""
+
+    class Told(NullTracker):
+        name = "test-costs-declared"
+
+        @classmethod
+        def resource_terms(cls, params, model, looks_per_step, targets):
+            return ResourceTerms(state_bytes=1000.0, look_bytes=10.0, looked_cell_bytes=1.0,
+                                 prediction_entries=7.0, prediction_counts=3.0)
+
+    class Twice(policies.RenyiGain):
+        name = "test-twice-the-looks"
+
+        @classmethod
+        def resource_terms(cls, params, model, looks_per_step):
+            return policies.PolicyTerms(2 * looks_per_step, repeats=True, state_bytes=5.0)
+
+    real = policies.get_policy_class
+    monkeypatch.setattr(policies, "get_policy_class",
+                        lambda name: Twice if name == Twice.name else real(name))
+    trackers.register(Told)
+    try:
+        est = resources.estimate_job(job(scenario(HUGE, steps=10), Told.name, Twice.name))
+    finally:
+        trackers.unregister(Told.name)
+    # 48 distinct looks per step, repeats: positions up to 48 x 1e10
+    assert est.parts["simulator"] == (resources.jump_tables(48 * HUGE**2)
+                                      * resources.JUMP_TABLE_BYTES + 48 * resources.LOOK_BYTES)
+    assert est.parts["policy"] == 5.0
+    assert est.parts["looked cells"] == 10 * 48 * 1.0
+    assert est.parts["tracker"] == 1000.0 + 48 * 10.0
+    rows = 7.0 + 10 * 48  # its entries and the looked cells (it keeps them), no dense rows
+    assert est.parts["predicted cell counts"] == (
+        7.0 * resources.ENTRY_BYTES
+        + rows * (resources.PREDICTION_ROW_BYTES + 3.0 * resources.PREDICTION_COUNT_BYTES))
 
 
 def test_a_job_that_cannot_fit_is_refused_on_any_machine():

@@ -237,17 +237,19 @@ def test_harness_gives_the_truth_only_to_trackers_that_use_it():
 
 
 def test_rows_are_marked_when_the_tracker_or_the_policy_uses_the_truth():
+    """Each side's use of the truth in its own column."""
     sc = short("default", 4)
-    rows = {
-        ("truth-aided", "raster"): True,
-        ("kfnn", "raster"): False,
-        ("kfnn", "oracle"): True,
-        ("truth-aided", "oracle"): True,
+    rows = {  # (tracker uses it, policy uses it)
+        ("truth-aided", "raster"): (True, False),
+        ("kfnn", "raster"): (False, False),
+        ("kfnn", "oracle"): (False, True),
+        ("truth-aided", "oracle"): (True, True),
     }
-    for (tracker, policy), marked in rows.items():
+    for (tracker, policy), (by_tracker, by_policy) in rows.items():
         df = run_job(Job(sc, TrackerSpec(tracker), PolicySpec(policy), None, 0))
         assert (df["status"] == "ok").all()
-        assert df["uses_truth"].tolist() == [marked] * 4, (tracker, policy)
+        assert df["tracker_uses_truth"].tolist() == [by_tracker] * 4, (tracker, policy)
+        assert df["policy_uses_truth"].tolist() == [by_policy] * 4, (tracker, policy)
 
 
 def test_estimate_is_the_filters_not_the_truth():

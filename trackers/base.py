@@ -1,6 +1,6 @@
 """The interface every tracker implements, and the registry of trackers by name.
 
-Life cycle, as the harness drives it (STYLE.md pattern 1)::
+Life cycle, as the step loop drives it (untimed ``reset``, timed steps)::
 
     tracker = make("gpf", epsilon=1e-3)     # constructor: store parameters only
     reason = tracker.unsupported_reason(model)   # None, or why it cannot run this model
@@ -17,7 +17,9 @@ update, including the first.
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -49,6 +51,83 @@ class Estimate:
         return Estimate(0.0, np.zeros((0, 4)))
 
 
+# ------------------------------------------------------------------ resource terms
+# Measured costs shared by several trackers (benchmarks/app/resources.py and
+# docs/resources.md say how they were measured and how the sweep check adds them up).
+#: cells of a Gaussian's 6-sd box counted per Gaussian (in P_c(t)'s entries and in the
+#: (Gaussian, looked cell) pairs; docs/resources.md)
+BOX_CELLS = 256
+#: per target and step of the trackers with a Gaussian per target (kfnn, truth-aided,
+#: gpf): truth-aided 3 ms per step with 25 targets on 12x12
+TARGET_S = 2e-4
+#: per cell looked at so far, for the trackers with an undetected field (a value per
+#: such cell, inserted with a copy): 25 (kfnn), 27 (ss-gnn), 76 (jmpd-ap) and 96 B
+#: (gpf, its box test included) more than null's growth, over 250,000 looked cells
+#: (raster, 2,500 looks x 100 steps on 1e5 x 1e5)
+LOOKED_CELL_BYTES = 128
+#: per cell looked at so far and step (the undetected field's update)
+LOOKED_CELL_S = 1e-8
+#: per (Gaussian, looked cell) pair of the grid update (``gpf_grid``, gpf and
+#: truth-aided): its quadrature's temporaries (16 arrays of up to 24 nodes) and moments
+PAIR_BYTES = 3072
+#: per (Gaussian, looked cell) pair: its truncated moments (gpf on ``large``: 3-5 ms for
+#: 4,000 pairs) or a birth candidate's update
+PAIR_S = 1e-6
+
+
+def param_number(params: Mapping[str, Any], key: str, default: float) -> float:
+    """``params[key]`` as a float for a resource estimate; ``default`` when it is missing,
+    not a number (booleans included), not finite or negative."""
+    v = params.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
+        return float(default)
+    return float(v)
+
+
+def gaussian_boxes(targets: float) -> float:
+    """Gaussians (or target images) counted at once for a tracker with a Gaussian per
+    target: ``2 T + 16`` (docs/resources.md)."""
+    return 2.0 * targets + 16.0
+
+
+@dataclass(frozen=True)
+class ResourceTerms:
+    """A tracker's own part of one run's memory (bytes) and time (seconds per step), as
+    :meth:`Tracker.resource_terms` declares it for the sweep check
+    (:mod:`~mttbench.benchmarks.app.resources`). Upper estimates from measurements, not
+    predictions; every term defaults to nothing.
+
+    Always counted: ``state_bytes`` (particles, Gaussians), ``step_seconds`` (per step)
+    and ``target_seconds`` (per target and step). On a grid sensor, with ``m`` distinct
+    cells looked at per step (the ``looks_per_step`` the terms were computed for):
+    ``update_bytes`` and ``update_seconds`` (the update's work for those ``m`` cells, as
+    a whole) and ``look_bytes`` and ``look_seconds`` (per looked cell, times ``m``);
+    ``looked_cell_bytes`` and ``looked_cell_seconds`` per cell looked at so far (an
+    undetected field keeping a value per such cell; those cells then also have rows of
+    their own in ``P_c(t)``). When the policy reads ``P_c(t)``: ``prediction_entries``
+    (the particle slots or box cells it is built from), ``prediction_counts`` (its
+    ``n_counts``, count columns) and ``prediction_seconds`` per step beyond its rows.
+    """
+
+    state_bytes: float = 0.0
+    update_bytes: float = 0.0
+    look_bytes: float = 0.0
+    looked_cell_bytes: float = 0.0
+    step_seconds: float = 0.0
+    target_seconds: float = 0.0
+    update_seconds: float = 0.0
+    look_seconds: float = 0.0
+    looked_cell_seconds: float = 0.0
+    prediction_entries: float = 0.0
+    prediction_counts: float = 2.0
+    prediction_seconds: float = 0.0
+
+    @property
+    def keeps_looked_cells(self) -> bool:
+        """True if the tracker keeps a value for every cell looked at so far."""
+        return bool(self.looked_cell_bytes or self.looked_cell_seconds)
+
+
 class Tracker(Configurable, ABC):
     """Base class of all trackers.
 
@@ -73,7 +152,7 @@ class Tracker(Configurable, ABC):
     conformance_exceptions: ClassVar[dict[str, str]] = {}
     #: a reference that is given the truth (``truth-aided``): the harness calls its
     #: ``observe_truth(states (n, 4), ids (n,))`` each step after ``predict`` (never for
-    #: other trackers) and marks its rows ``uses_truth``
+    #: other trackers) and marks its rows ``tracker_uses_truth``
     uses_truth: ClassVar[bool] = False
 
     # ------------------------------------------------------------------ params
@@ -86,6 +165,26 @@ class Tracker(Configurable, ABC):
     def __repr__(self) -> str:
         args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
         return f"{type(self).__name__}({args})"
+
+    # ------------------------------------------------------------ resource terms
+    @classmethod
+    def resource_terms(cls, params: Mapping[str, Any], model: TrackingModel,
+                       looks_per_step: float, targets: float) -> ResourceTerms:
+        """This tracker's costs in one run (:class:`ResourceTerms`), for the memory and
+        time check before a sweep (:mod:`~mttbench.benchmarks.app.resources`).
+
+        ``params`` are every parameter (defaults filled in; read them with
+        :func:`param_number`), ``looks_per_step`` the distinct cells looked at per step
+        (``min(M, C)``; 0 without a grid sensor), ``targets`` the targets of the run
+        (initial plus expected births). Override it with the tracker's measured costs.
+        The default (a tracker written elsewhere) counts nothing beyond the run's common
+        terms, and a ``P_c(t)`` built from ``2 T + 16`` Gaussians' boxes with ``n_counts``
+        (or ``t_max + 1``, at least 4) count columns.
+        """
+        n_counts = max(4.0, param_number(params, "n_counts", 0),
+                       param_number(params, "t_max", 0) + 1)
+        return ResourceTerms(prediction_entries=gaussian_boxes(targets) * BOX_CELLS,
+                             prediction_counts=n_counts)
 
     # --------------------------------------------------------------- life cycle
     def unsupported_reason(self, model: TrackingModel) -> str | None:

@@ -3,7 +3,8 @@
 Each particle is ``{w_i, N(mu_i, Sigma_i)}``: ``w_i`` is the probability that a target
 with that Gaussian exists, and the estimated count is ``sum_i w_i`` (paper Section IV).
 Arrays: ``w (K,)``, ``means (K, 4)``, ``covs (K, 4, 4)``; states ``[px, vx, py, vy]``.
-The measurements behind the defaults, with commands that repeat them: docs/gpf.md.
+The measurements behind the defaults, with commands that repeat them, and the switches
+retired with the measurement that retired each: docs/gpf.md.
 
 On the grid sensor a particle ("track") may carry a mixture of up to ``max_components``
 Gaussians (a Bernoulli with a Gaussian-mixture density, as in multi-Bernoulli filters; a
@@ -13,91 +14,75 @@ detection a broad track may have made splits off as a component (``split_share``
 Gaussian, while the track keeps one existence probability. Each component is predicted
 like a particle; within a track components merge by the Bhattacharyya rule below, those
 below ``_COMPONENT_FLOOR`` go, and beyond ``max_components`` the lightest are moment
-matched into one. A track reports the component with the highest peak
-(``state_estimate="mode"``), skipping one within a cell of a state already reported by a
-heavier track (tracks that share a detection each hold a component on it).
+matched into one. A track reports its component with the highest peak
+``a / sqrt(det Sigma_pos)`` (``a`` its weight within the track), skipping one within a
+cell of a state already reported by a heavier track (tracks that share a detection each
+hold a component on it).
 
 Step (the harness calls predict, then update, then estimate):
 
 * **Predict**: ``mu <- F mu``, ``Sigma <- F Sigma F^T + Q``, ``w <- p w`` with the survival
-  ``p = min(p_s, 1 - death_probability)``. No probability stays outside the workspace
-  (``truncate=True``, issue 14): under "reflect" the mass beyond a wall is mirrored back
-  (position and that axis's velocity; :func:`.gpf_grid.fold_into_workspace`, the
-  Gaussian's reflection images restricted to the workspace, moment matched), under
-  "die" ``w`` is multiplied by the mass inside and the
-  Gaussian becomes its truncation to the workspace (:func:`truncate_to_workspace`). So a
-  broad Gaussian pays, in the grid update, for the looks that found nothing where its mass
-  is (before, mass outside counted as "elsewhere", likelihood 1). ``truncate=False``
-  keeps the earlier rule: mirror a mean that left (signs flipped), or weigh by the
-  product of the marginal masses inside without truncating. Truncating under "reflect"
-  instead of folding held tracks at the wall (``default``, every cell looked, 6 seeds:
-  OSPA 0.433 -> 0.544); folding gives 0.400.
+  ``p = min(p_s, 1 - death_probability)``. No probability stays outside the workspace:
+  under "reflect" the mass beyond a wall is mirrored back (position and that axis's
+  velocity; :func:`.gpf_grid.fold_into_workspace`, the Gaussian's reflection images
+  restricted to the workspace, moment matched), under "die" ``w`` is multiplied by the
+  mass inside and the Gaussian becomes its truncation to the workspace
+  (:func:`truncate_to_workspace`). So a broad Gaussian pays, in the grid update, for the
+  looks that found nothing where its mass is.
 * **Death floor** (not in the paper): ``death_probability=None`` is ``DEFAULT_DEATH_FLOOR``
   on the grid sensor with births, else ``0`` (the model's ``p_s``). With ``p_s = 1`` each
   detection adds ``log l(1) = 6.9`` to the log-odds, ``w`` rounds to 1.0 and a lost track
   keeps ``w = 1`` while its covariance grows; the floor ``f`` caps the log-odds after each
-  predict at ``log((1 - f) / f)``, so negative looks lower them again. 0.003, the smallest
-  floor tried, frees such weights at no OSPA cost and a count cost within noise (``default``,
-  ``crossing``); larger floors remove more lost tracks for more count error; ``1e-15`` is no
-  fix (docs/gpf.md).
+  predict at ``log((1 - f) / f)``, so negative looks lower them again. The default is the
+  smallest floor that frees such weights at no OSPA cost; larger floors remove more lost
+  tracks for more count error.
 * **Update**: :mod:`trackers.gpf_linear` (superposition: the paper's combinations ``E`` and
   appendix gain, moment-matched fold-back) or :mod:`trackers.gpf_grid` (grid: truncated
-  Gaussians, exact Bernoulli weights, combinations per cluster sharing a looked cell).
+  Gaussians, exact Bernoulli weights, combinations per cluster of tracks sharing a
+  detected cell, each member's looked cells without a detection pooled into one option,
+  JPDA* against coalescence).
 * **Combinations**: as in the paper, cut on their probability ``<= epsilon``, at most
-  ``max_combinations`` (the most probable) kept, renormalised. ``epsilon = 1e-4`` (was
-  ``1e-3``): 2.5x smaller weight error per update at the same cost, closed-loop scores
-  unchanged within noise (docs/gpf.md). With ``aggregate_misses`` (default) the looked cells
-  without a detection are one option per member and the cut acts on the likelihood-tilted
-  probability (:mod:`.gpf_grid`, "missed cells"); ``avoid_coalescence`` (default) keeps one
-  of the combinations that swap detections between members (JPDA*, Blom and Bloem 2000).
-* **Count bound** (``count_aware_births``, default): a model without arrivals never has
-  more targets than it started with, so after each update the existences are replaced by
-  their marginals given ``count <= n0`` (:func:`condition_on_count_bound`, exact for
-  independent Bernoullis), and the undetected field holds ``n0 - sum w`` at most; without
-  it a fixed-count scene collects false tracks that a broad prediction keeps alive
-  (``paper``: four or five tracks for three targets).
+  ``max_combinations`` (the most probable) kept, renormalised; on the grid the cut acts
+  on the likelihood-tilted probability (:mod:`.gpf_grid`, "missed cells"), and a track
+  joins a detected cell's cluster when ``w m_c > INTERACTION_THRESHOLD``.
+* **Count bound** (models without arrivals): such a model never has more targets than it
+  started with, ``n0``, so after each update the existences are replaced by their
+  marginals given ``count <= n0`` (:func:`condition_on_count_bound`, exact for
+  independent Bernoullis), and the undetected field holds the targets no track holds
+  (births, below); without it a fixed-count scene collects false tracks that a broad
+  prediction keeps alive.
 * **Merge** (the paper's Mahalanobis rule): greedily from the heaviest particle ``i``, those
   ``j`` with ``(mu_i - mu_j)^T (Sigma_i + Sigma_j)^-1 (mu_i - mu_j) < merge_threshold``
-  join it; a group becomes one moment-matched Gaussian (the paper sums the covariances). The
-  paper's merged weight, the sum, can exceed 1; ``merge_weight``: ``"bounded_sum"`` admits
-  members (nearest first) while the sum stays ``<= 1`` (``sum w`` kept exactly);
-  ``"capped_sum"`` takes all, weight ``min(1, sum w)``; ``"union"`` ``1 - prod(1 - w)``.
-  ``"auto"`` (default): ``"bounded_sum"``, but ``"capped_sum"`` on the grid for a model
-  with arrivals (on the grid it was ``"capped_sum"`` always: it merged two broad tracks of
-  two targets into one of weight 1, and ``paper`` held one target of three; without
-  arrivals the count bound now does what it did against overcounting; docs/gpf.md).
-  ``merge_metric="bhattacharyya"`` adds a shape term, so a narrow Gaussian never joins a
-  much broader one; components within a track always merge by it.
+  join it; a group becomes one moment-matched Gaussian (the paper sums the covariances).
+  The paper's merged weight, the sum, can exceed 1; the model decides the rule:
+  ``"bounded_sum"`` (members join, nearest first, while the sum stays ``<= 1``, so ``sum
+  w`` is kept exactly: two broad tracks of two targets stay two) on the superposition
+  sensor and on models without arrivals; ``"capped_sum"`` (all join, weight ``min(1, sum
+  w)``: a lost track and the birth that found its target again become one) on the grid
+  with arrivals. Components within a track merge by the Bhattacharyya form
+  (:func:`_pair_distances`), so a narrow component never joins a much broader one.
 * **Prune**: drop ``w < prune_threshold``; keep at most ``max_particles`` (the heaviest).
-* **Split** (``split_sd > 0``, off by default): before a grid update, a Gaussian whose
-  position sd exceeds ``split_sd`` cells is split in three along its broadest axis keeping
-  the mixture's first two moments (:func:`split_broad`). Off because the pieces become
-  independent Bernoullis: a certain target split into ``w (1/4, 1/2, 1/4)`` loses half its
-  existence at one step of misses (``paper``, every cell looked: OSPA 1.80 -> 1.56 but
-  the count error stays 1.7, and ``default`` at raster 24 counts worse, 0.78 -> 0.90).
 
-Births and the initial prior (``births=False``: empty prior, no births, for reduction tests):
+Births and the initial prior (:class:`EmptyPriorGPF`, for tests: none of either):
 
 * Grid: an undetected-target field ``u`` (per cell, the probability of an unseen
-  target): ``initial_count_mean / n_cells`` at first, ``u <- 1 - (1 - p u)(1 - birth_rate /
-  n_cells)`` at each predict, floored at ``birth_floor``; with ``count_aware_births``
-  (default; models without arrivals only) the field holds the targets the model expects
-  and no particle holds, ``m(k) - sum w`` (scaled up or down keeping its shape, no
-  floor), so that a detection a lost target made can start a track against a broad
-  particle that would otherwise absorb it, and no more tracks start than the count leaves
-  (with the count bound above). On ``births`` (arrivals) it and ``bounded_sum`` cost OSPA
-  under renyi (docs/gpf.md section 9), so models with arrivals keep the floored field and
-  ``capped_sum``. Each looked
-  cell with ``u_c > 0`` adds a candidate (weight ``u_c``, uniform on the cell) to the
-  update; after it, a candidate whose cell returned a detection becomes a Gaussian (cell
-  centre, position variance
-  ``cell^2 / 12``, velocity sd ``birth_velocity_std``), the others go back to ``u_c``. The
-  field does not move with the targets: fine for slow ones, lagging on ``paper``.
+  target): ``initial_count_mean / n_cells`` at first (at least ``birth_floor``). At each
+  predict, on a model with arrivals, ``u <- 1 - (1 - p u)(1 - birth_rate / n_cells)``,
+  floored at ``birth_floor``; on a model without arrivals the field holds the targets the
+  model expects and no particle holds, ``m(k) - sum w`` (``u`` scaled up or down keeping
+  its shape, no floor), so that a detection a lost target made can start a track against
+  a broad particle that would otherwise absorb it, and no more tracks start than the
+  count leaves. Each looked cell with ``u_c > 0`` adds a candidate (weight ``u_c``,
+  uniform on the cell) to the update; after it, a candidate whose cell returned a
+  detection becomes a Gaussian (cell centre, position variance ``cell^2 / 12``, velocity
+  sd ``birth_velocity_std``), the others go back to ``u_c``. The field does not move with
+  the targets: fine for slow ones, lagging on ``paper``.
 * Superposition: ``ceil(n0)`` broad particles (uniform-matched covariance, means drawn with
-  the tracker's generator) of weight ``n0 / ceil(n0)``; with ``birth_rate > 0`` one more each step
-  (weight ``min(birth_rate, 0.5)``). Lattice priors drift the count up (docs/gpf.md). ``z``
-  is a mean: the update pins the targets' mean, not their differences, the fold-back drops
-  the cross-covariance (over-confident particles), and the count rests on the prior weights.
+  the tracker's generator) of weight ``n0 / ceil(n0)``; with ``birth_rate > 0`` one more each
+  step (weight ``min(birth_rate, 0.5)``); a lattice prior would drift the count up
+  (docs/gpf.md). ``z`` is a mean: the update pins the targets'
+  mean, not their differences, the fold-back drops the cross-covariance (over-confident
+  particles), and the count rests on the prior weights.
 
 Estimate (``extraction``): ``"round_sum"`` reports the ``round(sum w)`` heaviest particles,
 ``"threshold"`` those with ``w > extraction_threshold``; the count is ``sum w``. ``P_c(t)``:
@@ -106,23 +91,37 @@ per cell, independent Bernoullis -- particle ``i`` with ``w_i m_ic`` (its cell m
 Poisson-binomial recurrence, as :class:`trackers.cells.CellCounts`: cells no particle reaches
 share the field's common row.
 
-Cost (issue 16): nothing per step is ``O(cells)``. The field is stored as one common value
-plus the cells whose value differs (those looked at); the update meets the looked cells
-within 6 sd of each Gaussian; ``P_c`` covers the Gaussians' 6-sd boxes.
+Cost: nothing per step is ``O(cells)``. The field is stored as one common value plus the
+cells whose value differs (those looked at); the update meets the looked cells within 6 sd
+of each Gaussian; ``P_c`` covers the Gaussians' 6-sd boxes.
 """
 
 from __future__ import annotations
 
 import functools
+import json
 import math
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from scipy.special import ndtr
 
 from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
 from . import kalman
-from .base import Estimate, Tracker, register
+from .base import (
+    BOX_CELLS,
+    LOOKED_CELL_BYTES,
+    LOOKED_CELL_S,
+    PAIR_BYTES,
+    PAIR_S,
+    TARGET_S,
+    Estimate,
+    ResourceTerms,
+    Tracker,
+    gaussian_boxes,
+    param_number,
+    register,
+)
 from .cells import (
     CellCounts,
     CellField,
@@ -133,14 +132,29 @@ from .gpf_grid import fold_into_workspace, grid_update, rect_state_moments
 from .gpf_linear import superposition_update
 from .params import Param, Search
 
-_MERGE_RULES = ("bounded_sum", "capped_sum", "union")
-_MERGE_CHOICES = _MERGE_RULES + ("auto",)
+#: merged weight rules of :func:`merge_groups` (module docstring, "Merge")
+_MERGE_RULES = ("bounded_sum", "capped_sum")
+#: on the grid, a track joins the cluster of a detected cell when ``w m_c`` exceeds this
+#: (a birth candidate always joins); below it the two are updated apart
+INTERACTION_THRESHOLD = 1e-3
 #: slack on "the group's weight sum stays <= 1" (float round-off of weights that are 1)
 _SUM_TOL = 1e-9
 #: per-step death probability floor of the grid tracker with births (``death_probability=None``)
 DEFAULT_DEATH_FLOOR = 0.003
 #: a track's component with a smaller weight within the track is dropped
 _COMPONENT_FLOOR = 0.02
+# measured costs (:meth:`GaussianParticleFilter.resource_terms`, docs/resources.md)
+#: bytes per GPF Gaussian (mean, covariance and their working copies)
+GPF_GAUSSIAN_BYTES = 2048
+#: per looked cell of the gpf: its birth candidate (a uniform row with its 4x4
+#: covariance) and the update's per-cell arrays: 970-1,400 B measured above null (the
+#: ``all`` policy on 300x300 and 700x700)
+GPF_LOOK_BYTES = 2048
+#: per looked cell of the gpf and step (its birth candidate): 3.4 us measured (``all`` on
+#: 700x700: 5.0 s for 3 steps)
+GPF_LOOK_S = 4e-6
+#: per particle and step
+GPF_PARTICLE_S = 1e-4
 
 
 def condition_on_count_bound(w: np.ndarray, n_max: int) -> np.ndarray:
@@ -247,7 +261,7 @@ def merge_groups(w: np.ndarray, m: np.ndarray, P: np.ndarray, threshold: float,
     order of increasing distance, each only if the group's weight sum stays ``<= 1``.
     """
     if rule not in _MERGE_RULES:
-        raise ValueError(f"merge_weight must be one of {_MERGE_RULES}, got {rule!r}")
+        raise ValueError(f"rule must be one of {_MERGE_RULES}, got {rule!r}")
     K = len(w)
     if K <= 1 or threshold <= 0:
         return w, m, P, np.arange(K)
@@ -264,7 +278,7 @@ def merge_groups(w: np.ndarray, m: np.ndarray, P: np.ndarray, threshold: float,
         g = len(out_w)
         label[i] = g
         if lonely[i]:
-            out_w.append(min(w[i], 1.0) if rule != "union" else 1.0 - (1.0 - w[i]))
+            out_w.append(min(w[i], 1.0))
             continue
         grp = np.nonzero((close[i] < threshold) & (label < 0))[0]
         if rule == "bounded_sum":
@@ -277,8 +291,7 @@ def merge_groups(w: np.ndarray, m: np.ndarray, P: np.ndarray, threshold: float,
         else:
             label[grp] = g
             wg = w[label == g]
-            out_w.append(min(1.0, wg.sum()) if rule == "capped_sum"
-                         else 1.0 - np.prod(1.0 - wg))
+            out_w.append(min(1.0, wg.sum()))
     n_g = len(out_w)
     in_order = np.empty(K, dtype=np.int64)
     in_order[order] = label
@@ -295,13 +308,6 @@ def merge_groups(w: np.ndarray, m: np.ndarray, P: np.ndarray, threshold: float,
     cov = np.zeros((n_g, 4, 4))
     np.add.at(cov, label, wn[:, None, None] * (P + dev[:, :, None] * dev[:, None, :]))
     return np.array(out_w), mean, cov, in_order
-
-
-#: a moment-preserving split of one axis into three: weights, offsets in sd, residual sd
-#: (1/4 a^2 + 1/4 a^2 + r^2 = 1 with r = 1/2: a = sqrt(3/2))
-_SPLIT_W = np.array([0.25, 0.5, 0.25])
-_SPLIT_R = 0.5
-_SPLIT_A = math.sqrt((1.0 - _SPLIT_R**2) / (2.0 * 0.25))
 
 
 def truncate_to_workspace(m: np.ndarray, P: np.ndarray, width: float, height: float,
@@ -338,48 +344,6 @@ def truncate_to_workspace(m: np.ndarray, P: np.ndarray, width: float, height: fl
     return mass, m, P
 
 
-def split_broad(w: np.ndarray, m: np.ndarray, P: np.ndarray, max_sd: float,
-                max_particles: int, owner: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | tuple[
-                    np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Split every Gaussian whose position spread (the larger eigenvalue's sd of its
-    position covariance) exceeds ``max_sd`` into three along that eigenvector, keeping the
-    first two moments of the mixture exactly: weights ``w (1/4, 1/2, 1/4)``, means shifted
-    by ``(-a, 0, a) sigma`` along ``e`` with the velocities following by regression
-    (``P e / sigma^2`` times the shift), covariance ``P - (1 - r^2) (P e)(P e)^T /
-    sigma^2`` (``r = 1/2``, ``a = sqrt(3/2)``). Repeated until no Gaussian is broader or
-    the split would exceed ``max_particles``; the broadest are split first. With ``owner``
-    (the track of each Gaussian), the pieces keep their owner and it is returned too."""
-    pos = [0, 2]
-    own = np.zeros(len(w), dtype=np.int64) if owner is None else np.asarray(owner)
-    while len(w):
-        Spp = P[:, pos][:, :, pos]
-        evals, evecs = np.linalg.eigh(Spp)
-        sd = np.sqrt(np.maximum(evals[:, -1], 0.0))
-        broad = np.nonzero(sd > max_sd)[0]
-        room = (max_particles - len(w)) // 2
-        if len(broad) == 0 or room <= 0:
-            break
-        broad = broad[np.argsort(-sd[broad], kind="stable")][:room]
-        e = np.zeros((len(broad), 4))
-        e[:, pos] = evecs[broad, :, -1]
-        Pe = (P[broad] @ e[..., None])[..., 0]  # (B, 4)
-        var = sd[broad] ** 2
-        g = Pe / var[:, None]  # the state's regression on the position along e
-        shifts = np.array([-_SPLIT_A, 0.0, _SPLIT_A])[None, :] * sd[broad][:, None]  # (B, 3)
-        new_m = m[broad][:, None, :] + shifts[..., None] * g[:, None, :]
-        new_P = (P[broad] - (1.0 - _SPLIT_R**2) * Pe[:, :, None] * Pe[:, None, :]
-                 / var[:, None, None])
-        new_w = w[broad][:, None] * _SPLIT_W[None, :]
-        keep = np.ones(len(w), dtype=bool)
-        keep[broad] = False
-        w = np.concatenate([w[keep], new_w.reshape(-1)])
-        m = np.concatenate([m[keep], new_m.reshape(-1, 4)])
-        P = np.concatenate([P[keep], np.repeat(new_P, 3, axis=0)])
-        own = np.concatenate([own[keep], np.repeat(own[broad], 3)])
-    return (w, m, P) if owner is None else (w, m, P, own)
-
-
 def collapse(w: np.ndarray, m: np.ndarray, P: np.ndarray, owner: np.ndarray, n: int
              ) -> tuple[np.ndarray, np.ndarray]:
     """Per group ``0..n-1`` of ``owner``, the moment match of its rows (weights ``w``,
@@ -396,96 +360,97 @@ def collapse(w: np.ndarray, m: np.ndarray, P: np.ndarray, owner: np.ndarray, n: 
 
 @register
 class GaussianParticleFilter(Tracker):
-    """The paper's GPF; see the module docstring for the equations and every choice."""
+    """The paper's GPF; see the module docstring for the equations and every choice.
+
+    Each parameter's doc says why a user would change it; the rules the model decides
+    (the merged weight, the count bound, the field's recursion) and the numerical
+    constants (``INTERACTION_THRESHOLD``, ``_COMPONENT_FLOOR``) are not parameters."""
 
     name = "gpf"
     summary = "Gaussian particle filter (paper): existence-weighted Gaussians, combinations E"
     parameters: ClassVar[dict[str, Param]] = {
         "epsilon": Param(float, 0, 1, high_open=True,
-                         doc="combinations with prior probability <= epsilon are cut"),
-        "max_combinations": Param(int, 1, doc="at most this many combinations kept"),
-        "interaction_threshold": Param(float, 0, 1, high_open=True,
-                                       doc="w m_c above it: the particle takes part in a cell"),
-        "merge_threshold": Param(float, 0, doc="squared Mahalanobis distance; 0: no merging",
+                         doc="combinations with prior probability <= epsilon are cut (the "
+                             "paper's cut): lower for more exact weights at more cost"),
+        "max_combinations": Param(int, 1, doc="at most this many combinations kept per "
+                                              "cluster: bounds an update's cost in crowds"),
+        "merge_threshold": Param(float, 0, doc="squared Mahalanobis distance below which "
+                                               "tracks merge; 0: no merging. Lower keeps "
+                                               "close targets apart, higher removes "
+                                               "duplicate tracks",
                                  search=Search(1.0, 16.0, log=True)),
-        "merge_weight": Param(choices=_MERGE_CHOICES, doc="merged weight rule",
-                              search=Search(choices=_MERGE_RULES)),
-        "merge_metric": Param(choices=("mahalanobis", "bhattacharyya"),
-                              doc="pair distance of the merge (bhattacharyya: 4 D_B, which "
-                                  "keeps a narrow Gaussian apart from a broad one)"),
-        "prune_threshold": Param(float, 0, 1, high_open=True, doc="drop w below it"),
-        "max_particles": Param(int, 1, doc="keep at most this many (the heaviest)"),
-        "births": Param(bool, doc="False: empty prior, no births"),
-        "birth_floor": Param(float, 0, 1, doc="floor of the undetected-target field u",
+        "prune_threshold": Param(float, 0, 1, high_open=True,
+                                 doc="drop tracks with w below it: higher is cheaper, "
+                                     "lower keeps faint hypotheses"),
+        "max_particles": Param(int, 1, doc="keep at most this many tracks (the heaviest): "
+                                           "bounds time and memory"),
+        "birth_floor": Param(float, 0, 1, doc="floor of the undetected-target field u (at "
+                                              "start; every step with arrivals): how readily "
+                                              "a detection starts a track",
                              search=Search(1e-6, 1e-2, log=True)),
-        "extraction": Param(choices=("round_sum", "threshold"), doc="which particles are "
-                            "reported", search=Search(choices=("round_sum", "threshold"))),
-        "extraction_threshold": Param(float, 0, 1, doc="w above it is reported (threshold)",
+        "extraction": Param(choices=("round_sum", "threshold"),
+                            doc="which tracks are reported: the round(sum w) heaviest, or "
+                                "those with w above extraction_threshold",
+                            search=Search(choices=("round_sum", "threshold"))),
+        "extraction_threshold": Param(float, 0, 1, doc="w above it is reported (threshold): "
+                                                       "trades missed targets for false "
+                                                       "tracks",
                                       search=Search(0.2, 0.8)),
-        "n_counts": Param(int, 2, doc="count columns of P_c(t)"),
+        "n_counts": Param(int, 2, doc="count columns of P_c(t), the last 'n_counts - 1 or "
+                                      "more': raise it for cells holding more targets"),
         "death_probability": Param(float, 0, 1, allow_none=True,
                                    none="DEFAULT_DEATH_FLOOR on the grid with births, else 0",
-                                   doc="per-step death floor",
+                                   doc="per-step death floor: higher drops lost tracks "
+                                       "sooner, at some count error",
                                    search=Search(1e-4, 0.05, log=True)),
-        "split_sd": Param(float, 0, doc="grid: split Gaussians broader than this (cells, "
-                                        "position sd) before an update; 0: never"),
-        "aggregate_misses": Param(bool, doc="grid: in a cluster, a member's looked cells "
-                                            "without a detection are one option (trackers/"
-                                            "gpf_grid.py)"),
-        "avoid_coalescence": Param(bool, doc="grid: JPDA* (Blom and Bloem): of combinations "
-                                             "that swap detections between members, keep "
-                                             "the most probable"),
         "max_components": Param(int, 1, doc="grid: Gaussians per track (a Bernoulli with a "
-                                            "Gaussian-mixture density); 1: the paper's one",
+                                            "Gaussian-mixture density); 1: the paper's one, "
+                                            "cheaper",
                                 search=Search(1, 6)),
         "split_share": Param(float, 0, 1, high_open=True,
                              doc="grid: a detected cell's part of a track's posterior at "
-                                 "least this large becomes a component of its own",
+                                 "least this large becomes a component of its own (lower: "
+                                 "more components, more cost)",
                              search=Search(0.02, 0.5, log=True)),
-        "state_estimate": Param(choices=("mode", "heaviest", "mean"),
-                                doc="a track's reported state: the component with the "
-                                    "highest peak a / sqrt(det Sigma_pos), the heaviest, "
-                                    "or the mixture's mean"),
-        "truncate": Param(bool, doc="keep each Gaussian inside the workspace (moment-matched "
-                                    "truncation after predict)"),
-        "count_aware_births": Param(bool, doc="grid: the undetected field holds at least the "
-                                              "targets the model expects and no particle "
-                                              "holds"),
     }
+    #: the prior and the births (module docstring); False in :class:`EmptyPriorGPF`, a
+    #: test hook (reductions, particles set by hand), not a parameter
+    births: ClassVar[bool] = True
+    #: retired parameters (docs/gpf.md, "Retired switches") at the value the code runs:
+    #: they stay in the configuration that seeds a run (:meth:`canonical_config`), so
+    #: every seed, and every number (the superposition prior's draws), stays what it was
+    retired_params: ClassVar[dict[str, Any]] = {
+        "aggregate_misses": True, "avoid_coalescence": True, "births": True,
+        "count_aware_births": True, "interaction_threshold": INTERACTION_THRESHOLD,
+        "merge_metric": "mahalanobis", "merge_weight": "auto", "split_sd": 0.0,
+        "state_estimate": "mode", "truncate": True}
+
+    @classmethod
+    def canonical_config(cls, params=None) -> str:
+        """:meth:`.params.Configurable.canonical_config` with :attr:`retired_params` among
+        the parameters."""
+        doc = json.loads(super().canonical_config(params))
+        doc["params"].update(cls.retired_params)
+        return json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False)
 
     def __init__(self, epsilon: float = 1e-4, max_combinations: int = 512,
-                 interaction_threshold: float = 1e-3, merge_threshold: float = 4.0,
-                 merge_weight: str = "auto", merge_metric: str = "mahalanobis",
-                 prune_threshold: float = 1e-3,
-                 max_particles: int = 100, births: bool = True, birth_floor: float = 1e-4,
+                 merge_threshold: float = 4.0, prune_threshold: float = 1e-3,
+                 max_particles: int = 100, birth_floor: float = 1e-4,
                  extraction: str = "round_sum", extraction_threshold: float = 0.5,
                  n_counts: int = 4, death_probability: float | None = None,
-                 split_sd: float = 0.0, aggregate_misses: bool = True,
-                 avoid_coalescence: bool = True, max_components: int = 4,
-                 split_share: float = 0.1, state_estimate: str = "mode",
-                 truncate: bool = True, count_aware_births: bool = True) -> None:
+                 max_components: int = 4, split_share: float = 0.1) -> None:
         self.epsilon = epsilon
         self.max_combinations = max_combinations
-        self.interaction_threshold = interaction_threshold
         self.merge_threshold = merge_threshold
-        self.merge_weight = merge_weight
-        self.merge_metric = merge_metric
         self.prune_threshold = prune_threshold
         self.max_particles = max_particles
-        self.births = births
         self.birth_floor = birth_floor
         self.extraction = extraction
         self.extraction_threshold = extraction_threshold
         self.n_counts = n_counts
         self.death_probability = death_probability
-        self.split_sd = split_sd
-        self.aggregate_misses = aggregate_misses
-        self.avoid_coalescence = avoid_coalescence
         self.max_components = max_components
         self.split_share = split_share
-        self.state_estimate = state_estimate
-        self.truncate = truncate
-        self.count_aware_births = count_aware_births
 
     # ------------------------------------------------------------------ state
     # Tracks t = 0..T-1: existence w (T,). Gaussian rows r = 0..R-1: track own (R,),
@@ -497,11 +462,10 @@ class GaussianParticleFilter(Tracker):
         self._F, self._Q = model.dynamics.F, model.dynamics.Q
         self._grid = model.grid
         arrivals = model.birth_death.birth_rate > 0.0
-        self._merge_rule = (self.merge_weight if self.merge_weight != "auto"
-                            else "capped_sum" if (arrivals and model.is_grid)
-                            else "bounded_sum")
+        #: the merged weight rule (module docstring, "Merge")
+        self._merge_rule = "capped_sum" if (arrivals and model.is_grid) else "bounded_sum"
         #: the count-aware field and count bound apply to models without arrivals
-        self._count_bound = self.count_aware_births and not arrivals
+        self._count_bound = not arrivals
         floor = self.death_probability
         if floor is None:
             floor = DEFAULT_DEATH_FLOOR if (self.births and model.is_grid) else 0.0
@@ -588,23 +552,13 @@ class GaussianParticleFilter(Tracker):
         self._m, self._P = kalman.predict(self._m, self._P, self._F, self._Q)
         self._w = self._w * self._survival
         width, height = self._grid.extent
-        if bd.boundary == "reflect":
-            if self.truncate and len(self._m):
-                # no probability outside: the mass beyond a wall is reflected back
-                self._m, self._P = fold_into_workspace(self._m, self._P, self._grid)
-            else:
-                for axis, length in ((0, width), (2, height)):
-                    self._reflect_axis(axis, length)
-        elif self.truncate and len(self._m):
+        if len(self._m) and bd.boundary == "reflect":
+            # no probability outside: the mass beyond a wall is reflected back
+            self._m, self._P = fold_into_workspace(self._m, self._P, self._grid)
+        elif len(self._m):
             # the mass that left is death; what stays is the Gaussian inside
             mass, self._m, self._P = truncate_to_workspace(self._m, self._P, width, height)
             self._weigh_rows(mass)
-        elif len(self._m):
-            sx = np.sqrt(self._P[:, 0, 0])
-            sy = np.sqrt(self._P[:, 2, 2])
-            inside = ((ndtr((width - self._m[:, 0]) / sx) - ndtr(-self._m[:, 0] / sx))
-                      * (ndtr((height - self._m[:, 2]) / sy) - ndtr(-self._m[:, 2] / sy)))
-            self._weigh_rows(inside)
         if not self.births:
             return
         n_cells = self._grid.n_cells
@@ -643,21 +597,6 @@ class GaussianParticleFilter(Tracker):
         else:
             self._u = CellField(self._u.n_cells, min(missing * (1.0 / self._u.n_cells), 0.5))
 
-    def _reflect_axis(self, axis: int, length: float) -> None:
-        """Mirror means outside ``[0, length)`` on one axis: ``p -> -p`` or ``2L - p``,
-        ``v -> -v``; the covariance becomes ``J P J`` with ``J`` negating that axis."""
-        p = self._m[:, axis]
-        low, high = p < 0.0, p >= length
-        flip = low | high
-        if not np.any(flip):
-            return
-        self._m[low, axis] = -p[low]
-        self._m[high, axis] = 2.0 * length - p[high]
-        self._m[flip, axis + 1] *= -1.0
-        sign = np.ones(4)
-        sign[axis:axis + 2] = -1.0
-        self._P[flip] = self._P[flip] * sign[:, None] * sign[None, :]
-
     # ------------------------------------------------------- count distribution
     def cell_count_distribution(self) -> CellCounts:
         """Per cell, the Poisson-binomial of the tracks' Bernoullis (``w_t`` times the
@@ -695,16 +634,6 @@ class GaussianParticleFilter(Tracker):
             self._w = condition_on_count_bound(self._w, n0)
 
     def _update_grid(self, looks: Looks, sensor: RayleighGridSensor) -> None:
-        if self.split_sd > 0 and len(self._m):
-            room = max(self.max_particles * self.max_components, len(self._m))
-            a, self._m, self._P, self._own = split_broad(
-                self._a, self._m, self._P, self.split_sd * self._grid.cell_size, room,
-                owner=self._own)
-            if self.max_components == 1:  # the pieces are tracks of their own (w a)
-                self._w = self._w[self._own] * a
-                self._own, self._a = np.arange(len(a)), np.ones(len(a))
-            else:
-                self._a = a
         T, R = len(self._w), len(self._m)
         looked = np.unique(looks.cells)
         cand = looked[self._u.at(looked) > 0.0] if self.births else looked[:0]
@@ -720,9 +649,8 @@ class GaussianParticleFilter(Tracker):
         alpha = np.concatenate([self._a, np.ones(n_c)])
         ucell = np.concatenate([np.full(R, -1, dtype=np.int64), cand])
         res = grid_update(w, m, P, ucell, looks.cells, looks.returns, self._grid, sensor,
-                          self.epsilon, self.max_combinations, self.interaction_threshold,
-                          aggregate_misses=self.aggregate_misses,
-                          coalescence=not self.avoid_coalescence, owner=own, alpha=alpha,
+                          self.epsilon, self.max_combinations, INTERACTION_THRESHOLD,
+                          owner=own, alpha=alpha,
                           split_share=self.split_share if self.max_components > 1 else 0.0)
         wc = res.weights[T:]
         detected = np.isin(cand, looks.cells[looks.returns])
@@ -753,7 +681,7 @@ class GaussianParticleFilter(Tracker):
             else:
                 cm, cP = collapse(a, m, P, own, T)
             mw, _, _, label = merge_groups(w, cm, cP, self.merge_threshold, self._merge_rule,
-                                           self.merge_metric)
+                                           "mahalanobis")
             if len(mw) < T:
                 share = w / np.bincount(label, weights=w, minlength=len(mw))[label]
                 a = a * np.nan_to_num(share, nan=0.0)[own]
@@ -824,13 +752,9 @@ class GaussianParticleFilter(Tracker):
             sel = np.nonzero(self._w > self.extraction_threshold)[0]
         if len(self._m) == len(self._w):
             return Estimate(count, self._m[sel].copy(), self._P[sel].copy())
-        if self.state_estimate == "mean":
-            m, P = self._collapsed()
-            return Estimate(count, m[sel], P[sel])
-        score = self._a
-        if self.state_estimate == "mode":  # the peak height of each component
-            pos = self._P[:, 0::2, 0::2]
-            score = self._a / np.sqrt(np.maximum(np.linalg.det(pos), 1e-300))
+        # the peak height of each component, a / sqrt(det Sigma_pos)
+        pos = self._P[:, 0::2, 0::2]
+        score = self._a / np.sqrt(np.maximum(np.linalg.det(pos), 1e-300))
         rows = self._distinct_modes(sel, score)
         return Estimate(count, self._m[rows].copy(), self._P[rows].copy())
 
@@ -854,3 +778,35 @@ class GaussianParticleFilter(Tracker):
                     pick = rows[free[0]]
             chosen.append(int(pick))
         return np.array(chosen, dtype=np.int64)
+
+    @classmethod
+    def resource_terms(cls, params, model, looks_per_step, targets) -> ResourceTerms:
+        """``G = max_particles * max_components`` Gaussians and the combinations; on the
+        grid the update's (Gaussian, looked cell) pairs in the boxes of ``min(G, 2 T +
+        16)`` Gaussians, a birth candidate per looked cell and the undetected field of the
+        cells looked at so far; ``P_c(t)`` from those Gaussians' boxes, ``n_counts``
+        columns."""
+        particles = param_number(params, "max_particles", 100)
+        gaussians = particles * max(1.0, param_number(params, "max_components", 1))
+        present = min(gaussian_boxes(targets), gaussians)  # Gaussians at once
+        pairs = present * min(float(BOX_CELLS), looks_per_step)
+        return ResourceTerms(
+            state_bytes=(gaussians * GPF_GAUSSIAN_BYTES
+                         + param_number(params, "max_combinations", 512) * particles * 32.0),
+            update_bytes=pairs * PAIR_BYTES, look_bytes=GPF_LOOK_BYTES,
+            looked_cell_bytes=LOOKED_CELL_BYTES,
+            step_seconds=particles * GPF_PARTICLE_S, target_seconds=TARGET_S,
+            update_seconds=pairs * PAIR_S, look_seconds=GPF_LOOK_S,
+            looked_cell_seconds=LOOKED_CELL_S,
+            prediction_entries=present * BOX_CELLS,
+            prediction_counts=max(2.0, param_number(params, "n_counts", 4)))
+
+
+class EmptyPriorGPF(GaussianParticleFilter):
+    """The GPF without its prior and without births (not registered, not listed): a test
+    hook for the reductions and for particles set by hand (``set_particles``). Its death
+    floor defaults to 0 (``death_probability=None`` means the floor only with births)."""
+
+    births = False
+    retired_params: ClassVar[dict[str, Any]] = {**GaussianParticleFilter.retired_params,
+                                                "births": False}

@@ -14,17 +14,17 @@ Single particle (no other particle shares its looked cells), with
     p(x | exists, z) = N(x; mu, Sigma) g(x) / L,  g = l_c in cell c, 1 elsewhere
 
 and the posterior Gaussian is the moment match of that density (law of total covariance over
-the bins). Clusters of particles that share a looked cell (each with occupancy probability
-``w m_c`` above ``interaction_threshold``; connected components of the particle -- cell
-graph, so the cost grows with the cluster sizes, never with ``2^K``) are updated by
-enumerating combinations: every particle of the cluster picks one option -- absent (prior
-``1 - w``), elsewhere (``w m_out``) or looked cell ``c`` (``w m_c``) -- the paper's ``E``
-refined by the cell, which the grid needs because ``p_d(T)`` depends on the in-cell count
-``T``. The combination likelihood is ``prod_c l_c(T_c)``; combinations with prior
-``<= epsilon`` (or beyond ``max_combinations``) are dropped and the rest renormalised, and the
-dropped mass is reported. Particle ``i``'s posterior is then ``w_i' = P(i present | z)``
-and, given presence, bin ``b`` with probability ``pi_b``, i.e. density ratio
-``g_b = pi_b / m_b``.
+the bins). Clusters of particles that share a looked cell that returned a detection (each
+with occupancy probability ``w m_c`` above ``interaction_threshold``; connected components
+of the particle -- cell graph, so the cost grows with the cluster sizes, never with
+``2^K``) are updated by enumerating combinations: every particle of the cluster picks one
+option -- absent (prior ``1 - w``), elsewhere (``w m_out``), "missed" (below) or detected
+cell ``c`` (``w m_c``) -- the paper's ``E`` refined by the cell, which the grid needs
+because ``p_d(T)`` depends on the in-cell count ``T``. The combination likelihood is
+``prod_c l_c(T_c)``; combinations with probability ``<= epsilon`` (or beyond
+``max_combinations``) are dropped and the rest renormalised, and the dropped mass is
+reported. Particle ``i``'s posterior is then ``w_i' = P(i present | z)`` and, given
+presence, bin ``b`` with probability ``pi_b``, i.e. density ratio ``g_b = pi_b / m_b``.
 
 Truncated moments: the position density is written ``p(px) p(py | px)`` (exact for any
 covariance); the ``py`` integral over ``[y0, y1)`` is closed form and the ``px`` integral is
@@ -37,22 +37,20 @@ strongly correlated ``py``, up to 2e-5 for ``sigma_x >= 0.08`` and 2e-3 at
 of ``p``; the moment match is linear in the cells' position moments, so a row's cells are
 summed first and lifted to the full state once (:func:`lift_to_state`).
 
-Missed cells (``aggregate_misses``, the tracker's default; a deviation from the paper):
-members of a cluster interact only through looked cells that returned a detection, and
-each member's looked cells without a detection are one option "missed" with likelihood
-``sum_c m_c l_c(1)``, as if no two targets shared such a cell (``l(1)^2`` for ``l(2)``:
-0.25 against 0.305 at ``p_d = 0.5``, ``snr = 10``). Every option is tilted by its own
-likelihood, ``q_o ~ p_o l_o(1)``, and the combinations are weighed by the coupling
-``LL[c, T] - T LL[c, 1]`` of the detected cells, so the cut ``epsilon`` acts on
-combinations' probability under independent single-member posteriors instead of their
-prior. Without it a broad particle's options are one per looked cell, each with a prior
-below ``epsilon``: the combinations in which two broad particles both explain detections
-were cut and the second particle lost its existence (``paper``, every cell looked).
+Missed cells (a deviation from the paper): members of a cluster interact only through
+looked cells that returned a detection, and each member's looked cells without a
+detection are one option "missed" with likelihood ``sum_c m_c l_c(1)``, as if no two
+targets shared such a cell (``l(1)^2`` for ``l(2)``: 0.25 against 0.305 at ``p_d = 0.5``,
+``snr = 10``). Every option is tilted by its own likelihood, ``q_o ~ p_o l_o(1)``, and the
+combinations are weighed by the coupling ``LL[c, T] - T LL[c, 1]`` of the detected cells,
+so the cut ``epsilon`` acts on combinations' probability under independent single-member
+posteriors instead of their prior: a broad particle's options are not each below
+``epsilon``, so the combinations in which two broad particles both explain detections
+survive the cut (docs/gpf.md section 9).
 
-JPDA* (:func:`avoid_coalescence`, Blom and Bloem 2000, the tracker's default): of the
-combinations that differ only by which members took which detected cells, only the most
-probable is kept, so that two tracks that could swap their detections do not both move to
-the blend of them.
+JPDA* (:func:`avoid_coalescence`, Blom and Bloem 2000): of the combinations that differ
+only by which members took which detected cells, only the most probable is kept, so that
+two tracks that could swap their detections do not both move to the blend of them.
 
 Components (the tracker's ``max_components > 1``): a track may carry a mixture of Gaussian
 rows (``owner``, ``alpha``); its mass in a cell is the mixture's, the combinatorics run on
@@ -281,11 +279,11 @@ def avoid_coalescence(cluster: np.ndarray, choice: np.ndarray, cell: np.ndarray,
 
 def _cluster_posterior(option_probs: np.ndarray, option_cell: np.ndarray, LL: np.ndarray,
                        epsilon: float, max_combinations: int,
-                       detected: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+                       detected: np.ndarray) -> tuple[np.ndarray, float]:
     """One cluster by :func:`enumerate_combinations`: ``option_probs``, ``option_cell`` are
     ``(n, O)`` (cell ``-1`` = not in a looked cell); returns ``post (n, O)``, the posterior
     probability of each member's options, and the dropped prior mass. ``detected (n_u,)``:
-    apply :func:`avoid_coalescence` with these cells as the detected ones."""
+    the detected looked cells, for :func:`avoid_coalescence`."""
     n, n_opt = option_probs.shape
     combs = enumerate_combinations(option_probs, epsilon, max_combinations)
     ch = combs.choice  # (C, n)
@@ -295,10 +293,8 @@ def _cluster_posterior(option_probs: np.ndarray, option_cell: np.ndarray, LL: np
     counts = np.zeros((ch.shape[0], len(loc_cells)), dtype=np.int64)
     np.add.at(counts, (np.nonzero(cell_of >= 0)[0], loc_idx), 1)
     loglik = LL[loc_cells[None, :], counts].sum(axis=1)
-    log_post = combs.log_prior + loglik
-    if detected is not None:
-        log_post = avoid_coalescence(np.zeros(len(ch), dtype=np.int64), ch, cell_of, detected,
-                                     log_post)
+    log_post = avoid_coalescence(np.zeros(len(ch), dtype=np.int64), ch, cell_of, detected,
+                                 combs.log_prior + loglik)
     pc = log_normalise(log_post)  # (C,)
     # post[j, o] = sum over combinations with choice_j = o of p(C | z)
     post = np.bincount((np.arange(n)[None, :] * n_opt + ch).ravel(),
@@ -308,7 +304,7 @@ def _cluster_posterior(option_probs: np.ndarray, option_cell: np.ndarray, LL: np
 
 def _small_clusters_posterior(option_probs: np.ndarray, option_cell: np.ndarray,
                               cl: np.ndarray, n_pos: np.ndarray, LL: np.ndarray,
-                              epsilon: float, detected: np.ndarray | None = None
+                              epsilon: float, detected: np.ndarray
                               ) -> tuple[np.ndarray, float]:
     """Several clusters at once, each listing all its joint choices (few: the cap never binds).
 
@@ -317,7 +313,8 @@ def _small_clusters_posterior(option_probs: np.ndarray, option_cell: np.ndarray,
     Combination ``r`` of a cluster picks, for member ``j``, its positive option number
     ``(r // stride_j) % n_pos_j`` (mixed radix, ``stride_j`` = product of ``n_pos`` of the
     later members). Combinations with prior ``<= epsilon`` are dropped as in
-    :func:`enumerate_combinations` (if none passes, the cluster keeps them all). Returns
+    :func:`enumerate_combinations` (if none passes, the cluster keeps them all), and
+    :func:`avoid_coalescence` applies with ``detected (n_u,)`` the detected cells. Returns
     ``post (M, O)`` and the total dropped prior mass.
     """
     M, n_opt = option_probs.shape
@@ -358,15 +355,14 @@ def _small_clusters_posterior(option_probs: np.ndarray, option_cell: np.ndarray,
     key, t_count = np.unique(comb[hit] * n_u + cell[hit], return_counts=True)
     loglik = np.bincount(key // n_u, weights=LL[key % n_u, t_count], minlength=len(comb_cl))
     log_post = np.where(keep, lp + loglik, -np.inf)
-    if detected is not None:
-        # each combination's members in a row: (n_comb, largest cluster), padded with -2
-        rank = member - np.searchsorted(cidx, cidx[member])  # the member's place in its cluster
-        width = int(rank.max()) + 1
-        choice = np.full((len(comb_cl), width), -2)
-        cells = np.full((len(comb_cl), width), -2)
-        choice[comb, rank] = opt
-        cells[comb, rank] = cell
-        log_post = avoid_coalescence(comb_cl, choice, cells, detected, log_post)
+    # JPDA*: each combination's members in a row, (n_comb, largest cluster), padded with -2
+    rank = member - np.searchsorted(cidx, cidx[member])  # the member's place in its cluster
+    width = int(rank.max()) + 1
+    choice = np.full((len(comb_cl), width), -2)
+    cells = np.full((len(comb_cl), width), -2)
+    choice[comb, rank] = opt
+    cells[comb, rank] = cell
+    log_post = avoid_coalescence(comb_cl, choice, cells, detected, log_post)
     top = np.full(len(n_comb), -np.inf)
     np.maximum.at(top, comb_cl, log_post)
     e = np.exp(log_post - top[comb_cl])
@@ -416,8 +412,7 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
                 cells: np.ndarray, returns: np.ndarray, grid: Grid,
                 sensor: RayleighGridSensor, epsilon: float = 1e-3,
                 max_combinations: int = 512, interaction_threshold: float = 1e-3,
-                range_sigmas: float = 6.0, aggregate_misses: bool = False,
-                coalescence: bool = True, owner: np.ndarray | None = None,
+                range_sigmas: float = 6.0, owner: np.ndarray | None = None,
                 alpha: np.ndarray | None = None, split_share: float = 0.0
                 ) -> GridUpdateResult:
     """Update tracks ``w (T,)`` with Gaussian rows ``m (R, 4)``, ``P (R, 4, 4)`` by the looks
@@ -429,9 +424,8 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     track). ``cells (L,)``, ``returns (L,)``: the looks. A Gaussian row is paired with the
     looked cells within ``range_sigmas`` marginal standard deviations of its mean (mass
     beyond is below 1e-8 at 6); a track's mass in a cell is ``sum_r alpha_r m_rc``.
-    Equations in the module docstring; ``aggregate_misses``: the "missed cells" option;
-    ``coalescence=False``: clusters drop all but the most probable of the combinations that
-    swap detections between members (:func:`avoid_coalescence`); ``split_share > 0``: each
+    Equations in the module docstring (clusters through detected cells, the "missed
+    cells" option, JPDA* by :func:`avoid_coalescence`); ``split_share > 0``: each
     row's part in a detected cell whose posterior share of its track is at least
     ``split_share`` becomes a component of its own (the Gaussian truncated to the cell),
     the rest of the row stays one moment-matched component.
@@ -494,8 +488,7 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     hit = np.zeros(n_u, dtype=bool)
     hit[np.searchsorted(U, cells[returns])] = True
     signif = (occ > interaction_threshold) | (~gauss[pi] & hit[pu])
-    if aggregate_misses:  # members interact only through cells that returned a detection
-        signif &= hit[pu]
+    signif &= hit[pu]  # members interact only through cells that returned a detection
     n_sig = np.bincount(pu[signif], minlength=n_u)
     link = signif & (n_sig[pu] >= 2)
     plabel = _components(pi[link], pu[link], K)
@@ -546,13 +539,10 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
         option_probs[rows, cols] = wm[rows] * mass[pidx]
         option_cell = np.full((M, n_opt), -1)
         option_cell[rows, cols] = pu[pidx]
-        LLc = LL
-        if aggregate_misses:
-            option_probs, option_cell, LLc, miss_lik = _aggregate_misses(
-                option_probs, option_cell, rows, cols, LL, hit)
+        option_probs, option_cell, LLc, miss_lik = _aggregate_misses(
+            option_probs, option_cell, rows, cols, LL, hit)
         n_pos = np.maximum((option_probs > 0.0).sum(axis=1), 1)
         n_opt = option_probs.shape[1]
-        detected = None if coalescence else hit
         # clusters with few joint choices (at most the cap) are listed in full, all at once
         log_size = np.bincount(cl, weights=np.log(n_pos))
         small = log_size <= math.log(min(max_combinations, _FULL_LISTING)) + 1e-9
@@ -561,12 +551,12 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
         for c in np.nonzero(~small)[0]:
             sl = slice(cstart[c], cstart[c] + csize[c])
             post[sl], d = _cluster_posterior(option_probs[sl], option_cell[sl], LLc, epsilon,
-                                             max_combinations, detected)
+                                             max_combinations, hit)
             dropped += d
         sm = np.nonzero(small[cl])[0]
         if len(sm):
             post[sm], d = _small_clusters_posterior(option_probs[sm], option_cell[sm], cl[sm],
-                                                    n_pos[sm], LLc, epsilon, detected)
+                                                    n_pos[sm], LLc, epsilon, hit)
             dropped += d
         present = 1.0 - post[:, 0]
         w_new[mem] = present
@@ -577,11 +567,10 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
         bin_mass[rows, cols] = mass[pidx]
         with np.errstate(divide="ignore", invalid="ignore"):
             g = np.where(bin_mass > 0.0, post / present[:, None] / bin_mass, 0.0)
-            if aggregate_misses:
-                # inside the missed bin the posterior over its cells is m_c l_c(1) / sum
-                missed = ~hit[pu[pidx]]
-                gm = post[rows, -1] / present[rows] * np.exp(LL[pu[pidx], 1]) / miss_lik[rows]
-                g[rows[missed], cols[missed]] = gm[missed]
+            # inside the missed bin the posterior over its cells is m_c l_c(1) / sum
+            missed = ~hit[pu[pidx]]
+            gm = post[rows, -1] / present[rows] * np.exp(LL[pu[pidx], 1]) / miss_lik[rows]
+            g[rows[missed], cols[missed]] = gm[missed]
         g[~ok] = 0.0
         g_out[mem] = np.where(ok, g[:, 1], g_out[mem])
         g_pair[pidx] = np.where(ok[rows], g[rows, cols], g_pair[pidx])

@@ -105,7 +105,17 @@ from scipy.stats import chi2
 
 from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
 from . import kalman
-from .base import Estimate, Tracker, register
+from .base import (
+    BOX_CELLS,
+    LOOKED_CELL_BYTES,
+    LOOKED_CELL_S,
+    TARGET_S,
+    Estimate,
+    ResourceTerms,
+    Tracker,
+    gaussian_boxes,
+    register,
+)
 from .cells import (
     CellCounts,
     CellField,
@@ -120,6 +130,8 @@ N_COUNTS = 4
 #: at most this many (track, detection) pairs: the association works on the full
 #: ``(K, D)`` array; above, on the pairs within the gate only (:func:`gated_pairs`)
 DENSE_PAIRS = 10_000
+#: seconds per step beyond the per-target terms (:meth:`KFNNTracker.resource_terms`)
+KFNN_STEP_S = 5e-4
 #: H picks (px, py) out of [px, vx, py, vy]
 _H = np.eye(4)[kalman.POSITION]
 
@@ -509,3 +521,13 @@ class KFNNTracker(Tracker):
                 "confirmed": self._confirmed.copy(), "hits": self._hits.copy(),
                 "chances": self._chances.copy(), "misses": self._misses.copy(),
                 "age": self._age.copy()}
+
+    @classmethod
+    def resource_terms(cls, params, model, looks_per_step, targets) -> ResourceTerms:
+        """A Kalman filter per target, the undetected field of the cells looked at so far,
+        ``P_c(t)`` from the tracks' boxes (``N_COUNTS`` columns)."""
+        return ResourceTerms(step_seconds=KFNN_STEP_S, target_seconds=TARGET_S,
+                             looked_cell_bytes=LOOKED_CELL_BYTES,
+                             looked_cell_seconds=LOOKED_CELL_S,
+                             prediction_entries=gaussian_boxes(targets) * BOX_CELLS,
+                             prediction_counts=float(N_COUNTS))

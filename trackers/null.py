@@ -13,7 +13,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..scenarios.model import Looks, TrackingModel
-from .base import Estimate, Tracker, register
+from .base import Estimate, ResourceTerms, Tracker, register
 from .cells import CellCounts
 from .params import Param
 
@@ -43,3 +43,8 @@ class NullTracker(Tracker):
 
     def estimate(self) -> Estimate:
         return Estimate.empty()
+
+    @classmethod
+    def resource_terms(cls, params, model, looks_per_step, targets) -> ResourceTerms:
+        """Nothing of its own; a ``P_c(t)`` of one default row of 2 count columns."""
+        return ResourceTerms(prediction_entries=0.0, prediction_counts=2.0)

@@ -1,7 +1,7 @@
 """Parameters declared once: type, range and meaning next to the constructor's default.
 
 Every tracker and cell-selection policy declares its constructor's keyword parameters
-in a class attribute (STYLE.md pattern 15, scikit-learn's ``_parameter_constraints``)::
+in a class attribute (as scikit-learn's ``_parameter_constraints``)::
 
     parameters = {
         "n_particles": Param(int, low=1, doc="particles N"),

@@ -3,9 +3,10 @@
 It marks the floor of the error a tracker can reach on a scenario: what one filter per
 target achieves when the number of targets, their births and deaths, and which look
 belongs to which target are all known. It is not an estimator anyone could run; the
-harness gives it the truth and marks every one of its rows ``uses_truth`` (like the
-``oracle`` policy). It never returns the truth as its estimate: the states it reports are
-its filters' means, computed from the looks alone once the bookkeeping is known.
+harness gives it the truth and marks every one of its rows ``tracker_uses_truth`` (as
+the ``oracle`` policy's ``policy_uses_truth``). It never returns the truth as its
+estimate: the states it reports are its filters' means, computed from the looks alone
+once the bookkeeping is known.
 
 Truth it is given (``observe_truth``, called by the harness at every step after
 ``predict`` and before the cell selection and ``update``): the true states ``(n, 4)`` and
@@ -108,7 +109,17 @@ import numpy as np
 
 from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
 from . import kalman
-from .base import Estimate, Tracker, register
+from .base import (
+    BOX_CELLS,
+    PAIR_BYTES,
+    PAIR_S,
+    TARGET_S,
+    Estimate,
+    ResourceTerms,
+    Tracker,
+    gaussian_boxes,
+    register,
+)
 from .cells import CellCounts, bernoulli_cell_counts, gaussian_cell_mass_sparse
 from .gpf_grid import known_existence_update, reflection_images
 from .params import Param
@@ -256,3 +267,14 @@ class TruthAidedTracker(Tracker):
 
     def estimate(self) -> Estimate:
         return Estimate(float(self._n_true), self._m.copy(), self._P.copy())
+
+    @classmethod
+    def resource_terms(cls, params, model, looks_per_step, targets) -> ResourceTerms:
+        """A grid filter per target; its update pairs each target's images (``2 T + 16``
+        counted) with the looked cells in their boxes (at most ``BOX_CELLS`` each);
+        ``P_c(t)`` from their boxes."""
+        pairs = gaussian_boxes(targets) * min(float(BOX_CELLS), looks_per_step)
+        return ResourceTerms(target_seconds=TARGET_S, update_bytes=pairs * PAIR_BYTES,
+                             update_seconds=pairs * PAIR_S,
+                             prediction_entries=gaussian_boxes(targets) * BOX_CELLS,
+                             prediction_counts=float(N_COUNTS))

@@ -44,7 +44,13 @@ from ..engine import policies
 from ..engine.errors import ConfigError
 from ..engine.executors import describe_current
 from ..engine.loop import build_jobs
-from ..engine.specs import resolve_policies, resolve_scenarios, resolve_trackers, split_specs
+from ..engine.specs import (
+    resolve_policies,
+    resolve_scenarios,
+    resolve_suite,
+    resolve_trackers,
+    split_specs,
+)
 from ..engine.store import prepare_out_dir
 from . import resources
 from .compare import (
@@ -105,6 +111,11 @@ def _check_common(args: argparse.Namespace) -> None:
     if not (math.isfinite(args.p) and args.p >= 1):
         raise UsageError(f"--p {args.p} is not allowed: the OSPA order must be a finite "
                          "number >= 1")
+
+
+def _scenario_names(args: argparse.Namespace) -> list[str]:
+    """``--suite`` (its scenarios' names) or ``--scenarios``."""
+    return resolve_suite(args.suite) if args.suite else list(args.scenarios)
 
 
 def _timestamp() -> str:
@@ -241,7 +252,7 @@ def cmd_trackers(args: argparse.Namespace) -> int:
 
 def cmd_run(args: argparse.Namespace) -> int:
     _check_common(args)
-    scs = resolve_scenarios(args.scenarios, args.steps)
+    scs = resolve_scenarios(_scenario_names(args), args.steps)
     tracker_specs = resolve_trackers(args.trackers)
     policy_specs = resolve_policies(args.policy)
     looks = _int_list(args.looks, "--looks value", 0)
@@ -260,8 +271,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     seeds = _seeds(args, default=COMPARE_SEEDS)
     out_dir = _out_dir(args, "compare-", is_finished)
     args.out_dir = out_dir  # for the resume line after Ctrl-C
-    res = run_compare(args.scenarios, args.trackers, seeds, args.steps, args.workers, out_dir,
-                      reference=args.reference, progress=not args.no_progress,
+    res = run_compare(_scenario_names(args), args.trackers, seeds, args.steps, args.workers,
+                      out_dir, reference=args.reference, progress=not args.no_progress,
                       resume=args.resume, c=args.c, p=args.p,
                       argv=args.argv, tuned_dir=args.tuned_dir, untuned=args.untuned,
                       tuning_effect=args.tuning_effect)
@@ -419,6 +430,11 @@ def cmd_screenshot(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------- parser
+SUITE_HELP = ("the scenarios of a suite instead of --scenarios: `envelope` (the operating "
+              "envelope's points, docs/envelope.md), `envelope:train` or `envelope:held` (one "
+              "split); each point runs at its own looks_per_step")
+
+
 def _add_sweep_options(p: argparse.ArgumentParser, *, seeds_default: int,
                        trackers_required: bool) -> None:
     p.add_argument("--trackers", nargs="+", metavar="SPEC", required=trackers_required,
@@ -476,8 +492,11 @@ def build_parser() -> argparse.ArgumentParser:
 
             The superposition scenario has no cells: --policy and --looks do not apply
             to it (one run per tracker x seed)."""))
-    p.add_argument("--scenarios", nargs="+", required=True, metavar="SCENARIO",
-                   help="preset names (see `mttbench scenarios`) or paths to .toml files")
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--scenarios", nargs="+", metavar="SCENARIO",
+                   help="preset names (see `mttbench scenarios`), envelope points (env-...) "
+                        "or paths to .toml files")
+    g.add_argument("--suite", metavar="SUITE", help=SUITE_HELP)
     _add_sweep_options(p, seeds_default=10, trackers_required=True)
     p.add_argument("--policy", nargs="+", default=["raster"], metavar="SPEC",
                    help="cell-selection policies, comma or space separated "
@@ -507,8 +526,10 @@ def build_parser() -> argparse.ArgumentParser:
               mttbench compare --seeds 30 --steps 200 --workers 8
               mttbench compare --trackers kfnn gpf jmpd:n_particles=4000 --scenarios crossing \\
                   --reference gpf"""))
-    p.add_argument("--scenarios", nargs="+", default=list(COMPARE_SCENARIOS),
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--scenarios", nargs="+", default=list(COMPARE_SCENARIOS),
                    metavar="SCENARIO", help="override the scenarios")
+    g.add_argument("--suite", metavar="SUITE", help=SUITE_HELP)
     _add_sweep_options(p, seeds_default=COMPARE_SEEDS, trackers_required=False)
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel worker processes (default: the number of CPUs)")
@@ -536,7 +557,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="\n\n".join(textwrap.fill(" ".join(para.split()), 88) for para in (
             "Tune each tracker's declared search space (its parameters' search=Search(...), "
             "listed in the tuned file) with optuna's seeded TPE sampler, minimising the mean "
-            "OSPA (--objective gospa: GOSPA): each run's per-step values averaged over its "
+            "of the --objective metric (default OSPA; one of "
+            f"{', '.join(_tune.objective_names())}): each run's per-step values averaged over its "
             "steps, then over the tuning seeds, then over the scenarios.",
             "Budget, the same for every tracker and stated in the output: --trials parameter "
             "settings x --tuning-seeds seeds x the scenarios, each run --steps long (the "
@@ -578,8 +600,9 @@ def build_parser() -> argparse.ArgumentParser:
                         f"{' '.join(_tune.TUNE_SCENARIOS)})")
     p.add_argument("--steps", type=int, metavar="K",
                    help="override every scenario's n_steps (default: the scenario's)")
-    p.add_argument("--objective", choices=["ospa", "gospa"], default="ospa",
-                   help="metric minimised (default ospa)")
+    p.add_argument("--objective", choices=_tune.objective_names(), default="ospa",
+                   help="metric minimised (default ospa): a registered metric declared "
+                        "objective=True (mttbench.benchmarks.engine.metrics)")
     p.add_argument("--policy", nargs="+", default=["raster"], metavar="SPEC",
                    help="the cell-selection policy to tune under (default raster)")
     p.add_argument("--looks", nargs="+", metavar="M",

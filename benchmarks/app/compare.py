@@ -59,7 +59,7 @@ import pandas as pd
 
 from ... import trackers
 from ..engine.executors import describe_current
-from ..engine.loop import build_jobs
+from ..engine.loop import build_jobs, spec_uses_truth
 from ..engine.specs import PolicySpec, TrackerSpec, resolve_scenarios, resolve_trackers
 from ..engine.store import prepare_out_dir, write_text_atomic
 from . import resources, summary, tuned
@@ -298,7 +298,8 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
 
         files = report.build_report(results, out, reference=reference, intro=intro,
                                     settings=settings, trace=trace,
-                                    sections=tuned.report_sections(plan, results))
+                                    sections=tuned.report_sections(plan, results),
+                                    tuned_on=tuned.tuned_scenarios(plan))
     except BaseException as exc:
         status = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
         with contextlib.suppress(OSError):
@@ -311,8 +312,7 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
 def default_reference(specs: Sequence[TrackerSpec]) -> str | None:
     """The reference when none is given: ``kfnn`` (its first setting) when it runs,
     else the first tracker that does not use the truth, else None."""
-    fair = [s for s in specs if s.name != summary.CEILING_TRACKER
-            and not summary.truth_users(s.name, "", False)[0]]
+    fair = [s for s in specs if s.name != summary.CEILING_TRACKER and not spec_uses_truth(s)]
     if not fair:
         return None
     chosen = _resolve_reference(COMPARE_REFERENCE, fair)

@@ -1,4 +1,4 @@
-"""Figures: one small function per figure; each reads tables and draws (STYLE.md pattern 12).
+"""Figures: one small function per figure; each reads tables and draws (runs cached apart).
 
 Every function takes tidy data (the results table, a summary, or the frames of a
 :class:`benchmarks.engine.snapshot.Trace`), writes one PNG to ``path`` and returns it. No

@@ -45,38 +45,50 @@ from typing import Any
 import pandas as pd
 
 from ... import trackers
+from ..engine.metrics import Metric, column_label, display_metrics, get_metric
 from ..engine.store import write_text_atomic
 from . import figures, summary
 
-#: (column stem, header, scale, format) of the accuracy table
-ACCURACY_COLUMNS = [
-    ("ospa", "OSPA", 1.0, ".3f"),
-    ("ospa_loc", "OSPA loc", 1.0, ".3f"),
-    ("ospa_card", "OSPA card", 1.0, ".3f"),
-    ("count_error", "count error", 1.0, ".3f"),
-    ("rmse", "RMSE", 1.0, ".3f"),
-]
+#: metrics shown in a table of their own (GOSPA: its parts are p-th-power costs)
+_OWN_TABLE = ("gospa",)
+
+
+def metric_table_columns(metric: Metric) -> list[tuple[str, str, float, str]]:
+    """``(column stem, header, scale, format)`` of every column of ``metric``."""
+    return [(c, metric.column_label(c), metric.scale, metric.fmt) for c in metric.columns]
+
+
+def accuracy_columns() -> list[tuple[str, str, float, str]]:
+    """The accuracy table's columns: those of every registered metric (display order)
+    but the ones with a table of their own."""
+    return [col for m in display_metrics() if m.name not in _OWN_TABLE
+            for col in metric_table_columns(m)]
+
+
+def paired_columns() -> list[tuple[str, str, float, str]]:
+    """``(metric, header, scale, format)`` of the paired-difference table: the headline
+    of every ranked metric (display order), then the tracker time."""
+    return [*((m.name, f"Δ {m.label}", m.scale, m.fmt) for m in display_metrics() if m.ranked),
+            ("tracker_wall_s", "Δ ms/step", 1e3, ".3g")]
+
+
+#: (column stem, header, scale, format) of the accuracy table (the built-ins';
+#: :func:`accuracy_columns` adds the metrics registered later)
+ACCURACY_COLUMNS = accuracy_columns()
 #: (column stem, header, scale, format) of the GOSPA table
-GOSPA_COLUMNS = [
-    ("gospa", "GOSPA", 1.0, ".3f"),
-    ("gospa_loc", "GOSPA loc", 1.0, ".3f"),
-    ("gospa_missed", "GOSPA missed", 1.0, ".3f"),
-    ("gospa_false", "GOSPA false", 1.0, ".3f"),
-]
+GOSPA_COLUMNS = metric_table_columns(get_metric("gospa"))
 #: (column stem, header, scale, format) of the runtime table
 RUNTIME_COLUMNS = [
     ("tracker_wall_s", "tracker ms/step", 1e3, ".3g"),
+    ("tracker_wall_p95_s", "95th pct ms", 1e3, ".3g"),
+    ("tracker_wall_max_s", "slowest step ms", 1e3, ".3g"),
     ("tracker_cpu_s", "tracker CPU ms/step", 1e3, ".3g"),
     ("select_wall_s", "selection ms/step", 1e3, ".3g"),
     ("peak_rss_mb", "peak RSS MB", 1.0, ".0f"),
 ]
-#: (metric, header, scale, format) of the paired-difference table
-PAIRED_COLUMNS = [
-    ("ospa", "Δ OSPA", 1.0, ".3f"),
-    ("gospa", "Δ GOSPA", 1.0, ".3f"),
-    ("count_error", "Δ count error", 1.0, ".3f"),
-    ("tracker_wall_s", "Δ ms/step", 1e3, ".3g"),
-]
+#: (metric, header, scale, format) of the paired-difference table (the built-ins';
+#: :func:`paired_columns` adds the metrics registered later)
+PAIRED_COLUMNS = paired_columns()
 _KEY_HEADERS = {"scenario": "scenario", "tracker_label": "tracker", "policy_label": "policy",
                 "looks_per_step": "looks"}
 
@@ -137,9 +149,10 @@ def paired_differences(results: pd.DataFrame, reference: str,
     """Long table of paired differences ``tracker - reference`` for each metric
     (:func:`benchmarks.app.summary.paired_difference`); empty if the reference has no ok run.
 
-    ``results`` is the step table or its :func:`benchmarks.app.summary.per_run` table.
+    ``results`` is the step table or its :func:`benchmarks.app.summary.per_run` table;
+    ``metrics`` defaults to those of :func:`paired_columns` that it has.
     """
-    metrics = metrics or [m for m, *_ in PAIRED_COLUMNS]
+    metrics = metrics or [m for m, *_ in paired_columns() if m in results.columns]
     parts = []
     for m in metrics:
         try:
@@ -165,12 +178,35 @@ def paired_table(paired: pd.DataFrame,
                for k, v in zip(keys, key, strict=True)}
         row["pairs"] = int(g["n_seeds"].min())
         by_metric = g.set_index("metric")
-        for m, head, scale, fmt in PAIRED_COLUMNS:
+        for m, head, scale, fmt in paired_columns():
             if m in by_metric.index:
                 r = by_metric.loc[m]
                 row[head] = fmt_pm(r["diff_mean"], r["diff_ci95"], scale, fmt)
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+#: appended to a tuned setting's tracker cell on a scenario its file was not tuned on
+OUT_OF_SAMPLE_MARK = " ¹"
+
+
+def mark_out_of_sample(table: pd.DataFrame, tuned_on: dict[str, frozenset[str]] | None
+                       ) -> pd.DataFrame:
+    """``table`` (a display table with ``scenario`` and ``tracker`` columns) with
+    :data:`OUT_OF_SAMPLE_MARK` after each tracker whose tuned file (``tuned_on``: label ->
+    the scenarios it was tuned on) was tuned on other scenarios than the row's."""
+    if not tuned_on or table.empty or not {"scenario", "tracker"} <= set(table.columns):
+        return table
+    out = table.copy()
+    out["tracker"] = [
+        f"{t}{OUT_OF_SAMPLE_MARK}" if _bare_label(t) in tuned_on
+        and str(sc) not in tuned_on[_bare_label(t)] else t
+        for t, sc in zip(out["tracker"], out["scenario"], strict=True)]
+    return out
+
+
+def _bare_label(cell: object) -> str:
+    return str(cell).removesuffix(summary.TRUTH_MARK)
 
 
 # --------------------------------------------------------- floor and ceiling
@@ -181,7 +217,7 @@ def gap_table(gc: summary.GapClosed,
     differences) and whether it can rank trackers."""
     if gc.gaps.empty:
         return pd.DataFrame()
-    name = summary._METRIC_NAMES.get(gc.metric, gc.metric)
+    name = column_label(gc.metric)
     floor_head = f"floor {gc.floor_label} {name}"
     ceil_head = f"ceiling {summary.mark_truth(gc.ceiling_label, truth[0])} {name}"
     rows = []
@@ -205,7 +241,7 @@ def share_table(gc: summary.GapClosed,
     first."""
     if gc.shares.empty:
         return pd.DataFrame()
-    name = summary._METRIC_NAMES.get(gc.metric, gc.metric)
+    name = column_label(gc.metric)
     m = gc.metric
     order = {"floor": 0, "": 1, "ceiling": 2}
     sh = gc.shares.assign(_o=gc.shares["role"].map(order), _m=-gc.shares[f"{m}_mean"])
@@ -226,7 +262,8 @@ def share_table(gc: summary.GapClosed,
 
 
 def _floor_ceiling_section(doc: Document, gc: summary.GapClosed,
-                           truth: tuple[set[str], set[str]]) -> None:
+                           truth: tuple[set[str], set[str]],
+                           tuned_on: dict[str, frozenset[str]] | None = None) -> None:
     doc.add("h2", "Floor and ceiling: share of the gap closed")
     floor, ceiling = summary.FLOOR_TRACKER, summary.CEILING_TRACKER
     doc.add("p", f"The floor `{floor}` reports nothing; the ceiling `{ceiling}` is told the "
@@ -236,7 +273,8 @@ def _floor_ceiling_section(doc: Document, gc: summary.GapClosed,
                  "mean OSPA over the seeds where all three runs are ok (the same worlds), "
                  "± the 95% half-width by the delta method: 1 is as good as the ceiling, 0 "
                  "no better than reporting nothing. A scenario whose gap is below "
-                 f"{summary.MIN_GAP:g} or whose gap interval reaches 0 cannot rank trackers.")
+                 f"{summary.MIN_GAP:g}, whose gap interval reaches 0, or where no contestant "
+                 "beats the floor within its 95% interval cannot rank trackers.")
     if not gc.available:
         doc.add("p", gc.absent)
         return
@@ -245,7 +283,7 @@ def _floor_ceiling_section(doc: Document, gc: summary.GapClosed,
         doc.add("list", flags)
     doc.add("table", gap_table(gc, truth))
     if not gc.shares.empty:
-        doc.add("table", share_table(gc, truth))
+        doc.add("table", mark_out_of_sample(share_table(gc, truth), tuned_on))
 
 
 # ------------------------------------------------------------------ the document
@@ -336,8 +374,10 @@ def _md_table(df: pd.DataFrame) -> str:
 
 
 # ------------------------------------------------- metrics a scenario cannot rank
-#: (metric, name in the text) checked by :func:`baseline_notes`; lower is better
-RANKED_METRICS = [("ospa", "OSPA"), ("gospa", "GOSPA"), ("count_error", "count error")]
+def ranked_metrics() -> list[Metric]:
+    """The metrics checked by :func:`baseline_notes`: the registered ones declared
+    ``ranked``, in display order."""
+    return [m for m in display_metrics() if m.ranked]
 
 
 def _is_baseline(name: str) -> bool:
@@ -349,7 +389,7 @@ def _is_baseline(name: str) -> bool:
 
 def baseline_notes(summ: pd.DataFrame) -> list[str]:
     """Sentences for every scenario (x policy x looks) and metric of
-    :data:`RANKED_METRICS` on which a baseline tracker (``Tracker.baseline``, the
+    :func:`ranked_metrics` on which a baseline tracker (``Tracker.baseline``, the
     ``null`` tracker that reports nothing) is best, or within the 95% interval of the
     best: such a scenario cannot rank the trackers on that metric (e.g. on ``paper``,
     whose targets jump ~4.5 cells per step, reporting nothing scores as well as tracking
@@ -368,7 +408,8 @@ def baseline_notes(summ: pd.DataFrame) -> list[str]:
         key = key if isinstance(key, tuple) else (key,)
         where = f"`{key[0]}`" + (f" ({', '.join(map(str, key[1:]))} looks)"
                                  if len(key) == 3 else "")
-        for metric, text in RANKED_METRICS:
+        for m in ranked_metrics():
+            metric, text = m.name, m.label
             col = f"{metric}_mean"
             if col not in g.columns or len(g) < 2:
                 continue
@@ -376,15 +417,16 @@ def baseline_notes(summ: pd.DataFrame) -> list[str]:
             base = rows[baseline.loc[rows.index]]
             if base.empty or len(rows) < 2:
                 continue
-            best = rows.loc[rows[col].idxmin()]
-            b = base.loc[base[col].idxmin()]
+            sign = 1.0 if m.lower_is_better else -1.0  # the best has the least sign * value
+            best = rows.loc[(sign * rows[col]).idxmin()]
+            b = base.loc[(sign * base[col]).idxmin()]
             half = best[f"{metric}_ci95"]
             if b.name == best.name:
                 notes.append(
                     f"On {where} the baseline `{b.tracker_label}` has the "
                     f"best {text}, {fmt_pm(b[col], b[f'{metric}_ci95'])}: this scenario cannot "
                     f"rank trackers on {text}.")
-            elif not math.isnan(half) and b[col] <= best[col] + half:
+            elif not math.isnan(half) and sign * b[col] <= sign * best[col] + half:
                 notes.append(
                     f"On {where} the baseline `{b.tracker_label}` scores "
                     f"{text} {fmt_pm(b[col], b[f'{metric}_ci95'])}, within the 95% interval "
@@ -405,8 +447,8 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
                  title: str = "mttbench head-to-head comparison",
                  intro: list[str] | None = None, settings: dict[str, Any] | None = None,
                  trace: Any = None, notes: list[str] | None = None,
-                 draw: bool = True, sections: list[tuple[Any, ...]] | None = None
-                 ) -> ReportFiles:
+                 draw: bool = True, sections: list[tuple[Any, ...]] | None = None,
+                 tuned_on: dict[str, frozenset[str]] | None = None) -> ReportFiles:
     """Write ``report.md``, ``report.html`` and ``figures/*.png`` into ``out_dir``.
 
     ``reference`` is the tracker label that paired differences subtract (skipped
@@ -414,7 +456,9 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
     ``trace`` a :class:`benchmarks.engine.snapshot.Trace` for the snapshot figure;
     ``notes`` extra paragraphs at the end; ``draw=False`` skips the figures (tables only);
     ``sections`` blocks (:class:`Document`) shown after the settings (``compare``: the
-    parameters each tracker ran and the effect of tuning).
+    parameters each tracker ran and the effect of tuning). ``tuned_on`` maps a tuned
+    setting's label to the scenarios its file was tuned on: every table marks the rows
+    out of sample for it (:func:`mark_out_of_sample`).
     """
     out_dir = Path(out_dir)
     fig_dir = out_dir / "figures"
@@ -432,12 +476,20 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
     doc.add("h1", title)
     for para in intro or []:
         doc.add("p", para)
+    out_of_sample = sorted({sc for sc in summ["scenario"].astype(str)
+                            for lab, on in (tuned_on or {}).items()
+                            if lab in set(summ["tracker_label"].astype(str)) and sc not in on})
+    if out_of_sample:
+        doc.add("p", f"{OUT_OF_SAMPLE_MARK.strip()} Out of sample: the tracker runs a tuned "
+                     "file tuned on other scenarios than this row's ("
+                     + "; ".join(f"`{lab}`: {', '.join(sorted(on))}"
+                                 for lab, on in sorted((tuned_on or {}).items())) + ").")
     if settings:
         doc.add("h2", "Settings")
         doc.add("list", [f"{k}: {v}" for k, v in settings.items()])
     for block in sections or []:
         doc.add(*block)
-    _floor_ceiling_section(doc, gc, truth)
+    _floor_ceiling_section(doc, gc, truth, tuned_on)
     unranked = baseline_notes(summ)
     if unranked:
         doc.add("h2", "Where the baseline is not beaten")
@@ -451,18 +503,18 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
                  "Student-t interval over seeds. OSPA, its localisation and cardinality parts "
                  "and the RMSE of the optimally assigned pairs are in workspace units (cells); "
                  "count error is |N_est - N| per step.")
-    doc.add("table", summary_table(summ, ACCURACY_COLUMNS))
+    doc.add("table", mark_out_of_sample(summary_table(summ, accuracy_columns()), tuned_on))
     doc.add("h3", "GOSPA and its parts")
     doc.add("p", "GOSPA (alpha = 2); the localisation, missed and false parts are costs in the "
                  "p-th-power domain (they add up to GOSPA^p per step; missed and false are "
                  "c^p/2 per missed or false target).")
-    doc.add("table", summary_table(summ, GOSPA_COLUMNS))
+    doc.add("table", mark_out_of_sample(summary_table(summ, GOSPA_COLUMNS), tuned_on))
     doc.add("h2", "Runtime")
     doc.add("p", "Tracker time is predict + update + estimate per step (median over the steps "
                  "of a run, then mean over seeds, ± 95% interval); selection time is the cell "
                  "choice (with the tracker's predicted cell counts when the policy uses them). "
                  "Peak RSS is the worker's high-water mark, an upper bound.")
-    doc.add("table", summary_table(summ, RUNTIME_COLUMNS))
+    doc.add("table", mark_out_of_sample(summary_table(summ, RUNTIME_COLUMNS), tuned_on))
     doc.add("h2", f"Paired differences against {reference}" if reference
             else "Paired differences")
     paired = paired_differences(runs, reference) if reference else pd.DataFrame()
@@ -476,7 +528,7 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
                      "(same truth and sensor random numbers), then mean ± 95% t half-width over "
                      "the pairs. Negative accuracy differences mean better than the reference; "
                      "an interval that excludes 0 is a difference at the 5% level.")
-        doc.add("table", paired_table(paired, truth))
+        doc.add("table", mark_out_of_sample(paired_table(paired, truth), tuned_on))
     doc.add("h2", "Figures")
     captions = {
         "ospa": "OSPA over time: mean over seeds with a shaded 95% band, per tracker.",

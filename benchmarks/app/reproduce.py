@@ -15,7 +15,7 @@ Both are drawn for the ``paper`` preset (the paper's literal Q) and for ``defaul
 expected-Renyi-divergence cell selection (``renyi``, alpha = 0.5, the paper's
 "information value function based alpha divergence") at 24 looks per step.
 
-Pattern (STYLE.md 12): the expensive runs are cached under
+As in showyourwork: the expensive runs are cached under
 ``.cache/reproduce/<key>/`` where ``key`` hashes everything that can change a number:
 the setting (scenarios, trackers, policy, seeds, steps, metric parameters), a
 fingerprint of the source files that determine the numbers (trackers, scenarios,
@@ -183,7 +183,7 @@ DEPARTURES = [
     "(z = mean of the targets' positions + Gaussian noise); Section V simulates Kreucher's "
     "Rayleigh grid sensor with binary returns. The figures come from Section V, so we run the "
     "grid sensor, where the GPF updates each Gaussian by the moment match of its truncation "
-    "to the looked-at cells (DESIGN.md); the superposition sensor has its own preset.",
+    "to the looked-at cells (trackers/gpf_grid.py); the superposition sensor has its own preset.",
     "Q literal against sensible. The paper copies Q = diag(20, 0.2, 20, 0.2) from Kreucher "
     "et al.; on 1x1 cells that is a jump of about 4.5 cells per step, so no tracker can follow "
     "a target from step to step. The `paper` preset keeps it literally; `default` uses a "
@@ -399,7 +399,8 @@ def error_curves(results: pd.DataFrame) -> pd.DataFrame:
     """Per scenario x tracker x step: state error (OSPA) and count error, mean and 95% t
     half-width over the ok seeds, and the mean RMSE, estimated and true counts."""
     parts = []
-    for col, name in (("ospa", "state_error"), ("count_error", "count_error"),
+    # the paper's count error is the tracker's own count's (the GPF's sum w)
+    for col, name in (("ospa", "state_error"), ("own_count_error", "count_error"),
                       ("rmse", "rmse"), ("est_count", "est_count"),
                       ("true_count", "true_count")):
         st = figures.step_stats(results, col)

@@ -267,6 +267,8 @@ def per_seed(results: pd.DataFrame, burn_in: int = BURN_IN, lost_window: int = L
                                      "true_count", "ospa_final", "lost"])
     last = keyed.groupby(RUN_COLUMNS)["step"].transform("max")
     after = keyed[keyed["step"] >= burn_in]
+    # Kreucher's count error is the tracker's own count's
+    after = after.assign(count_error=after["own_count_error"])
     out = after.groupby(RUN_COLUMNS)[["ospa", "count_error", "est_count", "true_count"]].mean()
     final = keyed[keyed["step"] > last - lost_window].groupby(RUN_COLUMNS)["ospa"].mean()
     out["ospa_final"] = final

@@ -37,7 +37,9 @@ Its 95% interval is the **delta method** (no resampling, so no random numbers)::
 
 The gap is ``mean(B)`` with the paired t half-width of the ``B_i``. A scenario whose
 gap is below :data:`MIN_GAP` (0.15 OSPA) or whose gap interval reaches 0 cannot rank
-trackers: its row says so (``rankable``, ``reason``). Rows of trackers or policies that
+trackers, nor one where no contestant (neither floor, ceiling nor a tracker or policy that
+uses the truth) beats the floor, its paired difference's 95% interval above 0: its row
+says so (``rankable``, ``reason``). Rows of trackers or policies that
 use the truth are marked `` (uses truth)`` in the tables (:func:`truth_labels`).
 """
 
@@ -52,18 +54,27 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-#: per-step metrics averaged over the steps of a run (nanmean: rmse is NaN when
-#: nothing is assigned)
-STEP_METRICS = [
-    "ospa", "ospa_loc", "ospa_card", "gospa", "gospa_loc", "gospa_missed", "gospa_false",
-    "count_error", "rmse",
-]
-#: per-run statistics summarised over seeds, in display order
-RUN_METRICS = [*STEP_METRICS, "tracker_wall_s", "tracker_cpu_s", "select_wall_s", "peak_rss_mb"]
+from ..engine.metrics import column_label, display_metrics, metric_columns
+
+#: per-run statistics of the run time, summarised over seeds after the metrics
+RUN_TIMES = ["tracker_wall_s", "tracker_wall_p95_s", "tracker_wall_max_s", "tracker_cpu_s",
+             "select_wall_s", "peak_rss_mb"]
 RUN_KEYS = ["scenario", "tracker_label", "policy_label", "looks_per_step", "seed"]
 DEFAULT_BY = ("scenario", "tracker_label", "policy_label", "looks_per_step")
 # descriptive columns carried along when present (constant within a run)
-_CARRY = ["tracker", "policy", "uses_truth"]
+_CARRY = ["tracker", "policy", "tracker_uses_truth", "policy_uses_truth"]
+
+
+def step_metrics_of(table: pd.DataFrame) -> list[str]:
+    """The registered metrics' columns (:mod:`~mttbench.benchmarks.engine.metrics`) that
+    ``table`` has, in display order: averaged over the steps of a run (nanmean: rmse is
+    NaN when nothing is assigned)."""
+    return [c for c in metric_columns(display=True) if c in table.columns]
+
+
+def run_metrics(table: pd.DataFrame) -> list[str]:
+    """Per-run statistics of ``table`` summarised over seeds, in display order."""
+    return [*step_metrics_of(table), *RUN_TIMES]
 
 
 def _nanmean(x: pd.Series) -> float:
@@ -77,6 +88,8 @@ def per_run(results: pd.DataFrame) -> pd.DataFrame:
 
     Step metrics are averaged over the run's ``"ok"`` steps (NaN-aware);
     ``tracker_wall_s`` and ``tracker_cpu_s`` are the median per-step times,
+    ``tracker_wall_p95_s`` and ``tracker_wall_max_s`` the 95th percentile and the slowest
+    step (a median hides single slow steps),
     ``select_wall_s`` the mean per-step selection time, ``peak_rss_mb`` the maximum.
     ``status`` is ``"ok"`` if every step was ok, else ``"unsupported"`` or
     ``"error"``; ``error`` holds the first message; ``n_steps`` counts ok steps;
@@ -84,6 +97,7 @@ def per_run(results: pd.DataFrame) -> pd.DataFrame:
     ``n_looks``).
     """
     carry = [c for c in _CARRY if c in results.columns]
+    steps = step_metrics_of(results)
     out = []
     for key, g in results.groupby(RUN_KEYS, sort=True):
         ok = g[g["status"] == "ok"]
@@ -96,16 +110,19 @@ def per_run(results: pd.DataFrame) -> pd.DataFrame:
         bad = g.loc[g["status"] != "ok", "error"]
         row["error"] = str(bad.iloc[0]) if len(bad) else ""
         row["n_steps"] = len(ok)
-        for m in STEP_METRICS:
+        for m in steps:
             row[m] = _nanmean(ok[m])
-        row["tracker_wall_s"] = float(ok["tracker_wall_s"].median()) if len(ok) else math.nan
+        wall = ok["tracker_wall_s"].to_numpy(float)
+        row["tracker_wall_s"] = float(np.median(wall)) if len(ok) else math.nan
+        row["tracker_wall_p95_s"] = float(np.quantile(wall, 0.95)) if len(ok) else math.nan
+        row["tracker_wall_max_s"] = float(wall.max()) if len(ok) else math.nan
         row["tracker_cpu_s"] = float(ok["tracker_cpu_s"].median()) if len(ok) else math.nan
         row["select_wall_s"] = float(ok["select_wall_s"].mean()) if len(ok) else math.nan
         row["peak_rss_mb"] = float(g["peak_rss_mb"].max())
         if "n_looks" in g.columns:
             row["looks_made"] = _nanmean(ok["n_looks"]) if len(ok) else math.nan
         out.append(row)
-    cols = [*RUN_KEYS, *carry, "status", "error", "n_steps", *RUN_METRICS]
+    cols = [*RUN_KEYS, *carry, "status", "error", "n_steps", *steps, *RUN_TIMES]
     cols += ["looks_made"] if "n_looks" in results.columns else []
     return pd.DataFrame(out, columns=cols)
 
@@ -128,16 +145,17 @@ def _as_runs(results: pd.DataFrame) -> pd.DataFrame:
 
 
 def summarize(results: pd.DataFrame, by: Sequence[str] = DEFAULT_BY,
-              metrics: Sequence[str] = RUN_METRICS) -> pd.DataFrame:
+              metrics: Sequence[str] | None = None) -> pd.DataFrame:
     """Mean over seeds with 95% t half-widths, one row per group ``by``.
 
     ``results`` is the step-level table (or the output of :func:`per_run`).
     Columns: ``by``, the carried descriptive columns, ``n_seeds`` (ok runs),
     ``n_errors``, ``n_unsupported``, ``note``, ``looks_made`` (mean looks made per
     step over the ok runs, when known), then ``<m>_mean`` and ``<m>_ci95`` for each
-    metric.
+    metric (default: :func:`run_metrics`).
     """
     runs = _as_runs(results)
+    metrics = run_metrics(runs) if metrics is None else metrics
     by = list(by)
     carry = [c for c in _CARRY if c in runs.columns and c not in by]
     out = []
@@ -229,63 +247,22 @@ def tracker_name(label: str) -> str:
     return str(label).split("(", 1)[0]
 
 
-def _declares_truth(kind: str, name: str) -> bool | None:
-    """The ``uses_truth`` class attribute of a registered tracker or policy; None if
-    the name is not registered here (e.g. a table read from another installation)."""
-    try:
-        if kind == "tracker":
-            from ... import trackers
-
-            cls: type = trackers.get_class(name)
-        else:
-            from ..engine import policies
-
-            cls = policies.get_policy_class(name)
-    except Exception:  # noqa: BLE001 - unknown here: fall back to the rows' flag
-        return None
-    return bool(getattr(cls, "uses_truth", False))
-
-
-def truth_users(tracker: str, policy: str, uses_truth: bool) -> tuple[bool, bool]:
-    """``(tracker uses truth, policy uses truth)`` for rows of ``tracker`` (name) and
-    ``policy`` (name) whose ``uses_truth`` column is ``uses_truth``.
-
-    The column says only that something in the run saw the truth; the classes say
-    which (``Tracker.uses_truth``, e.g. ``truth-aided``; ``Policy.uses_truth``, the
-    ``oracle``). A name that is not registered here is credited with the flag when the
-    other one does not explain it (the tracker when neither is registered here)."""
-    t = _declares_truth("tracker", str(tracker))
-    p = _declares_truth("policy", str(policy))
-    flag = bool(uses_truth)
-    by_tracker = t is True or (flag and t is None and p is not True)
-    by_policy = p is True or (flag and not by_tracker)
-    return by_tracker, by_policy
+def _flagged(table: pd.DataFrame, labels: str, flag: str) -> set[str]:
+    """The values of column ``labels`` on the rows of ``table`` whose ``flag`` is true."""
+    if labels not in table.columns or flag not in table.columns:
+        return set()
+    flags = table[flag].astype("boolean").fillna(False).astype(bool)
+    return set(table.loc[flags, labels].astype(str))
 
 
 def truth_labels(table: pd.DataFrame) -> tuple[set[str], set[str]]:
-    """``(tracker labels, policy labels)`` of ``table`` (results, per-run or summary
-    rows) whose tracker or policy uses the truth (:func:`truth_users`)."""
-    if table.empty or "tracker_label" not in table.columns:
-        return set(), set()
-    labels = table["tracker_label"].astype(str)
-    names = (table["tracker"].astype(str) if "tracker" in table.columns
-             else labels.map(tracker_name))
-    pol_labels = (table["policy_label"].astype(str) if "policy_label" in table.columns
-                  else pd.Series("", index=table.index))
-    pols = (table["policy"].astype(str) if "policy" in table.columns
-            else pol_labels.map(tracker_name))
-    flags = (table["uses_truth"].fillna(False).astype(bool) if "uses_truth" in table.columns
-             else pd.Series(False, index=table.index))
-    by_tracker: set[str] = set()
-    by_policy: set[str] = set()
-    combos = pd.DataFrame({"tl": labels, "t": names, "pl": pol_labels, "p": pols, "f": flags})
-    for r in combos.drop_duplicates().itertuples(index=False):
-        t_uses, p_uses = truth_users(r.t, r.p, bool(r.f))
-        if t_uses:
-            by_tracker.add(r.tl)
-        if p_uses:
-            by_policy.add(r.pl)
-    return by_tracker, by_policy
+    """``(tracker labels, policy labels)`` of ``table`` (results, per-run or summary rows)
+    whose tracker or policy used the truth: the rows' ``tracker_uses_truth`` and
+    ``policy_uses_truth`` columns, written by the step loop from each side's class
+    (``Tracker.uses_truth``, e.g. ``truth-aided``; ``Policy.uses_truth``, the ``oracle``).
+    A table without them marks nothing."""
+    return (_flagged(table, "tracker_label", "tracker_uses_truth"),
+            _flagged(table, "policy_label", "policy_uses_truth"))
 
 
 def mark_truth(label: object, users: set[str]) -> str:
@@ -301,7 +278,6 @@ CEILING_TRACKER = "truth-aided"
 #: a floor-to-ceiling gap below this (OSPA, cells) is too small to rank trackers
 MIN_GAP = 0.15
 GAP_GROUP = ["scenario", "policy_label", "looks_per_step"]
-_METRIC_NAMES = {"ospa": "OSPA", "gospa": "GOSPA", "count_error": "count error"}
 
 
 def ratio_ci95(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
@@ -386,7 +362,7 @@ def gap_closed(results: pd.DataFrame, metric: str = "ospa", floor: str = FLOOR_T
     gets a ``gaps`` row with ``n_pairs = 0`` and the reason, and no shares.
     """
     runs = _as_runs(results)
-    name = _METRIC_NAMES.get(metric, metric)
+    name = column_label(metric)
     f_label, c_label = _pick_label(runs, floor), _pick_label(runs, ceiling)
     missing = [f"the {role} `{n}`" for role, n, lab in (("floor", floor, f_label),
                                                          ("ceiling", ceiling, c_label))
@@ -405,6 +381,7 @@ def gap_closed(results: pd.DataFrame, metric: str = "ospa", floor: str = FLOOR_T
                          pd.DataFrame(columns=share_cols), absent)
 
     ok = runs[runs["status"] == "ok"]
+    truth_users = set().union(*truth_labels(runs)) if len(runs) else set()
     wide_all = ok.pivot_table(index=[*GAP_GROUP, "seed"], columns="tracker_label",
                               values=metric, aggfunc="first")
     gaps, shares = [], []
@@ -433,11 +410,18 @@ def gap_closed(results: pd.DataFrame, metric: str = "ospa", floor: str = FLOOR_T
         row["ceiling_mean"], row["ceiling_ci95"] = mean_ci95(ce)
         row["gap_mean"], row["gap_ci95"] = mean_ci95(fl - ce)
         row["reason"] = _gap_reason(row["gap_mean"], row["gap_ci95"], n, min_gap, name)
-        row["rankable"] = not row["reason"]
         gaps.append(row)
+        beats_floor = False
         for lab in sorted(set(g["tracker_label"].astype(str))):
             if lab not in wide.columns:
                 continue
+            if lab not in (f_label, c_label) and lab not in truth_users:
+                # a contestant beats the floor when its paired difference's 95% interval
+                # lies above 0 (lower is better)
+                pair = wide[[f_label]].assign(_x=wide[lab]).dropna()
+                d_mean, d_half = mean_ci95(pair[f_label].to_numpy(float)
+                                           - pair["_x"].to_numpy(float))
+                beats_floor |= bool(len(pair) >= 2 and d_mean - d_half > 0)
             trio = wide[[f_label, c_label]].assign(_x=wide[lab]).dropna()
             x = trio["_x"].to_numpy(float)
             a = trio[f_label].to_numpy(float) - x
@@ -449,6 +433,10 @@ def gap_closed(results: pd.DataFrame, metric: str = "ospa", floor: str = FLOOR_T
                                     "ceiling" if lab == c_label else ""),
                            "n_pairs": len(trio), f"{metric}_mean": mean,
                            f"{metric}_ci95": mhalf, "share_mean": share, "share_ci95": half})
+        if not row["reason"] and not beats_floor:
+            row["reason"] = (f"this scenario cannot rank trackers: no contestant's {name} "
+                             f"beats the floor `{f_label}` within its 95% interval.")
+        row["rankable"] = not row["reason"]
     return GapClosed(metric, f_label, c_label, pd.DataFrame(gaps, columns=gap_cols),
                      pd.DataFrame(shares, columns=share_cols), "")
 
@@ -474,15 +462,11 @@ def looks_text(budget: object, made: object) -> str:
 
 
 
-#: (column stem, header, scale, format) of the default markdown table
-MARKDOWN_METRICS = [
-    ("ospa", "OSPA", 1.0, ".3f"),
-    ("gospa", "GOSPA", 1.0, ".3f"),
-    ("count_error", "count err", 1.0, ".3f"),
-    ("rmse", "RMSE", 1.0, ".3f"),
-    ("tracker_wall_s", "ms/step", 1e3, ".3g"),
-    ("gap_closed", "gap closed", 1.0, ".2f"),
-]
+def markdown_metrics() -> list[tuple[str, str, float, str]]:
+    """``(column stem, header, scale, format)`` of the default markdown table: the
+    headline of every registered metric (display order), time per step, gap closed."""
+    return [*((m.name, m.label, m.scale, m.fmt) for m in display_metrics()),
+            ("tracker_wall_s", "ms/step", 1e3, ".3g"), ("gap_closed", "gap closed", 1.0, ".2f")]
 
 
 def _pm(mean: float, half: float, scale: float, fmt: str) -> str:
@@ -495,17 +479,19 @@ def _pm(mean: float, half: float, scale: float, fmt: str) -> str:
 
 
 def to_markdown(summary: pd.DataFrame,
-                metrics: Sequence[tuple[str, str, float, str]] = MARKDOWN_METRICS) -> str:
+                metrics: Sequence[tuple[str, str, float, str]] | None = None) -> str:
     """A Markdown table of a :func:`summarize` output, cells as ``mean ± half-width``.
 
-    ``metrics`` lists ``(stem, header, scale, format)``; stems missing from the
-    summary are skipped. Times are shown in milliseconds per step (median per run,
-    mean over seeds). A ``note`` column appears when any row has one.
+    ``metrics`` lists ``(stem, header, scale, format)`` (default
+    :func:`markdown_metrics`); stems missing from the summary are skipped. Times are
+    shown in milliseconds per step (median per run, mean over seeds). A ``note`` column
+    appears when any row has one.
     """
     keys = [c for c in ("scenario", "tracker_label", "policy_label", "looks_per_step")
             if c in summary.columns]
     headers = {"scenario": "scenario", "tracker_label": "tracker", "policy_label": "policy",
                "looks_per_step": "looks"}
+    metrics = markdown_metrics() if metrics is None else metrics
     shown = [m for m in metrics if f"{m[0]}_mean" in summary.columns]
     with_note = "note" in summary.columns and (summary["note"].astype(str) != "").any()
     head = [headers[k] for k in keys] + ["seeds"] + [m[1] for m in shown]

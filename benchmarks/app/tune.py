@@ -10,12 +10,14 @@ step)`` or, for an ``int`` parameter, ``suggest_int``; choices to ``suggest_cate
 **Objective** (minimised): for a parameter setting, every scenario x tuning seed is one
 harness run (:func:`~mttbench.benchmarks.engine.loop.run_job`: the raster policy at each
 scenario's look budget unless ``policy``/``looks`` say otherwise); each run's per-step
-OSPA (``objective="gospa"``: GOSPA) is averaged over its steps, then over the seeds, then
-over the scenarios (:func:`objective_value`, the convention of
-:mod:`~mttbench.benchmarks.app.summary`). A run that fails (an ``error`` or ``unsupported``
-row) fails the trial (optuna state FAIL, its message kept in the trial's ``message``
-attribute and in ``trials.csv``); a setting that breaks a rule between parameters
-(``param_conflict``) fails without runs. The study goes on either way.
+value of the objective metric (``objective``: OSPA by default; any metric registered with
+``objective=True``, :func:`~mttbench.benchmarks.engine.metrics.objective_names`) is
+averaged over its steps, then over the seeds, then over the scenarios
+(:func:`objective_value`, the convention of :mod:`~mttbench.benchmarks.app.summary`). A
+run that fails (an ``error`` or ``unsupported`` row) fails the trial (optuna state FAIL,
+its message kept in the trial's ``message`` attribute and in ``trials.csv``); a setting
+that breaks a rule between parameters (``param_conflict``) fails without runs. The study
+goes on either way.
 
 **Seeds.** The tuning seeds are ``TUNING_SEED_BASE, TUNING_SEED_BASE + 1, ...``
 (1,000,000 up); evaluation seeds are ``0..N-1`` with ``N <= 1,000,000`` (``--seeds``), so
@@ -73,6 +75,7 @@ from ...scenarios.spec import Scenario
 from ...trackers.params import Param, Search
 from ..engine.errors import first_line
 from ..engine.loop import Job, build_jobs
+from ..engine.metrics import objective_names
 from ..engine.specs import PolicySpec, TrackerSpec
 from ..engine.store import prepare_out_dir, write_text_atomic
 from .compare import git_commit, package_versions, read_manifest
@@ -89,7 +92,6 @@ TUNE_TRIALS = 30
 TUNE_SEEDS = 4
 #: random trials before TPE models the results (optuna's default)
 STARTUP_TRIALS = 10
-OBJECTIVES = ("ospa", "gospa")
 #: files a finished tune leaves in its folder (per tracker: study.journal, trials.csv,
 #: tuned.toml)
 OUTPUT_FILES = ("manifest.json", "parts/", "results.parquet")
@@ -162,8 +164,8 @@ class TuneSettings:
     startup_trials: int = STARTUP_TRIALS
 
     def __post_init__(self) -> None:
-        if self.objective not in OBJECTIVES:
-            raise UsageError(f"objective {self.objective!r} is not one of {OBJECTIVES}")
+        if self.objective not in objective_names():
+            raise UsageError(f"objective {self.objective!r} is not one of {objective_names()}")
         for what, v, lo in (("trials", self.trials, 1), ("batch size", self.batch_size, 1),
                             ("startup trials", self.startup_trials, 0)):
             if v < lo:
@@ -253,6 +255,9 @@ def objective_value(results: pd.DataFrame, label: str, settings: TuneSettings
     seed S: error``) when a run is missing or did not finish ``ok``."""
     runs = per_run(results[results["tracker_label"] == label]) if len(results) else None
     metric = settings.objective
+    if runs is not None and metric not in runs.columns:
+        return None, {}, (f"the results have no {metric!r} column: register the metric in "
+                          "the worker processes too (at import of a module they import)")
     per_scenario: dict[str, float] = {}
     for sc in settings.scenarios:
         rows = (runs[runs["scenario"] == sc.name].set_index("seed")

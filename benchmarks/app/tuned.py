@@ -222,6 +222,14 @@ class TuningPlan:
         return [(s.default_of, s.label) for s in self.sources.values() if s.default_of]
 
 
+def tuned_scenarios(plan: TuningPlan) -> dict[str, frozenset[str]]:
+    """Label -> the scenarios its tuned file was tuned on, for every setting that runs a
+    tuned file (the report marks the rows out of sample for it)."""
+    return {label: frozenset(str(sc) for sc in
+                             src.tuned.record.get("budget", {}).get("scenarios", []))
+            for label, src in plan.sources.items() if src.tuned is not None}
+
+
 def plan_tuning(specs: Sequence[TrackerSpec], tuned_dir: str | Path | None = None,
                 seeds: Sequence[int] = (), untuned: bool = False,
                 tuning_effect: bool = False) -> TuningPlan:

@@ -26,14 +26,10 @@ every round (untimed, in the setup) the same draw is timed, and ``extra_info
 ["paired_ratio"]`` is the median over rounds of step / draw just before it (listed at
 the end of the terminal output). ``test_draw_process_noise_only`` times the draw alone.
 
-Also one resampling step (predict + update; ``estimate`` left out, the move does not
-change it) with and without a resample-move sweep, from the same kind of state.
-
 ``large`` at ``N = 1e5`` (``t_max = 30``) needs 2.3 GB and about 4 s per step (the
 estimate's greedy alignment of 25 targets in every particle costs ~90% of it); it is
 timed with fewer rounds and skipped under ``--benchmark-disable`` (``N = 1e4`` runs the
-same code there), as is the resample-move step on ``large`` (the code of ``default``,
-behind a warm-up whose estimates take seconds).
+same code there).
 
 The step runs the numba kernels (``mttbench.trackers.jmpd.kernels``) when numba is
 installed (``extra_info["compiled_kernels"]``); ``MTTBENCH_NO_NUMBA=1`` times the
@@ -78,23 +74,13 @@ ROUNDS = {"default": (15, 2), "large": (10, 1)}
 ROUNDS_HUGE = (4, 1)  # large at N = 1e5: ~4 s per step
 #: OSPA (c = 2; null scores 2) of the first timed step must stay below this. Measured,
 #: world 0 (the benchmark's) and the worst of worlds 0-9: default N = 1e4 0.17/0.18,
-#: N = 1e5 0.17/0.18; large (t_max = 30) N = 1e4 0.47/0.58; resample-move (default,
-#: N = 1e4, one sweep) 0.17/1.02
+#: N = 1e5 0.17/0.18; large (t_max = 30) N = 1e4 0.47/0.58
 OSPA_BOUND = 1.0
 T_MAX_DRAW = 5  # test_draw_process_noise_only: the goal's t_max
 
 
 def _ids(configs):
     return [f"{name}-t{t_max}" for name, t_max in configs]
-
-
-def _estimate_first(tracker, done) -> None:
-    """For a benchmark that leaves ``estimate()`` out of the timing: estimate the first
-    timed step once it has run (called untimed: in the next round's setup, or after the
-    rounds). The bootstrap proposal never reads the estimate, so the steps that follow
-    are the same either way."""
-    if len(done) == 1 and done[0][1] is None:
-        done[0] = (done[0][0], tracker.estimate())
 
 
 def _check_steps(benchmark, accuracy, warm, done) -> None:
@@ -155,35 +141,6 @@ def test_draw_process_noise_only(benchmark, n):
     out = np.empty((8, T_MAX_DRAW, n))[4:]  # the tracker's noise rows, same layout
     benchmark.extra_info.update(n_particles=n, t_max=T_MAX_DRAW)
     benchmark.pedantic(lambda: rng.standard_normal(out=out), rounds=15, warmup_rounds=2)
-
-
-@pytest.mark.parametrize("move_steps", [0, 1])
-@pytest.mark.parametrize(("name", "t_max"), CONFIGS, ids=_ids(CONFIGS))
-def test_jmpd_resample_move_step(benchmark, warm_up, accuracy, name, t_max, move_steps):
-    """predict + update resampling every time (threshold 1), with and without one MH
-    sweep of the opt-in resample-move (its cost: one more noise draw, matrix product and
-    likelihood per sweep); advancing like ``test_jmpd_step``, the first step's estimate
-    computed untimed (:func:`_estimate_first`)."""
-    if name == "large" and benchmark.disabled:
-        pytest.skip("only timed: the code of default-t5, behind a warm-up whose estimates "
-                    "of 25 targets take seconds")
-    n = 10_000
-    warm = warm_up(scenarios.get(name),
-                   JMPDTracker(n_particles=n, t_max=t_max, resample_threshold=1.0,
-                               move_steps=move_steps),
-                   WARM_STEPS[name], policy=AllCells(), from_truth=True,
-                   timed_policy=Oracle())
-    tr = warm.tracker
-    rounds, warmup = ROUNDS[name]
-    step, done = warm.advance(1 if benchmark.disabled else rounds + warmup,
-                                 with_estimate=False)
-    benchmark.extra_info.update(scenario=name, n_particles=n, t_max=t_max,
-                                move_steps=move_steps)
-    benchmark.pedantic(step, setup=lambda: _estimate_first(tr, done), rounds=rounds,
-                       warmup_rounds=warmup)
-    _estimate_first(tr, done)
-    benchmark.extra_info["move_acceptance"] = tr.move_acceptance
-    _check_steps(benchmark, accuracy, warm, done)
 
 
 # ------------------------------------------------------------ grid scaling (issue 16)

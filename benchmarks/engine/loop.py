@@ -26,8 +26,8 @@ if it ``uses_truth`` (the oracle). A tracker sees the truth only if its class se
 ``uses_truth = True`` (the ``truth-aided`` reference): then, and only then, the loop
 calls its ``observe_truth(states (n, 4), ids (n,))`` with the current step's truth,
 after ``predict`` and before the cell selection and ``update`` (so its ``P_c(t)`` knows
-the count too); that call is in neither timing. Rows of a policy or a tracker that
-uses the truth carry ``uses_truth = True``.
+the count too); that call is in neither timing. Each side's use of the truth is
+recorded from its own class attribute: ``tracker_uses_truth`` and ``policy_uses_truth``.
 
 Results table (one row per scenario x tracker x policy x looks x seed x step):
 
@@ -41,8 +41,10 @@ tracker_params     JSON of all constructor parameters (defaults included), sorte
 policy             policy name; ``"none"`` for the superposition sensor (no cells)
 policy_label       like ``tracker_label``; ``"none"`` for the superposition sensor
 policy_params      JSON of the policy's parameters
-uses_truth         True if the policy (oracle) or the tracker (truth-aided) was given
-                   the truth
+tracker_uses_truth True if the tracker was given the truth (``Tracker.uses_truth``:
+                   the truth-aided reference)
+policy_uses_truth  True if the policy was given the truth (``Policy.uses_truth``: the
+                   oracle); False for the superposition sensor (no policy)
 looks_per_step     look budget ``M`` given to the policy; 0 for superposition
 seed               the run's seed
 step               step ``k`` (0-based); -1 on the single row of an unsupported
@@ -70,6 +72,9 @@ peak_rss_mb        peak resident memory of the worker process at the end of the 
                    (``getrusage`` high-water mark: it never goes down, so it bounds
                    this job's peak from above and includes earlier jobs of the worker)
 param_<name>       one column per tracker parameter (all of them, defaults included)
+<metric columns>   the columns of every metric registered beyond the built-ins
+                   (:func:`~mttbench.benchmarks.engine.metrics.register_metric`), in
+                   registration order
 =================  ==========================================================
 
 A job whose tracker raises at step ``k`` keeps its rows ``0..k-1`` (status
@@ -99,22 +104,23 @@ from ...scenarios.simulator import simulate, tracker_seed
 from ...scenarios.spec import Scenario, dumps
 from ...trackers.base import Estimate, Tracker
 from ...trackers.cells import CellCounts
-from .metrics import step_metrics
+from .metrics import BUILTIN_METRICS, metric_columns, metric_names, step_metrics
 from .policies import Policy, Raster
 from .specs import PolicySpec, TrackerSpec
 
 if TYPE_CHECKING:
     pass
 
-METRIC_COLUMNS = [
-    "count_error", "ospa", "ospa_loc", "ospa_card", "gospa", "gospa_loc", "gospa_missed",
-    "gospa_false", "rmse",
-]
+#: the built-in metrics' columns (their place in the table; the registry's order)
+METRIC_COLUMNS = metric_columns(BUILTIN_METRICS)
 TIMING_COLUMNS = ["tracker_wall_s", "tracker_cpu_s", "select_wall_s", "select_cpu_s"]
+#: whether the tracker and the policy were given the truth (each from its own class)
+TRUTH_COLUMNS = ["tracker_uses_truth", "policy_uses_truth"]
 #: the fixed columns, in order; ``param_<name>`` columns follow, sorted
 COLUMNS = [
     "scenario", "tracker", "tracker_label", "tracker_params", "policy", "policy_label",
-    "policy_params", "uses_truth", "looks_per_step", "seed", "step", "true_count", "est_count",
+    "policy_params", *TRUTH_COLUMNS, "looks_per_step", "seed", "step", "true_count",
+    "est_count",
     *METRIC_COLUMNS, "n_looks", "n_positive", *TIMING_COLUMNS, "status", "error", "ospa_c",
     "ospa_p", "peak_rss_mb",
 ]
@@ -167,6 +173,9 @@ class Job:
             "c": float(c),
             "p": float(p),
         }
+        extra_metrics = [n for n in metric_names() if n not in BUILTIN_METRICS]
+        if extra_metrics:  # their columns are part of the results
+            ident["metrics"] = extra_metrics
         text = json.dumps(ident, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:24]
 
@@ -215,7 +224,7 @@ def _params_json(params: dict[str, Any]) -> str:
 
 
 def _nan_metrics() -> dict[str, float]:
-    return dict.fromkeys(METRIC_COLUMNS, math.nan)
+    return dict.fromkeys(metric_columns(), math.nan)
 
 
 def _frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
@@ -225,8 +234,9 @@ def _frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
     extra = [c for c in df.columns if c not in COLUMNS and c not in params]
     df = df[COLUMNS + params + extra]
     df[_INT_COLUMNS] = df[_INT_COLUMNS].astype("int64")
-    df[_FLOAT_COLUMNS] = df[_FLOAT_COLUMNS].astype("float64")
-    df["uses_truth"] = df["uses_truth"].astype(bool)
+    floats = _FLOAT_COLUMNS + [c for c in metric_columns() if c in extra]
+    df[floats] = df[floats].astype("float64")
+    df[TRUTH_COLUMNS] = df[TRUTH_COLUMNS].astype(bool)
     return df
 
 
@@ -374,12 +384,12 @@ def play(scenario: Scenario, tracker: Tracker, seed: int, *, policy: Policy | No
                     policy_label, n_steps)
 
 
-def _tracker_uses_truth(spec: TrackerSpec) -> bool:
-    """True if the spec's tracker class is a reference given the truth (False if the
-    class cannot be found: that job fails with its own message)."""
+def spec_uses_truth(spec: TrackerSpec | PolicySpec) -> bool:
+    """True if the spec's tracker or policy class is given the truth (its ``uses_truth``;
+    False if the class cannot be found: that job fails with its own message)."""
     try:
         return bool(getattr(spec.target(), "uses_truth", False))
-    except Exception:  # noqa: BLE001 - an unknown tracker is reported by run_job
+    except Exception:  # noqa: BLE001 - an unknown class is reported by run_job
         return False
 
 
@@ -394,7 +404,8 @@ def _base_row(job: Job, c: float, p: float) -> dict[str, Any]:
         "policy": job.policy.name if job.policy is not None else NO_POLICY,
         "policy_label": job.policy_label,
         "policy_params": "{}",
-        "uses_truth": _tracker_uses_truth(job.tracker),
+        "tracker_uses_truth": spec_uses_truth(job.tracker),
+        "policy_uses_truth": job.policy is not None and spec_uses_truth(job.policy),
         "looks_per_step": job.looks_per_step or 0,
         "seed": int(job.seed),
         "ospa_c": float(c),
@@ -433,10 +444,10 @@ def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
         base["tracker_params"] = _params_json(params)
         base.update({f"param_{n}": _param_value(v) for n, v in params.items()})
         policy = job.policy.make() if job.policy is not None else None
-        base["uses_truth"] = bool(getattr(tracker, "uses_truth", False))
+        base["tracker_uses_truth"] = bool(getattr(tracker, "uses_truth", False))
         if policy is not None:
             base["policy_params"] = _params_json(policy.get_params())
-            base["uses_truth"] = base["uses_truth"] or bool(policy.uses_truth)
+            base["policy_uses_truth"] = bool(policy.uses_truth)
 
         reason = tracker.unsupported_reason(model)
         if reason:
@@ -453,7 +464,7 @@ def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
             rows.append({
                 **base, "step": rec.k, "true_count": float(len(rec.truth)),
                 "est_count": float(est.count),
-                **{name: float(m[name]) for name in METRIC_COLUMNS},
+                **{name: float(m[name]) for name in metric_columns()},
                 "n_looks": len(rec.looks.cells),
                 "n_positive": int(np.count_nonzero(rec.looks.returns)),
                 "tracker_wall_s": rec.tracker_wall_s, "tracker_cpu_s": rec.tracker_cpu_s,

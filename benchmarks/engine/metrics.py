@@ -14,10 +14,29 @@ the permutation that minimises ``sum d`` is in general not the one that minimise
 ``sum d_c^p``, so assigning on raw distances would overstate OSPA/GOSPA.
 
 Metrics are computed outside the timed tracker calls; they are not on the hot path.
+
+**The metric registry.** Every per-step metric of the suite is one :class:`Metric`
+declaration passed to :func:`register_metric`: its function, the columns it writes (the
+first, named like the metric, is its headline), its label in tables, whether lower is
+better, whether it may be a tuning objective and whether the ranking tables show it.
+:func:`step_metrics` (so the results table of :func:`~mttbench.benchmarks.engine.loop.
+run_job`), the summaries and the report (:mod:`~mttbench.benchmarks.app.summary`,
+:mod:`~mttbench.benchmarks.app.report`) and ``mttbench tune --objective`` read it. The
+built-ins, in their order in the results table: ``count_error``, ``ospa`` (+ ``_loc``,
+``_card``), ``gospa`` (+ ``_loc``, ``_missed``, ``_false``), ``rmse``; a metric
+registered later adds its columns after them (in the results table, after the
+``param_<name>`` columns). Tables show the metrics in :func:`display_metrics` order.
+
+The registry is module state of each process. A sweep's forked worker processes inherit
+the metrics registered before the sweep started; processes that are not forked (Dask
+workers, spawned processes) only know the metrics registered when they import their
+modules, so a metric meant for them is registered at import of a module they import
+(as trackers are, through their package's entry points).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,13 +44,25 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial.distance import cdist
 
 __all__ = [
+    "BUILTIN_METRICS",
     "GOSPA",
     "OSPA",
+    "STEP_COUNTS",
+    "Metric",
     "assigned_rmse",
+    "column_label",
     "count_error",
+    "display_metrics",
+    "get_metric",
     "gospa",
+    "metric_columns",
+    "metric_names",
+    "objective_names",
     "ospa",
+    "register_metric",
+    "registered_metrics",
     "step_metrics",
+    "unregister_metric",
 ]
 
 
@@ -222,6 +253,190 @@ def count_error(estimated_count: float, true_count: int) -> float:
     return float(abs(float(estimated_count) - float(true_count)))
 
 
+# ------------------------------------------------------------------------ registry
+#: ``fn(truth (n, 2), estimate (m, 2), estimated_count, c, p) -> {column: value}``
+MetricFunction = Callable[[np.ndarray, np.ndarray, float, float, float], Mapping[str, float]]
+
+#: keys :func:`step_metrics` adds after the metrics' columns (the step's two counts);
+#: no metric may write them
+STEP_COUNTS = ("true_count", "n_estimated")
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One per-step metric, declared once and registered with :func:`register_metric`.
+
+    ``fn(truth, estimate, estimated_count, c, p)`` gets the step's true and estimated
+    positions as ``(n, 2)`` and ``(m, 2)`` float arrays (checked finite), the tracker's
+    count estimate and the cut-off ``c`` and order ``p`` of the run, and returns
+    ``{column: value}`` for exactly ``columns``. ``columns`` defaults to ``(name,)``; the
+    first, the headline, must be ``name`` (the name is the column that objectives,
+    rankings and paired differences read). ``label`` names the headline in tables
+    (default ``name``); a column ``<name>_<part>`` is labelled ``"<label> <part>"``.
+    ``lower_is_better`` orients rankings; ``objective`` lets ``mttbench tune`` minimise
+    the headline (so it needs ``lower_is_better``); ``ranked`` puts it in the report's
+    paired differences and baseline checks; tables show ``value * scale`` formatted
+    with ``fmt``.
+    """
+
+    name: str
+    fn: MetricFunction
+    columns: tuple[str, ...] = ()
+    label: str = ""
+    lower_is_better: bool = True
+    objective: bool = False
+    ranked: bool = False
+    scale: float = 1.0
+    fmt: str = ".3f"
+
+    def __post_init__(self) -> None:
+        columns = (self.columns,) if isinstance(self.columns, str) else tuple(self.columns)
+        object.__setattr__(self, "columns", columns or (self.name,))
+        object.__setattr__(self, "label", self.label or self.name)
+        if not (isinstance(self.name, str) and self.name.isidentifier()):
+            raise ValueError(f"a metric name must be an identifier, got {self.name!r}")
+        if not callable(self.fn):
+            raise TypeError(f"metric {self.name!r}: fn {self.fn!r} is not callable")
+        bad = [c for c in self.columns if not (isinstance(c, str) and c.isidentifier())]
+        if bad or len(set(self.columns)) != len(self.columns):
+            raise ValueError(f"metric {self.name!r}: columns {self.columns} must be distinct "
+                             "identifiers")
+        if self.columns[0] != self.name:
+            raise ValueError(f"metric {self.name!r}: the first column (the headline) must be "
+                             f"{self.name!r}, got {self.columns[0]!r}")
+        if self.objective and not self.lower_is_better:
+            raise ValueError(f"metric {self.name!r}: a tuning objective is minimised, so it "
+                             "must be lower_is_better (declare the negated quantity)")
+
+    def column_label(self, column: str) -> str:
+        """Table label of one of :attr:`columns` (``ospa_loc`` -> ``OSPA loc``)."""
+        if column == self.name:
+            return self.label
+        return f"{self.label} {column.removeprefix(self.name + '_')}"
+
+
+_REGISTRY: dict[str, Metric] = {}
+
+
+def register_metric(metric: Metric) -> Metric:
+    """Add ``metric`` after the registered ones; returns it. A name or a column already
+    taken is refused (registering the same object again does nothing)."""
+    if not isinstance(metric, Metric):
+        raise TypeError(f"{metric!r} is not a Metric")
+    if _REGISTRY.get(metric.name) is metric:
+        return metric
+    if metric.name in _REGISTRY:
+        raise ValueError(f"metric name {metric.name!r} is already registered")
+    owner = {c: m.name for m in _REGISTRY.values() for c in m.columns}
+    owner.update(dict.fromkeys(STEP_COUNTS, "step_metrics"))
+    taken = [f"{c!r} (of {owner[c]})" for c in metric.columns if c in owner]
+    if taken:
+        raise ValueError(f"metric {metric.name!r}: column {', '.join(taken)} is already "
+                         "written")
+    _REGISTRY[metric.name] = metric
+    return metric
+
+
+def unregister_metric(name: str) -> None:
+    """Remove the metric ``name`` (for tests that register temporary ones); the
+    built-ins stay."""
+    if name in BUILTIN_METRICS:
+        raise ValueError(f"the built-in metric {name!r} cannot be unregistered")
+    _REGISTRY.pop(name, None)
+
+
+def get_metric(name: str) -> Metric:
+    """The metric registered as ``name``; ``KeyError`` naming the known ones otherwise."""
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise KeyError(f"unknown metric {name!r}: the metrics are {metric_names()}") from None
+
+
+def registered_metrics() -> tuple[Metric, ...]:
+    """The registered metrics in registration order (their columns' order in the results
+    table)."""
+    return tuple(_REGISTRY.values())
+
+
+def display_metrics() -> tuple[Metric, ...]:
+    """The registered metrics in table order: the tuning objectives first (the headline
+    accuracy metrics), then the others, each in registration order."""
+    ms = registered_metrics()
+    return tuple(m for m in ms if m.objective) + tuple(m for m in ms if not m.objective)
+
+
+def metric_names() -> list[str]:
+    """Names of the registered metrics, in registration order."""
+    return list(_REGISTRY)
+
+
+def objective_names() -> list[str]:
+    """Names of the metrics ``mttbench tune`` may minimise (``objective=True``)."""
+    return [m.name for m in _REGISTRY.values() if m.objective]
+
+
+def metric_columns(names: Iterable[str] | None = None, *, display: bool = False) -> list[str]:
+    """Columns of the metrics ``names`` (default: all registered), in registration order
+    (``display``: in :func:`display_metrics` order)."""
+    ms = display_metrics() if display else registered_metrics()
+    if names is not None:
+        wanted = set(names)
+        ms = tuple(m for m in ms if m.name in wanted)
+    return [c for m in ms for c in m.columns]
+
+
+def column_label(column: str) -> str:
+    """Table label of a registered metric column (``gospa_missed`` -> ``GOSPA missed``);
+    any other column as it is."""
+    for m in _REGISTRY.values():
+        if column in m.columns:
+            return m.column_label(column)
+    return column
+
+
+def _count_error_columns(truth: np.ndarray, estimate: np.ndarray, estimated_count: float,
+                         c: float, p: float) -> dict[str, float]:
+    # the states the tracker reports: what OSPA and GOSPA score, and what a user sees
+    return {"count_error": count_error(len(estimate), len(truth))}
+
+
+def _own_count_error_columns(truth: np.ndarray, estimate: np.ndarray,
+                             estimated_count: float, c: float, p: float) -> dict[str, float]:
+    # the tracker's own count (a weight sum may differ from the states it reports)
+    return {"own_count_error": count_error(estimated_count, len(truth))}
+
+
+def _ospa_columns(truth: np.ndarray, estimate: np.ndarray, estimated_count: float,
+                  c: float, p: float) -> dict[str, float]:
+    o = ospa(truth, estimate, c=c, p=p)
+    return {"ospa": o.total, "ospa_loc": o.localisation, "ospa_card": o.cardinality}
+
+
+def _gospa_columns(truth: np.ndarray, estimate: np.ndarray, estimated_count: float,
+                   c: float, p: float) -> dict[str, float]:
+    g = gospa(truth, estimate, c=c, p=p, alpha=2.0)
+    return {"gospa": g.total, "gospa_loc": g.localisation, "gospa_missed": g.missed,
+            "gospa_false": g.false}
+
+
+def _rmse_columns(truth: np.ndarray, estimate: np.ndarray, estimated_count: float,
+                  c: float, p: float) -> dict[str, float]:
+    return {"rmse": assigned_rmse(truth, estimate)}
+
+
+#: the shipped metrics, in their order in the results table
+BUILTIN_METRICS: tuple[str, ...] = tuple(register_metric(m).name for m in (
+    Metric("count_error", _count_error_columns, label="count error", ranked=True),
+    Metric("ospa", _ospa_columns, ("ospa", "ospa_loc", "ospa_card"), "OSPA",
+           objective=True, ranked=True),
+    Metric("gospa", _gospa_columns, ("gospa", "gospa_loc", "gospa_missed", "gospa_false"),
+           "GOSPA", objective=True, ranked=True),
+    Metric("rmse", _rmse_columns, label="RMSE"),
+    Metric("own_count_error", _own_count_error_columns, label="own count error"),
+))
+
+
 def step_metrics(
     truth: np.ndarray,
     estimate: np.ndarray,
@@ -229,29 +444,31 @@ def step_metrics(
     c: float = 2.0,
     p: float = 2.0,
 ) -> dict[str, float]:
-    """All per-step accuracy metrics as one flat dict (one row of the results table).
+    """All per-step metrics as one flat dict (the metric columns of one row of the results
+    table): the columns of every registered metric (:func:`registered_metrics`), then
+    :data:`STEP_COUNTS`.
 
     ``estimated_count`` is the tracker's count estimate (may be fractional, e.g. a
     posterior mean), which may differ from the number of estimated positions ``m``.
     GOSPA uses ``alpha = 2``; its ``gospa_*`` parts are in the p-th-power domain.
 
-    Keys: ``ospa, ospa_loc, ospa_card, gospa, gospa_loc, gospa_missed, gospa_false,
-    rmse, count_error, true_count, n_estimated``.
+    ``count_error`` is ``|m - n|`` for the ``m`` states reported, ``own_count_error``
+    ``|estimated_count - n|``: a tracker whose count is a weight sum may report fewer or
+    more states than it counts, and only the states are scored.
+
+    Keys of the built-ins: ``count_error, ospa, ospa_loc, ospa_card, gospa, gospa_loc,
+    gospa_missed, gospa_false, rmse, own_count_error, true_count, n_estimated``.
     """
+    _check_order_cutoff(c, p)
     x = _as_positions(truth, "truth")
     y = _as_positions(estimate, "estimate")
-    o = ospa(x, y, c=c, p=p)
-    g = gospa(x, y, c=c, p=p, alpha=2.0)
-    return {
-        "ospa": o.total,
-        "ospa_loc": o.localisation,
-        "ospa_card": o.cardinality,
-        "gospa": g.total,
-        "gospa_loc": g.localisation,
-        "gospa_missed": g.missed,
-        "gospa_false": g.false,
-        "rmse": assigned_rmse(x, y),
-        "count_error": count_error(estimated_count, len(x)),
-        "true_count": float(len(x)),
-        "n_estimated": float(len(y)),
-    }
+    row: dict[str, float] = {}
+    for metric in _REGISTRY.values():
+        values = metric.fn(x, y, estimated_count, c, p)
+        if set(values) != set(metric.columns):
+            raise ValueError(f"metric {metric.name!r} returned the columns {sorted(values)}, "
+                             f"not its declared {list(metric.columns)}")
+        row.update((col, float(values[col])) for col in metric.columns)
+    row["true_count"] = float(len(x))
+    row["n_estimated"] = float(len(y))
+    return row

@@ -21,6 +21,8 @@ array or a smaller grid; ``all`` looks at every cell, ``O(cells)`` by definition
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
@@ -29,7 +31,31 @@ from ...scenarios.model import RayleighGridSensor, TrackingModel
 from ...trackers.cells import CellCounts
 from ...trackers.params import Configurable, Param
 from ...trackers.registry import Registry
-from .information import greedy_looks
+from .information import DENSE_CELLS, greedy_looks
+
+
+@dataclass(frozen=True)
+class PolicyTerms:
+    """A policy's part of one run's costs, as :meth:`Policy.resource_terms` declares it
+    for the sweep check (:mod:`~mttbench.benchmarks.app.resources`): ``looks`` made per
+    step, ``repeats`` (one cell may take every look of a step), ``state_bytes`` of its
+    own working memory, and ``dense_rows``: rows of ``P_c(t)`` it builds beyond the
+    tracker's own (a dense array of every cell)."""
+
+    looks: float
+    repeats: bool = False
+    state_bytes: float = 0.0
+    dense_rows: float = 0.0
+
+
+#: ``Generator.choice`` draws without replacement by Floyd's algorithm only when there
+#: are more than this many cells per draw; otherwise it shuffles every cell (int64)
+CHOICE_SHUFFLE_RATIO = 50
+
+
+def _choice_bytes(n_cells: float, looks: float) -> float:
+    """Bytes of ``Generator.choice(n_cells, looks, replace=False)``'s working array."""
+    return min(n_cells, CHOICE_SHUFFLE_RATIO * looks) * 8.0
 
 
 class Policy(Configurable, ABC):
@@ -50,6 +76,16 @@ class Policy(Configurable, ABC):
         """Constructor parameters, as stored under their own names (scikit-learn's rule;
         one not stored that way is left out). They seed the policy's generator."""
         return {n: getattr(self, n) for n in self.param_names() if hasattr(self, n)}
+
+    @classmethod
+    def resource_terms(cls, params: Mapping[str, Any], model: TrackingModel,
+                       looks_per_step: float) -> PolicyTerms:
+        """This policy's costs in one run of ``looks_per_step`` looks per step on
+        ``model``'s grid (:class:`PolicyTerms`), for the memory and time check before a
+        sweep; ``params`` are every parameter, defaults filled in. The default: the looks
+        as given, repeated in one cell when a ``repeats`` parameter is true, nothing of
+        its own."""
+        return PolicyTerms(float(looks_per_step), repeats=bool(params.get("repeats", False)))
 
     def reset(self, model: TrackingModel, n_looks: int, rng: np.random.Generator) -> None:
         """Start a run: ``n_looks`` looks per step on ``model.grid``."""
@@ -93,6 +129,11 @@ class AllCells(Policy):
     def select(self, k, counts=None, truth_cells=None):
         return np.arange(self._n_cells, dtype=np.int64)
 
+    @classmethod
+    def resource_terms(cls, params, model, looks_per_step) -> PolicyTerms:
+        """Every cell once per step: ``M = C`` looks, ``O(cells)`` by definition."""
+        return PolicyTerms(float(model.grid.n_cells))
+
 
 @register_policy
 class RandomCells(Policy):
@@ -109,6 +150,13 @@ class RandomCells(Policy):
     def select(self, k, counts=None, truth_cells=None):
         m = min(self._n_looks, self._n_cells)
         return np.sort(self._rng.choice(self._n_cells, size=m, replace=False)).astype(np.int64)
+
+    @classmethod
+    def resource_terms(cls, params, model, looks_per_step) -> PolicyTerms:
+        """``Generator.choice``: every cell shuffled when there are fewer than
+        :data:`CHOICE_SHUFFLE_RATIO` per look."""
+        return PolicyTerms(float(looks_per_step),
+                           state_bytes=_choice_bytes(model.grid.n_cells, looks_per_step))
 
 
 @register_policy
@@ -168,6 +216,12 @@ class Oracle(Policy):
         fill = i + np.searchsorted(truth - np.arange(truth.size), i, side="right")
         return np.sort(np.concatenate([truth, fill])).astype(np.int64)
 
+    @classmethod
+    def resource_terms(cls, params, model, looks_per_step) -> PolicyTerms:
+        """Its random fill as :class:`RandomCells`' draw (``Generator.choice``)."""
+        return PolicyTerms(float(looks_per_step),
+                           state_bytes=_choice_bytes(model.grid.n_cells, looks_per_step))
+
 
 @register_policy
 class RenyiGain(Policy):
@@ -209,6 +263,14 @@ class RenyiGain(Policy):
         self.validate_params(self.get_params())  # the declaration above (built directly)
         self._pd_cache: dict[int, np.ndarray] = {}
         self._tables: dict[int, dict[int, np.ndarray]] = {}  # by n_counts, then by n
+
+    @classmethod
+    def resource_terms(cls, params, model, looks_per_step) -> PolicyTerms:
+        """The dense path on grids of at most ``DENSE_CELLS`` cells: a row of ``P_c(t)``
+        and of gains for every cell."""
+        cells = float(model.grid.n_cells)
+        return PolicyTerms(float(looks_per_step), repeats=bool(params.get("repeats", False)),
+                           dense_rows=cells if cells <= DENSE_CELLS else 0.0)
 
     def select(self, k, counts=None, truth_cells=None):
         if counts is None:

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar, Self
 
 from ... import scenarios, trackers
+from ...scenarios import envelope
 from ...scenarios.spec import Scenario
 from ...trackers.params import Configurable, ParameterError
 from . import policies
@@ -180,12 +181,38 @@ class PolicySpec(Spec):
 
 
 # --------------------------------------------------------------------- resolution
+#: suites of scenarios (``--suite NAME`` or ``NAME:SPLIT``): name -> scenarios of a split
+SUITES = {"envelope": envelope.envelope_points}
+
+
+def resolve_suite(text: str) -> list[str]:
+    """``envelope``, ``envelope:train`` or ``envelope:held`` -> the names of its scenarios
+    (envelope points, which :func:`resolve_scenarios` accepts by name)."""
+    name, sep, split = text.partition(":")
+    allowed = " or ".join(f"{s}, " + ", ".join(f"{s}:{x}" for x in envelope.SPLITS)
+                          for s in SUITES)
+    if name not in SUITES or (sep and split not in envelope.SPLITS):
+        raise ConfigError(f"suite {text!r} is not known: expected {allowed}")
+    try:
+        return [sc.name for sc in SUITES[name](split or None)]
+    except scenarios.ScenarioError as exc:
+        raise ConfigError(f"suite {text!r}: {first_line(exc)}") from None
+
+
+def _scenario(name: str) -> Scenario:
+    """A preset, a ``.toml`` path, or an envelope point by name (``env-...``)."""
+    if name.startswith("env-") and name in envelope.point_names():
+        return envelope.get_point(name)
+    return scenarios.get(name)
+
+
 def resolve_scenarios(names: Sequence[str], steps: int | None = None) -> list[Scenario]:
-    """Presets or ``.toml`` paths -> scenarios, with ``n_steps`` overridden if given."""
+    """Presets, ``.toml`` paths or envelope points (by name) -> scenarios, with ``n_steps``
+    overridden if given."""
     out = []
     for name in names:
         try:
-            sc = scenarios.get(name)
+            sc = _scenario(name)
         except (scenarios.ScenarioError, OSError, UnicodeDecodeError) as exc:
             raise ConfigError(f"scenario {name!r}: {first_line(exc)}") from None
         if steps is not None:

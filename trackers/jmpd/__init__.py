@@ -33,14 +33,6 @@ exact for the factorised prior ``prod_p pi_p`` the method assumes. Departures: n
 another target's detection, inflating the count); on the superposition sensor ``ip``
 weighs like the bootstrap (no single-target likelihood).
 
-Resample-move (opt-in ``move_steps > 0``, bootstrap only; Gilks and Berzuini 2001):
-after a resampling, Metropolis-Hastings sweeps on the noises ``e`` of the slots that
-survived the predict, parent ``x_{k-1}`` kept: target ``∝ N(e; 0, I) p(z_k | b(F x_{k-1}
-+ L e))`` (``b`` the boundary rule), proposal ``e' = e + move_scale eps``, acceptance
-``min(1, p(z | X') N(e'; 0, I) / (p(z | X) N(e; 0, I)))``, a target leaving under ``die``
-rejected. It keeps ``p(X_k | Z_k)`` invariant (weights stay equal) and restores only the
-diversity lost at the current step.
-
 Estimates (:mod:`.estimation`): count = posterior mode of ``T``; states = weighted
 means over the particles with ``T = mode``, targets aligned by K-means over
 permutations. Three per-slot passes run as numba kernels when numba is installed
@@ -50,12 +42,18 @@ Cost: ``O(N t_max^2 + looks)`` per step and ``O(N t_max + looks)`` memory, whate
 grid's size. The look tables are keyed by the looked cells and ``P_c(t)`` is a
 :class:`~..cells.CellCounts` with rows for the cells the particles occupy and the
 no-target row elsewhere (:mod:`.sparse`); grids of more than ``2^31 - 1`` cells keep
-int64 cells (docs/jmpd.md, section 6). The numbers are those of the former dense tables
-bit for bit.
+int64 cells (docs/jmpd.md, section 6).
 
-Measured (docs/jmpd.md): the bootstrap loses targets even at N = 1e5 or started on the
-truth; the IP proposal helps (``default``, N = 2000, every cell looked at, 20 seeds:
-OSPA 1.41 -> 0.87); resample-move shows no measurable gain, so it stays opt-in.
+The bootstrap loses targets even with a hundredfold more particles or started on the
+truth; the IP proposal holds them (docs/jmpd.md, with the switches retired and the
+measurements that retired them).
+
+Layout: one package. ``jmpd``/``jmpd-ip`` (:mod:`.tracker`, :mod:`.proposals`,
+:class:`.state.ParticleState`, ``(4, t_max, N)`` buffers) and ``jmpd-ap`` (:mod:`.ap`,
+:mod:`.partitions`, :mod:`.cell_proposal`, ``(N, T, 2)`` positions with RB velocities)
+share no state and import nothing from each other, but share the kernels: look tables
+and likelihood (:mod:`.likelihood`, :mod:`.sparse`), ``P_c(t)`` from slots, resampling
+and the wall fold; two packages would need a third for those, so they stay one.
 """
 
 from .ap import JMPDAPTracker

@@ -87,7 +87,7 @@ the predictive is truncated to the cells within 4 sd of the mean on each axis (a
 the position noise variance per step is at least ``position_noise_floor`` (1e-3
 cell^2, 0.03 cell of sd; Kreucher's Q has 2e-3): with the tiny noise of near-straight
 paths, resampling leaves particles that share one velocity and a track a cell off that
-can never move back (``crossing``, every cell looked: OSPA 0.74 without, 0.25 with).
+can never move back (docs/jmpd-ap.md).
 Grid sensor only.
 """
 
@@ -99,7 +99,15 @@ from typing import ClassVar
 import numpy as np
 
 from ...scenarios.model import Looks, RayleighGridSensor, TrackingModel
-from ..base import Estimate, Tracker, register
+from ..base import (
+    LOOKED_CELL_BYTES,
+    LOOKED_CELL_S,
+    Estimate,
+    ResourceTerms,
+    Tracker,
+    param_number,
+    register,
+)
 from ..cells import CellCounts
 from ..params import Param, Search
 from .cell_proposal import axis_window, truncated_normal
@@ -109,10 +117,16 @@ from .partitions import cluster_slots, merge_slots, sort_slots
 from .resampling import effective_sample_size, systematic_resample
 from .sparse import CellTable
 from .state import fold
+from .tracker import JMPD_LOOK_BYTES, JMPD_SLOT_T_S
 
 #: Kreucher's removal probability per target and step (docs/literature/jmpd.md Sec.
 #: 2.6), for ``removal_probability`` when the model has none and a user wants one
 KREUCHER_REMOVAL = 0.005
+#: bytes per jmpd-ap slot: 138 B (N = 5000 on ``large``, t_max 54) and 253 B (``scale``,
+#: N = 500, t_max 2,004) measured (:meth:`JMPDAPTracker.resource_terms`)
+AP_SLOT_BYTES = 384
+#: per jmpd-ap slot and step: 0.35 s for 1e6 slots (``scale``), ~25 ms for 27,000
+AP_SLOT_S = 1e-6
 
 
 def _boxes(pos: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -650,3 +664,19 @@ class JMPDAPTracker(Tracker):
         vel = (self.vel[:, top] * v).sum(axis=0) / n
         states = np.stack([pos[:, 0], vel[:, 0], pos[:, 1], vel[:, 1]], axis=1)
         return Estimate(self.count_mean, states)
+
+    @classmethod
+    def resource_terms(cls, params, model, looks_per_step, targets) -> ResourceTerms:
+        """``N t_max`` slots (``t_max`` the automatic slots when not given), look tables
+        of ``t_max + 1`` columns per looked cell, the undetected field of the cells looked
+        at so far; ``P_c(t)`` from the slots (``min(t_max, 4) + 1`` columns) and their
+        in-particle counts from sorted runs."""
+        n = param_number(params, "n_particles", 2000)
+        t_max = (float(_auto_slots(model)) if params.get("t_max") is None
+                 else param_number(params, "t_max", 5))
+        return ResourceTerms(
+            state_bytes=n * t_max * AP_SLOT_BYTES, look_bytes=(t_max + 1) * JMPD_LOOK_BYTES,
+            looked_cell_bytes=LOOKED_CELL_BYTES, step_seconds=n * t_max * AP_SLOT_S,
+            looked_cell_seconds=LOOKED_CELL_S,
+            prediction_entries=n * t_max, prediction_counts=min(t_max, 4) + 1,
+            prediction_seconds=n * t_max * math.log2(t_max + 1.0) * JMPD_SLOT_T_S)

@@ -8,7 +8,7 @@ add their logs (tables from :func:`grid_log_likelihood_tables`). Superposition s
 for a particle with no target (the simulator's convention).
 
 :func:`step_likelihood` wraps one step's measurement as a function of any particles
-(the update and the resample-move sweeps evaluate the same one).
+(the update evaluates it; the IP proposal uses its single-target factors).
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""How particles move: the bootstrap predict (deaths, dynamics, boundary, births), the
-independent-partition exchange and the resample-move sweeps.
+"""How particles move: the bootstrap predict (deaths, dynamics, boundary, births) and the
+independent-partition exchange.
 
 Each function changes a :class:`.state.ParticleState` in place and draws from the
 ``rng`` it is given, in a fixed order (the order is part of the results).
@@ -16,9 +16,9 @@ from scipy.special import logsumexp
 
 from ...scenarios.model import TrackingModel
 from .estimation import align_slots
-from .likelihood import GridLikelihood, SuperpositionLikelihood
+from .likelihood import GridLikelihood
 from .resampling import systematic_resample
-from .state import ParticleState, flat_cells, fold
+from .state import ParticleState, flat_cells
 
 DEFAULT_BIRTH_RATE = 0.02  # per particle and step, used when the model has no births
 DEFAULT_DEATH_PROBABILITY = 0.01  # per target and step, used when the model has p_s = 1
@@ -89,7 +89,7 @@ def bernoulli_indices(rng: np.random.Generator, n: int, p: float) -> np.ndarray:
 
 # ------------------------------------------------------------------ bootstrap
 def bootstrap_predict(state: ParticleState, prior: BootstrapPrior, rng: np.random.Generator,
-                      kernels: ModuleType | None = None, keep_parents: bool = False) -> None:
+                      kernels: ModuleType | None = None) -> None:
     """One draw from the kinematic prior for every particle, in the simulator's order:
 
     1. deaths: every slot dies with ``p_death`` (empty slots "dying" changes nothing);
@@ -100,9 +100,7 @@ def bootstrap_predict(state: ParticleState, prior: BootstrapPrior, rng: np.rando
        ``p_birth`` (none when full): uniform in the workspace, velocity
        ``N(0, birth_velocity_std^2)`` per axis.
 
-    ``keep_parents`` (resample-move): ``state.parents`` becomes the buffer the move
-    read (``x_{k-1}`` and this step's ``e``) and ``state.movable`` the slots that
-    survived step 2 (not the births). Leaves ``raw_cells`` and ``counts`` current.
+    Leaves ``raw_cells`` and ``counts`` current.
     """
     N, T = state.n, state.t_max
     valid = state.valid
@@ -115,9 +113,6 @@ def bootstrap_predict(state: ParticleState, prior: BootstrapPrior, rng: np.rando
         counts = state.boundary_cells_counts(kernels, prior.reflect)
     else:
         state.apply_boundary(prior.reflect)
-    if keep_parents:
-        state.parents = state.other_buffer()
-        np.copyto(state.movable, valid)
     born = bernoulli_indices(rng, N, prior.p_birth)
     if born.size:
         born = born[valid[:, born].sum(axis=0) < T]
@@ -173,67 +168,3 @@ def ip_exchange(state: ParticleState, reference: np.ndarray | None, lik: GridLik
         cells[p, pool] = cells[p, donors]
         corr[pool] += lp[p, donors] - log_c
     return corr
-
-
-# ------------------------------------------------------------- resample-move
-def resample_move(state: ParticleState, prior: BootstrapPrior,
-                  lik: GridLikelihood | SuperpositionLikelihood, ll: np.ndarray,
-                  rng: np.random.Generator, sweeps: int, scale: float) -> tuple[int, int]:
-    """``sweeps`` Metropolis-Hastings sweeps on equally weighted particles (package
-    docstring, "Resample-move"); ``ll (N,)`` the log-likelihoods of the current states.
-    Returns ``(proposed, accepted)`` counts of particle proposals.
-
-    Each sweep proposes ``e' = e + scale * eps`` (``eps ~ N(0, I)``) for every movable
-    slot (``state.movable``) of every particle at once, keeping the parent ``x_{k-1}``
-    (``state.parents``), rebuilds ``x' = b(F x_{k-1} + L e')`` (``b`` the boundary rule;
-    with ``die`` a proposal that takes a movable target outside is rejected) and accepts
-    per particle with probability ``min(1, p(z | X') N(e'; 0, I) / (p(z | X) N(e; 0, I)))``.
-
-    Why the weights stay equal: the bootstrap step is a deterministic map
-    ``X_k = g(X_{k-1}, u)`` of its draws ``u`` (deaths, noises, births), so resampled
-    particles are equally weighted draws of ``pi(X_{k-1}, u) ∝ p(X_{k-1} | Z_{k-1}) p(u)
-    p(z_k | g(X_{k-1}, u))``. A sweep is a Metropolis-within-Gibbs step on ``pi``'s
-    conditional of the survivors' ``e`` given the rest, ``∝ N(e; 0, I) p(z_k | X(e))``;
-    written on ``e`` the ratio is exact also for reflected targets (a folded Gaussian in
-    ``x``), and rejecting exits under ``die`` keeps ``pi`` conditioned on which slots are
-    alive. Keeping ``pi`` invariant keeps its marginal ``p(X_k | Z_k)``. The IP exchange
-    does not keep each slot's parent, so the move is bootstrap only.
-    """
-    T, N = state.t_max, state.n
-    movable = state.movable
-    active = movable.any(axis=0)  # particles with something to move
-    n_active = int(np.count_nonzero(active))
-    proposed = accepted = 0
-    if n_active == 0:
-        return proposed, accepted
-    parents = state.parents
-    X, e = state.X, parents[4:]
-    prop = np.empty_like(parents)
-    for _ in range(int(sweeps)):
-        prop[:4] = parents[:4]
-        rng.standard_normal(out=prop[4:])
-        prop[4:] *= scale
-        prop[4:] += e
-        np.copyto(prop[4:], e, where=~movable)  # births and empty slots stay put
-        Xn = (prior.FL @ prop.reshape(8, T * N)).reshape(4, T, N)
-        np.copyto(Xn, X, where=~movable)
-        ok = np.ones(N, dtype=bool)
-        for p_row, v_row, length in ((0, 1, state.width), (2, 3, state.height)):
-            if prior.reflect:
-                Xn[p_row], Xn[v_row] = fold(Xn[p_row], Xn[v_row], length)
-            else:
-                # leaving would kill the target: the kernel keeps every slot's
-                # alive/dead state, so such a proposal is rejected
-                out = (Xn[p_row] < 0.0) | (Xn[p_row] >= length)
-                ok &= ~(out & movable).any(axis=0)
-                np.clip(Xn[p_row], 0.0, np.nextafter(length, 0.0), out=Xn[p_row])
-        ll_new = lik(Xn, state.valid, flat_cells(Xn[0], Xn[2], state.grid))
-        de = np.einsum("dtn,dtn->n", prop[4:], prop[4:]) - np.einsum("dtn,dtn->n", e, e)
-        log_a = ll_new - ll - 0.5 * de
-        acc = active & ok & (np.log(rng.random(N)) < log_a)
-        np.copyto(X, Xn, where=acc)
-        np.copyto(e, prop[4:], where=acc)
-        ll = np.where(acc, ll_new, ll)
-        proposed += n_active
-        accepted += int(np.count_nonzero(acc))
-    return proposed, accepted

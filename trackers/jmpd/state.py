@@ -5,7 +5,7 @@ Never one Python object per particle, never an ``(N, n_cells)`` array. The state
 N)``, so that every per-step operation runs over contiguous memory; slot ``s`` of
 particle ``i`` holds a target iff ``valid[s, i]`` (valid slots need not be packed
 first). The functions here take those arrays; :class:`ParticleState` holds them with
-the counts, weights and flat cells, and owns the buffer swaps of the move and of the
+the counts, weights and flat cells, and owns the buffer swaps of the predict and of the
 resampling gathers.
 """
 
@@ -132,10 +132,7 @@ class ParticleState:
     int64 targets per particle; ``logw``, ``w (N,)`` normalised log-weights and their
     exponentials (kept in step); ``raw_cells (t_max, N)`` the flat cell of every
     slot, valid or not (None: stale after a resampling until the next predict; empty
-    slots hold positions inside the workspace too, so their cells are in range);
-    ``parents (8, t_max, N)`` (resample-move only, else None) rows 0-3 the states
-    ``x_{k-1}`` the current ones were predicted from and rows 4-7 the standard normals
-    ``e`` of that step, and ``movable (t_max, N)`` the slots the move may change.
+    slots hold positions inside the workspace too, so their cells are in range).
 
     ``X`` lives in one of two buffers ``(8, t_max, N)``: rows 0-3 states, rows 4-7 the
     step's standard normals, so that ``x <- F x + L e`` is one ``(4, 8) @ (8, t_max N)``
@@ -164,12 +161,10 @@ class ParticleState:
         self.logw = np.full(N, -math.log(N))
         self.w = np.full(N, 1.0 / N)
         self.raw_cells: np.ndarray | None = None
-        self.parents: np.ndarray | None = None
-        self.movable = np.zeros((T, N), dtype=bool)
 
     # ------------------------------------------------------------- buffers
     def other_buffer(self) -> np.ndarray:
-        """The buffer not holding the states (the target of the next move/gather)."""
+        """The buffer not holding the states (the target of the next predict/gather)."""
         a, b = self.bufs
         if self.X.base is not a:
             if self.X.base is not b:  # replaced by a realignment: copy it home
@@ -240,11 +235,7 @@ class ParticleState:
     # ----------------------------------------------------------- resampling
     def resample(self, idx: np.ndarray) -> None:
         """Keep particles ``idx (N,)`` (in range) with equal weights: one gather per array
-        into the spare buffer, then swap. ``parents`` and ``movable`` (when kept) are
-        gathered first, because ``parents`` lives in the buffer the states go to."""
-        if self.parents is not None:
-            self.parents = np.take(self.parents, idx, axis=2)
-            self.movable = self.movable[:, idx]
+        into the spare buffer, then swap."""
         # np.take keeps C order (fancy indexing on the last axis would not) and
         # mode="clip" stops it from buffering the output
         X, V = self.other_buffer()[:4], self.valid_spare

@@ -6,21 +6,39 @@ estimates (:mod:`.estimation`). The method is described in the package docstring
 
 from __future__ import annotations
 
+import json
 import math
-from typing import ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 
 from ...scenarios.model import Looks, TrackingModel
-from ..base import Estimate, Tracker, register
+from ..base import Estimate, ResourceTerms, Tracker, param_number, register
 from ..cells import CellCounts
 from ..params import Param, Search
 from .backend import compiled_kernels
 from .estimation import cell_count_distribution_from, estimate_targets
 from .likelihood import GridLikelihood, SuperpositionLikelihood, step_likelihood
-from .proposals import BootstrapPrior, bootstrap_predict, ip_exchange, resample_move
+from .proposals import BootstrapPrior, bootstrap_predict, ip_exchange
 from .resampling import effective_sample_size, systematic_resample
-from .state import ParticleState, flat_cells
+from .state import ParticleState
+
+# measured costs (:meth:`JMPDTracker.resource_terms`, docs/resources.md)
+#: bytes per JMPD particle slot, plus per slot and per unit of ``t_max``: bootstrap 268 B
+#: per slot at t_max = 5 (N = 5e4), 478 B at t_max = 30 (N = 2e4); the IP proposal
+#: 282 B and 1,197 B there
+JMPD_SLOT_BYTES = 256
+JMPD_SLOT_T_BYTES = 16
+JMPD_IP_SLOT_T_BYTES = 48
+#: per looked cell and count column of a JMPD's look tables: 22 B measured (jmpd-ap,
+#: ``all`` on 700x700)
+JMPD_LOOK_BYTES = 32
+#: per JMPD slot and step, plus per slot and unit of t_max (the O(N t_max^2) passes):
+#: 50-66 ms per step measured at N = 2000, t_max = 30
+JMPD_SLOT_S = 5e-7
+JMPD_SLOT_T_S = 2e-8
+#: the IP proposal's cost relative to the bootstrap (measured 0.9 s against 0.22 s there)
+JMPD_IP_FACTOR = 4.0
 
 
 @register
@@ -32,15 +50,11 @@ class JMPDTracker(Tracker):
     ``DEFAULT_BIRTH_RATE``); ``death_probability`` (per target and step, None:
     ``1 - p_s`` or ``DEFAULT_DEATH_PROBABILITY``); ``resample_threshold`` (resample
     when ESS < threshold * N); ``proposal`` "bootstrap" or "ip"; ``initial_count``
-    (None: Poisson prior; an int: every particle starts with that many targets);
-    ``move_steps`` Metropolis-Hastings sweeps after each resampling (0: none, the
-    plain bootstrap; bootstrap proposal only) with proposal covariance
-    ``move_scale^2 Q`` (package docstring, "Resample-move").
+    (None: Poisson prior; an int: every particle starts with that many targets).
 
     After ``reset``: ``count_mean`` and ``count_probabilities`` (the count posterior of
-    the last estimate), ``n_resamples``, ``move_proposed``/``move_accepted``
-    (:attr:`move_acceptance`), ``uses_compiled_kernels`` (whether predict runs the numba
-    pass; same results either way), and the read-only views below.
+    the last estimate), ``n_resamples``, ``uses_compiled_kernels`` (whether predict runs
+    the numba pass; same results either way), and the read-only views below.
     """
 
     name = "jmpd"
@@ -71,24 +85,25 @@ class JMPDTracker(Tracker):
         "proposal": Param(choices=("bootstrap", "ip")),
         "initial_count": Param(int, 0, allow_none=True, none="Poisson prior",
                                doc="targets in every particle at first"),
-        "move_steps": Param(int, 0, doc="resample-move sweeps (bootstrap proposal only)"),
-        "move_scale": Param(float, 0, low_open=True, doc="move proposal covariance scale^2 Q"),
     }
+    #: retired parameters (docs/jmpd.md, "Retired switches") at the value the code runs:
+    #: they stay in the configuration that seeds a run (:meth:`canonical_config`), so
+    #: every seed, and every number, stays what it was when they were parameters
+    retired_params: ClassVar[dict[str, Any]] = {"move_steps": 0, "move_scale": 1.0}
 
     @classmethod
-    def param_conflict(cls, params):
-        if params["move_steps"] > 0 and params["proposal"] != "bootstrap":
-            return (f"move_steps={params['move_steps']} with proposal={params['proposal']!r}: "
-                    "need proposal='bootstrap' when move_steps > 0 (the IP exchange does not "
-                    "keep each slot's parent state)")
-        return None
+    def canonical_config(cls, params=None) -> str:
+        """:meth:`.params.Configurable.canonical_config` with :attr:`retired_params` among
+        the parameters."""
+        doc = json.loads(super().canonical_config(params))
+        doc["params"].update(cls.retired_params)
+        return json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False)
 
     def __init__(self, n_particles: int = 2000, t_max: int = 5,
                  birth_rate: float | None = None, death_probability: float | None = None,
                  resample_threshold: float = 0.5,
                  proposal: Literal["bootstrap", "ip"] = "bootstrap",
-                 initial_count: int | None = None, move_steps: int = 0,
-                 move_scale: float = 1.0) -> None:
+                 initial_count: int | None = None) -> None:
         self.n_particles = n_particles
         self.t_max = t_max
         self.birth_rate = birth_rate
@@ -96,8 +111,6 @@ class JMPDTracker(Tracker):
         self.resample_threshold = resample_threshold
         self.proposal = proposal
         self.initial_count = initial_count
-        self.move_steps = move_steps
-        self.move_scale = move_scale
 
     # ------------------------------------------------------------- views
     @property
@@ -138,30 +151,6 @@ class JMPDTracker(Tracker):
         (``L L^T = Q``), ``p_death``, ``p_birth``, ... resolved at reset. ``p_death``
         and ``p_birth`` may be changed between steps."""
         return self._prior
-
-    @property
-    def parent_states(self) -> np.ndarray | None:
-        """Resample-move bookkeeping: the states ``x_{k-1}`` ``(N, t_max, 4)`` that the
-        current states were predicted from (a view); None unless ``move_steps > 0`` and
-        predict has run."""
-        parents = self._particles.parents
-        return None if parents is None else parents[:4].transpose(2, 1, 0)
-
-    @property
-    def process_noises(self) -> np.ndarray | None:
-        """Resample-move bookkeeping: the standard normals ``e`` ``(N, t_max, 4)`` with
-        ``x = b(F x_{k-1} + L e)`` for the slots that survived the last predict (a view:
-        writes reach the tracker, so a test can start the sweeps from chosen draws);
-        None unless ``move_steps > 0`` and predict has run."""
-        parents = self._particles.parents
-        return None if parents is None else parents[4:].transpose(2, 1, 0)
-
-    @property
-    def move_acceptance(self) -> float:
-        """Fraction of accepted resample-move proposals so far (NaN before any)."""
-        if self.move_proposed == 0:
-            return math.nan
-        return self.move_accepted / self.move_proposed
 
     # ------------------------------------------------------------- life cycle
     def unsupported_reason(self, model: TrackingModel) -> str | None:
@@ -229,13 +218,10 @@ class JMPDTracker(Tracker):
         self.count_mean = float(counts.mean())
         self.count_probabilities = np.bincount(counts, minlength=T + 1) / N
         self.n_resamples = 0
-        self.move_proposed = 0
-        self.move_accepted = 0
 
     def predict(self) -> None:
         kernels = compiled_kernels() if self.uses_compiled_kernels else None
-        bootstrap_predict(self._particles, self._prior, self._rng, kernels,
-                          keep_parents=self.move_steps > 0)
+        bootstrap_predict(self._particles, self._prior, self._rng, kernels)
         if self._ref is not None and len(self._ref):
             self._ref = self._ref @ self._prior.F.T
 
@@ -266,33 +252,11 @@ class JMPDTracker(Tracker):
         total = w.sum()
         w /= total
         logw -= top + math.log(total)
-        # systematic resampling when the effective sample size is low; the
-        # resample-move sweeps (when on) start from the survivors' log-likelihoods
+        # systematic resampling when the effective sample size is low
         if effective_sample_size(w) >= self.resample_threshold * p.n:
             return
-        idx = systematic_resample(w, self._rng.random())
-        p.resample(idx)
+        p.resample(systematic_resample(w, self._rng.random()))
         self.n_resamples += 1
-        if p.parents is not None:
-            self._sweep(ll[idx])
-
-    def move(self) -> None:
-        """Run the ``move_steps`` resample-move sweeps now, on the current particles, with
-        the last update's measurement, as after a resampling (which normally triggers
-        them). The particles should be equally weighted; the weights are not changed.
-        For tests that start the sweeps from chosen draws (set :attr:`states` and
-        :attr:`process_noises` first)."""
-        p = self._particles
-        if p.parents is None or self._lik is None:
-            raise RuntimeError("move() needs move_steps > 0, a predict and an update "
-                               "with a measurement")
-        self._sweep(self._lik(p.X, p.valid, flat_cells(p.X[0], p.X[2], p.grid)))
-
-    def _sweep(self, ll: np.ndarray) -> None:
-        proposed, accepted = resample_move(self._particles, self._prior, self._lik, ll,
-                                           self._rng, self.move_steps, self.move_scale)
-        self.move_proposed += proposed
-        self.move_accepted += accepted
 
     def estimate(self) -> Estimate:
         p = self._particles
@@ -300,6 +264,23 @@ class JMPDTracker(Tracker):
         self.count_probabilities, self.count_mean = out.count_probabilities, out.count_mean
         self._ref = out.reference
         return out.estimate
+
+    @classmethod
+    def resource_terms(cls, params, model, looks_per_step, targets) -> ResourceTerms:
+        """``N t_max`` slots (``O(N t_max^2)`` passes, the IP proposal's more), look
+        tables of ``t_max + 1`` columns per looked cell; ``P_c(t)`` from the slots
+        (``t_max + 1`` columns) and their in-particle counts from sorted runs."""
+        n = param_number(params, "n_particles", 2000)
+        t_max = param_number(params, "t_max", 5)
+        ip = params.get("proposal") == "ip"
+        per_t = JMPD_IP_SLOT_T_BYTES if ip else JMPD_SLOT_T_BYTES
+        return ResourceTerms(
+            state_bytes=n * t_max * (JMPD_SLOT_BYTES + t_max * per_t),
+            look_bytes=(t_max + 1) * JMPD_LOOK_BYTES,
+            step_seconds=(n * t_max * (JMPD_SLOT_S + t_max * JMPD_SLOT_T_S)
+                          * (JMPD_IP_FACTOR if ip else 1.0)),
+            prediction_entries=n * t_max, prediction_counts=t_max + 1,
+            prediction_seconds=n * t_max * math.log2(t_max + 1.0) * JMPD_SLOT_T_S)
 
 
 @register
@@ -317,10 +298,8 @@ class JMPDIPTracker(JMPDTracker):
                  birth_rate: float | None = None, death_probability: float | None = None,
                  resample_threshold: float = 0.5,
                  proposal: Literal["bootstrap", "ip"] = "ip",
-                 initial_count: int | None = None, move_steps: int = 0,
-                 move_scale: float = 1.0) -> None:
+                 initial_count: int | None = None) -> None:
         super().__init__(n_particles=n_particles, t_max=t_max, birth_rate=birth_rate,
                          death_probability=death_probability,
                          resample_threshold=resample_threshold, proposal=proposal,
-                         initial_count=initial_count, move_steps=move_steps,
-                         move_scale=move_scale)
+                         initial_count=initial_count)

@@ -1,0 +1,242 @@
+"""The operating envelope's tables (docs/envelope.md) from a sweep's results.parquet.
+
+    .venv/bin/python docs/envelope_table.py RESULTS_PARQUET [RESULTS_PARQUET ...] [--points]
+        [--metric gospa]
+
+For each policy in the table (one section per policy and look budget set), per envelope
+point x tracker, Markdown tables of:
+
+1. the share of the OSPA gap closed between the floor `null` and the ceiling `truth-aided`
+   (mttbench.benchmarks.app.summary.gap_closed: whole runs, paired by seed);
+2. the counts over the second half of each run (steps >= n_steps // 2): the true count, and
+   per tracker the mean number of REPORTED states / the tracker's own `est_count`. The number
+   of reported states is recovered exactly from the GOSPA parts: reported = true_count +
+   (gospa_false - gospa_missed) / (c^p / 2). A count EXPLODES (^) when its mean is above
+   1.5 x true + 2 and COLLAPSES (v) when below 0.5 x true - 1 (the mean over seeds of the
+   per-run second-half means, against the true count averaged the same way);
+3. OSPA minus null's OSPA, paired by seed (mean and 95% t half-width of the per-seed
+   differences of per-run means): `x` when worse than null (lower bound > 0), `?` when not
+   better than null (upper bound >= 0: equal to null, as a tracker that reports nothing is,
+   counts), nothing when better (upper bound < 0);
+
+then every flagged (point, tracker) as a list, and per tracker how many points it fails and
+its median share of the gap closed over the points. Several tables (say a raster and a renyi
+sweep) are read as one.
+The references `null` (reports nothing) and `truth-aided` (uses the truth) are shown in the
+count table but never flagged. `--points` first prints the points table (name, axis, split,
+p_f, density, speed, look fraction, description) from the package's envelope. `--metric
+gospa` computes tables 1 and 3 (and their flags) on GOSPA instead of OSPA.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+import numpy as np
+import pandas as pd
+
+from mttbench.benchmarks.app.summary import gap_closed, paired_difference
+from mttbench.scenarios import envelope
+
+FLOOR, CEILING = "null", "truth-aided"
+#: a row of the tables: one point at one look budget under one policy
+ROW = ["scenario", "looks_per_step"]
+
+
+def short(label: str) -> str:
+    """A tracker label short enough for a column header."""
+    return label.replace("n_particles=", "N=")
+
+
+def cell(mean: float, half: float, fmt: str = "{:+.2f}") -> str:
+    if math.isnan(mean):
+        return "n/a"
+    text = fmt.format(mean)
+    return text if math.isnan(half) else f"{text} ± {half:.2f}"
+
+
+#: columns of text, aligned left (the others hold numbers, aligned right)
+TEXT = {"point", "axis", "split", "grid", "description", "tracker"}
+
+
+def md(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |",
+             "|" + "|".join("---" if h in TEXT else "---:" for h in header) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def points_table() -> str:
+    rows = []
+    for p in envelope.points():
+        sc = p.scenario
+        s, bd = sc.model.sensor, sc.model.birth_death
+        n0 = len(bd.initial_states) + bd.n_random_initial
+        dens = (n0 + bd.birth_rate * (sc.n_steps - 1)) / sc.grid.n_cells
+        speed = bd.birth_velocity_std * math.sqrt(math.pi / 2)
+        rows.append([f"`{sc.name}`", p.axis, p.split, f"{s.p_d:g}", f"{s.snr:g}",
+                     f"{s.p_d ** (1 + s.snr):.2g}", f"{sc.grid.nx}x{sc.grid.ny}",
+                     f"{dens:.3g}", f"{speed:.2f}",
+                     f"{s.looks_per_step / sc.grid.n_cells:.0%}", sc.description])
+    return md(["point", "axis", "split", "p_d", "snr", "p_f", "grid", "targets/cell",
+               "speed", "looks", "description"], rows)
+
+
+def second_half_counts(df: pd.DataFrame) -> pd.DataFrame:
+    """Per run: mean true count, reported states and est_count over steps >= n // 2."""
+    ok = df[df["status"] == "ok"].copy()
+    unit = ok["ospa_c"] ** ok["ospa_p"] / 2.0
+    ok["reported"] = ok["true_count"] + (ok["gospa_false"] - ok["gospa_missed"]) / unit
+    n_steps = ok.groupby("scenario")["step"].transform("max") + 1
+    late = ok[ok["step"] >= n_steps // 2]
+    keys = [*ROW, "policy_label", "tracker_label", "seed"]
+    return late.groupby(keys, sort=True)[["true_count", "reported", "est_count"]].mean() \
+        .reset_index()
+
+
+def count_flag(value: float, true: float) -> str:
+    if value > 1.5 * true + 2:
+        return "^"
+    if value < 0.5 * true - 1:
+        return "v"
+    return ""
+
+
+def tables(df: pd.DataFrame, metric: str = "ospa") -> str:
+    order = {n: i for i, n in enumerate(envelope.point_names())}
+    labels = sorted(set(df["tracker_label"].astype(str)))
+    floor = next((lab for lab in labels if lab.split("(")[0] == FLOOR), None)
+    refs = {lab for lab in labels if lab.split("(")[0] in (FLOOR, CEILING)}
+    players = [lab for lab in labels if lab not in refs]
+    gc = gap_closed(df, metric)
+    name_m = metric.upper()
+    counts = second_half_counts(df)
+    diffs = paired_difference(df, floor, metric) if floor else pd.DataFrame(
+        columns=[*ROW, "policy_label", "tracker_label", "diff_mean", "diff_ci95"])
+    out = []
+    for policy, g in df.groupby("policy_label", sort=True):
+        pairs = sorted({(str(s), int(m)) for s, m in zip(g["scenario"], g["looks_per_step"],
+                                                          strict=True)},
+                       key=lambda k: (order.get(k[0], 1e9), k))
+        several = {s for s, _ in pairs if sum(1 for x, _ in pairs if x == s) > 1}
+        name = {k: f"`{k[0]}`" + (f" @{k[1]}" if k[0] in several else "") for k in pairs}
+
+        def sel(t: pd.DataFrame, k: tuple[str, int], policy=policy) -> pd.DataFrame:
+            return t[(t["policy_label"] == policy) & (t["scenario"] == k[0])
+                     & (t["looks_per_step"].astype(np.int64) == k[1])]
+
+        out.append(f"## policy {policy}\n")
+        flags: list[tuple[str, str, str]] = []
+
+        # 1. gap closed
+        rows = []
+        for s in pairs:
+            gap = sel(gc.gaps, s)
+            gap_text = ("n/a" if gap.empty else
+                        cell(float(gap["gap_mean"].iloc[0]), float(gap["gap_ci95"].iloc[0]),
+                             "{:.2f}") + ("" if bool(gap["rankable"].iloc[0]) else " (!)"))
+            row = [name[s], gap_text]
+            shares = sel(gc.shares, s)
+            for lab in players:
+                sh = shares[shares["tracker_label"] == lab]
+                row.append("n/a" if sh.empty else
+                           cell(float(sh["share_mean"].iloc[0]), math.nan, "{:.2f}"))
+            rows.append(row)
+        out.append(f"### Share of the {name_m} gap closed (1 = truth-aided, 0 = null)\n\n"
+                   f"gap = {name_m}(null) - {name_m}(truth-aided) ± 95% half-width; (!) the gap "
+                   "cannot rank trackers (below 0.15 or its interval reaches 0).\n")
+        out.append(md(["point", "gap", *map(short, players)], rows))
+
+        # 2. counts over the second half
+        rows = []
+        for s in pairs:
+            c = sel(counts, s)
+            if c.empty:
+                continue
+            true = float(c.groupby("seed")["true_count"].mean().mean())
+            row = [name[s], f"{true:.1f}"]
+            for lab in [*players, *sorted(refs)]:
+                t = c[c["tracker_label"] == lab]
+                if t.empty:
+                    row.append("n/a")
+                    continue
+                tr = float(t["true_count"].mean())
+                rep, est = float(t["reported"].mean()), float(t["est_count"].mean())
+                fr, fe = count_flag(rep, tr), count_flag(est, tr)
+                row.append(f"{rep:.1f}{fr} / {est:.1f}{fe}")
+                if lab not in refs:
+                    for what, f, v in (("reported", fr, rep), ("est_count", fe, est)):
+                        if f:
+                            flags.append((name[s], lab, f"{what} count "
+                                          f"{'explodes' if f == '^' else 'collapses'}: "
+                                          f"{v:.1f} against {tr:.1f} true"))
+            rows.append(row)
+        out.append("\n### Counts over the second half of the run\n\n"
+                   "true = mean true count; per tracker `reported / est_count`; ^ explodes "
+                   "(> 1.5 true + 2), v collapses (< 0.5 true - 1).\n")
+        out.append(md(["point", "true", *map(short, players), *map(short, sorted(refs))], rows))
+
+        # 3. OSPA against null, paired
+        rows = []
+        for s in pairs:
+            row = [name[s]]
+            d_s = sel(diffs, s)
+            for lab in players:
+                d = d_s[d_s["tracker_label"] == lab]
+                if d.empty:
+                    row.append("n/a")
+                    continue
+                m, h = float(d["diff_mean"].iloc[0]), float(d["diff_ci95"].iloc[0])
+                h0 = 0.0 if math.isnan(h) else h
+                mark = "x" if m - h0 > 0 else "?" if m + h0 >= 0 else ""
+                row.append(cell(m, h) + (f" {mark}" if mark else ""))
+                if mark:
+                    flags.append((name[s], lab, (f"{name_m} worse than null" if mark == "x"
+                                                 else f"{name_m} not better than null")
+                                  + f": {cell(m, h)}"))
+            rows.append(row)
+        out.append(f"\n### {name_m} minus null's {name_m} (paired by seed; negative = better "
+                   "than null)\n\nx worse than null (lower bound > 0), ? not better than null "
+                   "(upper bound >= 0).\n")
+        out.append(md(["point", *map(short, players)], rows))
+
+        # flags
+        out.append(f"\n### Flags ({len(flags)})\n")
+        rank = {name[k]: i for i, k in enumerate(pairs)}
+        for s, lab, why in sorted(flags, key=lambda f: (rank[f[0]], f[1])):
+            out.append(f"- {s} {short(lab)}: {why}")
+        tally = []
+        shares_all = gc.shares[gc.shares["policy_label"] == policy]
+        for lab in players:
+            med = shares_all.loc[shares_all["tracker_label"] == lab, "share_mean"].median()
+            mine = [f for f in flags if f[1] == lab]
+            n = [len({f[0] for f in mine if word in f[2]}) for word in
+                 ("explodes", "collapses", "worse than null", "not better than null")]
+            tally.append([short(lab), *map(str, n), str(len({f[0] for f in mine})),
+                          "n/a" if math.isnan(med) else f"{med:.2f}"])
+        out.append(f"\n### Points flagged per tracker (of {len(pairs)})\n")
+        out.append(md(["tracker", "explodes", "collapses", "worse than null",
+                       "not better than null", "any flag", "median gap closed"], tally))
+        out.append("")
+    return "\n".join(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("results", nargs="+",
+                    help="results.parquet of runs or compares over the envelope")
+    ap.add_argument("--points", action="store_true", help="print the points table first")
+    ap.add_argument("--metric", default="ospa", choices=["ospa", "gospa"],
+                    help="metric of the gap closed and of the paired differences (default ospa)")
+    args = ap.parse_args(argv)
+    if args.points:
+        print(points_table() + "\n")
+    df = pd.concat([pd.read_parquet(f) for f in args.results], ignore_index=True)
+    print(tables(df, args.metric))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
