@@ -12,6 +12,7 @@ import tracemalloc
 import numpy as np
 import pytest
 from scipy import stats
+from scipy.special import expit
 
 from mttbench import scenarios, trackers
 from mttbench.benchmarks.engine.information import (
@@ -221,7 +222,7 @@ def test_kfnn_counts_equal_the_dense_computation(name):
         np.testing.assert_array_equal(tr.undetected_intensity().dense(), lam)
         cc = tr.cell_count_distribution()
         assert isinstance(cc, CellCounts) and cc.n_cells == n
-        exist = np.where(tr._confirmed, tr.existence_confirmed, tr.existence_tentative)
+        exist = expit(tr._prior + tr._score)
         box, full = _kfnn_like_old(sc.grid, tr._m, tr._P, exist, lam)
         _dense_with_tail(cc.dense(), box, full, len(tr._m))
         tracks += len(tr._m)
