@@ -309,9 +309,10 @@ def test_ss_gmphd_counts_equal_the_dense_computation():
         means, covs = kalman.position_marginal(m, P)
         mass = gaussian_cell_mass(sc.grid, means, covs)
         w = tr._p_s * tr._w
-        full = poisson_counts(w @ mass + tr.birth_intensity, 4)
+        undetected = tr._undetected.dense()
+        full = poisson_counts(w @ mass + undetected, 4)
         cut = np.where(_in_box(sc.grid, means, covs), mass, 0.0)
-        box = poisson_counts(w @ cut + tr.birth_intensity, 4)
+        box = poisson_counts(w @ cut + undetected, 4)
         new = tr.cell_count_distribution().dense()
         np.testing.assert_allclose(new, box, rtol=1e-12, atol=1e-300)
         assert np.abs(new - full).max() <= TAIL * max(w.sum(), 1.0)
