@@ -142,7 +142,7 @@ class UnseededKFNN(KFNNTracker):
         return Estimate(est.count, est.states + jitter, est.covariances)
 
 
-_TRACK_ARRAYS = ("_m", "_P", "_id", "_score", "_prior", "_confirmed", "_age", "_next_id")
+_TRACK_ARRAYS = ("_m", "_P", "_id", "_score", "_confirmed", "_age", "_next_id")
 
 
 class LeakyKFNN(KFNNTracker):

@@ -34,6 +34,9 @@ H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
 
 
 def _model(wna: float = 1e-6, p_d: float = 0.5, snr: float = 10.0, **bd) -> TrackingModel:
+    """The 12x12 grid; three random targets expected unless ``bd`` says otherwise."""
+    if "initial_states" not in bd:
+        bd.setdefault("n_random_initial", 3)
     return TrackingModel(grid=GRID, dynamics=Dynamics(tau=1.0, wna_intensity=wna),
                          birth_death=BirthDeath(**bd), sensor=RayleighGridSensor(p_d=p_d, snr=snr))
 
@@ -200,9 +203,15 @@ def _confirmed_track(tracker: KFNNTracker, cell: int) -> None:
     assert tracker.estimate().count == 1.0
 
 
-def _thresholds(alpha: float, beta: float) -> tuple[float, float]:
-    """Wald's thresholds (T2, T1) on the log-likelihood ratio."""
-    return np.log((1 - beta) / alpha), np.log(beta / (1 - alpha))
+def _thresholds(alpha: float, beta: float, model: TrackingModel | None = None
+                ) -> tuple[float, float]:
+    """(T2, T1) on the log-likelihood ratio: confirmed when the posterior odds of a target,
+    the prior odds of the model's density times the ratio, reach (1 - alpha) / alpha;
+    Wald's lower threshold log(beta / (1 - alpha)) for deletion."""
+    model = model or _model()
+    bd = model.birth_death
+    q = 1 - np.exp(-(bd.initial_count_mean + bd.birth_rate) / model.grid.n_cells)
+    return np.log((1 - alpha) / alpha) - np.log(q / (1 - q)), np.log(beta / (1 - alpha))
 
 
 def _direct_evidence(mean, cov, model, looked, positives, hit_cell=None) -> float:
@@ -253,12 +262,12 @@ def test_score_change_equals_the_direct_likelihood_ratio(hit: bool) -> None:
 
 def test_birth_score_is_its_cells_log_ratio_and_one_detection_confirms_in_low_clutter():
     model = _model()  # p_d = 0.5, snr = 10: p_f = 4.9e-4, log(p_d / p_f) = 6.93
-    tracker = KFNNTracker(false_track_probability=1e-3, lost_track_probability=0.05)
+    tracker = KFNNTracker(false_track_probability=0.1, lost_track_probability=0.05)
     tracker.reset(model, np.random.default_rng(0))
     tracker.predict()
     tracker.update(_looks([_cell(3.5, 3.5)]))
     table = tracker.track_table()
-    t2, _ = _thresholds(1e-3, 0.05)
+    t2, _ = _thresholds(0.1, 0.05)  # 2.20 + 3.86: the prior odds of 3 targets in 144 cells
     assert np.log(0.5 / model.sensor.p_f) > t2
     assert table["confirmed"][0] and table["score"][0] == pytest.approx(t2)  # capped at T2
     tracker = KFNNTracker()
@@ -270,16 +279,16 @@ def test_birth_score_is_its_cells_log_ratio_and_one_detection_confirms_in_low_cl
     assert table["score"][0] == pytest.approx(np.log(0.9 / 0.31), rel=1e-9)
 
 
-@pytest.mark.parametrize("alpha", [1e-2, 1e-4])
+@pytest.mark.parametrize("alpha", [0.1, 1e-3])
 def test_high_clutter_needs_as_many_hits_as_walds_threshold(alpha: float) -> None:
     """p_d = 0.9, p_f = 0.31: a hit adds at most log(p_d / p_f) = 1.07, so the track is
     confirmed no sooner than after ceil(T2 / 1.07) hits, the birth's included (its mass in
     the cell is below 1 after it), and within a few more."""
     snr = np.log(0.31) / np.log(0.9) - 1
     model = _model(p_d=0.9, snr=snr)
-    tracker = KFNNTracker(false_track_probability=alpha)
+    tracker = KFNNTracker(false_track_probability=alpha, lost_track_probability=0.05)
     tracker.reset(model, np.random.default_rng(0))
-    t2, _ = _thresholds(alpha, 0.05)
+    t2, _ = _thresholds(alpha, 0.05, model)
     per_hit = np.log(0.9 / model.sensor.p_f)
     home = _cell(6.5, 6.5)
     hits = 0
@@ -312,7 +321,7 @@ def test_confirmed_track_deleted_after_the_lost_track_drop(beta: float) -> None:
     tracker = KFNNTracker(lost_track_probability=beta)
     tracker.reset(model, np.random.default_rng(0))
     _confirmed_track(tracker, _cell(6.5, 6.5))
-    _, t1 = _thresholds(1e-3, beta)
+    _, t1 = _thresholds(0.1, beta)
     r = (1 - model.sensor.p_d) / (1 - model.sensor.p_f)
     steps = 0
     while tracker.estimate().count:
@@ -327,8 +336,8 @@ def test_a_hit_restores_the_confirmed_score() -> None:
     tracker.reset(_model(), np.random.default_rng(0))
     cell = _cell(6.5, 6.5)
     _confirmed_track(tracker, cell)
-    t2, _ = _thresholds(1e-3, 0.05)
-    for positives in ([], [], [cell], [], []):  # never 5 misses in a row (|T1| / 0.69 = 4.3)
+    t2, _ = _thresholds(0.1, 0.05)
+    for positives in ([], [], [cell], [], []):  # never 5 misses in a row (|T1| / 0.69 = 4.9)
         tracker.predict()
         tracker.update(_looks(positives))
         if positives:
@@ -338,10 +347,10 @@ def test_a_hit_restores_the_confirmed_score() -> None:
 
 def test_false_tracks_are_confirmed_at_most_at_walds_rate() -> None:
     """No target; one cell looked at every step returns 1 with p_f = 0.3 (p_d = 0.9). Of
-    the tracks born from those false alarms the share confirmed is at most Wald's bound
-    r_birth alpha / (1 - beta) (the evidence is a likelihood ratio under H0, a martingale
-    from the birth's r_birth = p_d / p_f), up to 3 binomial standard errors."""
-    alpha, beta = 0.05, 0.1
+    the tracks born from those false alarms the share confirmed is at most r_birth /
+    exp(T2) (the evidence is a likelihood ratio under H0, a martingale from the birth's
+    r_birth = p_d / p_f: Ville's inequality), up to 3 binomial standard errors."""
+    alpha, beta = 0.3, 0.1
     snr = np.log(0.3) / np.log(0.9) - 1
     model = _model(p_d=0.9, snr=snr)
     rng = np.random.default_rng(11)
@@ -356,8 +365,9 @@ def test_false_tracks_are_confirmed_at_most_at_walds_rate() -> None:
         born.update(table["id"].tolist())
         confirmed.update(table["id"][table["confirmed"]].tolist())
     n = len(born)
-    bound = (0.9 / model.sensor.p_f) * alpha / (1 - beta)
-    assert n > 200
+    t2, _ = _thresholds(alpha, beta, model)
+    bound = (0.9 / model.sensor.p_f) * np.exp(-t2)
+    assert n > 200 and 0.01 < bound < 0.2
     assert len(confirmed) / n <= bound + 3 * np.sqrt(bound * (1 - bound) / n)
 
 
@@ -401,10 +411,10 @@ def test_cell_count_distribution_matches_its_ingredients() -> None:
               & (y1 > m[2] - 6 * sy) & (y0 <= m[2] + 6 * sy))
     assert 0 < in_box.sum() < GRID.n_cells and mass[~in_box].max() < 4e-9
     table = tracker.track_table()
-    exist = 1.0 / (1.0 + np.exp(-(table["prior"][0] + table["score"][0])))
-    # the prior log-odds of a target in its birth cell, before the first look there
+    # existence: the prior odds of the model's density (2 targets in 144 cells) times the
+    # track's likelihood ratio
     q = 1.0 - np.exp(-2.0 / GRID.n_cells)
-    assert table["prior"][0] == pytest.approx(np.log(q / (1.0 - q)), rel=1e-12)
+    exist = 1.0 / (1.0 + np.exp(-(np.log(q / (1.0 - q)) + table["score"][0])))
     expected_count = exist * np.where(in_box, mass, 0.0) + (1.0 - np.exp(-lam))
     np.testing.assert_allclose(P @ np.arange(4), expected_count, rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(P[:, 3], 0.0, atol=1e-300)  # two Bernoullis: never 3

@@ -222,7 +222,7 @@ def test_kfnn_counts_equal_the_dense_computation(name):
         np.testing.assert_array_equal(tr.undetected_intensity().dense(), lam)
         cc = tr.cell_count_distribution()
         assert isinstance(cc, CellCounts) and cc.n_cells == n
-        exist = expit(tr._prior + tr._score)
+        exist = expit(tr._prior_logodds + tr._score)
         box, full = _kfnn_like_old(sc.grid, tr._m, tr._P, exist, lam)
         _dense_with_tail(cc.dense(), box, full, len(tr._m))
         tracks += len(tr._m)

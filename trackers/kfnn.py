@@ -57,24 +57,27 @@ Track score (sequential probability ratio test; Blackman and Popoli 1999, ch. 6.
     and, the target being in at most one cell,
     ``L <- L + log(1 + sum_c m_kc (r_c - 1))`` over the track's negative cells and the
     cell of its associated detection (a positive cell given to another track tells this
-    one nothing). A birth starts at its cell's ``log r_c`` (Blackman's initial score
-    without the prior density ratio: a prior from the undetected intensity would
-    delete every birth in heavy clutter and confirm none). Wald's thresholds from the
-    two error rates,
-    ``alpha = false_track_probability`` (a false track confirmed) and
-    ``beta = lost_track_probability`` (a true track deleted)::
+    one nothing). A birth starts at its cell's ``log r_c``. Blackman's score adds the
+    prior odds of a target, ``L0 = log(q / (1 - q))`` with ``q = 1 - exp(-rho)`` and
+    ``rho`` the model's target density per cell (initial count and one step's arrivals
+    over the grid), so ``sigmoid(L0 + L)`` is the posterior probability that the track is
+    a target. With ``alpha = false_track_probability`` and ``beta =
+    lost_track_probability``::
 
-        confirm when L >= T2 = log((1 - beta) / alpha)
-        delete  when L <= T1 = log(beta / (1 - alpha))
+        confirm when L0 + L >= log((1 - alpha) / alpha)   (P(false track) <= alpha)
+        delete  when L <= T1 = log(beta / (1 - alpha))     (Wald's lower threshold)
 
-    A confirmed track's score is capped at ``T2`` and the track deleted when it drops
-    below ``T2 + T1`` (Blackman's score-drop deletion: the lost-track test restarts at
-    the last confirmation level, so a track that held a target for long is let go after
-    the same evidence, whatever its history). The thresholds hold their meaning at any
-    clutter: at ``p_f = 5e-4`` one detection (``log r = 6.9``) confirms, at ``p_d = 0.9,
-    p_f = 0.31`` (``log r = 1.07`` per hit, ``-1.93`` per miss) several. The birth being
-    selected by its detection, Wald's bound reads: of the tracks born from false alarms,
-    at most ``r_birth alpha / (1 - beta)`` are confirmed (a test checks it).
+    The deletion reads the evidence since the birth alone: in heavy clutter the prior
+    odds of a single detection are far below ``T1``, and a test that starts below its
+    lower threshold never runs. A confirmed track's score is capped at the confirmation
+    level and the track deleted when it drops ``|T1|`` below it (Blackman's score-drop
+    deletion), whatever its history. The thresholds keep their meaning at any clutter
+    and density: at ``p_f = 5e-4`` with 3 targets on 144 cells one detection confirms
+    (``6.93 - 3.86 >= 2.20``), with 1 target it takes a second; at ``p_d = 0.9,
+    p_f = 0.31`` (``log r = 1.07`` per hit, ``-1.93`` per miss) several. Under H0 the
+    ratio is a martingale from the birth's ``r_c``, so of the tracks born from false
+    alarms at most ``r_birth exp(L0) (1 - alpha) / alpha``... precisely ``r_birth /
+    exp(T2 - L0)`` are confirmed (Ville's inequality; a test checks it).
     A track whose box holds no looked cell coasts (``L`` unchanged).
 
 Estimate
@@ -83,8 +86,7 @@ Estimate
 
 Predicted count distribution ``P_c(t)`` (for sensor management)
     Each track is a Bernoulli target, present with the posterior probability of its
-    score, ``sigmoid(L0 + L)`` with ``L0`` the prior log-odds of a target in its birth
-    cell (``1 - exp(-lambda_c)`` of the undetected intensity below), and
+    score, ``sigmoid(L0 + L)``, and
     then in cell ``c`` with the mass of its predicted position Gaussian there
     (:func:`trackers.cells.gaussian_cell_mass_sparse`: x-y correlation ignored, and
     only the cells within 6 marginal sd of the mean, which leaves out less than 4e-9
@@ -118,7 +120,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
-from scipy.special import expit, logit, ndtr
+from scipy.special import expit, ndtr
 from scipy.stats import chi2
 
 from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
@@ -355,7 +357,7 @@ class KFNNTracker(Tracker):
         self,
         gate_probability: float = 0.9999,
         association: str = "global",
-        false_track_probability: float = 1e-3,
+        false_track_probability: float = 0.1,
         lost_track_probability: float = 0.1,
         birth_velocity_scale: float = 1.0,
     ) -> None:
@@ -399,7 +401,13 @@ class KFNNTracker(Tracker):
         self._log_pos = math.log(self._p_d) - math.log(max(p_f, sys.float_info.min))
         self._log_neg = math.log1p(-self._p_d) - math.log1p(-p_f)
         alpha, beta = self.false_track_probability, self.lost_track_probability
-        self._confirm_at = math.log1p(-beta) - math.log(alpha)  # T2
+        # the prior log-odds that a detection's track is a target: the model's target
+        # density per cell (initial count and one step's arrivals)
+        q = -math.expm1(-(bd.initial_count_mean + bd.birth_rate) / n)
+        self._prior_logodds = math.log(q) - math.log1p(-q) if 0 < q < 1 else (
+            -math.inf if q <= 0 else math.inf)
+        # confirmed when P(false track | looks) <= alpha: L >= log((1 - alpha) / alpha) - L0
+        self._confirm_at = math.log1p(-alpha) - math.log(alpha) - self._prior_logodds
         self._delete_at = math.log(beta) - math.log1p(-alpha)  # T1
         self._undetected = CellField(n, bd.initial_count_mean / n)  # lambda_c
         # the tracks: leading axis K
@@ -407,7 +415,6 @@ class KFNNTracker(Tracker):
         self._P = np.zeros((0, 4, 4))
         self._id = np.zeros(0, dtype=np.int64)
         self._score = np.zeros(0)  # L: the SPRT log-likelihood ratio since birth
-        self._prior = np.zeros(0)  # L0: log-odds of an untracked target in the birth cell
         self._confirmed = np.zeros(0, dtype=bool)
         self._age = np.zeros(0, dtype=np.int64)  # steps since birth
         self._next_id = 0
@@ -415,7 +422,7 @@ class KFNNTracker(Tracker):
     def _keep(self, keep: np.ndarray) -> None:
         """Drop the tracks where ``keep (K,)`` is False."""
         self._m, self._P, self._id = self._m[keep], self._P[keep], self._id[keep]
-        self._score, self._prior = self._score[keep], self._prior[keep]
+        self._score = self._score[keep]
         self._confirmed = self._confirmed[keep]
         self._age = self._age[keep]
 
@@ -436,7 +443,7 @@ class KFNNTracker(Tracker):
         row (untracked targets only) everywhere else."""
         comp, cells, mass = gaussian_cell_mass_sparse(
             self._grid, *kalman.position_marginal(self._m, self._P))
-        exist = expit(self._prior + self._score)
+        exist = expit(self._prior_logodds + self._score)
         return bernoulli_cell_counts(self._grid.n_cells, N_COUNTS, cells, mass * exist[comp],
                                      *untracked_probabilities(self._undetected))
 
@@ -487,10 +494,8 @@ class KFNNTracker(Tracker):
         # a tentative track's test ends at T1; a confirmed one's restarts at T2 (its cap)
         self._keep(self._score > np.where(confirmed, self._confirm_at, 0.0) + self._delete_at)
 
-        # untracked targets: the prior log-odds of a birth in a positive cell comes from
-        # the intensity before this step's looks; a look detects one with probability p_d
+        # untracked targets (for P_c): a look detects one with probability p_d
         new_cells = det_cells[~det_used]
-        prior_new = logit(-np.expm1(-self._undetected.at(new_cells)))
         self._undetected.multiply(looked, (1.0 - self._p_d) ** n_looks)
 
         n_new = len(new_cells)
@@ -502,7 +507,6 @@ class KFNNTracker(Tracker):
             self._id = np.concatenate([self._id, self._next_id + np.arange(n_new)])
             self._next_id += n_new
             self._score = np.concatenate([self._score, score_new])
-            self._prior = np.concatenate([self._prior, prior_new])
             self._confirmed = np.concatenate([self._confirmed, score_new >= self._confirm_at])
             self._age = np.concatenate([self._age, 0 * ones])
             self._score = np.where(self._confirmed, np.minimum(self._score, self._confirm_at),
@@ -552,4 +556,4 @@ class KFNNTracker(Tracker):
         """Copies of the track arrays (ids, means, covariances, flags, counters)."""
         return {"id": self._id.copy(), "mean": self._m.copy(), "cov": self._P.copy(),
                 "confirmed": self._confirmed.copy(), "score": self._score.copy(),
-                "prior": self._prior.copy(), "age": self._age.copy()}
+                "age": self._age.copy()}

@@ -59,14 +59,14 @@ Determinism
     velocity sd) and an ``UpdateTimeStepsDeleter`` (a track, confirmed or holding, is
     deleted after ``max_steps_without_update`` steps without an update). Both counts come
     from the model as a careful user would set them, with KF-NN's error rates
-    (:mod:`~mttbench.trackers.kfnn`): ``min_points`` is the fewest detections whose
-    likelihood ratio ``(p_d / p_f) ** n`` reaches Wald's ``T2 = log((1 - beta) / alpha)``,
-    and ``max_steps_without_update`` the fewest steps after which a target that is still
-    there has gone undetected with probability below ``beta``, at the detection rate
-    ``p_d f`` per step with ``f`` the looked share of the grid (the mean over the steps so
-    far; the model's look budget before the first). At ``p_f = 5e-4`` and raster 24 of
-    144 cells that is one point and 27 steps; with every cell looked at, 4 steps; at
-    ``p_d = 0.9, p_f = 0.31`` and 20% of the cells, 7 points and 12 steps.
+    (:mod:`~mttbench.trackers.kfnn`): ``min_points`` is the fewest detections ``n`` whose
+    likelihood ratio ``(p_d / p_f) ** n`` times the prior odds of the model's target
+    density reaches ``(1 - alpha) / alpha``; ``max_steps_without_update`` is the fewest
+    steps after which a target still there has gone undetected with probability below
+    ``beta``, at ``p_d f`` detections per step, ``f`` the looked share of the grid (its
+    mean over the steps so far; the model's look budget before the first). At ``p_f =
+    5e-4`` and raster 24 of 144 cells: one point and 27 steps; every cell looked at: 4
+    steps; ``p_d = 0.9, p_f = 0.31`` and 20% of the cells: 7 points and 12 steps.
     Estimate: the confirmed tracks, count = their number.
     ``P_c(t)``: each track is a target in its predicted position Gaussian (existence 1
     confirmed, :data:`HOLDING_EXISTENCE` holding), plus KF-NN's undetected Poisson
@@ -348,8 +348,8 @@ class StoneSoupGNN(_StoneSoupPeer):
                           "not a hypothesis (Stone Soup's missed_distance)"),
         "false_track_probability": Param(
             float, 0, 1, low_open=True, high_open=True, search=Search(1e-6, 0.1, log=True),
-            doc="alpha: min_points is the fewest detections whose likelihood ratio "
-                "reaches log((1 - beta) / alpha)"),
+            doc="alpha: min_points is the fewest detections that make the posterior "
+                "probability of a false track at most alpha"),
         "lost_track_probability": Param(
             float, 0, 1, low_open=True, high_open=True, search=Search(1e-3, 0.5, log=True),
             doc="beta: max_steps_without_update is the fewest steps a present target "
@@ -359,7 +359,7 @@ class StoneSoupGNN(_StoneSoupPeer):
                                     "model's birth velocity sd"),
     }
 
-    def __init__(self, gate: float = 3.0, false_track_probability: float = 1e-3,
+    def __init__(self, gate: float = 3.0, false_track_probability: float = 0.1,
                  lost_track_probability: float = 0.1, velocity_scale: float = 1.0) -> None:
         self.gate = gate
         self.false_track_probability = false_track_probability
@@ -392,14 +392,17 @@ class StoneSoupGNN(_StoneSoupPeer):
         self._p_d = model.sensor.p_d
         self._undetected = CellField(n, bd.initial_count_mean / n)
 
-    def _wald_upper(self) -> float:
-        alpha, beta = self.false_track_probability, self.lost_track_probability
-        return math.log1p(-beta) - math.log(alpha)
-
     def min_points(self, p_d: float, p_f: float) -> int:
-        """The fewest detections ``n`` with ``n log(p_d / p_f) >= log((1 - beta) / alpha)``."""
+        """The fewest detections ``n`` with ``L0 + n log(p_d / p_f) >= log((1 - alpha) /
+        alpha)``, ``L0`` the prior log-odds of the model's target density per cell."""
+        alpha = self.false_track_probability
+        bd, n_cells = self._model.birth_death, self._model.grid.n_cells
+        q = -math.expm1(-(bd.initial_count_mean + bd.birth_rate) / n_cells)
+        if q <= 0.0:
+            return 2**31 - 1  # a model without targets: nothing is ever confirmed
+        need = math.log1p(-alpha) - math.log(alpha) - (math.log(q) - math.log1p(-q))
         per_hit = math.log(p_d) - math.log(max(p_f, sys.float_info.min))
-        return max(1, math.ceil(self._wald_upper() / per_hit - 1e-12))
+        return max(1, math.ceil(need / per_hit - 1e-12))
 
     def steps_without_update(self, looked_share: float) -> int:
         """The fewest steps ``s`` with ``(1 - p_d f) ** s <= beta``: a target still there
