@@ -89,7 +89,8 @@ PARAMETER_CASES = [
     ("jmpd:resample_threshold=2", "resample_threshold"),
     ("kfnn:association=bogus", "association"),
     ("kfnn:gate_probability=2", "gate_probability"),
-    ("kfnn:confirm_m=5,confirm_n=2", "confirm_m"),
+    ("kfnn:false_track_probability=0", "false_track_probability"),
+    ("kfnn:lost_track_probability=1", "lost_track_probability"),
     ("gpf:extraction=bogus", "extraction"),
     ("gpf:epsilon=abc", "epsilon"),
     ("gpf:epsilon=-1", "epsilon"),
@@ -352,11 +353,11 @@ def test_interrupt_in_process_prints_the_resume_command(monkeypatch, tmp_path, c
 
 # ------------------------------------------------- accepted, and said clearly
 def test_none_parses_as_none(tmp_path, capsys):
-    rc = main(_run(trackers=("kfnn:birth_velocity_std=None",)) + ["--out", str(tmp_path)])
+    rc = main(_run(trackers=("jmpd:birth_rate=None,n_particles=50",)) + ["--out", str(tmp_path)])
     assert rc == 0, capsys.readouterr().err
     df = pd.read_parquet(tmp_path / "results.parquet")
     assert (df["status"] == "ok").all()
-    assert df["param_birth_velocity_std"].isna().all()
+    assert df["param_birth_rate"].isna().all()
 
 
 def test_byte_order_mark_is_accepted(tmp_path, capsys):

@@ -66,8 +66,8 @@ def test_reference_by_bare_name_picks_the_setting():
     from mttbench.benchmarks.engine.specs import TrackerSpec
     specs = [TrackerSpec("kfnn"), TrackerSpec("null", {})]
     assert compare._resolve_reference("kfnn", specs) == "kfnn"
-    specs = [TrackerSpec("null"), TrackerSpec("kfnn", {"max_misses": 5})]
-    assert compare._resolve_reference("kfnn", specs) == "kfnn(max_misses=5)"
+    specs = [TrackerSpec("null"), TrackerSpec("kfnn", {"lost_track_probability": 0.1})]
+    assert compare._resolve_reference("kfnn", specs) == "kfnn(lost_track_probability=0.1)"
 
 
 def test_unknown_reference_is_a_usage_error(tmp_path, capsys):

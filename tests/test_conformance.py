@@ -68,7 +68,7 @@ class ParamChangingKFNN(KFNNTracker):
 
     def get_params(self):
         params = super().get_params()
-        params["max_misses"] += 1
+        params["lost_track_probability"] *= 2
         return params
 
 
@@ -77,8 +77,8 @@ class SwallowingKFNN(KFNNTracker):
 
     name = "broken-swallows"
 
-    def __init__(self, max_misses: int = 6, **ignored) -> None:
-        super().__init__(max_misses=max_misses)
+    def __init__(self, lost_track_probability: float = 0.1, **ignored) -> None:
+        super().__init__(lost_track_probability=lost_track_probability)
 
 
 class WrongShapeKFNN(KFNNTracker):
@@ -143,8 +143,7 @@ class UnseededKFNN(KFNNTracker):
         return Estimate(est.count, est.states + jitter, est.covariances)
 
 
-_TRACK_ARRAYS = ("_m", "_P", "_id", "_hits", "_chances", "_misses", "_confirmed", "_age",
-                 "_cell", "_next_id")
+_TRACK_ARRAYS = ("_m", "_P", "_id", "_score", "_confirmed", "_age", "_next_id")
 
 
 class LeakyKFNN(KFNNTracker):
@@ -193,7 +192,7 @@ class MisspeltExceptionKFNN(KFNNTracker):
 
 
 BROKEN = [  # (tracker class, the check that must catch it, what its message says)
-    (ParamChangingKFNN, "check_params", "default 6 is stored as 7"),
+    (ParamChangingKFNN, "check_params", "default 0.1 is stored as 0.2"),
     (SwallowingKFNN, "check_params", "was accepted"),
     (WrongShapeKFNN, "check_runs_200_steps", r"shape \(\d+, 2\), not \(n, 4\)"),
     (UnnormalisedKFNN, "check_runs_200_steps", "sums to 1"),

@@ -1,4 +1,5 @@
-"""Tests of the KF-NN tracker: reduction to filterpy, association, hit/miss rules, accuracy."""
+"""Tests of the KF-NN tracker: reduction to filterpy, association, the SPRT track score,
+accuracy."""
 
 from __future__ import annotations
 
@@ -33,6 +34,9 @@ H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
 
 
 def _model(wna: float = 1e-6, p_d: float = 0.5, snr: float = 10.0, **bd) -> TrackingModel:
+    """The 12x12 grid; three random targets expected unless ``bd`` says otherwise."""
+    if "initial_states" not in bd:
+        bd.setdefault("n_random_initial", 3)
     return TrackingModel(grid=GRID, dynamics=Dynamics(tau=1.0, wna_intensity=wna),
                          birth_death=BirthDeath(**bd), sensor=RayleighGridSensor(p_d=p_d, snr=snr))
 
@@ -76,7 +80,7 @@ def test_single_target_perfect_detection_equals_filterpy() -> None:
                           sensor=sensor)
     n_steps = 50
     run = simulate(Scenario("kf-reduction", "one target", n_steps, model), seed=7)
-    tracker = KFNNTracker(gate_probability=1.0 - 1e-12, birth_velocity_std=0.2)
+    tracker = KFNNTracker(gate_probability=1.0 - 1e-12, birth_velocity_scale=2.0)
     tracker.reset(model, np.random.default_rng(0))
     kf = KalmanFilter(dim_x=4, dim_z=2)
     kf.F, kf.Q, kf.H = model.dynamics.F, model.dynamics.Q, H
@@ -92,10 +96,10 @@ def test_single_target_perfect_detection_equals_filterpy() -> None:
         est = tracker.estimate()
         table = tracker.track_table()
         np.testing.assert_array_equal(table["id"], [0])  # one track, never replaced
-        if k == 0:  # birth: tentative, same initialisation as the reference
+        if k == 0:  # birth, confirmed at once (p_f ~ 0), as the reference initialised
             kf.x = np.array([z[0], 0.0, z[1], 0.0])
             kf.P = np.diag([1 / 12, 0.2**2, 1 / 12, 0.2**2])
-            assert est.count == 0.0
+            assert est.count == 1.0
             continue
         kf.predict()
         kf.update(z)
@@ -139,7 +143,7 @@ def test_tracker_association_on_a_constructed_geometry(method: str) -> None:
     Greedy gives A-d1 (B unassigned, d2 starts a track); global gives A-d2, B-d1.
     """
     model = _model()
-    tracker = KFNNTracker(association=method, birth_velocity_std=0.5)
+    tracker = KFNNTracker(association=method, birth_velocity_scale=5.0)
     tracker.reset(model, np.random.default_rng(0))
     a, b, d1, d2 = _cell(2.5, 5.5), _cell(4.5, 6.5), _cell(3.5, 5.5), _cell(1.5, 6.5)
     tracker.predict()
@@ -167,7 +171,7 @@ def test_tracker_association_on_a_constructed_geometry(method: str) -> None:
         assert list(after["id"]) == [0, 1]
         assert pos[0, 0] < 2.5 and pos[0, 1] > 5.5  # A pulled towards d2
         assert pos[1, 0] < 4.5 and pos[1, 1] < 6.5  # B pulled towards d1
-        assert after["confirmed"].all()  # both scored their second hit
+        assert (after["score"] >= before["score"]).all()  # both scored a hit (or stay capped)
 
 
 def test_gate_rejects_a_far_detection() -> None:
@@ -181,73 +185,190 @@ def test_gate_rejects_a_far_detection() -> None:
     assert tracker.estimate().count == 1.0
     tracker.predict()
     predicted = tracker.track_table()["mean"][0]
+    score = tracker.track_table()["score"][0]
     tracker.update(_looks([far]))
     table = tracker.track_table()
     np.testing.assert_array_equal(table["mean"][0], predicted)  # no update from the far cell
-    assert table["misses"][0] == 1  # home cell looked at and empty: a miss
-    assert list(table["id"]) == [0, 1] and not table["confirmed"][1]  # far cell: new tentative
+    assert table["score"][0] < score  # home cell looked at and empty: evidence against
+    assert list(table["id"]) == [0, 1] and table["confirmed"][1]  # far cell: a new track,
+    # confirmed by its one detection at p_f = 4.9e-4
     np.testing.assert_allclose(table["mean"][1], [9.5, 0.0, 5.5, 0.0])
 
 
-# --------------------------------------------------------------------- hits and misses
+# ------------------------------------------------------------------ the SPRT track score
 def _confirmed_track(tracker: KFNNTracker, cell: int) -> None:
-    for _ in range(2):
+    for _ in range(3):
         tracker.predict()
         tracker.update(_looks([cell]))
     assert tracker.estimate().count == 1.0
 
 
-def test_unlooked_track_coasts_without_misses() -> None:
-    tracker = KFNNTracker(max_misses=3)
+def _thresholds(alpha: float, beta: float, model: TrackingModel | None = None
+                ) -> tuple[float, float]:
+    """(T2, T1) on the log-likelihood ratio: confirmed when the posterior odds of a target,
+    the prior odds of the model's density times the ratio, reach (1 - alpha) / alpha;
+    Wald's lower threshold log(beta / (1 - alpha)) for deletion."""
+    model = model or _model()
+    bd = model.birth_death
+    q = 1 - np.exp(-(bd.initial_count_mean + bd.birth_rate) / model.grid.n_cells)
+    return np.log((1 - alpha) / alpha) - np.log(q / (1 - q)), np.log(beta / (1 - alpha))
+
+
+def _direct_evidence(mean, cov, model, looked, positives, hit_cell=None) -> float:
+    """log(1 + sum_c m_c (r_c - 1)) written out with scipy's normal CDF: the cells are the
+    looked negative cells within 6 sd of the mean and the associated hit cell."""
+    sensor = model.sensor
+    pd_, pf = sensor.p_d, sensor.p_f
+    gx, gy = stats.norm(mean[0], np.sqrt(cov[0, 0])), stats.norm(mean[2], np.sqrt(cov[2, 2]))
+    total = 0.0
+    for c in np.unique(looked):
+        x0, x1, y0, y1 = (float(v[0]) for v in GRID.cell_bounds(np.array([c])))
+        far = (x1 <= mean[0] - 6 * gx.std() or x0 > mean[0] + 6 * gx.std()
+               or y1 <= mean[2] - 6 * gy.std() or y0 > mean[2] + 6 * gy.std())
+        n = int(np.sum(np.asarray(looked) == c))
+        k = int(np.sum(np.asarray(positives) == c))
+        if c != hit_cell and (k > 0 or far):
+            continue
+        r = (pd_ / pf) ** k * ((1 - pd_) / (1 - pf)) ** (n - k)
+        total += (gx.cdf(x1) - gx.cdf(x0)) * (gy.cdf(y1) - gy.cdf(y0)) * (r - 1)
+    return float(np.log1p(total))
+
+
+@pytest.mark.parametrize("hit", [False, True])
+def test_score_change_equals_the_direct_likelihood_ratio(hit: bool) -> None:
+    """One step's score change of a tentative track against the ratio written out with
+    scipy: negative looks over its box, twice at one cell, and (hit) a positive look at
+    its own cell."""
+    model = _model(p_d=0.7, snr=2.0)  # p_f = 0.34: a detection alone does not confirm
+    tracker = KFNNTracker(false_track_probability=1e-6)
+    tracker.reset(model, np.random.default_rng(0))
+    home = _cell(6.5, 6.5)
+    tracker.predict()
+    tracker.update(_looks([home], looked=np.array([home])))  # birth
+    before = tracker.track_table()
+    tracker.predict()
+    pred = tracker.track_table()
+    looked = np.array([home, home + 1, home + 1, home - 12, home + 3, 0])
+    positives = np.array([home]) if hit else np.zeros(0, dtype=np.int64)
+    returns = np.isin(looked, positives)
+    tracker.update(Looks(cells=looked, returns=returns))
+    after = tracker.track_table()
+    assert len(after["id"]) == 1 and not after["confirmed"][0]
+    want = _direct_evidence(pred["mean"][0], pred["cov"][0], model, looked,
+                            looked[returns], home if hit else None)
+    assert (want > 0) == hit
+    np.testing.assert_allclose(after["score"][0] - before["score"][0], want, rtol=1e-10)
+
+
+def test_birth_score_is_its_cells_log_ratio_and_one_detection_confirms_in_low_clutter():
+    model = _model()  # p_d = 0.5, snr = 10: p_f = 4.9e-4, log(p_d / p_f) = 6.93
+    tracker = KFNNTracker(false_track_probability=0.1, lost_track_probability=0.05)
+    tracker.reset(model, np.random.default_rng(0))
+    tracker.predict()
+    tracker.update(_looks([_cell(3.5, 3.5)]))
+    table = tracker.track_table()
+    t2, _ = _thresholds(0.1, 0.05)  # 2.20 + 3.86: the prior odds of 3 targets in 144 cells
+    assert np.log(0.5 / model.sensor.p_f) > t2
+    assert table["confirmed"][0] and table["score"][0] == pytest.approx(t2)  # capped at T2
+    tracker = KFNNTracker()
+    tracker.reset(_model(p_d=0.9, snr=np.log(0.31) / np.log(0.9) - 1), np.random.default_rng(0))
+    tracker.predict()
+    tracker.update(_looks([_cell(3.5, 3.5)]))
+    table = tracker.track_table()
+    assert not table["confirmed"][0]
+    assert table["score"][0] == pytest.approx(np.log(0.9 / 0.31), rel=1e-9)
+
+
+@pytest.mark.parametrize("alpha", [0.1, 1e-3])
+def test_high_clutter_needs_as_many_hits_as_walds_threshold(alpha: float) -> None:
+    """p_d = 0.9, p_f = 0.31: a hit adds at most log(p_d / p_f) = 1.07, so the track is
+    confirmed no sooner than after ceil(T2 / 1.07) hits, the birth's included (its mass in
+    the cell is below 1 after it), and within a few more."""
+    snr = np.log(0.31) / np.log(0.9) - 1
+    model = _model(p_d=0.9, snr=snr)
+    tracker = KFNNTracker(false_track_probability=alpha, lost_track_probability=0.05)
+    tracker.reset(model, np.random.default_rng(0))
+    t2, _ = _thresholds(alpha, 0.05, model)
+    per_hit = np.log(0.9 / model.sensor.p_f)
+    home = _cell(6.5, 6.5)
+    hits = 0
+    while not tracker.estimate().count:
+        tracker.predict()
+        tracker.update(_looks([home], looked=np.array([home])))
+        hits += 1
+        assert len(tracker.track_table()["id"]) == 1 and hits < 100
+    assert np.ceil(t2 / per_hit) <= hits <= np.ceil(t2 / per_hit) + 3
+
+
+def test_unlooked_track_coasts_with_its_score() -> None:
+    tracker = KFNNTracker()
     tracker.reset(_model(), np.random.default_rng(0))
     _confirmed_track(tracker, _cell(6.5, 6.5))
-    for _ in range(40):
+    score = tracker.track_table()["score"][0]
+    for _ in range(10):
         tracker.predict()
-        mean = tracker.track_table()["mean"][0]
-        own = _cell(mean[0], mean[2])  # the cell of the predicted mean
-        others = np.setdiff1d(np.arange(GRID.n_cells), [own])
-        tracker.update(_looks([], looked=others))  # every other cell, all empty
-        table = tracker.track_table()
-        assert table["misses"][0] == 0
-    assert tracker.estimate().count == 1.0
+        tracker.update(_looks([], looked=np.array([0])))  # a corner far outside its box
+    assert tracker.track_table()["score"][0] == score and tracker.estimate().count == 1.0
 
 
-@pytest.mark.parametrize("max_misses", [1, 3, 5])
-def test_looked_and_empty_track_deleted_after_max_misses(max_misses: int) -> None:
-    tracker = KFNNTracker(max_misses=max_misses)
-    tracker.reset(_model(), np.random.default_rng(0))
+@pytest.mark.parametrize("beta", [0.01, 0.2, 0.45])
+def test_confirmed_track_deleted_after_the_lost_track_drop(beta: float) -> None:
+    """Every cell looked at and empty: a step's score change lies between log(1 - 0.999
+    (1 - r)) and log r (r = (1 - p_d) / (1 - p_f): the track's whole mass, most of it on
+    the grid), so the drop |T1| takes between |T1| / |log r| and |T1| / |log(1 - 0.999 (1 -
+    r))| steps."""
+    model = _model()
+    tracker = KFNNTracker(lost_track_probability=beta)
+    tracker.reset(model, np.random.default_rng(0))
     _confirmed_track(tracker, _cell(6.5, 6.5))
-    for k in range(1, max_misses + 1):
+    _, t1 = _thresholds(0.1, beta)
+    r = (1 - model.sensor.p_d) / (1 - model.sensor.p_f)
+    steps = 0
+    while tracker.estimate().count:
         tracker.predict()
-        tracker.update(_looks([]))  # every cell looked at, all returned 0
-        assert tracker.estimate().count == (1.0 if k < max_misses else 0.0)
+        tracker.update(_looks([]))
+        steps += 1
+    assert abs(t1) / abs(np.log(r)) <= steps <= np.ceil(abs(t1) / abs(np.log1p(-0.999 * (1 - r))))
 
 
-def test_a_hit_resets_the_miss_counter() -> None:
-    tracker = KFNNTracker(max_misses=3)
+def test_a_hit_restores_the_confirmed_score() -> None:
+    tracker = KFNNTracker(lost_track_probability=0.05)
     tracker.reset(_model(), np.random.default_rng(0))
     cell = _cell(6.5, 6.5)
     _confirmed_track(tracker, cell)
-    for positives in ([], [], [cell], [], []):  # never 3 misses in a row
+    t2, _ = _thresholds(0.1, 0.05)
+    for positives in ([], [], [cell], [], []):  # never 5 misses in a row (|T1| / 0.69 = 4.9)
         tracker.predict()
         tracker.update(_looks(positives))
+        if positives:
+            assert tracker.track_table()["score"][0] == pytest.approx(t2)
     assert tracker.estimate().count == 1.0
-    assert tracker.track_table()["misses"][0] == 2
 
 
-def test_tentative_track_dies_when_m_of_n_is_out_of_reach() -> None:
-    tracker = KFNNTracker(confirm_m=2, confirm_n=3)
-    tracker.reset(_model(), np.random.default_rng(0))
-    tracker.predict()
-    tracker.update(_looks([_cell(3.5, 3.5)]))  # birth: 1 hit of 1
-    tracker.predict()
-    tracker.update(_looks([], looked=np.array([0])))  # not looked at: no chance used
-    tracker.predict()
-    tracker.update(_looks([]))  # miss: 1 of 2, still reachable
-    assert len(tracker.track_table()["id"]) == 1
-    tracker.predict()
-    tracker.update(_looks([]))  # miss: 1 of 3, out of reach
-    assert len(tracker.track_table()["id"]) == 0
+def test_false_tracks_are_confirmed_at_most_at_walds_rate() -> None:
+    """No target; one cell looked at every step returns 1 with p_f = 0.3 (p_d = 0.9). Of
+    the tracks born from those false alarms the share confirmed is at most r_birth /
+    exp(T2) (the evidence is a likelihood ratio under H0, a martingale from the birth's
+    r_birth = p_d / p_f: Ville's inequality), up to 3 binomial standard errors."""
+    alpha, beta = 0.3, 0.1
+    snr = np.log(0.3) / np.log(0.9) - 1
+    model = _model(p_d=0.9, snr=snr)
+    rng = np.random.default_rng(11)
+    tracker = KFNNTracker(false_track_probability=alpha, lost_track_probability=beta)
+    tracker.reset(model, np.random.default_rng(0))
+    home = _cell(6.5, 6.5)
+    born, confirmed = set(), set()
+    for _ in range(3000):
+        tracker.predict()
+        tracker.update(Looks(cells=np.array([home]), returns=rng.random(1) < model.sensor.p_f))
+        table = tracker.track_table()
+        born.update(table["id"].tolist())
+        confirmed.update(table["id"][table["confirmed"]].tolist())
+    n = len(born)
+    t2, _ = _thresholds(alpha, beta, model)
+    bound = (0.9 / model.sensor.p_f) * np.exp(-t2)
+    assert n > 200 and 0.01 < bound < 0.2
+    assert len(confirmed) / n <= bound + 3 * np.sqrt(bound * (1 - bound) / n)
 
 
 def test_several_positive_looks_at_one_cell_are_one_detection() -> None:
@@ -266,7 +387,7 @@ def test_cell_count_distribution_matches_its_ingredients() -> None:
     E[count] is exact; the track's mass is kept within 6 sd of its mean (scipy's CDF
     there, 0 outside, and less than 4e-9 left out)."""
     model = _model(initial_states=((1.0, 0, 1.0, 0), (2.0, 0, 2.0, 0)))  # prior mean 2 targets
-    tracker = KFNNTracker(existence_confirmed=0.9)
+    tracker = KFNNTracker()
     tracker.reset(model, np.random.default_rng(0))
     lam = np.full(GRID.n_cells, 2.0 / GRID.n_cells)
     looked = np.arange(0, GRID.n_cells, 2)
@@ -289,7 +410,12 @@ def test_cell_count_distribution_matches_its_ingredients() -> None:
     in_box = ((x1 > m[0] - 6 * sx) & (x0 <= m[0] + 6 * sx)
               & (y1 > m[2] - 6 * sy) & (y0 <= m[2] + 6 * sy))
     assert 0 < in_box.sum() < GRID.n_cells and mass[~in_box].max() < 4e-9
-    expected_count = 0.9 * np.where(in_box, mass, 0.0) + (1.0 - np.exp(-lam))
+    table = tracker.track_table()
+    # existence: the prior odds of the model's density (2 targets in 144 cells) times the
+    # track's likelihood ratio
+    q = 1.0 - np.exp(-2.0 / GRID.n_cells)
+    exist = 1.0 / (1.0 + np.exp(-(np.log(q / (1.0 - q)) + table["score"][0])))
+    expected_count = exist * np.where(in_box, mass, 0.0) + (1.0 - np.exp(-lam))
     np.testing.assert_allclose(P @ np.arange(4), expected_count, rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(P[:, 3], 0.0, atol=1e-300)  # two Bernoullis: never 3
     # cells outside the box and never looked at share the default row
@@ -318,8 +444,9 @@ def test_superposition_is_unsupported_with_a_reason() -> None:
     assert KFNNTracker().unsupported_reason(scenarios.get("default").model) is None
 
 
-@pytest.mark.parametrize("bad", [dict(association="nearest"), dict(confirm_m=4, confirm_n=3),
-                                 dict(max_misses=0), dict(gate_probability=1.0)])
+@pytest.mark.parametrize("bad", [dict(association="nearest"), dict(false_track_probability=0),
+                                 dict(lost_track_probability=1.0), dict(gate_probability=1.0),
+                                 dict(birth_velocity_scale=0.0)])
 def test_bad_parameters_refused_at_reset(bad: dict) -> None:
     with pytest.raises(ValueError):
         KFNNTracker(**bad).reset(_model(), np.random.default_rng(0))

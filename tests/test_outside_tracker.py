@@ -36,14 +36,14 @@ class WrappedKFNN(Tracker):
     name = "wrapped-kfnn"
     summary = "the project's KF-NN behind a wrapper (example of an outside tracker)"
 
-    def __init__(self, max_misses: int = 6) -> None:
-        self.max_misses = max_misses
+    def __init__(self, lost_track_probability: float = 0.1) -> None:
+        self.lost_track_probability = lost_track_probability
 
     def unsupported_reason(self, model: TrackingModel) -> str | None:
-        return KFNNTracker(max_misses=self.max_misses).unsupported_reason(model)
+        return KFNNTracker().unsupported_reason(model)
 
     def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
-        self._inner = KFNNTracker(max_misses=self.max_misses)
+        self._inner = KFNNTracker(lost_track_probability=self.lost_track_probability)
         self._inner.reset(model, rng)
 
     def predict(self) -> None:

@@ -80,9 +80,9 @@ BAD_TRACKERS = {
     "kfnn:association=bogus": ("association='bogus'", "one of global, greedy"),
     "kfnn:gate_probability=2": ("gate_probability=2", "a number in (0, 1)"),
     "kfnn:gate_probability=1": ("gate_probability=1", "a number in (0, 1)"),
-    "kfnn:max_misses=0": ("max_misses=0", "an integer >= 1"),
-    "kfnn:birth_velocity_std=-1": ("birth_velocity_std=-1", "a number >= 0, or None"),
-    "kfnn:birth_velocity_std=fast": ("birth_velocity_std='fast'", "a number >= 0, or None"),
+    "kfnn:false_track_probability=0": ("false_track_probability=0", "a number in (0, 1)"),
+    "kfnn:birth_velocity_scale=-1": ("birth_velocity_scale=-1", "a number > 0"),
+    "kfnn:birth_velocity_scale=fast": ("birth_velocity_scale='fast'", "a number > 0"),
     "gpf:extraction=bogus": ("extraction='bogus'", "one of round_sum, threshold"),
     "gpf:max_combinations=0": ("max_combinations=0", "an integer >= 1"),
     "gpf:epsilon=abc": ("epsilon='abc'", "a number in [0, 1)"),
@@ -129,8 +129,8 @@ def test_bad_value_refused_naming_owner_parameter_value_and_allowed_set(text):
 
 
 @pytest.mark.parametrize(("text", "shown"), [
-    ("kfnn:confirm_m=5,confirm_n=2", "confirm_m=5 with confirm_n=2"),
-    ("kfnn:confirm_m=4", "confirm_m=4 with confirm_n=3"),  # against the default confirm_n
+    ("jmpd:initial_count=6,t_max=5", "initial_count=6 with t_max=5"),
+    ("jmpd-ip:initial_count=6", "initial_count=6 with t_max=5"),  # against the default t_max
 ])
 def test_inconsistent_combinations_refused(text, shown):
     with pytest.raises(ConfigError) as err:
@@ -144,14 +144,16 @@ def test_unknown_parameter_names_the_known_ones():
     with pytest.raises(ConfigError) as err:
         resolve_trackers(["kfnn:gate=0.9"])
     msg = _one_line(str(err.value))
-    assert "'gate'" in msg and "gate_probability" in msg and "max_misses" in msg
+    assert "'gate'" in msg and "gate_probability" in msg and "lost_track_probability" in msg
     with pytest.raises(TypeError):
         trackers.make("kfnn", gate=0.9)
 
 
 @pytest.mark.parametrize("text", ["gpf:truncate=false", "gpf:merge_weight=union",
                                   "gpf:births=false", "gpf:interaction_threshold=0",
-                                  "jmpd:move_steps=1", "jmpd-ip:move_scale=2"])
+                                  "jmpd:move_steps=1", "jmpd-ip:move_scale=2",
+                                  "kfnn:max_misses=6", "kfnn:confirm_m=1",
+                                  "ss-gnn:min_points=1", "ss-gmphd:birth_intensity=0.01"])
 def test_retired_switches_are_refused_as_unknown(text):
     """The switches retired with their code (docs/gpf.md, docs/jmpd.md) are unknown names,
     not values that are silently ignored."""
@@ -166,14 +168,14 @@ def test_directly_built_trackers_are_checked_at_reset_and_by_play():
     bad = trackers.get_class("jmpd")(n_particles=0)  # constructors only store
     with pytest.raises(ParameterError, match="n_particles=0"):
         bad.reset(model, np.random.default_rng(0))
-    with pytest.raises(ParameterError, match="confirm_m=4 with confirm_n=3"):
-        play(short("default", 2), trackers.get_class("kfnn")(confirm_m=4), 0)
+    with pytest.raises(ParameterError, match="false_track_probability=0"):
+        play(short("default", 2), trackers.get_class("kfnn")(false_track_probability=0), 0)
     with pytest.raises(ParameterError, match="alpha=0"):
         play(short("default", 2), trackers.make("null"), 0, policy=policies.RenyiGain(alpha=0))
 
 
-@pytest.mark.parametrize("text", ["jmpd:n_particles=2.5", "kfnn:confirm_m=5,confirm_n=2",
-                                  "gpf:max_particles=0"])
+@pytest.mark.parametrize("text", ["jmpd:n_particles=2.5", "kfnn:false_track_probability=2",
+                                  "gpf:max_particles=0", "jmpd:initial_count=6,t_max=5"])
 def test_cli_exits_2_with_one_line_before_any_run(text, tmp_path, capsys):
     out = tmp_path / "out"
     code = main(["run", "--scenarios", "default", "--trackers", "null", text, "--seeds", "1",
@@ -203,8 +205,7 @@ def test_cli_refuses_a_bad_policy_value(tmp_path, capsys):
     ("jmpd:birth_rate=None", "birth_rate", None, type(None)),
     ("jmpd:birth_rate=0", "birth_rate", 0.0, float),  # ints for floats become floats
     ("jmpd:initial_count=none", "initial_count", None, type(None)),
-    ("kfnn:birth_velocity_std=None", "birth_velocity_std", None, type(None)),
-    ("kfnn:birth_velocity_std=0.2", "birth_velocity_std", 0.2, float),
+    ("kfnn:birth_velocity_scale=2", "birth_velocity_scale", 2.0, float),
     ("kfnn:gate_probability=0.99", "gate_probability", 0.99, float),
     ("gpf:merge_threshold=4", "merge_threshold", 4.0, float),
     ("jmpd-ap:undetected_in_policy=FALSE", "undetected_in_policy", False, bool),
@@ -226,9 +227,10 @@ def test_good_values_pass_in_their_canonical_types(text, key, value, kind):
 
 
 def test_labels_use_the_canonical_values():
-    (a, b) = resolve_trackers(["jmpd:n_particles=1e3", "kfnn:birth_velocity_std=none"])
-    assert a.label == "jmpd(n_particles=1000)"
-    assert b.label == "kfnn(birth_velocity_std=None)"
+    (a, b) = resolve_trackers(["jmpd:n_particles=1e3,birth_rate=none",
+                               "kfnn:birth_velocity_scale=2"])
+    assert a.label == "jmpd(birth_rate=None,n_particles=1000)"
+    assert b.label == "kfnn(birth_velocity_scale=2.0)"
     with pytest.raises(ConfigError, match="more than once"):
         resolve_trackers(["jmpd:n_particles=1000", "jmpd:n_particles=1000.0"])
 
@@ -402,10 +404,7 @@ def test_equal_configurations_draw_equal_numbers_however_spelled(draws):
 @pytest.mark.parametrize(("name", "cls"), ALL, ids=[n for n, _ in ALL])
 def test_defaults_spelled_out_give_the_same_configuration(name, cls):
     base = cls.canonical_config({})
-    # retired parameters stay in the configuration at the value the code runs (gpf, jmpd:
-    # their ``retired_params``), so that the seeds of a run stay what they were
-    retired = getattr(cls, "retired_params", {})
-    assert json.loads(base)["params"].keys() == set(cls.param_names()) | set(retired)
+    assert json.loads(base)["params"].keys() == set(cls.param_names())
     for key, default in cls.param_defaults().items():
         assert cls.canonical_config({key: default}) == base, (name, key)
     assert cls.canonical_config(cls.param_defaults()) == base
@@ -435,7 +434,7 @@ def _rows(text: str, policy: str = "raster", n_steps: int = 6, seed: int = 2):
     ("jmpd-ip:n_particles=300", "jmpd:n_particles=300,proposal=ip",
      "jmpd-ip:proposal=ip,n_particles=300"),
     ("jmpd", "jmpd:n_particles=2000"),
-    ("kfnn", "kfnn:max_misses=6", "kfnn:gate_probability=0.9999"),
+    ("kfnn", "kfnn:lost_track_probability=0.1", "kfnn:gate_probability=0.9999"),
 ])
 def test_equal_configurations_give_identical_rows(group, monkeypatch):
     policy = "renyi" if group[0].startswith("kfnn") else "random"

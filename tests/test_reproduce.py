@@ -295,7 +295,7 @@ def test_cache_key_follows_the_configuration_and_the_environment(monkeypatch):
     k = reproduce.cache_key(s, specs, pol)
     assert k == reproduce.cache_key(s, specs, pol)
     assert k != reproduce.cache_key(dataclasses.replace(s, seeds=(0, 1)), specs, pol)
-    assert k != reproduce.cache_key(s, [TrackerSpec("kfnn", {"max_misses": 4})], pol)
+    assert k != reproduce.cache_key(s, [TrackerSpec("kfnn", {"lost_track_probability": 0.1})], pol)
     assert k != reproduce.cache_key(s, specs, PolicySpec("raster"))
     env = reproduce.environment()
     assert env["versions"] == reproduce.package_versions() and "numba" in env["versions"]

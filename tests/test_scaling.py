@@ -12,6 +12,7 @@ import tracemalloc
 import numpy as np
 import pytest
 from scipy import stats
+from scipy.special import expit
 
 from mttbench import scenarios, trackers
 from mttbench.benchmarks.engine.information import (
@@ -221,7 +222,7 @@ def test_kfnn_counts_equal_the_dense_computation(name):
         np.testing.assert_array_equal(tr.undetected_intensity().dense(), lam)
         cc = tr.cell_count_distribution()
         assert isinstance(cc, CellCounts) and cc.n_cells == n
-        exist = np.where(tr._confirmed, tr.existence_confirmed, tr.existence_tentative)
+        exist = expit(tr._prior_logodds + tr._score)
         box, full = _kfnn_like_old(sc.grid, tr._m, tr._P, exist, lam)
         _dense_with_tail(cc.dense(), box, full, len(tr._m))
         tracks += len(tr._m)
@@ -308,9 +309,10 @@ def test_ss_gmphd_counts_equal_the_dense_computation():
         means, covs = kalman.position_marginal(m, P)
         mass = gaussian_cell_mass(sc.grid, means, covs)
         w = tr._p_s * tr._w
-        full = poisson_counts(w @ mass + tr.birth_intensity, 4)
+        undetected = tr._undetected.dense()
+        full = poisson_counts(w @ mass + undetected, 4)
         cut = np.where(_in_box(sc.grid, means, covs), mass, 0.0)
-        box = poisson_counts(w @ cut + tr.birth_intensity, 4)
+        box = poisson_counts(w @ cut + undetected, 4)
         new = tr.cell_count_distribution().dense()
         np.testing.assert_allclose(new, box, rtol=1e-12, atol=1e-300)
         assert np.abs(new - full).max() <= TAIL * max(w.sum(), 1.0)

@@ -62,12 +62,12 @@ def _looks(cells, returns=None) -> Looks:
 # ------------------------------------------------------------------ registration, kit
 def test_peers_are_registered_and_run_the_kit(stonesoup_installed):
     """tests/test_conformance.py runs the kit on every registered tracker: the peers are
-    among them and skip only what they declare (ss-gnn: the two tracking checks)."""
+    among them and skip nothing (ss-gnn's deleter follows the looked share: with every
+    cell looked at it deletes after 4 steps without an update, and holds the targets)."""
     for name in PEERS:
         assert name in trackers.available()
     assert testing.skipped_checks(sp.StoneSoupGMPHD) == {}
-    assert set(testing.skipped_checks(sp.StoneSoupGNN)) == {
-        "check_tracks_one_target", "check_tracks_two_targets"}
+    assert testing.skipped_checks(sp.StoneSoupGNN) == {}
 
 
 class _GNNEveryCell(sp.StoneSoupGNN):
@@ -77,9 +77,8 @@ class _GNNEveryCell(sp.StoneSoupGNN):
     conformance_exceptions = {}
     parameters = None
 
-    def __init__(self, gate: float = 5.0, min_points: int = 1,
-                 max_steps_without_update: int = 4, velocity_std: float = 0.1) -> None:
-        super().__init__(gate, min_points, max_steps_without_update, velocity_std)
+    def __init__(self, gate: float = 5.0) -> None:
+        super().__init__(gate)
 
 
 def test_gnn_passes_the_tracking_checks_when_set_for_every_cell(stonesoup_installed):
@@ -210,7 +209,8 @@ def test_gnn_on_one_target_is_a_filterpy_kalman_filter(stonesoup_installed, q):
     """One target walking across cells, every cell looked at each step, positive at its
     cell on most steps: ss-gnn's single track equals a filterpy filter started from the
     same prior (position at the first detection with variance R, velocity 0 with sd
-    ``velocity_std``) and updated with the same detections at the same steps."""
+    ``velocity_scale`` times the model's) and updated with the same detections at the same
+    steps."""
     from filterpy.kalman import KalmanFilter
 
     model = get_scenario("default").model
@@ -219,7 +219,7 @@ def test_gnn_on_one_target_is_a_filterpy_kalman_filter(stonesoup_installed, q):
             tau=1.0, q_matrix=((2e-3, 1e-4, 0, 0), (1e-4, 5e-4, 0, 0),
                                (0, 0, 3e-3, 0), (0, 0, 0, 7e-4))))
     grid = model.grid
-    tracker = trackers.make("ss-gnn", gate=10.0, velocity_std=0.2)
+    tracker = trackers.make("ss-gnn", gate=10.0, velocity_scale=2.0)  # sd 0.2
     tracker.reset(model, np.random.default_rng(0))
     steps = 30
     px = 2.5 + 0.17 * np.arange(steps)
@@ -262,14 +262,18 @@ def test_gmphd_expected_count_follows_the_closed_form(stonesoup_installed):
     """From an empty mixture, one detection at cell ``c`` (every cell looked once) makes
     the birth component's weight ``w1 = p b q / (kappa + p b q)`` with ``q`` the Gaussian
     density of the detection under the predicted birth component, ``p = p_d`` and
-    ``kappa = p_f / cell area``; then a negative look at ``c`` multiplies the count by
+    ``kappa = p_f / cell area`` and ``b`` the birth scale times the model's target
+    density (the initial count over the cells); then a negative look at ``c``
+    multiplies the count by
     ``1 - p_d``, two negative looks by ``(1 - p_d)^2``, and a step that does not look at
     ``c`` leaves it unchanged. ``P_c(t)`` is Poisson with the predicted intensity mass."""
     sc = get_scenario("default")
     model = sc.model
     grid, sensor = model.grid, model.sensor
-    b, sv = 2e-3, 0.1
-    tracker = trackers.make("ss-gmphd", birth_intensity=b, birth_velocity_std=sv,
+    scale, sv = 0.1, 0.1
+    lam0 = model.birth_death.initial_count_mean / grid.n_cells  # no births, p_s = 1
+    b = scale * lam0
+    tracker = trackers.make("ss-gmphd", birth_scale=scale, birth_velocity_scale=1.0,
                             prune_threshold=1e-12)
     tracker.reset(model, np.random.default_rng(0))
     c = 5 * grid.nx + 7
@@ -289,7 +293,8 @@ def test_gmphd_expected_count_follows_the_closed_form(stonesoup_installed):
     w, m, P = tracker.components
     assert len(w) == 1 and np.allclose(m[0], [z[0], 0.0, z[1], 0.0], atol=1e-12)
 
-    # P_c(t) before the next update: Poisson(lambda_c), lambda_c = w1 * mass_c + b
+    # P_c(t) before the next update: Poisson(lambda_c), lambda_c = w1 * mass_c + the
+    # undetected intensity, every cell looked at once: lam0 (1 - p_d)
     tracker.predict()
     pc = tracker.cell_count_distribution().dense()
     mp, Pp = F @ m[0], F @ P[0] @ F.T + Q
@@ -301,7 +306,8 @@ def test_gmphd_expected_count_follows_the_closed_form(stonesoup_installed):
     box_x = (edges[1:] > mp[0] - 6 * sx) & (edges[:-1] <= mp[0] + 6 * sx)
     box_y = (edges[1:] > mp[2] - 6 * sy) & (edges[:-1] <= mp[2] + 6 * sy)
     assert not box_x.all() and 1.0 - np.outer(my[box_y], mx[box_x]).sum() < 4e-9
-    lam = w1 * np.outer(np.where(box_y, my, 0.0), np.where(box_x, mx, 0.0)).ravel() + b
+    lam = (w1 * np.outer(np.where(box_y, my, 0.0), np.where(box_x, mx, 0.0)).ravel()
+           + lam0 * (1 - p))
     np.testing.assert_allclose(pc[:, 0], np.exp(-lam), rtol=1e-12)
     np.testing.assert_allclose(pc[:, 1], lam * np.exp(-lam), rtol=1e-12)
 

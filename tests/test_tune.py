@@ -342,9 +342,9 @@ def test_the_command_writes_its_folder_and_the_tuned_file(tmp_path, capsys):
 
 def test_a_bad_tuned_file_is_refused_in_one_line(tmp_path):
     (tmp_path / "kfnn.toml").write_text(
-        'tracker = "kfnn"\n[params]\nmax_misses = 0\n[objective]\nmetric = "ospa"\n'
+        'tracker = "kfnn"\n[params]\nlost_track_probability = 0\n[objective]\nmetric = "ospa"\n'
         'value = 1.0\n[budget]\ntuning_seeds = [1000000]\n', encoding="utf-8")
-    with pytest.raises(ConfigError, match=r"kfnn.toml: .*max_misses=0 refused") as info:
+    with pytest.raises(ConfigError, match=r"kfnn.toml: .*lost_track_probability=0 refused") as info:
         tuned.plan_tuning([TrackerSpec("kfnn")], tmp_path)
     assert "\n" not in str(info.value)
 
@@ -360,7 +360,8 @@ def _tuned_dir(tmp_path: Path, params: dict) -> Path:
 
 
 def test_compare_runs_the_tuned_file_and_untuned_does_not(tmp_path):
-    params = {"max_misses": 2, "confirm_m": 1, "gate_probability": 0.99}
+    params = {"lost_track_probability": 0.2, "false_track_probability": 0.01,
+              "gate_probability": 0.99}
     tuned_dir = _tuned_dir(tmp_path, params)
     common = dict(scenario_names=["default"], tracker_texts=["kfnn", "null"], seeds=[0, 1],
                   steps=STEPS, workers=1, progress=False, snapshot=False, tuned_dir=tuned_dir)
@@ -384,20 +385,18 @@ def test_compare_runs_the_tuned_file_and_untuned_does_not(tmp_path):
 
     res = compare.run_compare(out_dir=tmp_path / "b", untuned=True, **common)
     assert set(res.results["tracker_label"]) == {"kfnn", "null"}
-    assert res.results.loc[res.results["tracker"] == "kfnn", "param_max_misses"].eq(6).all()
+    kfnn_rows = res.results[res.results["tracker"] == "kfnn"]
+    assert kfnn_rows["param_lost_track_probability"].eq(0.1).all()
     assert "defaults (--untuned)" in (res.out_dir / "summary.md").read_text(encoding="utf-8")
 
 
 def test_given_parameters_win_over_the_tuned_file(tmp_path):
-    tuned_dir = _tuned_dir(tmp_path, {"max_misses": 2, "confirm_m": 1})
-    plan = tuned.plan_tuning([TrackerSpec("kfnn", {"max_misses": 9})], tuned_dir)
+    tuned_dir = _tuned_dir(tmp_path, {"lost_track_probability": 0.2,
+                                      "false_track_probability": 0.01})
+    plan = tuned.plan_tuning([TrackerSpec("kfnn", {"lost_track_probability": 0.3})], tuned_dir)
     (spec,) = plan.specs
-    assert spec.label == "kfnn(tuned,max_misses=9)"
-    assert spec.params == {"max_misses": 9, "confirm_m": 1}
-    # a given value that breaks a rule with the tuned ones: one line naming the file
-    tuned_dir = _tuned_dir(tmp_path, {"confirm_m": 3})
-    with pytest.raises(ConfigError, match=r"confirm_m=3 with confirm_n=2.*kfnn.toml"):
-        tuned.plan_tuning([TrackerSpec("kfnn", {"confirm_n": 2})], tuned_dir)
+    assert spec.label == "kfnn(tuned,lost_track_probability=0.3)"
+    assert spec.params == {"lost_track_probability": 0.3, "false_track_probability": 0.01}
 
 
 class Flaky(Tracker):

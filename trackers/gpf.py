@@ -99,9 +99,8 @@ of each Gaussian; ``P_c`` covers the Gaussians' 6-sd boxes.
 from __future__ import annotations
 
 import functools
-import json
 import math
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 from scipy.special import ndtr
@@ -416,23 +415,6 @@ class GaussianParticleFilter(Tracker):
     #: the prior and the births (module docstring); False in :class:`EmptyPriorGPF`, a
     #: test hook (reductions, particles set by hand), not a parameter
     births: ClassVar[bool] = True
-    #: retired parameters (docs/gpf.md, "Retired switches") at the value the code runs:
-    #: they stay in the configuration that seeds a run (:meth:`canonical_config`), so
-    #: every seed, and every number (the superposition prior's draws), stays what it was
-    retired_params: ClassVar[dict[str, Any]] = {
-        "aggregate_misses": True, "avoid_coalescence": True, "births": True,
-        "count_aware_births": True, "interaction_threshold": INTERACTION_THRESHOLD,
-        "merge_metric": "mahalanobis", "merge_weight": "auto", "split_sd": 0.0,
-        "state_estimate": "mode", "truncate": True}
-
-    @classmethod
-    def canonical_config(cls, params=None) -> str:
-        """:meth:`.params.Configurable.canonical_config` with :attr:`retired_params` among
-        the parameters."""
-        doc = json.loads(super().canonical_config(params))
-        doc["params"].update(cls.retired_params)
-        return json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False)
-
     def __init__(self, epsilon: float = 1e-4, max_combinations: int = 512,
                  merge_threshold: float = 4.0, prune_threshold: float = 1e-3,
                  max_particles: int = 100, birth_floor: float = 1e-4,
@@ -808,5 +790,3 @@ class EmptyPriorGPF(GaussianParticleFilter):
     floor defaults to 0 (``death_probability=None`` means the floor only with births)."""
 
     births = False
-    retired_params: ClassVar[dict[str, Any]] = {**GaussianParticleFilter.retired_params,
-                                                "births": False}

@@ -6,9 +6,8 @@ estimates (:mod:`.estimation`). The method is described in the package docstring
 
 from __future__ import annotations
 
-import json
 import math
-from typing import Any, ClassVar, Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 
@@ -86,19 +85,6 @@ class JMPDTracker(Tracker):
         "initial_count": Param(int, 0, allow_none=True, none="Poisson prior",
                                doc="targets in every particle at first"),
     }
-    #: retired parameters (docs/jmpd.md, "Retired switches") at the value the code runs:
-    #: they stay in the configuration that seeds a run (:meth:`canonical_config`), so
-    #: every seed, and every number, stays what it was when they were parameters
-    retired_params: ClassVar[dict[str, Any]] = {"move_steps": 0, "move_scale": 1.0}
-
-    @classmethod
-    def canonical_config(cls, params=None) -> str:
-        """:meth:`.params.Configurable.canonical_config` with :attr:`retired_params` among
-        the parameters."""
-        doc = json.loads(super().canonical_config(params))
-        doc["params"].update(cls.retired_params)
-        return json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False)
-
     def __init__(self, n_particles: int = 2000, t_max: int = 5,
                  birth_rate: float | None = None, death_probability: float | None = None,
                  resample_threshold: float = 0.5,
@@ -189,6 +175,14 @@ class JMPDTracker(Tracker):
         return (f"expected target count {peak:.3g} (initial {n0:.0f}{how}) exceeds "
                 f"t_max = {int(self.t_max)}: use t_max >= {need}")
 
+    @classmethod
+    def param_conflict(cls, params):
+        n0, t_max = params["initial_count"], params["t_max"]
+        if n0 is not None and n0 > t_max:
+            return (f"initial_count={n0} with t_max={t_max}: need initial_count <= t_max "
+                    "(a particle holds at most t_max targets)")
+        return None
+
     def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
         self.validate_params(self.get_params())  # the declaration above (built directly)
         N, T = int(self.n_particles), int(self.t_max)
@@ -204,7 +198,7 @@ class JMPDTracker(Tracker):
         if self.initial_count is None:
             counts = np.minimum(rng.poisson(model.birth_death.initial_count_mean, size=N), T)
         else:
-            counts = np.full(N, min(int(self.initial_count), T))
+            counts = np.full(N, int(self.initial_count))  # <= t_max (param_conflict)
         p.valid[:] = np.arange(T)[:, None] < counts[None, :]
         X, bv = p.X, self._prior.birth_velocity_std
         X[0] = rng.uniform(0.0, p.width, (T, N))
