@@ -168,6 +168,13 @@ def _assert_estimate_valid(est: Any, k: int) -> None:
             f"{where}.covariances has shape {getattr(c, 'shape', None)}, "
             f"not {(s.shape[0], 4, 4)}")
         assert np.all(np.isfinite(c)), f"{where}.covariances has non-finite values"
+    labels = getattr(est, "labels", None)
+    if labels is not None:  # persistent track labels: one per state, unique in the step
+        assert isinstance(labels, np.ndarray) and labels.shape == (s.shape[0],), (
+            f"{where}.labels has shape {getattr(labels, 'shape', None)}, not {(s.shape[0],)}")
+        assert np.issubdtype(labels.dtype, np.integer), (
+            f"{where}.labels has dtype {labels.dtype}, not an integer type")
+        assert len(np.unique(labels)) == len(labels), f"{where}.labels repeat within the step"
 
 
 def _assert_count_distribution_valid(P: Any, n_cells: int, k: int) -> None:

@@ -19,9 +19,11 @@ File layout (every key is checked; unknown keys are refused)::
     [sensor]    kind = "rayleigh": p_d, snr (linear) or snr_db, looks_per_step
                 kind = "superposition": h_matrix (m x 4), r_matrix (m x m)
 
-Files are UTF-8 (a byte-order mark is accepted). Beyond the per-field ranges, values
-whose arithmetic overflows are refused: the workspace ``nx * cell_size`` and ``Q``
-must be finite, ``snr_db`` must give a finite linear ``snr``, and the false-alarm
+Files are UTF-8 (a byte-order mark is accepted), regular files of at most 1 MiB (a
+FIFO or a device is refused unopened). Beyond the per-field ranges, values whose
+arithmetic overflows are refused: ``nx * ny <= 2**53`` cells, the workspace
+``nx * cell_size``, the entries of ``Q`` and ``F`` and the velocities at most ``1e100``
+(their squares stay finite), ``snr_db`` must give a finite linear ``snr``, and the false-alarm
 probability ``p_f = p_d ** (1 + snr)`` must not underflow to 0 (``snr <= log(tiny) /
 log(p_d) - 1`` with ``tiny`` the smallest normal double, e.g. ``snr <= 1021`` at
 ``p_d = 0.5``). Names are one line: no control characters.
@@ -30,6 +32,7 @@ log(p_d) - 1`` with ``tiny`` the smallest normal double, e.g. ``snr <= 1021`` at
 from __future__ import annotations
 
 import math
+import stat
 import sys
 import tomllib
 from dataclasses import asdict, dataclass
@@ -48,6 +51,12 @@ from .model import (
     SuperpositionSensor,
     TrackingModel,
 )
+
+#: the most cells of a grid (flat cell indices stay exact in int64 and float64)
+MAX_CELLS = 2**53
+#: the largest workspace side, process noise entry and velocity: their squares and the
+#: covariances built from them stay finite
+MAX_MAGNITUDE = 1e100
 
 
 class ScenarioError(ValueError):
@@ -152,10 +161,14 @@ def from_dict(data: dict, *, default_name: str | None = None) -> Scenario:
         ny=_number("[grid].ny", g["ny"], lo=1, integer=True),
         cell_size=_number("[grid].cell_size", g.get("cell_size", 1.0), lo=0, lo_open=True),
     )
-    if not all(math.isfinite(v) for v in grid.extent):
+    if grid.nx * grid.ny > MAX_CELLS:
+        raise ScenarioError(f"[grid] nx = {grid.nx}, ny = {grid.ny} is not allowed: expected "
+                            f"nx * ny <= {MAX_CELLS} (2**53) cells")
+    if not all(math.isfinite(v) and v <= MAX_MAGNITUDE for v in grid.extent):
         raise ScenarioError(f"[grid] nx = {grid.nx}, ny = {grid.ny}, cell_size = "
                             f"{grid.cell_size!r} is not allowed: the workspace nx * cell_size "
-                            "by ny * cell_size must be finite")
+                            f"by ny * cell_size must be finite and at most {MAX_MAGNITUDE:g} "
+                            "(squared distances stay finite)")
 
     d = _section(data, "dynamics", {"tau", "q_matrix", "wna_intensity"}, set())
     tau = _number("[dynamics].tau", d.get("tau", 1.0), lo=0, lo_open=True)
@@ -172,10 +185,13 @@ def from_dict(data: dict, *, default_name: str | None = None) -> Scenario:
         finite = bool(np.isfinite(dynamics.Q).all() and np.isfinite(dynamics.F).all())
     except OverflowError:
         finite = False
+    if finite:
+        finite = bool(np.abs(dynamics.Q).max() <= MAX_MAGNITUDE
+                      and np.abs(dynamics.F).max() <= MAX_MAGNITUDE)
     if not finite:
         raise ScenarioError(f"[dynamics] tau = {tau!r} is not allowed with this noise: the "
-                            "process noise Q overflows (expected tau and the noise small "
-                            "enough for Q to be finite)")
+                            f"process noise Q overflows or exceeds {MAX_MAGNITUDE:g} (expected "
+                            "tau and the noise small enough for covariances to stay finite)")
 
     t = _section(
         data,
@@ -191,6 +207,9 @@ def from_dict(data: dict, *, default_name: str | None = None) -> Scenario:
         if not (0 <= s[0] < width and 0 <= s[2] < height):
             raise _fail("[targets].initial_states", list(s),
                         f"positions inside the workspace [0, {width}) x [0, {height})")
+        if max(abs(s[1]), abs(s[3])) > MAX_MAGNITUDE:
+            raise _fail("[targets].initial_states", list(s),
+                        f"velocities of at most {MAX_MAGNITUDE:g} in magnitude")
     boundary = t.get("boundary", "reflect")
     if boundary not in ("reflect", "die"):
         raise _fail("[targets].boundary", boundary, 'one of "reflect", "die"')
@@ -202,7 +221,8 @@ def from_dict(data: dict, *, default_name: str | None = None) -> Scenario:
                                      t.get("survival_probability", 1.0), lo=0, hi=1),
         birth_rate=_number("[targets].birth_rate", t.get("birth_rate", 0.0), lo=0),
         birth_velocity_std=_number("[targets].birth_velocity_std",
-                                   t.get("birth_velocity_std", 0.1), lo=0),
+                                   t.get("birth_velocity_std", 0.1), lo=0,
+                                   hi=MAX_MAGNITUDE),
         boundary=boundary,
     )
 
@@ -292,10 +312,34 @@ def dumps(sc: Scenario) -> str:
     return tomli_w.dumps(to_dict(sc))
 
 
+#: the largest scenario file read (bytes): the presets are about 1 kB
+MAX_FILE_BYTES = 1 << 20
+
+
+def _read_scenario_file(path: Path) -> str:
+    """The text of a regular file of at most :data:`MAX_FILE_BYTES` (a FIFO, a device or
+    a symlink to one is refused before it is opened; a longer file before it is read to
+    its end)."""
+    try:
+        info = path.stat()
+    except OSError as exc:
+        raise ScenarioError(f"cannot read the file: {exc.strerror or exc}") from None
+    if stat.S_ISDIR(info.st_mode):
+        raise ScenarioError("cannot read the file: Is a directory")
+    if not stat.S_ISREG(info.st_mode):
+        raise ScenarioError("not a regular file (a scenario is a .toml file)")
+    with path.open("rb") as f:
+        data = f.read(MAX_FILE_BYTES + 1)
+    if len(data) > MAX_FILE_BYTES:
+        raise ScenarioError(f"the file is larger than {MAX_FILE_BYTES} bytes (a scenario is "
+                            "a few kB)")
+    return data.decode("utf-8-sig")  # -sig: a byte-order mark is fine
+
+
 def _load(path: Path) -> Scenario:
     """Load and validate a scenario file; errors name the field, not the file."""
     try:
-        text = path.read_text(encoding="utf-8-sig")  # -sig: a byte-order mark is fine
+        text = _read_scenario_file(path)
     except UnicodeDecodeError as exc:
         raise ScenarioError(f"not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     except OSError as exc:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import errno
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -23,8 +24,7 @@ import pytest
 from mttbench import scenarios
 from mttbench.benchmarks.app import cli, report, resources
 from mttbench.benchmarks.app.cli import main
-from mttbench.benchmarks.engine import loop as harness
-from mttbench.benchmarks.engine import sweep
+from mttbench.benchmarks.engine import executors
 from mttbench.scenarios.spec import dumps
 
 SMALL = ["--seeds", "1", "--steps", "2", "--workers", "1", "--no-progress"]
@@ -306,7 +306,11 @@ def test_one_failing_tracker_exits_1_and_keeps_every_other_run(tmp_path, capsys)
         "crashing_tracker:Crash": 2, "kfnn": 0, "null": 0}
 
 
-def test_disk_full_is_one_line_and_leaves_no_temp_file(monkeypatch, earlier, capsys):
+def test_disk_full_is_one_line_and_leaves_no_temp_file(monkeypatch, earlier, tmp_path,
+                                                       capsys):
+    # the earlier sweep, its runs to do again (--resume: a sweep's folder takes no other)
+    earlier = Path(shutil.copytree(earlier, tmp_path / "out"))
+    shutil.rmtree(earlier / "parts")
     before = snapshot(earlier)
 
     def full(self, path, *args, **kwargs):
@@ -314,7 +318,7 @@ def test_disk_full_is_one_line_and_leaves_no_temp_file(monkeypatch, earlier, cap
         raise OSError(errno.ENOSPC, "No space left on device")
 
     monkeypatch.setattr(pd.DataFrame, "to_parquet", full)
-    rc = main([*GOOD_RUN, "--out", str(earlier)])
+    rc = main([*GOOD_RUN, "--out", str(earlier), "--resume"])
     err = lines(capsys.readouterr().err)
     assert rc == 1, err
     assert "Traceback" not in "\n".join(err)
@@ -327,16 +331,18 @@ def test_disk_full_is_one_line_and_leaves_no_temp_file(monkeypatch, earlier, cap
 
 def test_interrupt_in_process_prints_the_resume_command(monkeypatch, tmp_path, capsys):
     out = tmp_path / "out"
-    real = harness.run_job
-    calls = []
+    real = executors.wait
+    finished = []
 
-    def interrupt_second(job, c=2.0, p=2.0):
-        calls.append(job)
-        if len(calls) == 2:
+    def interrupt_after_the_first_run(fs, timeout=None, return_when=None):
+        # Ctrl-C in this process while it waits on its workers, once a run has finished
+        if finished:
             raise KeyboardInterrupt
-        return real(job, c, p)
+        done, pending = real(fs, timeout=timeout, return_when=return_when)
+        finished.extend(done)
+        return done, pending
 
-    monkeypatch.setattr(sweep, "run_job", interrupt_second)
+    monkeypatch.setattr(executors, "wait", interrupt_after_the_first_run)
     argv = ["run", "--scenarios", "default", "--trackers", "null", "--seeds", "3", "--steps",
             "2", "--workers", "1", "--no-progress", "--out", str(out)]
     rc = main(argv)
@@ -345,8 +351,9 @@ def test_interrupt_in_process_prints_the_resume_command(monkeypatch, tmp_path, c
     assert "Traceback" not in "\n".join(err)
     assert err[-1] == (f"mttbench run: interrupted; finished runs are kept in {out}/parts; "
                        f"resume with: mttbench {' '.join(argv[:])} --resume"), err
-    assert len(list((out / "parts").glob("*.parquet"))) == 1 and not temp_files(out)
-    monkeypatch.setattr(sweep, "run_job", real)
+    # the first run, and perhaps the second (its worker may finish it meanwhile)
+    assert len(list((out / "parts").glob("*.parquet"))) in (1, 2) and not temp_files(out)
+    monkeypatch.setattr(executors, "wait", real)
     assert main([*argv, "--resume"]) == 0
     assert len(pd.read_parquet(out / "results.parquet")) == 3 * 2
 
@@ -455,3 +462,108 @@ def test_stale_temp_files_are_removed_and_live_ones_kept(tmp_path, capsys):
     assert main(_run() + ["--out", str(out)]) == 0
     assert not any(p.exists() for p in stale)
     assert live.exists() and other.exists()
+
+
+# ------------------------------------------------ issue 24: refused before any run
+def _fifo(path: Path) -> Path:
+    os.mkfifo(path)
+    return path
+
+
+def _symlink(path: Path, target: str) -> Path:
+    path.symlink_to(target)
+    return path
+
+
+def _bad_csv(path: Path) -> Path:
+    path.write_text("this,is\nnot,a numbers csv\n", encoding="utf-8")
+    return path
+
+
+def issue24_cases(tmp: Path) -> list[tuple[str, list[str], str]]:
+    """``(id, argv, regex the one line must match)``: values that passed validation and
+    then overflowed, hung or failed after the work (issue 24); ``{out}`` is the output
+    folder, which must not be created."""
+    file = _bytes(tmp / "a-file", b"x")
+    tune = ["tune", "kfnn", "--scenarios", "default", "--steps", "2", "--trials", "2",
+            "--tuning-seeds", "1", "--no-progress", "--out", "{out}"]
+    paper = ["reproduce", "paper", "--reduced", "--no-progress", "--out", "{out}"]
+    out = ["--out", "{out}"]
+    return [
+        ("p-overflows", [*_run("--p", "1000000"), *out], r"--c 2.0 with --p 1000000.0.*c \*\* p"),
+        ("c-overflows", [*_run("--c", "1e308"), *out], r"--c 1e\+308 with --p 2.0"),
+        ("compare-p-overflows", ["compare", "--trackers", "null", "--p", "1e6", *out],
+         r"c \*\* p"),
+        ("renyi-alpha-overflows", [*_run("--policy", "renyi:alpha=1e308"), *out],
+         r"alpha = 1e\+308 is not allowed"),
+        ("scenario-nx-2**70", [*_run(scenario=str(scenario_file(
+            tmp, "wide70", _sub(r"^nx = \d+", f"nx = {2**70}")))), *out], r"nx \* ny <="),
+        ("scenario-cell-size-1e307", [*_run(scenario=str(scenario_file(
+            tmp, "cell307", _sub(r"^cell_size = .*$", "cell_size = 1e307")))), *out],
+         r"cell_size = 1e\+307.*at most 1e\+100"),
+        ("scenario-wna-1e308", [*_run(scenario=str(scenario_file(
+            tmp, "wna308", _sub(r"^wna_intensity = .*$", "wna_intensity = 1e308")))), *out],
+         r"process noise Q"),
+        ("scenario-fifo", [*_run(scenario=str(_fifo(tmp / "fifo.toml"))), *out],
+         r"fifo\.toml'?: not a regular file"),
+        ("scenario-symlink-dev-zero", [*_run(scenario=str(_symlink(tmp / "zero.toml",
+                                                                   "/dev/zero"))), *out],
+         r"zero\.toml'?: not a regular file"),
+        ("scenario-too-large", [*_run(scenario=str(_bytes(
+            tmp / "large.toml", b"# padding\n" * 120_000))), *out], r"larger than 1048576 bytes"),
+        ("out-name-too-long", _run("--out", str(tmp / ("x" * 300))),
+         r"--out .* a name longer than the file system allows"),
+        ("out-empty", _run("--out", ""), r"--out '' is not allowed"),
+        ("trackers-empty", ["run", "--scenarios", "default", "--trackers", "", *SMALL, *out],
+         r"--trackers: none given"),
+        ("seed-list-empty", [*_run("--seed-list", ""), *out], r"seed: none given"),
+        ("run-timeout-zero", [*_run("--run-timeout", "0"), *out], r"--run-timeout 0.0"),
+        ("run-timeout-nan", [*_run("--run-timeout", "nan"), *out], r"--run-timeout nan"),
+        ("tune-seed-negative", [*tune, "--seed", "-1"], r"--seed -1 is not allowed"),
+        ("tune-seed-2**32", [*tune, "--seed", str(2**32)], r"--seed 4294967296"),
+        ("tune-seed-start-2**64", [*tune, "--seed-start", str(2**64)],
+         r"--seed-start 18446744073709551616 is not allowed"),
+        ("tune-trials-1e9", [*tune, "--trials", "1000000000"], r"--trials 1000000000"),
+        ("tune-batch-size-0", [*tune, "--batch-size", "0"], r"--batch-size 0"),
+        ("tune-tuned-dir-file", [*tune, "--tuned-dir", str(file)],
+         r"--tuned-dir .*a-file exists and is not a folder"),
+        ("compare-tuned-dir-missing", ["compare", "--trackers", "kfnn", "--tuned-dir",
+                                       str(tmp / "missing"), *out],
+         r"--tuned-dir .*missing: no such folder"),
+        ("reproduce-cache-dir-file", [*paper, "--cache-dir", str(file)],
+         r"--cache-dir .*a-file exists and is not a folder"),
+        ("reproduce-reference-csv-malformed", [*paper, "--check", "--reference-csv",
+                                               str(_bad_csv(tmp / "bad.csv"))],
+         r"is not a numbers CSV"),
+        ("reproduce-check-and-update-reference", [*paper, "--check", "--update-reference"],
+         r"--check and --update-reference: give one"),
+        ("dask-scheduler-not-a-url", [*_run("--executor", "dask", "--scheduler", "not a url"),
+                                      *out], r"--scheduler 'not a url' is not allowed"),
+        ("argparse-not-an-int", [*_run("--seeds", "many"), *out],
+         r"^mttbench run: error: argument --seeds: invalid int value: 'many' \(see"),
+        ("argparse-unknown-option", [*_run("--bogus"), *out],
+         r"^mttbench: error: unrecognized arguments: --bogus \(see"),
+        ("argparse-unknown-command", ["frobnicate"], r"^mttbench: error: argument COMMAND"),
+    ]
+
+
+def _issue24_ids() -> list[str]:
+    with tempfile.TemporaryDirectory() as d:
+        return [c[0] for c in issue24_cases(Path(d))]
+
+
+@pytest.mark.parametrize("case_id", _issue24_ids())
+def test_issue24_refused_before_any_run_in_one_line(case_id, tmp_path, capsys):
+    cases = {c[0]: c for c in issue24_cases(tmp_path)}
+    _, argv, pattern = cases[case_id]
+    out = tmp_path / "never"
+    capsys.readouterr()
+    rc = main([a.replace("{out}", str(out)) for a in argv])
+    captured = capsys.readouterr()
+    err = lines(captured.err)
+    assert rc == 2, (rc, captured.err)
+    assert len(err) == 1, captured.err
+    assert "Traceback" not in captured.err and "Traceback" not in captured.out
+    assert re.search(r"^mttbench( \w+)?: error: ", err[0]), err[0]
+    assert re.search(pattern, err[0]), (pattern, err[0])
+    assert not out.exists()

@@ -21,7 +21,7 @@ from mttbench.benchmarks.app.summary import (
 )
 from mttbench.benchmarks.engine import loop as harness
 from mttbench.benchmarks.engine.loop import COLUMNS, Job, build_jobs, run_job
-from mttbench.benchmarks.engine.metrics import step_metrics
+from mttbench.benchmarks.engine.metrics import run_metric_columns, step_metrics
 from mttbench.benchmarks.engine.specs import PolicySpec, TrackerSpec, parse_value, split_specs
 from mttbench.benchmarks.engine.sweep import run_sweep
 from mttbench.scenarios.simulator import simulate
@@ -176,7 +176,7 @@ def test_run_job_rows_and_metrics_match_direct_computation(test_trackers):
     sc = short("default", 12)
     job = Job(sc, TrackerSpec("test_recorder", {"tag": 7}), PolicySpec("raster"), 30, 4)
     df = run_job(job, c=3.0, p=1.0)
-    assert list(df.columns) == COLUMNS + ["param_tag"]
+    assert list(df.columns) == COLUMNS + ["param_tag"] + run_metric_columns()  # track scores
     assert len(df) == sc.n_steps and list(df["step"]) == list(range(sc.n_steps))
     assert (df["status"] == "ok").all() and (df["error"] == "").all()
     assert (df["tracker_label"] == "test_recorder(tag=7)").all()
@@ -265,19 +265,22 @@ def test_sweep_keeps_other_results_when_a_tracker_crashes(test_trackers, tmp_pat
 def test_resume_skips_finished_parts(test_trackers, tmp_path):
     sc = short("default", 5)
     spec = [TrackerSpec("test_recorder")]
+    # (runs go in worker processes: what ran is told by the parts' modification times)
     first = run_sweep(build_jobs([sc], spec, None, None, [0, 1]), tmp_path)
-    assert Recorder.resets == 2
+    parts = {q: q.stat().st_mtime_ns for q in (tmp_path / "parts").glob("*.parquet")}
+    assert len(parts) == 2
     again = run_sweep(build_jobs([sc], spec, None, None, [0, 1]), tmp_path,
                       resume=True)
-    assert Recorder.resets == 2
+    assert {q: q.stat().st_mtime_ns for q in (tmp_path / "parts").glob("*.parquet")} == parts
     pd.testing.assert_frame_equal(first, again)
-    # a larger sweep only runs the new job
-    more = run_sweep(build_jobs([sc], spec, None, None, [0, 1, 2]), tmp_path,
-                     resume=True)
-    assert Recorder.resets == 3 and sorted(more["seed"].unique()) == [0, 1, 2]
-    # without resume everything runs again
-    run_sweep(build_jobs([sc], spec, None, None, [0]), tmp_path)
-    assert Recorder.resets == 4
+    # the folder is this sweep's (sweep.json): a larger sweep, or this one again without
+    # resume, is refused
+    from mttbench.benchmarks.engine.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="another sweep"):
+        run_sweep(build_jobs([sc], spec, None, None, [0, 1, 2]), tmp_path, resume=True)
+    with pytest.raises(ConfigError, match="already holds this sweep"):
+        run_sweep(build_jobs([sc], spec, None, None, [0, 1]), tmp_path)
 
 
 def test_results_do_not_depend_on_the_number_of_workers(tmp_path):

@@ -29,6 +29,7 @@ from mttbench.benchmarks.engine.metrics import (
     objective_names,
     register_metric,
     registered_metrics,
+    run_metric_columns,
     step_metrics,
     unregister_metric,
 )
@@ -206,4 +207,5 @@ def test_a_registered_metric_changes_the_job_key_and_fills_error_rows(n_false_me
 def test_the_builtins_alone_after_unregistering():
     assert "n_false" not in metric_names()
     df = loop.run_job(loop.Job(short("default", 3), TrackerSpec("null"), seed=0))
-    assert list(df.columns) == loop.COLUMNS
+    # the fixed columns, then the built-in run-level (track) metrics' columns
+    assert list(df.columns) == [*loop.COLUMNS, *run_metric_columns()]

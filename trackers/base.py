@@ -40,11 +40,17 @@ class Estimate:
     ``[px, vx, py, vy]``; ``n`` need not equal ``count`` (for example the GPF's
     count is ``sum w`` while it reports the ``round(sum w)`` heaviest components).
     ``covariances`` is ``(n, 4, 4)`` or None, used only for plots.
+
+    ``labels`` is ``(n,)`` int64 or None: a persistent track label per reported state,
+    unique within a step, equal across steps for the same track (the track-level scores
+    of :mod:`~mttbench.benchmarks.engine.track_metrics` read them). None means the
+    tracker keeps no track identity; its track-level scores are then empty (NaN).
     """
 
     count: float
     states: np.ndarray
     covariances: np.ndarray | None = None
+    labels: np.ndarray | None = None
 
     @staticmethod
     def empty() -> Estimate:

@@ -453,6 +453,10 @@ class GaussianParticleFilter(Tracker):
             floor = DEFAULT_DEATH_FLOOR if (self.births and model.is_grid) else 0.0
         #: the survival probability the filter predicts with: min(p_s, 1 - floor)
         self._survival = min(model.birth_death.survival_probability, 1.0 - floor)
+        #: a persistent id per track (the estimate's labels): a counter assigned at the
+        #: track's creation, carried through prune and merge (a merged track keeps the
+        #: id of its heaviest member)
+        self._tid, self._next_tid = np.zeros(0, dtype=np.int64), 0
         self._set(np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 4)),
                   np.zeros((0, 4, 4)))
         bd = model.birth_death
@@ -471,6 +475,8 @@ class GaussianParticleFilter(Tracker):
 
     def _set(self, w: np.ndarray, own: np.ndarray, a: np.ndarray, m: np.ndarray,
              P: np.ndarray) -> None:
+        if len(getattr(self, "_tid", ())) != len(w):  # tracks set from outside: new ids
+            self._new_ids(len(w), fresh=True)
         self._w, self._own, self._a, self._m, self._P = w, own, a, m, P
 
     def set_particles(self, w: np.ndarray, m: np.ndarray, P: np.ndarray) -> None:
@@ -511,9 +517,18 @@ class GaussianParticleFilter(Tracker):
         self._append(np.full(n, weight), kalman.at_rest(xy),
                      np.repeat(self._broad_cov()[None], n, axis=0))
 
+    def _new_ids(self, n: int, fresh: bool = False) -> None:
+        """Append ``n`` new track ids (``fresh``: replace all, for a new particle set)."""
+        start = getattr(self, "_next_tid", 0)
+        if fresh:
+            self._tid = np.zeros(0, dtype=np.int64)
+        self._tid = np.concatenate([self._tid, start + np.arange(n, dtype=np.int64)])
+        self._next_tid = start + n
+
     def _append(self, w: np.ndarray, m: np.ndarray, P: np.ndarray) -> None:
         """New tracks, one Gaussian each."""
         T = len(self._w)
+        self._new_ids(len(w))
         self._set(np.concatenate([self._w, w]),
                   np.concatenate([self._own, T + np.arange(len(w))]),
                   np.concatenate([self._a, np.ones(len(w))]),
@@ -641,6 +656,7 @@ class GaussianParticleFilter(Tracker):
         if self.births and not self._count_bound:
             self._u.map(lambda u: np.maximum(u, self.birth_floor))
         keep_track = np.concatenate([np.ones(T, dtype=bool), promote])
+        self._new_ids(int(promote.sum()))
         new_index = np.cumsum(keep_track) - 1
         keep_row = keep_track[res.owner]
         self._set(res.weights[keep_track], new_index[res.owner[keep_row]],
@@ -656,6 +672,7 @@ class GaussianParticleFilter(Tracker):
         idx = np.cumsum(alive) - 1
         w, own, a = self._w[alive], idx[self._own[rows]], self._a[rows]
         m, P = self._m[rows], self._P[rows]
+        tid = self._tid[alive]
         T = len(w)
         if T > 1 and self.merge_threshold > 0:
             if len(m) == T:
@@ -665,6 +682,10 @@ class GaussianParticleFilter(Tracker):
             mw, _, _, label = merge_groups(w, cm, cP, self.merge_threshold, self._merge_rule,
                                            "mahalanobis")
             if len(mw) < T:
+                # each merged track keeps the id of its heaviest member
+                by_weight = np.argsort(-w, kind="stable")
+                head = np.unique(label[by_weight], return_index=True)[1]
+                tid = tid[by_weight][head]
                 share = w / np.bincount(label, weights=w, minlength=len(mw))[label]
                 a = a * np.nan_to_num(share, nan=0.0)[own]
                 own = label[own]
@@ -680,6 +701,8 @@ class GaussianParticleFilter(Tracker):
             idx = np.cumsum(top) - 1
             rows = top[own]
             w, own, a, m, P = w[top], idx[own[rows]], a[rows], m[rows], P[rows]
+            tid = tid[top]
+        self._tid = tid
         order = np.argsort(own, kind="stable")
         self._set(w, own[order], a[order], m[order], P[order])
 
@@ -733,12 +756,14 @@ class GaussianParticleFilter(Tracker):
         else:
             sel = np.nonzero(self._w > self.extraction_threshold)[0]
         if len(self._m) == len(self._w):
-            return Estimate(count, self._m[sel].copy(), self._P[sel].copy())
+            return Estimate(count, self._m[sel].copy(), self._P[sel].copy(),
+                            self._tid[sel].copy())
         # the peak height of each component, a / sqrt(det Sigma_pos)
         pos = self._P[:, 0::2, 0::2]
         score = self._a / np.sqrt(np.maximum(np.linalg.det(pos), 1e-300))
         rows = self._distinct_modes(sel, score)
-        return Estimate(count, self._m[rows].copy(), self._P[rows].copy())
+        return Estimate(count, self._m[rows].copy(), self._P[rows].copy(),
+                        self._tid[self._own[rows]].copy())
 
     def _distinct_modes(self, sel: np.ndarray, score: np.ndarray) -> np.ndarray:
         """One row per selected track (heaviest track first): its best-scoring component

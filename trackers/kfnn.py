@@ -555,9 +555,11 @@ class KFNNTracker(Tracker):
         return np.log1p(np.maximum(total, -1.0 + 1e-300))
 
     def estimate(self) -> Estimate:
-        """The confirmed tracks: count, states ``(n, 4)``, covariances ``(n, 4, 4)``."""
+        """The confirmed tracks: count, states ``(n, 4)``, covariances ``(n, 4, 4)`` and
+        labels (the track ids, assigned at initiation and kept for the track's life)."""
         c = self._confirmed
-        return Estimate(float(c.sum()), self._m[c].copy(), self._P[c].copy())
+        return Estimate(float(c.sum()), self._m[c].copy(), self._P[c].copy(),
+                        self._id[c].astype(np.int64))
 
     # ---------------------------------------------------------- for tests/plots
     def undetected_intensity(self) -> CellField:

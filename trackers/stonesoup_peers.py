@@ -407,6 +407,9 @@ class StoneSoupGNN(_StoneSoupPeer):
             updater=self._updater, measurement_model=self._measurement,
             min_points=self.min_points(sensor.p_d, sensor.p_f))
         self._tracks: list[Any] = []  # confirmed, in track_key order
+        #: a track's label (the estimate's), by its Stone Soup id: numbered in the order
+        #: the tracks are first reported (so deterministic), kept for the track's life
+        self._track_labels: dict[str, int] = {}
         bd = model.birth_death
         n = model.grid.n_cells
         self._p_s, self._birth_per_cell = bd.survival_probability, bd.birth_rate / n
@@ -491,12 +494,15 @@ class StoneSoupGNN(_StoneSoupPeer):
         self._undetected.multiply(looked, (1.0 - self._p_d) ** n_looks)
 
     def estimate(self) -> Estimate:
-        """The confirmed tracks: count, states ``(n, 4)``, covariances ``(n, 4, 4)``."""
+        """The confirmed tracks: count, states ``(n, 4)``, covariances ``(n, 4, 4)`` and a
+        persistent label per track."""
         n = len(self._tracks)
         m, P = np.zeros((n, 4)), np.zeros((n, 4, 4))
+        labels = np.zeros(n, dtype=np.int64)
         for i, tr in enumerate(self._tracks):
             m[i], P[i] = _mean_cov(tr.state)
-        return Estimate(float(n), m, P)
+            labels[i] = self._track_labels.setdefault(tr.id, len(self._track_labels))
+        return Estimate(float(n), m, P, labels)
 
     @classmethod
     def resource_terms(cls, params, model, looks_per_step, targets) -> ResourceTerms:
@@ -659,7 +665,13 @@ class StoneSoupGMPHD(_StoneSoupPeer):
         self._w, self._m, self._P = w[order], m[order], P[order]
 
     def estimate(self) -> Estimate:
-        """Components above ``extraction_threshold``; count ``sum w`` or its rounding."""
+        """Components above ``extraction_threshold``; count ``sum w`` or its rounding.
+
+        No labels (None): a GM-PHD keeps no track identity. The adapter tags the
+        components by their index in the sorted mixture at every step (``c0``, ``c1``, ...,
+        for determinism: Stone Soup's own tags are random per process) and the reducer
+        merges components of different tags, so a tag names a row, not a target, and
+        would read as an identity switch at every re-ordering."""
         total = float(self._w.sum())
         count = total if self.count == "sum" else float(round(total))
         sel = self._w > self.extraction_threshold

@@ -266,7 +266,9 @@ class TruthAidedTracker(Tracker):
                 self._pending_cells = self._pending_cells[~hit]
 
     def estimate(self) -> Estimate:
-        return Estimate(float(self._n_true), self._m.copy(), self._P.copy())
+        # labels: the true ids its filters were started from (one filter per id)
+        return Estimate(float(self._n_true), self._m.copy(), self._P.copy(),
+                        self._ids.copy())
 
     @classmethod
     def resource_terms(cls, params, model, looks_per_step, targets) -> ResourceTerms:

@@ -14,12 +14,15 @@ Exit status, always with at most one line on stderr saying why (never a tracebac
 
 * 0: every run finished (``ok`` or ``unsupported``);
 * 1: a run failed (``k of n runs failed; first error: ...; see <out>/summary.csv``;
-  every other run's rows are kept), or a file could not be written mid-sweep (disk
+  every other run's rows are kept; a run that hangs past ``--run-timeout``, exits or
+  kills its worker process is a failed run), or a file could not be written mid-sweep (disk
   full: the line names the file; nothing finished is lost);
 * 2: bad input, refused before any run and before the output folder is touched: an
   unknown tracker, parameter, scenario or policy, a bad value or scenario file, a run
-  that cannot fit in memory (:mod:`~mttbench.benchmarks.app.resources`), an output folder
-  that cannot be created or written;
+  that cannot fit in memory (:mod:`~mttbench.benchmarks.app.resources`), a value whose
+  arithmetic would overflow in a run, an output folder that cannot be created or written,
+  holds another sweep (``sweep.json``) or is in use by another process; an argparse
+  error too, in one line (no usage block);
 * 130: interrupted (Ctrl-C): the queued runs are dropped, finished runs kept, and the
   line gives the exact command that resumes.
 """
@@ -27,9 +30,11 @@ Exit status, always with at most one line on stderr saying why (never a tracebac
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
+import re
 import shlex
 import sys
 import textwrap
@@ -51,13 +56,14 @@ from ..engine.specs import (
     resolve_trackers,
     split_specs,
 )
-from ..engine.store import prepare_out_dir
+from ..engine.store import check_sweep, prepare_out_dir, sweep_lock
 from . import resources
 from .compare import (
     COMPARE_REFERENCE,
     COMPARE_SCENARIOS,
     COMPARE_SEEDS,
     OUTPUT_FILES,
+    default_run_timeout,
     is_finished,
 )
 from .executor_options import add_executor_arguments, executor_scope
@@ -70,6 +76,19 @@ from .usage import UsageError
 MAX_INT64 = 2**63 - 1
 #: most seeds one sweep may ask for with --seeds (a larger sweep: several folders)
 MAX_SEEDS = 1_000_000
+#: c ** p of the OSPA/GOSPA metrics stays within 10 ** -E .. 10 ** E
+MAX_C_POWER_P_EXP = 200
+#: the largest Renyi order of --policy renyi:alpha=... (the gains raise likelihood ratios
+#: to the power alpha)
+MAX_RENYI_ALPHA = 100.0
+#: most trials of one tuning study
+MAX_TRIALS = 100_000
+#: the tuning sampler's seed is a 32-bit unsigned integer
+MAX_SAMPLER_SEED = 2**32 - 1
+#: a file name and a path the file systems we run on allow (bytes)
+NAME_MAX, PATH_MAX = 255, 4095
+#: the longest --run-timeout (seconds): a year
+MAX_TIMEOUT_S = 365 * 86400.0
 #: exit status after Ctrl-C (128 + SIGINT, as a shell reports it)
 EXIT_INTERRUPTED = 130
 
@@ -87,6 +106,8 @@ def _int_list(texts: Sequence[str] | None, what: str, lo: int) -> list[int] | No
             raise UsageError(f"{what} {v} is not allowed: expected an integer >= {lo} "
                              f"and <= {MAX_INT64} (2**63 - 1)")
         out.append(v)
+    if not out:
+        raise UsageError(f"{what}: none given (an empty list)")
     return sorted(set(out))
 
 
@@ -111,6 +132,79 @@ def _check_common(args: argparse.Namespace) -> None:
     if not (math.isfinite(args.p) and args.p >= 1):
         raise UsageError(f"--p {args.p} is not allowed: the OSPA order must be a finite "
                          "number >= 1")
+    # the metrics raise distances up to c to the power p: c ** p must stay a normal number
+    if abs(args.p * math.log10(args.c)) > MAX_C_POWER_P_EXP:
+        raise UsageError(f"--c {args.c} with --p {args.p} is not allowed: c ** p must stay "
+                         f"within 1e-{MAX_C_POWER_P_EXP} .. 1e{MAX_C_POWER_P_EXP} (the metrics "
+                         "raise distances to the power p)")
+    timeout = getattr(args, "run_timeout", None)
+    if timeout is not None and not (math.isfinite(timeout) and 0 < timeout <= MAX_TIMEOUT_S):
+        raise UsageError(f"--run-timeout {timeout} is not allowed: expected seconds > 0 and "
+                         f"<= {MAX_TIMEOUT_S:g}")
+
+
+def _check_policies(specs) -> None:
+    """Policy parameters beyond their declared ranges that would overflow in a run."""
+    for spec in specs or []:
+        alpha = spec.params.get("alpha") if spec.name == "renyi" else None
+        if isinstance(alpha, int | float) and alpha > MAX_RENYI_ALPHA:
+            raise UsageError(f"--policy {spec.label}: alpha = {alpha!r} is not allowed: "
+                             f"expected a number > 0 and <= {MAX_RENYI_ALPHA:g} (the gains "
+                             "raise likelihood ratios to the power alpha)")
+
+
+def _shown(text: str) -> str:
+    return repr(text if len(text) <= 60 else text[:57] + "...")
+
+
+def _check_path(option: str, text: str | None, *, folder: bool = True,
+                must_exist: bool = False) -> None:
+    """A path option: not empty, names the file system allows, and a folder (or, with
+    ``folder=False``, a regular file) where one is expected."""
+    if text is None:
+        return
+    if not text.strip() or "\0" in text:
+        raise UsageError(f"{option} {_shown(text)} is not allowed: give a path")
+    raw = os.fsencode(text)
+    if len(raw) > PATH_MAX or any(len(os.fsencode(part)) > NAME_MAX
+                                  for part in Path(text).parts):
+        raise UsageError(f"{option} {_shown(text)} is not allowed: a name longer than the "
+                         f"file system allows ({NAME_MAX} bytes a name, {PATH_MAX} a path)")
+    path = Path(text)
+    try:
+        exists = path.exists()
+    except OSError as exc:
+        raise UsageError(f"{option} {_shown(text)}: {exc.strerror or exc}") from None
+    if folder and exists and not path.is_dir():
+        raise UsageError(f"{option} {text} exists and is not a folder")
+    if not folder and exists and not path.is_file():
+        raise UsageError(f"{option} {text} is not a regular file")
+    if must_exist and not exists:
+        raise UsageError(f"{option} {text}: no such {'folder' if folder else 'file'}")
+
+
+#: an existing Dask cluster's scheduler: [PROTOCOL://]HOST:PORT
+_SCHEDULER = re.compile(r"([a-z][a-z0-9+.-]*://)?[A-Za-z0-9._~%\-\[\]:]+:[0-9]{1,5}/?")
+
+
+def _check_inputs(args: argparse.Namespace) -> None:
+    """Checks shared by the commands, before anything runs: paths, empty lists, the
+    scheduler's address."""
+    _check_path("--out", getattr(args, "out", None))
+    if args.command == "tune":
+        _check_path("--tuned-dir", args.tuned_dir)
+    elif args.command == "compare":
+        _check_path("--tuned-dir", args.tuned_dir, must_exist=True)
+    elif args.command == "reproduce":
+        _check_path("--cache-dir", args.cache_dir)
+        _check_path("--reference-csv", args.reference_csv, folder=False)
+    texts = getattr(args, "trackers", None)
+    if texts is not None and not split_specs(list(texts)):
+        raise UsageError("--trackers: none given (an empty tracker spec)")
+    scheduler = getattr(args, "scheduler", None)
+    if scheduler is not None and not _SCHEDULER.fullmatch(scheduler):
+        raise UsageError(f"--scheduler {_shown(scheduler)} is not allowed: expected the "
+                         "address of a Dask scheduler, tcp://HOST:PORT")
 
 
 def _scenario_names(args: argparse.Namespace) -> list[str]:
@@ -185,17 +279,29 @@ def _failure_line(results: pd.DataFrame, out_dir: Path) -> str | None:
 
 
 # ---------------------------------------------------------------------- outputs
+def _folder_lock(out_dir: Path):
+    """The output folder's lock (:func:`~mttbench.benchmarks.engine.store.sweep_lock`) for
+    the whole command when the folder exists (a second process is refused at once); a
+    new folder is locked by its sweep once created."""
+    return sweep_lock(out_dir) if Path(out_dir).is_dir() else contextlib.nullcontext()
+
+
 def _sweep(args: argparse.Namespace, scs, tracker_specs, policy_specs, looks, seeds,
            out_dir: Path, workers: int, title: str) -> int:
     jobs = build_jobs(scs, tracker_specs, policy_specs, looks, seeds)
     for line in resources.check_jobs(jobs, workers):
         print(line, file=sys.stderr)
-    prepare_out_dir(out_dir)
-    print(f"{len(jobs)} runs on {describe_current(workers, len(jobs))} -> {out_dir}",
-          file=sys.stderr)
-    results = run_sweep(jobs, out_dir, workers=workers, progress=not args.no_progress,
-                        resume=getattr(args, "resume", False), c=args.c, p=args.p)
-    text = write_summary(results, out_dir, title)
+    resume = getattr(args, "resume", False)
+    with _folder_lock(out_dir):
+        check_sweep(out_dir, [job.key(args.c, args.p) for job in jobs], args.c, args.p, resume)
+        prepare_out_dir(out_dir)
+        with sweep_lock(out_dir):
+            print(f"{len(jobs)} runs on {describe_current(workers, len(jobs))} -> {out_dir}",
+                  file=sys.stderr)
+            results = run_sweep(jobs, out_dir, workers=workers, progress=not args.no_progress,
+                                resume=resume, c=args.c, p=args.p,
+                                run_timeout=args.run_timeout or default_run_timeout(jobs))
+            text = write_summary(results, out_dir, title)
     print(text)
     print(f"wrote {out_dir}/: results.parquet, summary.csv, summary.md")
     failed = _failure_line(results, out_dir)
@@ -255,6 +361,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     scs = resolve_scenarios(_scenario_names(args), args.steps)
     tracker_specs = resolve_trackers(args.trackers)
     policy_specs = resolve_policies(args.policy)
+    _check_policies(policy_specs)
     looks = _int_list(args.looks, "--looks value", 0)
     seeds = _seeds(args, default=10)
     out_dir = _out_dir(args, "run-", _run_finished)
@@ -271,11 +378,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
     seeds = _seeds(args, default=COMPARE_SEEDS)
     out_dir = _out_dir(args, "compare-", is_finished)
     args.out_dir = out_dir  # for the resume line after Ctrl-C
-    res = run_compare(_scenario_names(args), args.trackers, seeds, args.steps, args.workers,
-                      out_dir, reference=args.reference, progress=not args.no_progress,
-                      resume=args.resume, c=args.c, p=args.p,
-                      argv=args.argv, tuned_dir=args.tuned_dir, untuned=args.untuned,
-                      tuning_effect=args.tuning_effect)
+    with _folder_lock(out_dir):
+        res = run_compare(_scenario_names(args), args.trackers, seeds, args.steps,
+                          args.workers, out_dir, reference=args.reference,
+                          progress=not args.no_progress, resume=args.resume, c=args.c,
+                          p=args.p, argv=args.argv, tuned_dir=args.tuned_dir,
+                          untuned=args.untuned, tuning_effect=args.tuning_effect,
+                          run_timeout=args.run_timeout)
     print((res.out_dir / "summary.md").read_text(encoding="utf-8"))
     man = res.manifest
     wall = f"{man['wall_time_s']:.0f} s"
@@ -295,6 +404,19 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from . import tune
 
     _check_common(args)
+    if not 1 <= args.trials <= MAX_TRIALS:
+        raise UsageError(f"--trials {args.trials} is not allowed: expected an integer from 1 "
+                         f"to {MAX_TRIALS}")
+    if args.batch_size is not None and not 1 <= args.batch_size <= MAX_TRIALS:
+        raise UsageError(f"--batch-size {args.batch_size} is not allowed: expected an "
+                         f"integer from 1 to {MAX_TRIALS}")
+    if not 0 <= args.seed <= MAX_SAMPLER_SEED:
+        raise UsageError(f"--seed {args.seed} is not allowed: expected an integer from 0 to "
+                         f"{MAX_SAMPLER_SEED} (2**32 - 1)")
+    if args.tuning_seeds > MAX_SEEDS or args.seed_start + args.tuning_seeds - 1 > MAX_INT64:
+        raise UsageError(f"--tuning-seeds {args.tuning_seeds} from --seed-start "
+                         f"{args.seed_start} is not allowed: expected at most {MAX_SEEDS} "
+                         f"seeds, the last <= {MAX_INT64} (2**63 - 1)")
     if args.tuning_seeds < 1 or args.seed_start < tune.TUNING_SEED_BASE:
         raise UsageError(f"--tuning-seeds {args.tuning_seeds} from --seed-start "
                          f"{args.seed_start}: expected >= 1 seed from >= "
@@ -302,6 +424,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     scs = tuple(resolve_scenarios(args.scenarios, args.steps))
     specs = resolve_trackers(args.trackers)
     policy = resolve_policies(args.policy)
+    _check_policies(policy)
     if len(policy) != 1:
         raise UsageError("--policy: give one policy to tune under")
     looks = _int_list(args.looks, "--looks value", 0)
@@ -324,8 +447,10 @@ def cmd_tune(args: argparse.Namespace) -> int:
         for line in resources.check_jobs(s.jobs(s.spec({})), workers):
             print(line, file=sys.stderr)
         settings.append(s)
-    res = tune.run_tune(settings, out_dir, tuned_dir=args.tuned_dir, workers=workers,
-                        resume=args.resume, progress=not args.no_progress, argv=args.argv)
+    with _folder_lock(out_dir):
+        res = tune.run_tune(settings, out_dir, tuned_dir=args.tuned_dir, workers=workers,
+                            resume=args.resume, progress=not args.no_progress,
+                            argv=args.argv)
     status = 0
     for r in res.results:
         if r.record is None:
@@ -354,6 +479,9 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         raise UsageError(f"--workers {args.workers} is not allowed: expected an integer >= 1")
     if args.exact and not args.check:
         raise UsageError("--exact only applies with --check")
+    if args.check and args.update_reference:
+        raise UsageError("--check and --update-reference: give one of them (check against "
+                         "the reference, or replace it)")
     if args.target == "kreucher":
         from . import reproduce_kreucher as target_module
 
@@ -372,6 +500,13 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
                 else reproduce.REFERENCE_DIR / f"{args.target}_{setting.name}.csv")
     if args.check and not ref_path.is_file():
         raise UsageError(f"--check: no reference {ref_path}")
+    if args.check:  # read before the runs: a malformed reference is refused now
+        try:
+            reproduce.read_numbers(ref_path)
+        except Exception as exc:  # noqa: BLE001 - pandas raises many types for a bad CSV
+            first = (str(exc).strip().splitlines() or [""])[0]
+            raise UsageError(f"--check: the reference {ref_path} is not a numbers CSV "
+                             f"({type(exc).__name__}: {first})") from None
     for warning in resources.check_jobs(target_module.setting_jobs(setting, specs), workers):
         print(warning, file=sys.stderr)
     prepare_out_dir(out, parts=False)
@@ -457,11 +592,24 @@ def _add_sweep_options(p: argparse.ArgumentParser, *, seeds_default: int,
     p.add_argument("--c", type=float, default=2.0, help="OSPA/GOSPA cut-off c (default 2)")
     p.add_argument("--p", type=float, default=2.0, help="OSPA/GOSPA order p (default 2)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--run-timeout", type=float, default=None, metavar="SECONDS",
+                   help="wall-time limit of one run: a run still going is ended and gets "
+                        "an error row (default: 10x the slowest run's estimate, at least "
+                        "60 s)")
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (no usage block): ``PROG: error:
+    MESSAGE (see PROG --help)``, exit status 2. Sub-command parsers are of this class too."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} "
+                     f"(see `{self.prog} --help`)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
     fmt = argparse.RawDescriptionHelpFormatter
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="mttbench", formatter_class=fmt,
         description="Benchmarks of multi-target trackers with an unknown number of targets.",
         epilog="Run `mttbench COMMAND --help` for the options of a command.")
@@ -717,6 +865,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     who = f"mttbench {args.command}"
     try:
+        _check_inputs(args)
         with executor_scope(args):  # --executor: every sweep of the command runs there
             return args.func(args)
     except ConfigError as exc:  # the engine's, and UsageError, its subclass

@@ -60,8 +60,9 @@ import pandas as pd
 from ... import trackers
 from ..engine.executors import describe_current
 from ..engine.loop import build_jobs, spec_uses_truth
+from ..engine.metrics import run_metric_params
 from ..engine.specs import PolicySpec, TrackerSpec, resolve_scenarios, resolve_trackers
-from ..engine.store import prepare_out_dir, write_text_atomic
+from ..engine.store import check_sweep, prepare_out_dir, write_text_atomic
 from . import resources, summary, tuned
 from .progress import run_sweep
 from .usage import UsageError
@@ -155,6 +156,22 @@ class CompareOutput:
     manifest: dict[str, Any]
 
 
+#: the least default wall-time limit of one run (seconds), and its factor over the
+#: sweep's slowest estimated run (:func:`default_run_timeout`)
+RUN_TIMEOUT_FLOOR_S = 60.0
+RUN_TIMEOUT_FACTOR = 10.0
+
+
+def default_run_timeout(jobs: Sequence[Any]) -> float:
+    """``--run-timeout``'s default: 10x the slowest run's time estimate
+    (:func:`~mttbench.benchmarks.app.resources.estimate_job`), at least 60 s."""
+    slowest = 0.0
+    for job in jobs:
+        with contextlib.suppress(Exception):  # no estimate: the floor
+            slowest = max(slowest, float(resources.estimate_job(job).seconds))
+    return max(RUN_TIMEOUT_FLOOR_S, RUN_TIMEOUT_FACTOR * slowest)
+
+
 def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
                 tracker_texts: Sequence[str] | None = None, seeds: Sequence[int] | None = None,
                 steps: int | None = None, workers: int | None = None,
@@ -162,7 +179,8 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
                 progress: bool = True, resume: bool = False, c: float = 2.0, p: float = 2.0,
                 snapshot: bool = True, argv: Sequence[str] | None = None,
                 tuned_dir: str | Path | None = None, untuned: bool = False,
-                tuning_effect: bool = False) -> CompareOutput:
+                tuning_effect: bool = False,
+                run_timeout: float | None = None) -> CompareOutput:
     """Run the comparison and write the report folder (see the module docstring).
 
     ``tracker_texts`` None means :func:`default_tracker_texts`; ``seeds`` None means
@@ -207,6 +225,8 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
     for line in resources.check_jobs(jobs, workers):
         print(line, file=sys.stderr)
     prepare_out_dir(out)
+    # another sweep's folder, or this one's without --resume: refused before it is touched
+    check_sweep(out, [job.key(c, p) for job in jobs], c, p, resume)
 
     command = list(argv) if argv is not None else list(sys.argv)
     previous = read_manifest(out) if resume else None
@@ -238,6 +258,8 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
         "reference": reference,
         "ospa_c": c,
         "ospa_p": p,
+        # the run-level (track) metrics and their parameters (c and p: the run's)
+        "track_metrics": run_metric_params(),
         "n_runs": len(jobs),
         "n_rows": None,
     }
@@ -254,7 +276,7 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
           f"seeds) on {describe_current(workers)} -> {out}", file=sys.stderr)
     try:
         results = run_sweep(jobs, out, workers=workers, progress=progress, resume=resume,
-                            c=c, p=p)
+                            c=c, p=p, run_timeout=run_timeout or default_run_timeout(jobs))
         t_runs = time.perf_counter() - t0
         manifest["runs_wall_time_s"] = round(t_runs, 3)
         manifest["n_rows"] = len(results)

@@ -45,7 +45,13 @@ from typing import Any
 import pandas as pd
 
 from ... import trackers
-from ..engine.metrics import Metric, column_label, display_metrics, get_metric
+from ..engine.metrics import (
+    Metric,
+    column_label,
+    display_metrics,
+    get_metric,
+    registered_run_metrics,
+)
 from ..engine.store import write_text_atomic
 from . import figures, summary
 
@@ -77,6 +83,50 @@ def paired_columns() -> list[tuple[str, str, float, str]]:
 ACCURACY_COLUMNS = accuracy_columns()
 #: (column stem, header, scale, format) of the GOSPA table
 GOSPA_COLUMNS = metric_table_columns(get_metric("gospa"))
+def track_columns() -> list[tuple[str, str, float, str]]:
+    """``(column stem, header, scale, format)`` of the track-level table: every column of
+    every registered run-level metric (registration order)."""
+    return [col for m in registered_run_metrics() for col in metric_table_columns(m)]
+
+
+def _track_section(doc: Document, runs: pd.DataFrame, summ: pd.DataFrame,
+                   tuned_on: dict[str, frozenset[str]] | None) -> None:
+    """The track-level scores: one table per scenario, and a line naming the trackers
+    without labels (no track identity, so no track-level score)."""
+    metrics = registered_run_metrics()
+    cols = [c for c in track_columns() if f"{c[0]}_mean" in summ.columns]
+    if not cols:
+        return
+    doc.add("h2", "Track-level scores")
+    params = "; ".join(f"{m.label}: " + ", ".join(f"{k} = {v:g}" for k, v in m.params.items())
+                       for m in metrics if m.params)
+    doc.add("p", "Scores of whole runs that see identities: the tracker's persistent track "
+                 "labels against the true target ids; mean over seeds of each run's value, "
+                 "± 95% t half-width. Trajectory GOSPA (Garcia-Fernandez, Rahmathullah & "
+                 "Svensson 2020; alpha = 2, cut-off c and order p of the run, switching cost "
+                 "gamma; the LP metric solved with HiGHS) is in workspace units, its parts "
+                 "(localisation, missed, false, switch) are costs in the p-th-power domain "
+                 "summed over the run. OSPA(2) (Beard, Vo & Vo 2020) is the mean over steps of "
+                 "OSPA between the tracks in a sliding window, with the time-averaged distance "
+                 "of two tracks as base distance. ID switches and fragmentations are counts per "
+                 "run from CLEAR-MOT correspondences within the gate (Bernardin & "
+                 "Stiefelhagen 2008); mostly tracked / mostly lost are the shares of the "
+                 "targets covered on >= 80% / <= 20% of their lifetime. Parameters: "
+                 f"{params}.")
+    unlabelled = summary.unlabelled_trackers(runs)
+    shown = summ[~summ["tracker_label"].astype(str).isin(unlabelled)]
+    for sc in sorted(shown["scenario"].astype(str).unique()):
+        doc.add("h3", sc)
+        table = summary_table(shown[shown["scenario"].astype(str) == sc], cols)
+        doc.add("table", mark_out_of_sample(table, tuned_on).drop(columns=["scenario"],
+                                                                   errors="ignore"))
+    if unlabelled:
+        doc.add("p", "No track-level scores for " + ", ".join(f"`{t}`" for t in unlabelled)
+                + ": these trackers report no persistent track labels (a Gaussian mixture "
+                  "or a weighted field without track identity, or no estimate at all), so "
+                  "there is no identity to score.")
+
+
 #: (column stem, header, scale, format) of the runtime table
 RUNTIME_COLUMNS = [
     ("tracker_wall_s", "tracker ms/step", 1e3, ".3g"),
@@ -509,6 +559,7 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
                  "p-th-power domain (they add up to GOSPA^p per step; missed and false are "
                  "c^p/2 per missed or false target).")
     doc.add("table", mark_out_of_sample(summary_table(summ, GOSPA_COLUMNS), tuned_on))
+    _track_section(doc, runs, summ, tuned_on)
     doc.add("h2", "Runtime")
     doc.add("p", "Tracker time is predict + update + estimate per step (median over the steps "
                  "of a run, then mean over seeds, ± 95% interval); selection time is the cell "

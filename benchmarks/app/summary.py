@@ -54,7 +54,13 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from ..engine.metrics import column_label, display_metrics, metric_columns
+from ..engine.metrics import (
+    column_label,
+    display_metrics,
+    metric_columns,
+    registered_run_metrics,
+    run_metric_columns,
+)
 
 #: per-run statistics of the run time, summarised over seeds after the metrics
 RUN_TIMES = ["tracker_wall_s", "tracker_wall_p95_s", "tracker_wall_max_s", "tracker_cpu_s",
@@ -72,9 +78,27 @@ def step_metrics_of(table: pd.DataFrame) -> list[str]:
     return [c for c in metric_columns(display=True) if c in table.columns]
 
 
+def track_metrics_of(table: pd.DataFrame) -> list[str]:
+    """The registered run-level (track) metrics' columns that ``table`` has, in
+    registration order: constant over a run's rows, taken once per run."""
+    return [c for c in run_metric_columns() if c in table.columns]
+
+
+def unlabelled_trackers(runs: pd.DataFrame) -> list[str]:
+    """Tracker labels of ``runs`` (:func:`per_run`) with ok runs but no track-level
+    score in any of them: the tracker gives no labels (``Estimate.labels`` None)."""
+    heads = [m.name for m in registered_run_metrics() if m.needs_labels and m.name in runs]
+    if not heads or not len(runs):
+        return []
+    ok = runs[runs["status"] == "ok"]
+    empty = ok[heads].isna().all(axis=1).groupby(ok["tracker_label"]).all()
+    return sorted(str(t) for t in empty[empty].index)
+
+
 def run_metrics(table: pd.DataFrame) -> list[str]:
-    """Per-run statistics of ``table`` summarised over seeds, in display order."""
-    return [*step_metrics_of(table), *RUN_TIMES]
+    """Per-run statistics of ``table`` summarised over seeds, in display order: the step
+    metrics, the run-level (track) metrics, the times."""
+    return [*step_metrics_of(table), *track_metrics_of(table), *RUN_TIMES]
 
 
 def _nanmean(x: pd.Series) -> float:
@@ -86,7 +110,9 @@ def _nanmean(x: pd.Series) -> float:
 def per_run(results: pd.DataFrame) -> pd.DataFrame:
     """One row per run ``(scenario, tracker_label, policy_label, looks_per_step, seed)``.
 
-    Step metrics are averaged over the run's ``"ok"`` steps (NaN-aware);
+    Step metrics are averaged over the run's ``"ok"`` steps (NaN-aware); run-level
+    (track) metrics are the run's value (the same on each of its rows; NaN for a run that
+    failed or whose tracker gives no labels);
     ``tracker_wall_s`` and ``tracker_cpu_s`` are the median per-step times,
     ``tracker_wall_p95_s`` and ``tracker_wall_max_s`` the 95th percentile and the slowest
     step (a median hides single slow steps),
@@ -98,6 +124,7 @@ def per_run(results: pd.DataFrame) -> pd.DataFrame:
     """
     carry = [c for c in _CARRY if c in results.columns]
     steps = step_metrics_of(results)
+    track = track_metrics_of(results)
     out = []
     for key, g in results.groupby(RUN_KEYS, sort=True):
         ok = g[g["status"] == "ok"]
@@ -112,6 +139,8 @@ def per_run(results: pd.DataFrame) -> pd.DataFrame:
         row["n_steps"] = len(ok)
         for m in steps:
             row[m] = _nanmean(ok[m])
+        for m in track:  # constant over the run's rows
+            row[m] = float(ok[m].iloc[0]) if len(ok) and statuses == {"ok"} else math.nan
         wall = ok["tracker_wall_s"].to_numpy(float)
         row["tracker_wall_s"] = float(np.median(wall)) if len(ok) else math.nan
         row["tracker_wall_p95_s"] = float(np.quantile(wall, 0.95)) if len(ok) else math.nan
@@ -122,7 +151,7 @@ def per_run(results: pd.DataFrame) -> pd.DataFrame:
         if "n_looks" in g.columns:
             row["looks_made"] = _nanmean(ok["n_looks"]) if len(ok) else math.nan
         out.append(row)
-    cols = [*RUN_KEYS, *carry, "status", "error", "n_steps", *steps, *RUN_TIMES]
+    cols = [*RUN_KEYS, *carry, "status", "error", "n_steps", *steps, *track, *RUN_TIMES]
     cols += ["looks_made"] if "n_looks" in results.columns else []
     return pd.DataFrame(out, columns=cols)
 

@@ -77,7 +77,7 @@ from ..engine.errors import first_line
 from ..engine.loop import Job, build_jobs
 from ..engine.metrics import objective_names
 from ..engine.specs import PolicySpec, TrackerSpec
-from ..engine.store import prepare_out_dir, write_text_atomic
+from ..engine.store import check_sweep, prepare_out_dir, write_text_atomic
 from .compare import git_commit, package_versions, read_manifest
 from .progress import run_sweep
 from .summary import per_run
@@ -430,7 +430,7 @@ def tune_tracker(settings: TuneSettings, out_dir: str | Path, *,
         if not jobs:
             continue
         results = run(list(jobs.values()), out_dir, workers=workers, progress=progress,
-                      resume=True, c=settings.c, p=settings.p, **options)
+                      resume=True, c=settings.c, p=settings.p, extend=True, **options)
         if need_default:
             value, per_sc, msg = objective_value(results, default_spec.label, settings)
             study.set_user_attr("default_value", value)
@@ -596,6 +596,8 @@ def run_tune(settings: Sequence[TuneSettings], out_dir: str | Path, *,
         if problem:
             raise UsageError(problem)
     out = prepare_out_dir(out_dir)
+    for s in settings:  # a folder of another kind of sweep (run, compare) or other c, p
+        check_sweep(out, None, s.c, s.p, resume=True, extend=True)
     if not resume:
         taken = [s.name for s in settings if (out / s.name / "study.journal").exists()]
         if taken:
@@ -643,7 +645,7 @@ def run_tune(settings: Sequence[TuneSettings], out_dir: str | Path, *,
         if all_jobs:
             c, p = settings[0].c, settings[0].p
             run_sweep(list(all_jobs.values()), out, workers=1, progress=False,
-                              resume=True, c=c, p=p)
+                      resume=True, c=c, p=p, extend=True)
     except BaseException as exc:
         status = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
         with contextlib.suppress(OSError):

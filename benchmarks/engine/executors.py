@@ -10,13 +10,14 @@ its job (:func:`~mttbench.benchmarks.engine.loop.run_job`), so both executors gi
 table bit for bit, timing and memory columns aside.
 
 * :class:`LocalExecutor` (``--executor local``, the default): ``workers`` processes of
-  this machine (``concurrent.futures``); each writes its own parts. With one worker the
-  runs go in this process. If a worker process dies (killed, out of memory, a crash in
-  compiled code) the pool breaks and ends its other workers: the queued runs go to a
-  fresh pool, and the runs that were running go again one at a time in a one-process
-  pool, where a death is the run's own (so a run that kills its worker takes no other
-  run down with it); a run whose own worker dies ``1 + retries`` times gets its error
-  row.
+  this machine (``concurrent.futures``); each writes its own parts. Every run goes in a
+  worker process, with one worker too. A run over its wall-time limit (``Work.timeout``,
+  ``--run-timeout``) is killed and gets its error row (not retried). If a worker process
+  dies (killed, out of memory, a crash in compiled code) the pool breaks and ends its
+  other workers: the queued runs go to a fresh pool, and the runs that were running go
+  again one at a time in a one-process pool, where a death is the run's own (so a run
+  that kills its worker takes no other run down with it); a run whose own worker dies
+  ``1 + retries`` times gets its error row.
 * :class:`DaskExecutor` (``--executor dask``; the ``mttbench[dask]`` extra): the runs
   go to a ``dask.distributed`` cluster, an existing one (``--scheduler tcp://HOST:PORT``)
   or a ``LocalCluster`` of ``--workers`` processes with one thread each on this machine;
@@ -51,9 +52,10 @@ import multiprocessing
 import os
 import signal
 import threading
+import time
 import uuid
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from contextvars import ContextVar
 from dataclasses import dataclass
@@ -89,16 +91,19 @@ class Work:
 
     run_job: Callable[[Job, float, float], Any]
     write: Callable[[Any, Path], None]
-    encode: Callable[[Any], bytes]
+    encode: Callable[[Any, str], bytes]
     write_bytes: Callable[[Path, bytes], None]
     c: float = 2.0
     p: float = 2.0
+    #: the wall-time limit of one run in seconds (None: none); the local pool kills a
+    #: run that exceeds it, which gets its error row (not retried)
+    timeout: float | None = None
 
     def __call__(self, job: Job, part: Path) -> None:
         self.write(self.run_job(job, self.c, self.p), part)
 
     def encoded(self, job: Job) -> bytes:
-        return self.encode(self.run_job(job, self.c, self.p))
+        return self.encode(self.run_job(job, self.c, self.p), job.key(self.c, self.p))
 
 
 class Executor:
@@ -146,18 +151,28 @@ def _init_worker(started: Any) -> None:
 
 def _pool_task(i: int, work: Work, job: Job, part: Path) -> int:
     if _STARTED is not None:
-        _STARTED.put(i)
+        _STARTED.put((i, os.getpid(), time.monotonic()))
     work(job, part)
     return i
 
 
+def _read_started(started: Any, into: dict[int, tuple[int, float]]) -> None:
+    """Add what the workers put on ``started`` (run -> (pid, start time))."""
+    while not started.empty():
+        i, pid, t0 = started.get()
+        into[i] = (pid, t0)
+
+
 def _drain(started: Any) -> set[int]:
     """What the workers put on ``started`` (a ``SimpleQueue``), which is then closed."""
-    out = set()
-    while not started.empty():
-        out.add(started.get())
+    out: dict[int, tuple[int, float]] = {}
+    _read_started(started, out)
     started.close()
-    return out
+    return set(out)
+
+
+#: how often (seconds) the local pool looks for a run over its time limit
+_POLL_S = 0.2
 
 
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
@@ -175,7 +190,7 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
 
 
 class LocalExecutor(Executor):
-    """``workers`` processes of this machine; one worker runs in this process."""
+    """``workers`` processes of this machine (every run in a worker process)."""
 
     def __init__(self, workers: int = 1, retries: int = DEFAULT_RETRIES) -> None:
         self.workers = max(1, int(workers))
@@ -185,10 +200,9 @@ class LocalExecutor(Executor):
         return f"{min(self.workers, n_runs or self.workers)} worker(s)"
 
     def run(self, todo: Sequence[tuple[Job, Path]], work: Work) -> Iterator[Outcome]:
-        if self.workers <= 1 or len(todo) <= 1:
-            for i, (job, path) in enumerate(todo):
-                work(job, path)
-                yield i, None
+        # every run in a worker process, one worker included: a run that ends its
+        # process (SIGKILL, out of memory, os._exit) or hangs takes no sweep with it
+        if not todo:
             return
         deaths = [0] * len(todo)
         clear, suspects = list(range(len(todo))), []
@@ -204,22 +218,39 @@ class LocalExecutor(Executor):
             pool = ProcessPoolExecutor(max_workers=1 if alone else min(self.workers, len(batch)),
                                        mp_context=ctx, initializer=_init_worker,
                                        initargs=(started,))
+            running: dict[int, tuple[int, float]] = {}  # run -> (worker pid, its start)
+            timed_out: dict[int, str] = {}
             try:
                 futures = {pool.submit(_pool_task, i, work, *todo[i]): i for i in batch}
-                for fut in as_completed(futures):
-                    i = futures[fut]
-                    try:
-                        fut.result()
-                    except OSError:  # the part could not be written: stop the sweep
-                        raise
-                    except BrokenProcessPool as exc:  # a worker died: see below
-                        lost[i] = _lost(exc)
-                        continue
-                    except Exception as exc:  # noqa: BLE001 - e.g. a job that cannot pickle
-                        yield i, _lost(exc)
-                        continue
-                    finished.add(i)
-                    yield i, None
+                pending = set(futures)
+                while pending:
+                    ended, pending = wait(pending, timeout=_POLL_S,
+                                          return_when=FIRST_COMPLETED)
+                    for fut in sorted(ended, key=lambda f: batch.index(futures[f])):
+                        i = futures[fut]
+                        try:
+                            fut.result()
+                        except OSError:  # the part could not be written: stop the sweep
+                            raise
+                        except BrokenProcessPool as exc:  # a worker died: see below
+                            lost[i] = _lost(exc)
+                            continue
+                        except Exception as exc:  # noqa: BLE001 - e.g. a job that cannot pickle
+                            yield i, _lost(exc)
+                            continue
+                        finished.add(i)
+                        yield i, None
+                    if work.timeout is not None and pending:
+                        _read_started(started, running)
+                        now = time.monotonic()
+                        for i, (pid, t0) in running.items():
+                            if (i in finished or i in lost or i in timed_out
+                                    or now - t0 <= work.timeout):
+                                continue
+                            timed_out[i] = (f"timed out: ended after {work.timeout:g} s "
+                                            "of wall time (--run-timeout)")
+                            with contextlib.suppress(OSError):
+                                os.kill(pid, signal.SIGKILL)
             except BaseException:
                 # Ctrl-C, a write error or the caller closing: drop the queued runs and end
                 # the running ones instead of waiting for them
@@ -227,13 +258,17 @@ class LocalExecutor(Executor):
                 started.close()
                 raise
             pool.shutdown()
-            held = _drain(started)  # the runs this pool started
+            held = set(running) | _drain(started)  # the runs this pool started
+            for i in sorted(timed_out):  # its own fault: its error row, no retry
+                lost.pop(i, None)
+                yield i, timed_out[i]
             if not lost:
                 clear, suspects = ([], []) if alone else ([], suspects)
                 continue
             # the runs the pool was running when it broke: started and not finished (a
             # worker that died before saying so: the first lost run, in submission order)
-            held = (held - finished) & set(lost) or {min(lost, key=batch.index)}
+            held = (held - finished) & set(lost) or (
+                set() if timed_out else {min(lost, key=batch.index)})
             again = []
             for i in sorted(lost):
                 if alone and i in held:

@@ -72,6 +72,13 @@ peak_rss_mb        peak resident memory of the worker process at the end of the 
                    (``getrusage`` high-water mark: it never goes down, so it bounds
                    this job's peak from above and includes earlier jobs of the worker)
 param_<name>       one column per tracker parameter (all of them, defaults included)
+<run metrics>      the run-level (track) scores of
+                   :func:`~mttbench.benchmarks.engine.metrics.register_run_metric`
+                   (``tgospa``, ``ospa2``, ``id_switches``, ``fragmentations``,
+                   ``mostly_tracked``, ``mostly_lost`` and parts), computed once at the
+                   end of the run from its truth ids and the estimate's labels and
+                   written on every row of the run (constant over it); NaN for a run
+                   that failed or whose tracker gives no labels
 <metric columns>   the columns of every metric registered beyond the built-ins
                    (:func:`~mttbench.benchmarks.engine.metrics.register_metric`), in
                    registration order
@@ -104,7 +111,16 @@ from ...scenarios.simulator import simulate, tracker_seed
 from ...scenarios.spec import Scenario, dumps
 from ...trackers.base import Estimate, Tracker
 from ...trackers.cells import CellCounts
-from .metrics import BUILTIN_METRICS, metric_columns, metric_names, step_metrics
+from .metrics import (
+    BUILTIN_METRICS,
+    RunData,
+    metric_columns,
+    metric_names,
+    run_level_metrics,
+    run_metric_columns,
+    run_metric_params,
+    step_metrics,
+)
 from .policies import Policy, Raster
 from .specs import PolicySpec, TrackerSpec
 
@@ -176,6 +192,9 @@ class Job:
         extra_metrics = [n for n in metric_names() if n not in BUILTIN_METRICS]
         if extra_metrics:  # their columns are part of the results
             ident["metrics"] = extra_metrics
+        run_level = run_metric_params()
+        if run_level:  # the track-level columns and their parameters
+            ident["run_metrics"] = run_level
         text = json.dumps(ident, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:24]
 
@@ -231,10 +250,12 @@ def _frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
     """Rows -> DataFrame with the fixed columns in order and stable dtypes."""
     df = pd.DataFrame(rows)
     params = sorted(c for c in df.columns if c.startswith("param_"))
-    extra = [c for c in df.columns if c not in COLUMNS and c not in params]
-    df = df[COLUMNS + params + extra]
+    # the run-level (track) metrics' columns, then those of metrics registered later
+    track = [c for c in run_metric_columns() if c in df.columns]
+    extra = [c for c in df.columns if c not in COLUMNS and c not in params and c not in track]
+    df = df[COLUMNS + params + track + extra]
     df[_INT_COLUMNS] = df[_INT_COLUMNS].astype("int64")
-    floats = _FLOAT_COLUMNS + [c for c in metric_columns() if c in extra]
+    floats = _FLOAT_COLUMNS + track + [c for c in metric_columns() if c in extra]
     df[floats] = df[floats].astype("float64")
     df[TRUTH_COLUMNS] = df[TRUTH_COLUMNS].astype(bool)
     return df
@@ -421,6 +442,33 @@ def _special_row(base: dict[str, Any], step: int, status: str, message: str,
             **dict.fromkeys(TIMING_COLUMNS, math.nan), "status": status, "error": message}
 
 
+def _check_estimate(count: Any, states: np.ndarray) -> None:
+    """A tracker's estimate must have a finite count >= 0 and finite states; else
+    ``ValueError`` (the run's error row)."""
+    try:
+        n = float(count)
+    except (TypeError, ValueError):
+        raise ValueError(f"the estimate's count {count!r} is not a number") from None
+    if not (math.isfinite(n) and n >= 0):
+        raise ValueError(f"the estimate's count {n} is not a finite number >= 0")
+    if not np.isfinite(states).all():
+        raise ValueError("the estimate's states are not all finite")
+
+
+def _labels_of(est: Estimate, n: int) -> np.ndarray | None:
+    """The estimate's track labels as ``(n,)`` int64, or None; ``ValueError`` (the run's
+    error row) when they do not match the states or repeat within the step."""
+    if est.labels is None:
+        return None
+    labels = np.asarray(est.labels)
+    if labels.shape != (n,) or not (labels.size == 0 or np.issubdtype(labels.dtype, np.integer)):
+        raise ValueError(f"the estimate's labels (shape {labels.shape}, {labels.dtype}) are "
+                         f"not {n} integers, one per state")
+    if len(np.unique(labels)) != n:
+        raise ValueError("the estimate's labels repeat within the step")
+    return labels.astype(np.int64)
+
+
 def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
     """Play one job (:func:`play`); returns its rows (see the module docstring).
 
@@ -431,10 +479,16 @@ def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
     base = _base_row(job, c, p)
     rows: list[dict[str, Any]] = []
 
+    # the whole run, for the run-level (track) metrics; NaN unless the run finishes
+    track_run: list[list[np.ndarray]] = [[], [], [], []]
+    labelled = True
+    run_values = dict.fromkeys(run_metric_columns(), math.nan)
+
     def finish() -> pd.DataFrame:
         rss = _peak_rss_mb()
         for r in rows:
             r["peak_rss_mb"] = rss
+            r.update(run_values)
         return _frame(rows)
 
     playback = None
@@ -460,7 +514,13 @@ def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
         for rec in playback:
             est = rec.estimate
             states = np.asarray(est.states, dtype=float).reshape(-1, 4)
+            _check_estimate(est.count, states)
             m = step_metrics(rec.truth[:, [0, 2]], states[:, [0, 2]], float(est.count), c=c, p=p)
+            labels = _labels_of(est, len(states))
+            labelled = labelled and labels is not None
+            for acc, v in zip(track_run, (rec.truth[:, [0, 2]], rec.truth_ids, states[:, [0, 2]],
+                                          labels), strict=True):
+                acc.append(v)
             rows.append({
                 **base, "step": rec.k, "true_count": float(len(rec.truth)),
                 "est_count": float(est.count),
@@ -471,7 +531,16 @@ def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
                 "select_wall_s": rec.select_wall_s, "select_cpu_s": rec.select_cpu_s,
                 "status": "ok", "error": "",
             })
-    except Exception as exc:  # noqa: BLE001 - any failure of a tracker is a result
+        if run_values:  # the run finished: its track-level scores, on every row
+            t, ids, e, lab = track_run
+            try:
+                run_values.update(run_level_metrics(
+                    RunData(t, ids, e, lab if labelled else None, c=c, p=p)))
+            except Exception:  # noqa: BLE001 - a score that fails stays NaN; the run is ok
+                pass
+    except BaseException as exc:  # noqa: BLE001 - any failure of a tracker is a result
+        if isinstance(exc, KeyboardInterrupt):  # SystemExit too is the tracker's failure
+            raise
         message = f"{type(exc).__name__}: {exc}".replace("\n", " ")
         k = playback.step if playback is not None else -1
         true_count = float(len(playback.world.states[k])) if k >= 0 else math.nan

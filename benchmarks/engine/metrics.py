@@ -27,6 +27,16 @@ built-ins, in their order in the results table: ``count_error``, ``ospa`` (+ ``_
 registered later adds its columns after them (in the results table, after the
 ``param_<name>`` columns). Tables show the metrics in :func:`display_metrics` order.
 
+**Run-level metrics.** A :class:`RunMetric` (:func:`register_run_metric`) scores a whole
+run once it has finished: its function takes a :class:`RunData` (per step the true
+positions and ids, the estimated positions and the tracker's labels) and its declared
+``params``. The built-ins are the track-level scores of
+:mod:`~mttbench.benchmarks.engine.track_metrics` (``tgospa``, ``ospa2``, ``id_switches``,
+``fragmentations``, ``mostly_tracked``, ``mostly_lost``); a tracker without labels gets
+NaN. :func:`~mttbench.benchmarks.engine.loop.run_job` writes their columns on every row
+of the run (after the ``param_<name>`` columns, before the columns of per-step metrics
+registered later).
+
 The registry is module state of each process. A sweep's forked worker processes inherit
 the metrics registered before the sweep started; processes that are not forked (Dask
 workers, spawned processes) only know the metrics registered when they import their
@@ -36,19 +46,25 @@ modules, so a metric meant for them is registered at import of a module they imp
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+import math
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial.distance import cdist
 
+from . import track_metrics
+
 __all__ = [
     "BUILTIN_METRICS",
+    "BUILTIN_RUN_METRICS",
     "GOSPA",
     "OSPA",
     "STEP_COUNTS",
     "Metric",
+    "RunData",
+    "RunMetric",
     "assigned_rmse",
     "column_label",
     "count_error",
@@ -60,9 +76,15 @@ __all__ = [
     "objective_names",
     "ospa",
     "register_metric",
+    "register_run_metric",
     "registered_metrics",
+    "registered_run_metrics",
+    "run_level_metrics",
+    "run_metric_columns",
+    "run_metric_params",
     "step_metrics",
     "unregister_metric",
+    "unregister_run_metric",
 ]
 
 
@@ -315,19 +337,59 @@ class Metric:
         return f"{self.label} {column.removeprefix(self.name + '_')}"
 
 
+@dataclass(frozen=True)
+class RunData:
+    """One whole run, as the run-level metrics read it: per step ``k`` the true positions
+    ``truth[k] (n_k, 2)`` and ids ``truth_ids[k] (n_k,)`` (the simulator's), the estimated
+    positions ``estimate[k] (m_k, 2)`` and the tracker's labels ``labels[k] (m_k,)`` (None
+    when the tracker gives no labels), and the run's cut-off ``c`` and order ``p``."""
+
+    truth: Sequence[np.ndarray]
+    truth_ids: Sequence[np.ndarray]
+    estimate: Sequence[np.ndarray]
+    labels: Sequence[np.ndarray] | None
+    c: float = 2.0
+    p: float = 2.0
+    #: results shared by several metrics of the same run (e.g. the CLEAR-MOT matching)
+    cache: dict = field(default_factory=dict, compare=False, repr=False)
+
+
+#: ``fn(run: RunData, **params) -> {column: value}``
+RunMetricFunction = Callable[..., Mapping[str, float]]
+
+
+@dataclass(frozen=True)
+class RunMetric(Metric):
+    """One run-level metric (a track-level score), registered with
+    :func:`register_run_metric`: like :class:`Metric` (columns, label, orientation,
+    ``objective``, display), but ``fn(run, **params)`` takes the whole run
+    (:class:`RunData`) once at its end and returns ``{column: value}``; the values are
+    written to every row of the run (constant over the run), so per-run summaries read
+    them as they are. ``params`` are the metric's own parameters (a switching cost, a
+    window, a gate), passed to ``fn`` and recorded in ``compare``'s manifest.
+    ``needs_labels``: a run whose tracker gives no labels gets NaN (no identity to
+    score)."""
+
+    params: Mapping[str, float] = field(default_factory=dict)
+    needs_labels: bool = True
+
+
 _REGISTRY: dict[str, Metric] = {}
+_RUN_REGISTRY: dict[str, RunMetric] = {}
 
 
 def register_metric(metric: Metric) -> Metric:
     """Add ``metric`` after the registered ones; returns it. A name or a column already
     taken is refused (registering the same object again does nothing)."""
-    if not isinstance(metric, Metric):
-        raise TypeError(f"{metric!r} is not a Metric")
+    if not isinstance(metric, Metric) or isinstance(metric, RunMetric):
+        raise TypeError(f"{metric!r} is not a per-step Metric (a RunMetric goes to "
+                        "register_run_metric)")
     if _REGISTRY.get(metric.name) is metric:
         return metric
-    if metric.name in _REGISTRY:
+    if metric.name in _REGISTRY or metric.name in _RUN_REGISTRY:
         raise ValueError(f"metric name {metric.name!r} is already registered")
-    owner = {c: m.name for m in _REGISTRY.values() for c in m.columns}
+    owner = {c: m.name for m in (*_REGISTRY.values(), *_RUN_REGISTRY.values())
+             for c in m.columns}
     owner.update(dict.fromkeys(STEP_COUNTS, "step_metrics"))
     taken = [f"{c!r} (of {owner[c]})" for c in metric.columns if c in owner]
     if taken:
@@ -372,8 +434,9 @@ def metric_names() -> list[str]:
 
 
 def objective_names() -> list[str]:
-    """Names of the metrics ``mttbench tune`` may minimise (``objective=True``)."""
-    return [m.name for m in _REGISTRY.values() if m.objective]
+    """Names of the metrics ``mttbench tune`` may minimise (``objective=True``): the
+    per-step ones, then the run-level ones."""
+    return [m.name for m in (*_REGISTRY.values(), *_RUN_REGISTRY.values()) if m.objective]
 
 
 def metric_columns(names: Iterable[str] | None = None, *, display: bool = False) -> list[str]:
@@ -388,8 +451,8 @@ def metric_columns(names: Iterable[str] | None = None, *, display: bool = False)
 
 def column_label(column: str) -> str:
     """Table label of a registered metric column (``gospa_missed`` -> ``GOSPA missed``);
-    any other column as it is."""
-    for m in _REGISTRY.values():
+    any other column as it is (run-level metrics' columns included)."""
+    for m in (*_REGISTRY.values(), *_RUN_REGISTRY.values()):
         if column in m.columns:
             return m.column_label(column)
     return column
@@ -472,3 +535,126 @@ def step_metrics(
     row["true_count"] = float(len(x))
     row["n_estimated"] = float(len(y))
     return row
+
+
+# ---------------------------------------------------------------- run-level registry
+def register_run_metric(metric: RunMetric) -> RunMetric:
+    """Add a run-level metric after the registered ones; returns it. A name or column
+    taken (by a per-step or run-level metric) is refused."""
+    if not isinstance(metric, RunMetric):
+        raise TypeError(f"{metric!r} is not a RunMetric")
+    if _RUN_REGISTRY.get(metric.name) is metric:
+        return metric
+    if metric.name in _REGISTRY or metric.name in _RUN_REGISTRY:
+        raise ValueError(f"metric name {metric.name!r} is already registered")
+    owner = {c: m.name for m in (*_REGISTRY.values(), *_RUN_REGISTRY.values())
+             for c in m.columns}
+    owner.update(dict.fromkeys(STEP_COUNTS, "step_metrics"))
+    taken = [f"{c!r} (of {owner[c]})" for c in metric.columns if c in owner]
+    if taken:
+        raise ValueError(f"metric {metric.name!r}: column {', '.join(taken)} is already "
+                         "written")
+    _RUN_REGISTRY[metric.name] = metric
+    return metric
+
+
+def unregister_run_metric(name: str) -> None:
+    """Remove the run-level metric ``name`` (built-ins included: the step loop then
+    computes none of its columns)."""
+    _RUN_REGISTRY.pop(name, None)
+
+
+def registered_run_metrics() -> tuple[RunMetric, ...]:
+    """The registered run-level metrics, in registration order."""
+    return tuple(_RUN_REGISTRY.values())
+
+
+def run_metric_columns() -> list[str]:
+    """Columns of the registered run-level metrics, in registration order."""
+    return [c for m in _RUN_REGISTRY.values() for c in m.columns]
+
+
+def run_metric_params() -> dict[str, dict[str, float]]:
+    """``{metric: its parameters}`` of the registered run-level metrics (the manifest)."""
+    return {m.name: dict(m.params) for m in _RUN_REGISTRY.values()}
+
+
+def run_level_metrics(run: RunData) -> dict[str, float]:
+    """The columns of every registered run-level metric for one finished run; NaN for
+    the metrics that need labels when ``run.labels`` is None."""
+    out: dict[str, float] = {}
+    for metric in _RUN_REGISTRY.values():
+        if metric.needs_labels and run.labels is None:
+            out.update(dict.fromkeys(metric.columns, math.nan))
+            continue
+        values = metric.fn(run, **metric.params)
+        if set(values) != set(metric.columns):
+            raise ValueError(f"run metric {metric.name!r} returned the columns "
+                             f"{sorted(values)}, not its declared {list(metric.columns)}")
+        out.update((col, float(values[col])) for col in metric.columns)
+    return out
+
+
+def _clear_mot(run: RunData, gate: float) -> track_metrics.ClearMOT:
+    key = ("clear_mot", float(gate))
+    if key not in run.cache:
+        run.cache[key] = track_metrics.clear_mot(run.truth, run.truth_ids, run.estimate,
+                                                 run.labels, gate=gate)
+    return run.cache[key]
+
+
+def _tgospa_columns(run: RunData, gamma: float) -> dict[str, float]:
+    g = track_metrics.trajectory_gospa(run.truth, run.truth_ids, run.estimate, run.labels,
+                                       c=run.c, p=run.p, gamma=gamma)
+    return {"tgospa": g.total, "tgospa_loc": g.localisation, "tgospa_missed": g.missed,
+            "tgospa_false": g.false, "tgospa_switch": g.switch}
+
+
+def _ospa2_columns(run: RunData, window: float) -> dict[str, float]:
+    o = track_metrics.ospa2(run.truth, run.truth_ids, run.estimate, run.labels,
+                            c=run.c, p=run.p, window=int(window))
+    return {"ospa2": o.total, "ospa2_loc": o.localisation, "ospa2_card": o.cardinality}
+
+
+def _id_switch_columns(run: RunData, gate: float) -> dict[str, float]:
+    return {"id_switches": float(_clear_mot(run, gate).id_switches)}
+
+
+def _fragmentation_columns(run: RunData, gate: float) -> dict[str, float]:
+    return {"fragmentations": float(_clear_mot(run, gate).fragmentations)}
+
+
+def _mostly_tracked_columns(run: RunData, gate: float, threshold: float) -> dict[str, float]:
+    cover = _clear_mot(run, gate).coverage
+    return {"mostly_tracked": float(np.mean(cover >= threshold)) if len(cover) else 0.0}
+
+
+def _mostly_lost_columns(run: RunData, gate: float, threshold: float) -> dict[str, float]:
+    cover = _clear_mot(run, gate).coverage
+    return {"mostly_lost": float(np.mean(cover <= threshold)) if len(cover) else 0.0}
+
+
+#: the CLEAR-MOT gate of the shipped track scores (workspace units: the default OSPA
+#: cut-off c = 2, beyond which OSPA too counts a miss), the trajectory GOSPA switching
+#: cost and the OSPA(2) window (steps)
+CLEAR_MOT_GATE = 2.0
+TGOSPA_GAMMA = 2.0
+OSPA2_WINDOW = 10
+
+#: the shipped run-level (track-level) metrics, in their order in the results table
+BUILTIN_RUN_METRICS: tuple[str, ...] = tuple(register_run_metric(m).name for m in (
+    RunMetric("tgospa", _tgospa_columns, ("tgospa", "tgospa_loc", "tgospa_missed",
+                                          "tgospa_false", "tgospa_switch"),
+              "TGOSPA", params={"gamma": TGOSPA_GAMMA}),
+    RunMetric("ospa2", _ospa2_columns, ("ospa2", "ospa2_loc", "ospa2_card"), "OSPA(2)",
+              params={"window": OSPA2_WINDOW}),
+    RunMetric("id_switches", _id_switch_columns, label="ID switches", fmt=".1f",
+              params={"gate": CLEAR_MOT_GATE}),
+    RunMetric("fragmentations", _fragmentation_columns, label="fragmentations", fmt=".1f",
+              params={"gate": CLEAR_MOT_GATE}),
+    RunMetric("mostly_tracked", _mostly_tracked_columns, label="mostly tracked",
+              lower_is_better=False, fmt=".2f",
+              params={"gate": CLEAR_MOT_GATE, "threshold": 0.8}),
+    RunMetric("mostly_lost", _mostly_lost_columns, label="mostly lost", fmt=".2f",
+              params={"gate": CLEAR_MOT_GATE, "threshold": 0.2}),
+))

@@ -18,7 +18,11 @@ from .store import (
     _read_part,
     _write_bytes,
     _write_parquet,
+    _write_part,
+    check_sweep,
     remove_stale_temp_files,
+    sweep_lock,
+    write_sweep_manifest,
 )
 
 #: ``progress(finished, total)``, called once before the first run and after each run
@@ -27,7 +31,8 @@ Progress = Callable[[int, int], None]
 
 def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1,
               progress: Progress | None = None, resume: bool = False, c: float = 2.0,
-              p: float = 2.0, executor: Executor | None = None) -> pd.DataFrame:
+              p: float = 2.0, executor: Executor | None = None,
+              extend: bool = False, run_timeout: float | None = None) -> pd.DataFrame:
     """Run ``jobs`` and write ``out_dir/results.parquet``; returns the table.
 
     Every finished job is written at once to ``out_dir/parts/<job hash>.parquet``,
@@ -35,32 +40,52 @@ def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1,
     whose part exists are not run again. The jobs run on ``executor``
     (:mod:`~mttbench.benchmarks.engine.executors`); None means the current one
     (:func:`~mttbench.benchmarks.engine.executors.use_executor`, set by the command line), else
-    a local pool of ``workers`` processes (``workers <= 1``: in this process). The
+    a local pool of ``workers`` processes (every run in a worker process; a run over
+    ``run_timeout`` seconds of wall time is killed and gets an error row). The
     results do not depend on the executor or the number of workers (timings aside). A
     run lost with its worker process is run again (``retries`` of the executor); one lost
     every time gets an error row that is not saved as a part, so ``--resume`` runs it
     again; finished parts are kept. ``progress(finished, total)``, if given, is called
     before the first run and after each (the command line draws its bar with it).
 
-    On resume a part that cannot be read (damaged, empty, not a part) is reported in
-    one line on stderr and recomputed. Temp files left by a killed earlier sweep are
+    The folder is one sweep's: ``sweep.json`` (its job keys, ``c``, ``p``) is written
+    before the runs, and a folder holding another sweep's, or this sweep's without
+    ``resume``, is refused (:class:`ConfigError`, :func:`~.store.check_sweep`);
+    ``extend=True`` is a sweep that grows (tune's batches, each with ``resume=True``).
+    The folder's lock (:func:`~.store.sweep_lock`) is held meanwhile: a second process
+    is refused. Every part carries its job key, row count and status
+    (:func:`~.store.part_identity`); on resume a part that cannot be read (damaged,
+    empty, not a part) or is not its job's whole rows (another run's, cut short) is
+    reported in one line on stderr and recomputed. Temp files left by a killed earlier sweep are
     removed at the start. Ctrl-C (``KeyboardInterrupt``) drops the queued runs, ends the
     running ones and propagates; finished parts stay. A part that cannot be written
     (disk full, read-only) raises ``OSError`` naming the file, and stops the sweep.
     """
     out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with sweep_lock(out_dir):
+        keys = [job.key(c, p) for job in jobs]
+        manifest = check_sweep(out_dir, keys, c, p, resume, extend)
+        write_sweep_manifest(out_dir, manifest)
+        return _run_sweep(jobs, keys, out_dir, workers, progress, resume, c, p, executor,
+                          run_timeout)
+
+
+def _run_sweep(jobs: list[Job], keys: list[str], out_dir: Path, workers: int,
+               progress: Progress | None, resume: bool, c: float, p: float,
+               executor: Executor | None, run_timeout: float | None) -> pd.DataFrame:
     parts_dir = out_dir / "parts"
     parts_dir.mkdir(parents=True, exist_ok=True)
     remove_stale_temp_files(out_dir)
     remove_stale_temp_files(parts_dir)
-    paths = [parts_dir / f"{job.key(c, p)}.parquet" for job in jobs]
+    paths = [parts_dir / f"{key}.parquet" for key in keys]
     done: dict[Path, pd.DataFrame] = {}
     damaged: list[str] = []
     if resume:
-        for path in dict.fromkeys(paths):
+        for path, job in dict(zip(paths, jobs, strict=True)).items():
             if path.exists():
                 try:
-                    done[path] = _read_part(path)
+                    done[path] = _read_part(path, path.stem, job.scenario.n_steps)
                 except ValueError as exc:
                     damaged.append(f"{path}: {exc}")
     if damaged:
@@ -75,7 +100,7 @@ def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1,
     if progress is not None:
         progress(finished, len(jobs))
     try:
-        work = Work(run_job, _write_parquet, _parquet_bytes, _write_bytes, c, p)
+        work = Work(run_job, _write_part, _parquet_bytes, _write_bytes, c, p, run_timeout)
         with contextlib.closing(executor.run(todo, work)) as outcomes:
             for i, error in outcomes:
                 if error is not None:
@@ -91,7 +116,7 @@ def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1,
         raise
 
     frames = [lost[path] if path in lost else done[path] if path in done
-              else pd.read_parquet(path) for path in paths]
+              else _read_part(path) for path in paths]
     df = _concat(frames) if frames else pd.DataFrame(columns=COLUMNS)
     _write_parquet(df, out_dir / "results.parquet")
     return df

@@ -651,11 +651,16 @@ class JMPDAPTracker(Tracker):
 
     # ------------------------------------------------------------- estimate
     def estimate(self) -> Estimate:
+        """The ``round(mean count)`` most-held slots' weighted means; labels: the slot
+        (partition) index. The partition sorting keeps a target in the same slot across
+        particles and steps, so a label follows its target while the target keeps its
+        slot; a slot freed by a death (or emptied in every particle) may later be reused
+        by another target, which then inherits the label (read as an identity switch)."""
         held = self.valid.sum(axis=0)
         self.count_mean = float(held.sum() / self._N)
         n_hat = int(round(self.count_mean))
         if n_hat == 0:
-            return Estimate(self.count_mean, np.zeros((0, 4)))
+            return Estimate(self.count_mean, np.zeros((0, 4)), labels=np.zeros(0, np.int64))
         top = np.argsort(-held, kind="stable")[:n_hat]
         top = top[held[top] > 0]
         v = self.valid[:, top][..., None]
@@ -663,7 +668,7 @@ class JMPDAPTracker(Tracker):
         pos = (self.pos[:, top] * v).sum(axis=0) / n
         vel = (self.vel[:, top] * v).sum(axis=0) / n
         states = np.stack([pos[:, 0], vel[:, 0], pos[:, 1], vel[:, 1]], axis=1)
-        return Estimate(self.count_mean, states)
+        return Estimate(self.count_mean, states, labels=top.astype(np.int64))
 
     @classmethod
     def resource_terms(cls, params, model, looks_per_step, targets) -> ResourceTerms:

@@ -8,6 +8,12 @@ a reference (the previous estimate predicted with ``F`` when it has the same cou
 else the heaviest such particle), two rounds of align-then-average. Alignment minimises
 the summed squared position distance: exactly over all ``T!`` permutations for
 ``T <= EXACT_ALIGN_MAX``, greedily (closest pair first) above.
+
+Labels: the estimate's row ``b`` (the sorted, aligned slot) is labelled ``b``. While the
+count mode is unchanged the rows are aligned to the previous estimate, so a label follows
+its target; when the mode changes the reference is the heaviest particle and the rows
+are re-numbered ``0..mode-1`` from it, so labels are only stable between count changes
+(a re-numbering reads as identity switches in the track-level scores).
 """
 
 from __future__ import annotations
@@ -139,7 +145,8 @@ def estimate_targets(X: np.ndarray, valid: np.ndarray, counts: np.ndarray, w: np
     count_mean = float(np.dot(np.arange(T + 1), pT))
     mode = int(np.argmax(pT))
     if mode == 0:
-        return Estimation(Estimate(0, np.zeros((0, 4)), np.zeros((0, 4, 4))),
+        return Estimation(Estimate(0, np.zeros((0, 4)), np.zeros((0, 4, 4)),
+                                   np.zeros(0, np.int64)),
                           np.zeros((0, 4)), pT, count_mean)
     sel = np.flatnonzero(counts == mode)
     ws = w[sel] / w[sel].sum()
@@ -155,7 +162,9 @@ def estimate_targets(X: np.ndarray, valid: np.ndarray, counts: np.ndarray, w: np
         ref = np.einsum("n,ntd->td", ws, Ya)
     d = Ya - ref[None]
     cov = np.einsum("n,ntd,nte->tde", ws, d, d)
-    return Estimation(Estimate(mode, ref.astype(np.float64), cov), ref.copy(), pT, count_mean)
+    # labels: the aligned slot index (row of ``ref``)
+    return Estimation(Estimate(mode, ref.astype(np.float64), cov, np.arange(mode, dtype=np.int64)),
+                      ref.copy(), pT, count_mean)
 
 
 # ------------------------------------------------------------------------- P_c

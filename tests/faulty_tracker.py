@@ -1,0 +1,106 @@
+"""Trackers that misbehave at step 1, for the sweep's fault tests (``faulty_tracker:Hang``).
+
+Importable in-process (pytest puts ``tests/`` on ``sys.path``) and in worker processes.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+import numpy as np
+
+from mttbench import Estimate, Tracker
+
+#: the step at which each tracker misbehaves (0-based, counted by ``predict``)
+FAULT_STEP = 1
+
+
+class _Nothing(Tracker):
+    """Reports no target; counts its steps."""
+
+    def reset(self, model, rng):
+        self._n_cells = model.grid.n_cells if model.is_grid else 1
+        self._k = -1
+
+    def predict(self):
+        self._k += 1
+
+    def cell_count_distribution(self):
+        P = np.zeros((self._n_cells, 2))
+        P[:, 0] = 1.0
+        return P
+
+    def update(self, looks):
+        if self._k == FAULT_STEP:
+            self.fault()
+
+    def fault(self):
+        pass
+
+    def estimate(self):
+        return Estimate.empty()
+
+
+class Hang(_Nothing):
+    """Never returns from ``update`` at step 1."""
+
+    name = "hang"
+    summary = "test tracker: hangs at step 1"
+
+    def fault(self):
+        while True:
+            time.sleep(0.05)
+
+
+class Exit(_Nothing):
+    """Raises ``SystemExit(0)`` in ``update`` at step 1."""
+
+    name = "exit"
+    summary = "test tracker: SystemExit at step 1"
+
+    def fault(self):
+        raise SystemExit(0)
+
+
+class Kill(_Nothing):
+    """Kills its own process (SIGKILL, as the kernel's OOM killer would) at step 1."""
+
+    name = "kill"
+    summary = "test tracker: SIGKILL at step 1"
+
+    def fault(self):
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+class NanCount(_Nothing):
+    """Estimates a NaN count at step 1."""
+
+    name = "nan-count"
+    summary = "test tracker: NaN count at step 1"
+
+    def estimate(self):
+        return Estimate(float("nan") if self._k == FAULT_STEP else 0.0, np.zeros((0, 4)))
+
+
+class NegativeCount(_Nothing):
+    """Estimates a count of -1 at step 1."""
+
+    name = "negative-count"
+    summary = "test tracker: count -1 at step 1"
+
+    def estimate(self):
+        return Estimate(-1.0 if self._k == FAULT_STEP else 0.0, np.zeros((0, 4)))
+
+
+class NanState(_Nothing):
+    """Estimates one target with a NaN state at step 1."""
+
+    name = "nan-state"
+    summary = "test tracker: a NaN state at step 1"
+
+    def estimate(self):
+        if self._k == FAULT_STEP:
+            return Estimate(1.0, np.full((1, 4), np.nan))
+        return Estimate.empty()

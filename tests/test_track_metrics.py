@@ -1,0 +1,224 @@
+"""Track-level scores (benchmarks/engine/track_metrics.py) against independent computations."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from mttbench.benchmarks.engine.track_metrics import clear_mot, ospa2, trajectory_gospa
+
+
+def _random_run(rng, n_ids, T, p_present=0.75, spread=3.0, id0=0):
+    pos, ids = [], []
+    base = rng.uniform(0, spread, (n_ids, 2))
+    for k in range(T):
+        here = np.nonzero(rng.random(n_ids) < p_present)[0]
+        pos.append(base[here] + rng.normal(0, 0.6, (len(here), 2)) + 0.1 * k)
+        ids.append(here + id0)
+    return pos, ids
+
+
+def _matchings(nx, ny):
+    """Every partial matching of nx rows to ny columns as an (nx, ny) 0/1 matrix."""
+    out = []
+    for k in range(min(nx, ny) + 1):
+        for rows in itertools.combinations(range(nx), k):
+            for cols in itertools.permutations(range(ny), k):
+                w = np.zeros((nx, ny))
+                w[list(rows), list(cols)] = 1
+                out.append(w)
+    return out
+
+
+def _brute_tgospa(tpos, tids, epos, elab, c, p, gamma):
+    """Minimum over every sequence of per-step assignments (all truths x all tracks of
+    the run, present or not), by dynamic programming over the steps."""
+    ux = sorted(set(np.concatenate(tids).tolist()))
+    uy = sorted(set(np.concatenate(elab).tolist()))
+    ms = _matchings(len(ux), len(uy))
+    half = c**p / 2
+    step_costs = []
+    for k in range(len(tpos)):
+        X = {i: x for i, x in zip(tids[k].tolist(), tpos[k], strict=True)}
+        Y = {j: y for j, y in zip(elab[k].tolist(), epos[k], strict=True)}
+        costs = []
+        for w in ms:
+            tot = 0.0
+            for a, i in enumerate(ux):
+                j = [uy[b] for b in np.nonzero(w[a])[0]]
+                if j:
+                    if i in X and j[0] in Y:
+                        tot += min(np.linalg.norm(X[i] - Y[j[0]]), c) ** p
+                    elif (i in X) != (j[0] in Y):
+                        tot += half
+                elif i in X:
+                    tot += half
+            for b, j in enumerate(uy):
+                if not w[:, b].any() and j in Y:
+                    tot += half
+            costs.append(tot)
+        step_costs.append(np.array(costs))
+    sw = np.array([[np.abs(a - b).sum() for b in ms] for a in ms]) * gamma**p / 2
+    best = step_costs[0]
+    for k in range(1, len(tpos)):
+        best = (best[:, None] + sw).min(axis=0) + step_costs[k]
+    return float(best.min()) ** (1 / p)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_tgospa_equals_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    nx, ny, T = int(rng.integers(2, 4)), int(rng.integers(2, 4)), int(rng.integers(4, 7))
+    tpos, tids = _random_run(rng, nx, T)
+    epos, elab = _random_run(rng, ny, T, id0=10)
+    c, p, gamma = 2.0, float(rng.choice([1.0, 2.0])), float(rng.choice([0.5, 1.0, 2.0]))
+    g = trajectory_gospa(tpos, tids, epos, elab, c=c, p=p, gamma=gamma)
+    assert g.total == pytest.approx(_brute_tgospa(tpos, tids, epos, elab, c, p, gamma),
+                                    abs=1e-9)
+    assert g.localisation + g.missed + g.false + g.switch == pytest.approx(g.total**p)
+
+
+def _props(dist, runs):
+    a, b, z = runs
+    assert dist(a, a) == pytest.approx(0.0, abs=1e-12)
+    assert dist(a, b) == pytest.approx(dist(b, a), abs=1e-9)
+    assert dist(a, z) <= dist(a, b) + dist(b, z) + 1e-9
+    assert dist(a, b) > 0
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_metric_properties(seed):
+    rng = np.random.default_rng(100 + seed)
+    T = 5
+    runs = [_random_run(rng, int(rng.integers(1, 4)), T, id0=10 * r) for r in range(3)]
+
+    def tg(x, y):
+        return trajectory_gospa(*x, *y, c=2.0, p=2.0, gamma=1.0).total
+
+    def o2(x, y):
+        return ospa2(*x, *y, c=2.0, p=2.0, window=None).per_step[-1]
+
+    _props(tg, runs)
+    _props(o2, runs)
+
+
+def _crossing(swap: bool, T=20):
+    """Two targets crossing at step T/2; two tracks that follow them (or swap)."""
+    tpos, tids, epos, elab = [], [], [], []
+    for k in range(T):
+        a = np.array([k * 0.5, 0.0])
+        b = np.array([T * 0.5 - k * 0.5, 0.0])
+        tpos.append(np.array([a, b]))
+        tids.append(np.array([0, 1]))
+        labs = np.array([7, 8]) if (not swap or k < T // 2) else np.array([8, 7])
+        epos.append(np.array([a, b]) + 0.05)
+        elab.append(labs)
+    return tpos, tids, epos, elab
+
+
+def test_clean_swap_counts_one_switch_per_truth():
+    run = _crossing(swap=True)
+    m = clear_mot(*run, gate=0.5)
+    assert m.id_switches == 2 and m.fragmentations == 0 and m.mostly_tracked == 1.0
+    g = trajectory_gospa(*run, c=2.0, p=1.0, gamma=1.0)
+    assert g.switches == pytest.approx(2.0) and g.switch == pytest.approx(2.0)
+    follow = _crossing(swap=False)
+    assert clear_mot(*follow, gate=0.5).id_switches == 0
+    g0 = trajectory_gospa(*follow, c=2.0, p=1.0, gamma=1.0)
+    assert g0.switches == 0 and g0.total < g.total
+    assert ospa2(*follow, window=5).total < ospa2(*run, window=5).total
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 5])
+def test_broken_track_counts_k_minus_1_fragmentations(k):
+    T = 6 * k
+    tpos, tids, epos, elab = [], [], [], []
+    for t in range(T):
+        x = np.array([[0.1 * t, 1.0]])
+        tpos.append(x)
+        tids.append(np.array([3]))
+        piece, offset = divmod(t, 6)
+        if offset == 5 and piece < k - 1:  # a gap before the next piece
+            epos.append(np.zeros((0, 2)))
+            elab.append(np.zeros(0, np.int64))
+        else:
+            epos.append(x + 0.01)
+            elab.append(np.array([100 + piece]))
+    m = clear_mot(tpos, tids, epos, elab, gate=1.0)
+    assert m.fragmentations == k - 1
+    assert m.id_switches == k - 1
+    assert m.mostly_tracked == 1.0 and m.mostly_lost == 0.0
+
+
+def test_mostly_lost_and_empty():
+    T = 10
+    tpos = [np.array([[0.0, 0.0]])] * T
+    tids = [np.array([1])] * T
+    epos = [np.array([[0.0, 0.1]]) if t < 2 else np.zeros((0, 2)) for t in range(T)]
+    elab = [np.array([4]) if t < 2 else np.zeros(0, np.int64) for t in range(T)]
+    m = clear_mot(tpos, tids, epos, elab, gate=1.0)
+    assert m.mostly_lost == 1.0 and m.mostly_tracked == 0.0
+    none = [np.zeros((0, 2))] * T, [np.zeros(0, np.int64)] * T
+    g = trajectory_gospa(tpos, tids, *none, c=2.0, p=2.0)
+    assert g.total == pytest.approx(np.sqrt(T * 2.0)) and g.missed == pytest.approx(2.0 * T)
+    assert ospa2(tpos, tids, *none, c=2.0).total == pytest.approx(2.0)
+
+
+def test_kfnn_labels_stable_on_one_target():
+    from mttbench.benchmarks.engine.loop import play
+    from mttbench.testing import _scenario
+    from mttbench.trackers.base import make
+
+    sc = _scenario("default", "one-target", n_steps=60,
+                   initial_states=((6.5, 0.05, 6.5, 0.03),))
+    seen: set[int] = set()
+    n_labelled = 0
+    for rec in play(sc, make("kfnn"), 0):
+        labs = rec.estimate.labels
+        assert labs is not None and labs.dtype == np.int64
+        assert len(labs) == len(rec.estimate.states)
+        seen.update(labs.tolist())
+        n_labelled += len(labs) > 0
+    assert n_labelled > 30
+    assert len(seen) == 1
+
+
+def test_conformance_kit_checks_labels():
+    from mttbench.testing import _assert_estimate_valid
+    from mttbench.trackers.base import Estimate
+
+    states = np.zeros((2, 4))
+    _assert_estimate_valid(Estimate(2.0, states, labels=np.array([3, 4])), 0)
+    with pytest.raises(AssertionError, match="shape"):
+        _assert_estimate_valid(Estimate(2.0, states, labels=np.array([3])), 0)
+    with pytest.raises(AssertionError, match="repeat"):
+        _assert_estimate_valid(Estimate(2.0, states, labels=np.array([3, 3])), 0)
+
+
+def test_run_level_columns_reach_rows_summary_and_report(tmp_path):
+    import dataclasses
+
+    from mttbench.benchmarks.app import report, summary
+    from mttbench.benchmarks.engine import loop
+    from mttbench.benchmarks.engine.metrics import run_metric_columns
+    from mttbench.benchmarks.engine.specs import TrackerSpec
+    from mttbench.scenarios.spec import get
+
+    sc = dataclasses.replace(get("crossing"), n_steps=25)
+    rows = pd.concat([loop.run_job(loop.Job(sc, TrackerSpec(t), seed=s))
+                      for t in ("kfnn", "null") for s in (0, 1)], ignore_index=True)
+    cols = run_metric_columns()
+    assert {"tgospa", "ospa2", "id_switches", "mostly_tracked"} <= set(cols)
+    for (tracker, _), g in rows.groupby(["tracker", "seed"]):
+        assert (g[cols].nunique(dropna=False) == 1).all()  # constant over the run
+        assert g[cols].isna().all().all() == (tracker == "null")
+    runs = summary.per_run(rows)
+    assert summary.unlabelled_trackers(runs) == ["null"]
+    summ = summary.summarize(runs)
+    assert "tgospa_mean" in summ.columns and "id_switches_ci95" in summ.columns
+    files = report.build_report(rows, tmp_path, reference="kfnn", draw=False)
+    text = files.markdown.read_text()
+    assert "## Track-level scores" in text and "No track-level scores for `null`" in text
