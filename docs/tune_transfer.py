@@ -42,12 +42,15 @@ def main() -> None:
     for name, g in runs.groupby("tracker"):
         labels = sorted(set(g["tracker_label"]))
         tuned = [lab for lab in labels if lab.startswith(f"{name}(tuned")]
-        if not tuned or name not in labels:
+        # the default setting's label: the tuned one without its mark
+        default = (tuned[0].replace("(tuned,", "(").replace("(tuned)", "")
+                   if tuned else None)
+        if not tuned or default not in labels:
             continue
         wide = g.pivot_table(index=["scenario", "seed"], columns="tracker_label",
                              values=args.metric)
-        diff = (wide[tuned[0]] - wide[name]).rename("d").reset_index()
-        print(f"\n{tuned[0]} - {name} ({args.metric}, paired by seed)")
+        diff = (wide[tuned[0]] - wide[default]).rename("d").reset_index()
+        print(f"\n{tuned[0]} - {default} ({args.metric}, paired by seed)")
         print("| point | seeds | tuned - default |")
         print("|---|---:|---:|")
         for sc, h in diff.groupby("scenario"):
