@@ -384,7 +384,13 @@ def register_metric(metric: Metric) -> Metric:
     if not isinstance(metric, Metric) or isinstance(metric, RunMetric):
         raise TypeError(f"{metric!r} is not a per-step Metric (a RunMetric goes to "
                         "register_run_metric)")
-    if _REGISTRY.get(metric.name) is metric:
+    return _add(_REGISTRY, metric)
+
+
+def _add(registry: dict, metric: Metric) -> Metric:
+    """Put ``metric`` into ``registry`` (the per-step or the run-level one) unless its
+    name or one of its columns is taken by a metric of either kind."""
+    if registry.get(metric.name) is metric:
         return metric
     if metric.name in _REGISTRY or metric.name in _RUN_REGISTRY:
         raise ValueError(f"metric name {metric.name!r} is already registered")
@@ -395,7 +401,7 @@ def register_metric(metric: Metric) -> Metric:
     if taken:
         raise ValueError(f"metric {metric.name!r}: column {', '.join(taken)} is already "
                          "written")
-    _REGISTRY[metric.name] = metric
+    registry[metric.name] = metric
     return metric
 
 
@@ -543,19 +549,7 @@ def register_run_metric(metric: RunMetric) -> RunMetric:
     taken (by a per-step or run-level metric) is refused."""
     if not isinstance(metric, RunMetric):
         raise TypeError(f"{metric!r} is not a RunMetric")
-    if _RUN_REGISTRY.get(metric.name) is metric:
-        return metric
-    if metric.name in _REGISTRY or metric.name in _RUN_REGISTRY:
-        raise ValueError(f"metric name {metric.name!r} is already registered")
-    owner = {c: m.name for m in (*_REGISTRY.values(), *_RUN_REGISTRY.values())
-             for c in m.columns}
-    owner.update(dict.fromkeys(STEP_COUNTS, "step_metrics"))
-    taken = [f"{c!r} (of {owner[c]})" for c in metric.columns if c in owner]
-    if taken:
-        raise ValueError(f"metric {metric.name!r}: column {', '.join(taken)} is already "
-                         "written")
-    _RUN_REGISTRY[metric.name] = metric
-    return metric
+    return _add(_RUN_REGISTRY, metric)
 
 
 def unregister_run_metric(name: str) -> None:
