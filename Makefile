@@ -6,7 +6,7 @@ VENV   ?= .venv
 BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.installed
 
-.PHONY: test compare bench bench-check bench-ratios bench-compare reproduce lint clean mutants
+.PHONY: test compare bench bench-check bench-check-full bench-ratios bench-noise bench-compare reproduce lint clean mutants
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,15 +24,30 @@ compare: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python -m pytest benchmarks/bench --benchmark-only
 
-# time every benchmark and gate each on its ratio to a reference workload timed in the
-# same run (benchmarks/bench/ratios.toml): the gate means the same on any machine
+# the regression gate (docs/bench_gates.md): each benchmark's fastest round over a reference
+# workload timed around and between its rounds (CPU time), against its stored ratio and
+# tolerance in benchmarks/bench/ratios.toml; a benchmark above its tolerance is re-run
+# twice and fails when every attempt is, one without a stored ratio fails at once.
+# bench-check: the quick subset for every push (marker quick, benchmarks/bench/conftest.py
+# QUICK: all but the scaling series; ~2 minutes on 2 loaded cores); bench-check-full: all
+# (~7 minutes). BENCH_ARGS: more pytest arguments, e.g. BENCH_ARGS="-k gpf"
+BENCH_GATE = $(BIN)/python benchmarks/bench/gate.py
 bench-check: $(STAMP)
-	$(BIN)/python -m pytest benchmarks/bench --benchmark-only --benchmark-timer=time.process_time
+	$(BENCH_GATE) check -- -m quick --benchmark-columns=min,median,rounds $(BENCH_ARGS)
 
-# re-record the stored ratios (run three times: each keeps the median of its last 3 runs)
+bench-check-full: $(STAMP)
+	$(BENCH_GATE) check -- --benchmark-columns=min,median,rounds $(BENCH_ARGS)
+
+# re-record the stored ratios after a deliberate change moved them: 5 runs on the changed
+# tree, each benchmark's median, spread and tolerance (about 35 minutes for all; select
+# with BENCH_ARGS="-k ..."); MOVED_BY names the change (default: HEAD, +uncommitted)
 bench-ratios: $(STAMP)
-	$(BIN)/python -m pytest benchmarks/bench --benchmark-only \
-	    --benchmark-timer=time.process_time --record-ratios
+	$(BENCH_GATE) record $(if $(MOVED_BY),--moved-by "$(MOVED_BY)") -- $(BENCH_ARGS)
+
+# the gate's noise: 5 gated runs on an unchanged tree, each benchmark's measured / stored
+# and failures; INJECT=1.3 slows every timed call 1.3 times (the gate must then fail)
+bench-noise: $(STAMP)
+	$(BENCH_GATE) repeat --inject $(or $(INJECT),1.0) -- $(BENCH_ARGS)
 
 # pytest-benchmark's own wall-clock comparison with the stored baseline (same machine only)
 bench-compare: $(STAMP)

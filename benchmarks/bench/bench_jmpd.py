@@ -148,7 +148,7 @@ def test_draw_process_noise_only(benchmark, n):
 GRID_SIDES = [50, 2000]
 GRID_LOOKS = 250  # looks per step
 GRID_WARM = 2  # untimed steps from the truth before the timed ones
-GRID_ROUNDS = (10, 1)  # (rounds, warm-up rounds)
+GRID_ROUNDS = (20, 2)  # (rounds, warm-up rounds)
 
 
 def grid_world(side: int, seed: int = 0) -> tuple[Scenario, list[np.ndarray]]:

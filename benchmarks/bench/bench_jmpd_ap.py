@@ -41,7 +41,7 @@ from .bench_jmpd import GRID_SIDES, time_grid_step
 CONFIGS = [("kreucher-50", 250), ("kreucher", 250), ("kreucher", 1000)]
 #: untimed warm-up steps from the tracker's own prior, every cell looked at
 WARM_STEPS = {"kreucher-50": 30, "kreucher": 15}
-ROUNDS, WARMUP_ROUNDS = 20, 2
+ROUNDS, WARMUP_ROUNDS = 30, 2
 #: OSPA (c = 2; null scores 2) of the first timed step must stay below this. Measured,
 #: world 0 (the benchmark's): kreucher-50 N = 250 0.31; kreucher N = 250 0.44,
 #: N = 1000 0.37 (a step of a tracker that lost its targets would be timed otherwise)

@@ -65,8 +65,9 @@ CI_SIDES = {50, 500}
 #: cells per target and looks per target of the targets series (the scale preset's)
 CELLS_PER_TARGET, LOOKS_PER_TARGET = 250, 2.5
 WARM_STEPS = 5
-#: (rounds, warm-up rounds) of a timed benchmark; fewer for steps of a second or more
-ROUNDS, ROUNDS_SLOW = (10, 1), (3, 1)
+#: (rounds, warm-up rounds) of a timed benchmark; fewer for steps of a second or more.
+#: The world's 20 steps after the warm-up bound an advancing benchmark's to 19
+ROUNDS, ROUNDS_SLOW = (15, 2), (3, 1)
 #: a tracker's step at or above this (measured on the first warm-up step) counts as slow
 SLOW_S = 0.5
 #: configurations besides every registered tracker's defaults, per series
