@@ -3,7 +3,8 @@
 * ``crossing`` preset: the harness plays the filter ``WARM_STEPS`` untimed steps with
   every cell looked at (the ``all`` policy), so it holds the targets; then step 44 is
   timed at the scenario's budget (raster looks), each round from a copy of that state
-  (``pedantic`` setup), so every round times the same work. At step 44 the four targets
+  (``pedantic`` setup, which runs the step once untimed first: warm caches), so every
+  round times the same work. At step 44 the four targets
   close in on the centre from neighbouring cells (they share the centre cell at step
   50), which exercises the combination enumeration. (``paper`` and ``large`` were timed
   here before. ``paper``'s literal Q, about 4.5 cells of jump per step, leaves the

@@ -7,8 +7,8 @@ bench_trackers.py (which warms up with every cell looked at every step and leave
 peers out) every tracker here warms up the way the comparison runs it: ``WARM_STEPS``
 untimed steps of world 0 under the harness's raster at the scenario's budget, from the
 prior. Timed: the next raster step, ``predict(); update(looks); estimate()``, every round
-from a deep copy of the warm state. The four share the benchmark group ``large``, so
-pytest-benchmark's table lists them side by side.
+from a deep copy of the warm state, after one untimed run of it (warm caches). The four
+share the benchmark group ``large``, so pytest-benchmark's table lists them side by side.
 
 Accuracy: the timed step's OSPA must stay below ``OSPA_BOUND``. After 60 raster steps
 (each cell looked at 6 times) no tracker holds all 25 targets: OSPA at step 60 of world 0

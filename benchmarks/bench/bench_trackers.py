@@ -20,7 +20,9 @@ Timed: one step at the scenario's budget (raster looks of step ``WARM_STEPS``)::
     tracker.predict(); tracker.update(looks); tracker.estimate()
 
 Every round starts from a deep copy of the warm state (``benchmark.pedantic`` setup,
-untimed), so every round times the same step. That step's OSPA and counts go into
+untimed, which first runs the step once on another copy so that the round finds the
+step's code and data in the caches: conftest ``Warm.repeat_step``), so every round times
+the same step. That step's OSPA and counts go into
 ``extra_info`` and the test fails when the OSPA is not below ``OSPA_BOUND`` (a
 baseline tracker, ``null``, has no bound: it scores 2), timed or not.
 """
