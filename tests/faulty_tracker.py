@@ -9,28 +9,17 @@ import os
 import signal
 import time
 
+import crashing_tracker
 import numpy as np
 
-from mttbench import Estimate, Tracker
+from mttbench import Estimate
 
 #: the step at which each tracker misbehaves (0-based, counted by ``predict``)
 FAULT_STEP = 1
 
 
-class _Nothing(Tracker):
-    """Reports no target; counts its steps."""
-
-    def reset(self, model, rng):
-        self._n_cells = model.grid.n_cells if model.is_grid else 1
-        self._k = -1
-
-    def predict(self):
-        self._k += 1
-
-    def cell_count_distribution(self):
-        P = np.zeros((self._n_cells, 2))
-        P[:, 0] = 1.0
-        return P
+class _Nothing(crashing_tracker._Nothing):
+    """Reports no target (crashing_tracker's); calls :meth:`fault` at :data:`FAULT_STEP`."""
 
     def update(self, looks):
         if self._k == FAULT_STEP:
@@ -38,9 +27,6 @@ class _Nothing(Tracker):
 
     def fault(self):
         pass
-
-    def estimate(self):
-        return Estimate.empty()
 
 
 class Hang(_Nothing):
