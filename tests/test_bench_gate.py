@@ -123,6 +123,7 @@ BENCH = "benchmarks/bench/bench_harness.py::test_play_loop"
 def _bench_run(tmp_path, name, *extra):
     log = tmp_path / f"{name}.jsonl"
     cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:xdist",
+           "-p", "no:hypothesispytest",
            BENCH, "--benchmark-only", f"--benchmark-timer={gate.GATE_TIMER}",
            f"--gate-log={log}", f"--ratios-file={tmp_path / 'ratios.toml'}", *extra]
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTEST_")}
@@ -148,3 +149,14 @@ def test_injected_slowdown_fails_a_real_benchmark(tmp_path):
     assert row["gated"] and not row["ok"] and row["inject"] == 3.0
     assert 2.0 < row["ratio"] / entry.ratio < 4.5
     assert "times the stored" in proc.stdout
+
+
+def test_re_recording_keeps_the_larger_spreads():
+    """A benchmark re-recorded in a quiet minute keeps the spread its first recording
+    measured over a loaded half hour; a new wider spread counts too."""
+    first = gate.entry_from_runs([1.0, 1.2, 0.95, 1.0, 1.02], "first")
+    quiet = gate.entry_from_runs([2.0, 2.01, 1.99, 2.0, 2.0], "moved", first)
+    assert quiet.ratio == 2.0 and quiet.moved_by == "moved"
+    assert (quiet.up, quiet.down) == (first.up, first.down) and quiet.tol == first.tol
+    wide = gate.entry_from_runs([2.0, 3.0, 1.0, 2.0, 2.0], "moved", first)
+    assert wide.up == pytest.approx(math.log(1.5)) and wide.down == pytest.approx(math.log(2))

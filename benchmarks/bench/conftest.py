@@ -584,3 +584,9 @@ def pytest_terminal_summary(terminalreporter):
     if gated:
         tr.write_line(f"gate: {len(gated) - len(failed)} of {len(gated)} benchmarks within "
                       f"their tolerance, {len(failed)} failed")
+        faster = [r for r in gated if r.entry is not None
+                  and r.ratio < r.entry.ratio / r.entry.tol]
+        if faster:
+            tr.write_line(f"{len(faster)} ran faster than stored / tolerance (re-record them, "
+                          f"or their gate stays looser than measured): "
+                          f"{', '.join(r.key for r in faster)}")
