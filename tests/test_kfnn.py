@@ -321,7 +321,7 @@ def test_confirmed_track_deleted_after_the_lost_track_drop(beta: float) -> None:
     tracker = KFNNTracker(lost_track_probability=beta)
     tracker.reset(model, np.random.default_rng(0))
     _confirmed_track(tracker, _cell(6.5, 6.5))
-    _, t1 = _thresholds(0.1, beta)
+    _, t1 = _thresholds(tracker.false_track_probability, beta)
     r = (1 - model.sensor.p_d) / (1 - model.sensor.p_f)
     steps = 0
     while tracker.estimate().count:
@@ -336,7 +336,7 @@ def test_a_hit_restores_the_confirmed_score() -> None:
     tracker.reset(_model(), np.random.default_rng(0))
     cell = _cell(6.5, 6.5)
     _confirmed_track(tracker, cell)
-    t2, _ = _thresholds(0.1, 0.05)
+    t2, _ = _thresholds(tracker.false_track_probability, 0.05)
     for positives in ([], [], [cell], [], []):  # never 5 misses in a row (|T1| / 0.69 = 4.9)
         tracker.predict()
         tracker.update(_looks(positives))
