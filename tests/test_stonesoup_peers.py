@@ -30,6 +30,7 @@ from mttbench.benchmarks.app import cli
 from mttbench.benchmarks.app.compare import default_tracker_texts
 from mttbench.benchmarks.engine.loop import Job, run_job
 from mttbench.benchmarks.engine.specs import TrackerSpec
+from mttbench.scenarios.envelope import get_point
 from mttbench.scenarios.model import Dynamics, Looks
 from mttbench.scenarios.spec import get as get_scenario
 from mttbench.trackers import stonesoup_peers as sp
@@ -256,6 +257,81 @@ def test_gnn_on_one_target_is_a_filterpy_kalman_filter(stonesoup_installed, q):
         np.testing.assert_allclose(est.covariances[0], kf.P, rtol=0, atol=1e-9)
         compared += 1
     assert compared == steps - 1
+
+
+def test_gnn_track_score_follows_blackmans_increments(stonesoup_installed):
+    """ss-gnn's score deleter: one track fed at its cell on steps 0-3 (every cell looked
+    at), then missed on every look at every cell but its own. Its score, recomputed here
+    from the track's innovations with scipy (``log(p_d N(y; 0, S) cell^2 / p_f)`` per hit,
+    ``log(1 - p_d m)`` per miss with ``m`` the predicted Gaussian's mass in the looked
+    cells: its mass on the grid less its own cell's), equals the deleter's to 1e-9
+    (relative), and the track is deleted at the first step its score lies ``log((1 -
+    alpha) / beta)`` below its highest."""
+    model = get_scenario("default").model
+    grid, sensor = model.grid, model.sensor
+    tracker = trackers.make("ss-gnn", gate=10.0)
+    tracker.steps_without_update = lambda share: 10**6  # the score alone deletes here
+    tracker.reset(model, np.random.default_rng(0))
+    every = np.arange(grid.n_cells)
+    cell = int(grid.cell_of(6.5, 6.5))
+    deleter = tracker._score_deleter
+    drop = np.log(1 - tracker.false_track_probability) - np.log(tracker.lost_track_probability)
+    score = best = 0.0
+    track = None
+    for k in range(40):
+        looked = every if k < 4 else every[every != cell]  # misses: its own cell unlooked
+        tracker.predict()
+        tracker.update(_looks(looked, (looked == cell) & (k < 4)))
+        tracks = tracker._tracks + list(tracker._initiator.holding_tracks)
+        if not tracks:  # deleted by this step's miss: the deleter's final score says why
+            L, high, _ = deleter.scores[track.id]  # the track of the step before
+            assert k >= 4 and L <= high - drop and L < score
+            break
+        (track,) = tracks
+        state = track[-1]
+        if k == 0:
+            continue  # the birth: score 0
+        if k < 4:
+            mp = state.hypothesis.measurement_prediction
+            y = np.ravel(state.hypothesis.measurement.state_vector - mp.state_vector)
+            score += (np.log(sensor.p_d * grid.cell_size ** 2 / sensor.p_f)
+                      + multivariate_normal(np.zeros(2), np.asarray(mp.covar,
+                                                                    float)).logpdf(y))
+        else:
+            m = np.ravel(state.mean)[[0, 2]]
+            sd = np.sqrt(np.diag(np.asarray(state.covar, float))[[0, 2]])
+            edges = np.arange(grid.nx + 1) * grid.cell_size
+            px, py = np.diff(norm.cdf(edges, m[0], sd[0])), np.diff(norm.cdf(edges, m[1], sd[1]))
+            mass = px.sum() * py.sum() - px[cell % grid.nx] * py[cell // grid.nx]
+            score += np.log1p(-sensor.p_d * mass)
+        best = max(best, score)
+        if track.id not in deleter.scores:  # promoted by the initiator: checked a step later
+            assert k == 1
+            continue
+        L, high, _ = deleter.scores[track.id]
+        assert L == pytest.approx(score, rel=1e-9) and high == pytest.approx(best, rel=1e-9)
+        assert score > best - drop
+    else:
+        pytest.fail("the track outlived its score")
+
+
+def test_gnn_does_not_keep_tracks_alive_on_clutter(stonesoup_installed):
+    """No target, p_d 0.5 and p_f 0.1 on every looked cell, a quarter of the grid looked
+    at per step (raster): the counting deleter alone kept clutter-fed tracks (14.7 reported
+    for 3 on env-pf-0.1); with the score a false track's mean lifetime stays short, so
+    the confirmed count averaged over 60 steps stays below 1 (the model's prior: 3)."""
+    model = get_point("env-pf-0.1").model
+    grid = model.grid
+    tracker = trackers.make("ss-gnn")
+    tracker.reset(model, np.random.default_rng(0))
+    rng = np.random.default_rng(5)
+    counts = []
+    for k in range(60):
+        cells = (np.arange(36) + 36 * k) % grid.n_cells
+        tracker.predict()
+        tracker.update(_looks(cells, rng.random(36) < model.sensor.p_f))
+        counts.append(tracker.estimate().count)
+    assert np.mean(counts) < 1.0
 
 
 def test_gmphd_expected_count_follows_the_closed_form(stonesoup_installed):
