@@ -179,17 +179,17 @@ class JMPDAPTracker(Tracker):
         "n_particles": Param(int, 1, doc="particles N"),
         "t_max": Param(int, 1, allow_none=True, none="twice the expected peak count + 4",
                        doc="slots per particle"),
-        # tuning (mttbench tune): arrivals and removals about Kreucher's 0.02 and 0.005
-        # (log, two decades each; the defaults, the model's rates, are 0 on the fixed-count
-        # presets and are scored beside the trials); cluster and merge distances and the
-        # position noise floor about their defaults (docs/jmpd-ap.md). n_particles is a
-        # cost, not tuned; sort_iterations and max_window trade time for accuracy
+        # tuning (mttbench tune): cluster and merge distances and the position noise floor
+        # about their defaults (docs/jmpd-ap.md). arrival_rate and removal_probability
+        # replace model quantities (to run Kreucher's floors), so they are not tuned: a
+        # tuned file must not set a model quantity. n_particles is a cost, not tuned;
+        # sort_iterations and max_window trade time for accuracy
         "arrival_rate": Param(float, 0, allow_none=True, none="the model's birth rate",
-                              doc="expected arrivals per step over the workspace "
-                                  "(Kreucher: 0.02)", search=Search(0.002, 0.2, log=True)),
+                              doc="expected arrivals per step over the workspace, in place "
+                                  "of the model's (Kreucher: 0.02); not tuned"),
         "removal_probability": Param(float, 0, 1, allow_none=True, none="1 - p_s",
-                                     doc="per target and step (Kreucher: 0.005)",
-                                     search=Search(0.0005, 0.05, log=True)),
+                                     doc="per target and step, in place of the model's "
+                                         "1 - p_s (Kreucher: 0.005); not tuned"),
         "cluster_distance": Param(float, 0, doc="AP threshold, in cells (Morelande: 2.5)",
                                   search=Search(1.0, 4.0)),
         "max_window": Param(int, 1, doc="the proposal window spans at most 2 max_window + 1 "
