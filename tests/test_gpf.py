@@ -310,15 +310,19 @@ def test_death_floor_lets_a_saturated_weight_fall_after_negative_looks(floor):
 
 
 def test_death_floor_default_only_on_the_grid_with_births():
-    """``death_probability=None``: the floor on the grid with births; the model's ``p_s``
-    without births (the exact reductions) and on the superposition sensor (whose count lives
-    in the prior weights); an explicit value always applies, as ``min(p_s, 1 - floor)``; and
-    ``0`` reproduces the model, under which a saturated weight never falls."""
-    grid = _still_particle_model()
+    """``death_probability=None``: the floor on the grid with births on a model with
+    arrivals; the model's ``p_s`` on a model without arrivals (the count bound holds lost
+    targets), without births (the exact reductions) and on the superposition sensor (whose
+    count lives in the prior weights); an explicit value always applies, as ``min(p_s, 1 -
+    floor)``; and ``0`` reproduces the model, under which a saturated weight never falls."""
+    grid = _still_particle_model()  # no arrivals, p_s = 1
+    arrivals = dataclasses.replace(
+        grid, birth_death=dataclasses.replace(grid.birth_death, birth_rate=0.01))
     births = scenarios.get("births").model  # p_s = 0.98 is below 1 - floor
     sup = scenarios.get("superposition").model
     gpf = trackers.get_class("gpf")
-    cases = [(gpf, {}, grid, 1.0 - DEFAULT_DEATH_FLOOR), (EmptyPriorGPF, {}, grid, 1.0),
+    cases = [(gpf, {}, arrivals, 1.0 - DEFAULT_DEATH_FLOOR), (gpf, {}, grid, 1.0),
+             (EmptyPriorGPF, {}, grid, 1.0),
              (gpf, {}, sup, 1.0), (gpf, {}, births, 0.98),
              (EmptyPriorGPF, {"death_probability": 0.05}, grid, 0.95),
              (gpf, {"death_probability": 0.05}, sup, 0.95)]

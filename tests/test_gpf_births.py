@@ -64,24 +64,19 @@ def _joint_posterior(priors: list[dict[str, float]], returns: list[bool], epsilo
     ``priors[i]`` maps the options ``"absent"``, ``"cell"`` (the looked cell, which
     returned a detection) and ``"elsewhere"`` to their prior probabilities; the likelihood
     of a joint choice is ``l(T)`` with ``T`` the number in the looked cell. The cut acts on
-    the likelihood-tilted probabilities (trackers/gpf_grid.py, "missed cells"): per
-    variable ``q_o ∝ p_o l_o`` with ``l = l(1)`` in the cell and 1 for the other options;
-    joint choices with ``prod q <= epsilon`` are dropped and the rest renormalised."""
-    tilt = [{o: p * (_ratio(returns, 1) if o == "cell" else 1.0) for o, p in pr.items()}
-            for pr in priors]
-    tilt = [{o: q / sum(t.values()) for o, q in t.items()} for t in tilt]
-    post = np.zeros(len(priors))
-    total = 0.0
+    the joint choices' posterior (trackers/gpf_grid.py, "missed cells"): those with
+    posterior ``<= epsilon`` are dropped and the rest renormalised."""
+    weights, present = [], []
     for choice in itertools.product(*[list(p.items()) for p in priors]):
         prior = float(np.prod([pr for _, pr in choice]))
-        q = float(np.prod([t[o] for t, (o, _) in zip(tilt, choice, strict=True)]))
-        if q <= epsilon or prior == 0.0:
+        if prior == 0.0:
             continue
         T = sum(opt == "cell" for opt, _ in choice)
-        weight = prior * _ratio(returns, T)
-        total += weight
-        post += weight * np.array([opt != "absent" for opt, _ in choice])
-    return list(post / total)
+        weights.append(prior * _ratio(returns, T))
+        present.append([opt != "absent" for opt, _ in choice])
+    post = np.array(weights) / sum(weights)
+    post = np.where(post > epsilon, post, 0.0)
+    return list(post @ np.array(present, dtype=float) / post.sum())
 
 
 @pytest.mark.parametrize("epsilon", [0.0, 1e-4])
@@ -91,8 +86,8 @@ def test_candidate_in_a_detected_cell_joins_the_particle_that_explains_it(epsilo
     share one positive look. Jointly, the detection is explained by the particle and the
     candidate's posterior is ~7.5e-4 (below prune_threshold: it stays in the field);
     updated alone it would be u l(1) / (u l(1) + 1 - u) = 0.34 and become a second
-    target. With epsilon = 1e-4 the joint choices with the particle absent (tilted
-    probabilities ~7e-5 and ~4e-5) are cut."""
+    target. With epsilon = 1e-4 the joint choice "particle absent, candidate in the cell"
+    (posterior ~6e-5) is cut."""
     grid = Grid(2, 1, 1.0)
     u, w = 5e-4, 0.9
     t = trackers.make("gpf", epsilon=epsilon, birth_floor=u)

@@ -235,10 +235,14 @@ def test_two_particles_sharing_cells_equal_monte_carlo():
 
 
 def test_cluster_with_epsilon_reports_dropped_mass():
-    """Dropped mass = brute-force sum of the joint-option probabilities at or below epsilon.
+    """Dropped mass = brute-force sum of the joint choices' posterior at or below epsilon.
     The options of a member: absent, elsewhere, each detected cell, and its cells without a
-    detection pooled into one; each tilted by its own likelihood, ``q_o ∝ p_o l_o(1)``
-    (``l = 1`` for absent and elsewhere; trackers/gpf_grid.py, "missed cells")."""
+    detection pooled into one (likelihood ``sum_c m_c l_c(1) / sum_c m_c``; trackers/
+    gpf_grid.py, "missed cells"); a joint choice weighs its prior times ``l_c(T_c)`` in each
+    detected cell, and of the choices that differ only by which members took which detected
+    cells only the most probable is kept (JPDA*). The cut acts on the normalised posterior,
+    so a member's "absent" survives however well its detected-cell option alone would
+    explain a detection (the cut on the likelihood-tilted prior dropped it)."""
     w = np.array([0.7, 0.5, 0.3])
     means = np.array([[2.3, 0.0, 1.6, 0.0], [2.8, 0.0, 1.4, 0.0], [2.5, 0.0, 1.5, 0.0]])
     covs = np.stack([_cov(0.35, 0.3, 0.3)] * 3)
@@ -250,25 +254,41 @@ def test_cluster_with_epsilon_reports_dropped_mass():
     assert full.dropped == pytest.approx(0.0, abs=1e-12)
     assert full.n_clusters == 1 and full.max_cluster == 3
     U = np.unique(cells)  # one look per cell here
-    l1 = np.exp([SENSOR.log_likelihood_ratio(returns[cells == c], np.ones(1)).sum()
-                 for c in U])
     hit = np.array([returns[cells == c].any() for c in U])
+
+    def ratio(c: int, T: int) -> float:
+        z = returns[cells == c]
+        return float(np.exp(SENSOR.log_likelihood_ratio(z, np.full(len(z), T)).sum()))
+
     x0, x1, y0, y1 = (b.astype(float) for b in GRID.cell_bounds(U))
-    options = []
+    options = []  # per member: (prior, likelihood, detected cell or -1, kind)
     for i in range(3):
         mass, _, _ = rect_position_moments(np.repeat(means[i][[0, 2]][None], len(U), 0),
                                            np.repeat(covs[i][np.ix_([0, 2], [0, 2])][None],
                                                      len(U), 0), x0, x1, y0, y1)
-        q = np.concatenate([[1 - w[i], w[i] * (1 - mass.sum())], w[i] * mass[hit] * l1[hit],
-                            [w[i] * (mass[~hit] * l1[~hit]).sum()]])
-        options.append(q / q.sum())
-    priors = np.array([np.prod([o[c] for o, c in zip(options, combo, strict=True)])
-                       for combo in itertools.product(*[range(len(o)) for o in options])])
-    assert priors.sum() == pytest.approx(1.0, abs=1e-12)
+        opts = [(1 - w[i], 1.0, -1, "absent"), (w[i] * (1 - mass.sum()), 1.0, -1, "out")]
+        opts += [(w[i] * mass[j], 1.0, int(U[j]), "cell") for j in np.nonzero(hit)[0]]
+        miss = mass[~hit].sum()
+        lik = sum(mass[j] * ratio(U[j], 1) for j in np.nonzero(~hit)[0]) / miss
+        opts.append((w[i] * miss, lik, -1, "missed"))
+        options.append(opts)
+    best: dict[tuple, float] = {}
+    for combo in itertools.product(*options):
+        weight = float(np.prod([p * lik for p, lik, _, _ in combo]))
+        taken = [c for _, _, c, _ in combo if c >= 0]
+        for c in set(taken):
+            weight *= ratio(c, taken.count(c))
+        # JPDA*: the same members take detected cells, the same cells are taken
+        key = (tuple("took" if c >= 0 else kind for _, _, c, kind in combo),
+               tuple(sorted(taken)))
+        best[key] = max(best.get(key, 0.0), weight)
+    post = np.array(list(best.values()))
+    post /= post.sum()
     for eps in (1e-4, 1e-3, 1e-2):
         cut = grid_update(w, means, covs, np.array([-1, -1, -1]), cells, returns, GRID, SENSOR,
                           epsilon=eps, **kw)
-        assert cut.dropped == pytest.approx(priors[priors <= eps].sum(), abs=1e-9)
+        assert post[post <= eps].sum() > 0.0
+        assert cut.dropped == pytest.approx(post[post <= eps].sum(), abs=1e-9)
         assert np.all((cut.weights >= 0) & (cut.weights <= 1))
 
 
@@ -330,3 +350,35 @@ def test_small_clusters_listed_together_equal_one_at_a_time(eps):
         ref_dropped += d
     assert dropped == pytest.approx(ref_dropped, abs=1e-12)
     np.testing.assert_allclose(post.sum(axis=1), 1.0, atol=1e-12)
+
+
+def test_cut_moves_each_weight_by_at_most_the_dropped_posterior_mass():
+    """The cut acts on the posterior: dropping combinations of total posterior ``D`` and
+    renormalising moves every marginal by at most ``D / (1 - D)`` from the uncut
+    (``epsilon = 0``) update. The case that broke the cut on the likelihood-tilted prior
+    (docs/gpf.md section 13): at ``p_f = 2.2e-5`` two tracks and a birth candidate reach one
+    detected cell, the second track with 1% of its mass there and the rest on looked cells
+    without a detection; each member's detected-cell option, tilted by ``l(1) = 2.7e4``
+    alone, made every combination with a member absent look improbable, so they were cut
+    and the weights went to exactly 1."""
+    sensor = RayleighGridSensor(p_d=0.6, snr=20.0, looks_per_step=30)
+    grid = Grid(6, 6, cell_size=1.0)
+    rng = np.random.default_rng(4)
+    cells = np.arange(36)
+    for _ in range(20):
+        returns = rng.uniform(size=36) < 0.15
+        returns[0] = True
+        K = 3
+        w = np.concatenate([rng.uniform(0.9, 0.999, K - 1), [rng.uniform(0.005, 0.05)]])
+        means = np.zeros((K, 4))
+        means[:, 0] = rng.uniform(0.5, 2.0, K)
+        means[:, 2] = rng.uniform(0.5, 2.0, K)
+        means[-1, [0, 2]] = 0.5  # the last one is a birth candidate, uniform on cell 0
+        covs = np.stack([_cov(s, s, 0.0) for s in rng.uniform(0.3, 0.6, K)])
+        ucell = np.array([-1] * (K - 1) + [0])
+        ref = grid_update(w, means, covs, ucell, cells, returns, grid, sensor, epsilon=0.0,
+                          max_combinations=10**6)
+        got = grid_update(w, means, covs, ucell, cells, returns, grid, sensor, epsilon=1e-4,
+                          max_combinations=10**6)
+        bound = got.dropped / (1.0 - got.dropped) + 1e-12
+        assert np.all(np.abs(got.weights - ref.weights) <= bound)

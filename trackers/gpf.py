@@ -30,12 +30,16 @@ Step (the harness calls predict, then update, then estimate):
   (:func:`truncate_to_workspace`). So a broad Gaussian pays, in the grid update, for the
   looks that found nothing where its mass is.
 * **Death floor** (not in the paper): ``death_probability=None`` is ``DEFAULT_DEATH_FLOOR``
-  on the grid sensor with births, else ``0`` (the model's ``p_s``). With ``p_s = 1`` each
-  detection adds ``log l(1) = 6.9`` to the log-odds, ``w`` rounds to 1.0 and a lost track
-  keeps ``w = 1`` while its covariance grows; the floor ``f`` caps the log-odds after each
-  predict at ``log((1 - f) / f)``, so negative looks lower them again. The default is the
-  smallest floor that frees such weights at no OSPA cost; larger floors remove more lost
-  tracks for more count error.
+  on the grid sensor with births on a model with arrivals, else ``0`` (the model's
+  ``p_s``). With ``p_s = 1`` each detection adds ``log l(1) = 6.9`` to the log-odds, ``w``
+  rounds to 1.0 and a lost track keeps ``w = 1`` while its covariance grows; the floor
+  ``f`` caps the log-odds after each predict at ``log((1 - f) / f)``, so negative looks
+  lower them again. The default is the smallest floor that frees such weights at no OSPA
+  cost; larger floors remove more lost tracks for more count error. A model without
+  arrivals gets none: there the floor is a death the model does not have, and each step it
+  moves ``f sum w`` of existence into the undetected field (count bound, below), from
+  which any detection no track holds starts a track at ``w ~ 1`` (``u l(1) >> 1`` at low
+  ``p_f``); at density that is a stream of extra tracks (docs/gpf.md section 13).
 * **Update**: :mod:`trackers.gpf_linear` (superposition: the paper's combinations ``E`` and
   appendix gain, moment-matched fold-back) or :mod:`trackers.gpf_grid` (grid: truncated
   Gaussians, exact Bernoulli weights, combinations per cluster of tracks sharing a
@@ -43,8 +47,9 @@ Step (the harness calls predict, then update, then estimate):
   JPDA* against coalescence).
 * **Combinations**: as in the paper, cut on their probability ``<= epsilon``, at most
   ``max_combinations`` (the most probable) kept, renormalised; on the grid the cut acts
-  on the likelihood-tilted probability (:mod:`.gpf_grid`, "missed cells"), and a track
-  joins a detected cell's cluster when ``w m_c > INTERACTION_THRESHOLD``.
+  on the combinations' posterior (:mod:`.gpf_grid`, "missed cells"; a deviation: the
+  paper cuts on the prior), and a track joins a detected cell's cluster when ``w m_c >
+  INTERACTION_THRESHOLD``.
 * **Count bound** (models without arrivals): such a model never has more targets than it
   started with, ``n0``, so after each update the existences are replaced by their
   marginals given ``count <= n0`` (:func:`condition_on_count_bound`, exact for
@@ -138,7 +143,8 @@ _MERGE_RULES = ("bounded_sum", "capped_sum")
 INTERACTION_THRESHOLD = 1e-3
 #: slack on "the group's weight sum stays <= 1" (float round-off of weights that are 1)
 _SUM_TOL = 1e-9
-#: per-step death probability floor of the grid tracker with births (``death_probability=None``)
+#: per-step death probability floor of the grid tracker with births on a model with arrivals
+#: (``death_probability=None``; none without arrivals, docs/gpf.md section 13)
 DEFAULT_DEATH_FLOOR = 0.003
 #: a track's component with a smaller weight within the track is dropped
 _COMPONENT_FLOOR = 0.02
@@ -369,8 +375,9 @@ class GaussianParticleFilter(Tracker):
     summary = "Gaussian particle filter (paper): existence-weighted Gaussians, combinations E"
     parameters: ClassVar[dict[str, Param]] = {
         "epsilon": Param(float, 0, 1, high_open=True,
-                         doc="combinations with prior probability <= epsilon are cut (the "
-                             "paper's cut): lower for more exact weights at more cost"),
+                         doc="combinations with posterior probability <= epsilon are cut "
+                             "(the paper cuts on the prior): lower for more exact "
+                             "weights at more cost"),
         "max_combinations": Param(int, 1, doc="at most this many combinations kept per "
                                               "cluster: bounds an update's cost in crowds"),
         "merge_threshold": Param(float, 0, doc="squared Mahalanobis distance below which "
@@ -398,7 +405,8 @@ class GaussianParticleFilter(Tracker):
         "n_counts": Param(int, 2, doc="count columns of P_c(t), the last 'n_counts - 1 or "
                                       "more': raise it for cells holding more targets"),
         "death_probability": Param(float, 0, 1, allow_none=True,
-                                   none="DEFAULT_DEATH_FLOOR on the grid with births, else 0",
+                                   none="DEFAULT_DEATH_FLOOR on the grid with births and "
+                                        "arrivals, else 0",
                                    doc="per-step death floor: higher drops lost tracks "
                                        "sooner, at some count error",
                                    search=Search(1e-4, 0.05, log=True)),
@@ -450,7 +458,8 @@ class GaussianParticleFilter(Tracker):
         self._count_bound = not arrivals
         floor = self.death_probability
         if floor is None:
-            floor = DEFAULT_DEATH_FLOOR if (self.births and model.is_grid) else 0.0
+            # no floor without arrivals: the count bound and the field hold lost targets
+            floor = DEFAULT_DEATH_FLOOR if (self.births and model.is_grid and arrivals) else 0.0
         #: the survival probability the filter predicts with: min(p_s, 1 - floor)
         self._survival = min(model.birth_death.survival_probability, 1.0 - floor)
         #: a persistent id per track (the estimate's labels): a counter assigned at the
@@ -812,6 +821,7 @@ class GaussianParticleFilter(Tracker):
 class EmptyPriorGPF(GaussianParticleFilter):
     """The GPF without its prior and without births (not registered, not listed): a test
     hook for the reductions and for particles set by hand (``set_particles``). Its death
-    floor defaults to 0 (``death_probability=None`` means the floor only with births)."""
+    floor defaults to 0 (``death_probability=None`` means the floor only with births and
+    arrivals)."""
 
     births = False

@@ -21,7 +21,7 @@ of the particle -- cell graph, so the cost grows with the cluster sizes, never w
 option -- absent (prior ``1 - w``), elsewhere (``w m_out``), "missed" (below) or detected
 cell ``c`` (``w m_c``) -- the paper's ``E`` refined by the cell, which the grid needs
 because ``p_d(T)`` depends on the in-cell count ``T``. The combination likelihood is
-``prod_c l_c(T_c)``; combinations with probability ``<= epsilon`` (or beyond
+``prod_c l_c(T_c)``; combinations with posterior probability ``<= epsilon`` (or beyond
 ``max_combinations``) are dropped and the rest renormalised, and the dropped mass is
 reported. Particle ``i``'s posterior is then ``w_i' = P(i present | z)`` and, given
 presence, bin ``b`` with probability ``pi_b``, i.e. density ratio ``g_b = pi_b / m_b``.
@@ -42,11 +42,16 @@ looked cells that returned a detection, and each member's looked cells without a
 detection are one option "missed" with likelihood ``sum_c m_c l_c(1)``, as if no two
 targets shared such a cell (``l(1)^2`` for ``l(2)``: 0.25 against 0.305 at ``p_d = 0.5``,
 ``snr = 10``). Every option is tilted by its own likelihood, ``q_o ~ p_o l_o(1)``, and the
-combinations are weighed by the coupling ``LL[c, T] - T LL[c, 1]`` of the detected cells,
-so the cut ``epsilon`` acts on combinations' probability under independent single-member
-posteriors instead of their prior: a broad particle's options are not each below
+combinations are weighed by the coupling ``LL[c, T] - T LL[c, 1]`` of the detected cells.
+The cut ``epsilon`` acts on the combinations' normalised posterior (a deviation from the
+paper, which cuts on the prior): a broad particle's options are not each below
 ``epsilon``, so the combinations in which two broad particles both explain detections
-survive the cut (docs/gpf.md section 9).
+survive the cut (docs/gpf.md section 9); and the combinations with a member absent,
+which the tilt alone makes look improbable whenever another member explains the same
+detection (``l(1) = 2.7e4`` at ``p_f = 2.2e-5``), survive where their posterior is
+above ``epsilon`` (cut on the tilted prior they went, and every member's weight became
+exactly 1: docs/gpf.md section 13). Small clusters list every combination; a larger one
+lists the ``max_combinations`` of largest tilted prior before the cut.
 
 JPDA* (:func:`avoid_coalescence`, Blom and Bloem 2000): of the combinations that differ
 only by which members took which detected cells, only the most probable is kept, so that
@@ -77,7 +82,7 @@ from scipy.special import ndtr
 from ..scenarios.model import Grid, RayleighGridSensor
 from . import kalman
 from .cells import look_log_ratios, looked_in_boxes
-from .gpf_linear import enumerate_combinations, log_normalise
+from .gpf_linear import enumerate_combinations
 
 _RANGE_SIGMAS = 7.0
 _INV_SQRT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
@@ -277,15 +282,36 @@ def avoid_coalescence(cluster: np.ndarray, choice: np.ndarray, cell: np.ndarray,
     return out
 
 
+def _cut_posterior(log_post: np.ndarray, group: np.ndarray, n_groups: int,
+                   epsilon: float) -> tuple[np.ndarray, float]:
+    """Per group, the normalised posterior ``p_C ~ exp(log_post)`` of its combinations with
+    those of posterior ``<= epsilon`` dropped and the rest renormalised (a group whose
+    combinations are all at or below ``epsilon`` keeps them all). Returns ``p (C,)`` and the
+    posterior mass dropped, summed over the groups."""
+    top = np.full(n_groups, -np.inf)
+    np.maximum.at(top, group, log_post)
+    e = np.exp(log_post - top[group])
+    pc = e / np.bincount(group, weights=e, minlength=n_groups)[group]
+    keep = pc > epsilon
+    kept_any = np.bincount(group, weights=keep, minlength=n_groups) > 0
+    keep |= ~kept_any[group]
+    dropped = float(pc[~keep].sum())
+    pc = np.where(keep, pc, 0.0)
+    return pc / np.bincount(group, weights=pc, minlength=n_groups)[group], dropped
+
+
 def _cluster_posterior(option_probs: np.ndarray, option_cell: np.ndarray, LL: np.ndarray,
                        epsilon: float, max_combinations: int,
                        detected: np.ndarray) -> tuple[np.ndarray, float]:
-    """One cluster by :func:`enumerate_combinations`: ``option_probs``, ``option_cell`` are
-    ``(n, O)`` (cell ``-1`` = not in a looked cell); returns ``post (n, O)``, the posterior
-    probability of each member's options, and the dropped prior mass. ``detected (n_u,)``:
-    the detected looked cells, for :func:`avoid_coalescence`."""
+    """One cluster too large to list in full: the ``max_combinations`` combinations of
+    largest (tilted) prior by :func:`enumerate_combinations`, then their posterior, the
+    JPDA* rule and the cut on the posterior (:func:`_cut_posterior`). ``option_probs``,
+    ``option_cell`` are ``(n, O)`` (cell ``-1`` = not in a looked cell); returns ``post (n,
+    O)``, the posterior probability of each member's options, and the dropped mass (the
+    listed combinations' posterior at or below ``epsilon``, plus the prior mass beyond the
+    cap). ``detected (n_u,)``: the detected looked cells, for :func:`avoid_coalescence`."""
     n, n_opt = option_probs.shape
-    combs = enumerate_combinations(option_probs, epsilon, max_combinations)
+    combs = enumerate_combinations(option_probs, 0.0, max_combinations)
     ch = combs.choice  # (C, n)
     cell_of = option_cell[np.arange(n)[None, :], ch]
     # counts per looked cell in each combination, then sum_c LL[c, T_c]
@@ -295,11 +321,11 @@ def _cluster_posterior(option_probs: np.ndarray, option_cell: np.ndarray, LL: np
     loglik = LL[loc_cells[None, :], counts].sum(axis=1)
     log_post = avoid_coalescence(np.zeros(len(ch), dtype=np.int64), ch, cell_of, detected,
                                  combs.log_prior + loglik)
-    pc = log_normalise(log_post)  # (C,)
+    pc, cut = _cut_posterior(log_post, np.zeros(len(ch), dtype=np.int64), 1, epsilon)
     # post[j, o] = sum over combinations with choice_j = o of p(C | z)
     post = np.bincount((np.arange(n)[None, :] * n_opt + ch).ravel(),
                        weights=np.repeat(pc, n), minlength=n * n_opt).reshape(n, n_opt)
-    return post, combs.dropped
+    return post, combs.dropped + cut
 
 
 def _small_clusters_posterior(option_probs: np.ndarray, option_cell: np.ndarray,
@@ -312,10 +338,9 @@ def _small_clusters_posterior(option_probs: np.ndarray, option_cell: np.ndarray,
     cluster (``cl (M,)`` non-decreasing), ``n_pos (M,)`` options of positive probability.
     Combination ``r`` of a cluster picks, for member ``j``, its positive option number
     ``(r // stride_j) % n_pos_j`` (mixed radix, ``stride_j`` = product of ``n_pos`` of the
-    later members). Combinations with prior ``<= epsilon`` are dropped as in
-    :func:`enumerate_combinations` (if none passes, the cluster keeps them all), and
-    :func:`avoid_coalescence` applies with ``detected (n_u,)`` the detected cells. Returns
-    ``post (M, O)`` and the total dropped prior mass.
+    later members). :func:`avoid_coalescence` applies with ``detected (n_u,)`` the detected
+    cells, then combinations with posterior ``<= epsilon`` are dropped
+    (:func:`_cut_posterior`). Returns ``post (M, O)`` and the total dropped posterior mass.
     """
     M, n_opt = option_probs.shape
     # positive options first, in their original order
@@ -343,18 +368,13 @@ def _small_clusters_posterior(option_probs: np.ndarray, option_cell: np.ndarray,
     with np.errstate(divide="ignore"):
         lp = np.bincount(comb, weights=np.log(option_probs[member, opt]),
                          minlength=len(comb_cl))
-    keep = lp > (math.log(epsilon) if epsilon > 0 else -math.inf)
-    kept_any = np.bincount(comb_cl, weights=keep, minlength=len(n_comb)) > 0
-    keep |= ~kept_any[comb_cl]
-    prior = np.where(keep, np.exp(lp), 0.0)
-    dropped = float(np.maximum(1.0 - np.bincount(comb_cl, weights=prior), 0.0).sum())
     # sum_c LL[c, T_c]: count each looked cell's occupants per combination
     n_u = LL.shape[0]
     cell = option_cell[member, opt]
-    hit = (cell >= 0) & keep[comb]
+    hit = (cell >= 0) & np.isfinite(lp)[comb]
     key, t_count = np.unique(comb[hit] * n_u + cell[hit], return_counts=True)
     loglik = np.bincount(key // n_u, weights=LL[key % n_u, t_count], minlength=len(comb_cl))
-    log_post = np.where(keep, lp + loglik, -np.inf)
+    log_post = lp + loglik
     # JPDA*: each combination's members in a row, (n_comb, largest cluster), padded with -2
     rank = member - np.searchsorted(cidx, cidx[member])  # the member's place in its cluster
     width = int(rank.max()) + 1
@@ -363,10 +383,7 @@ def _small_clusters_posterior(option_probs: np.ndarray, option_cell: np.ndarray,
     choice[comb, rank] = opt
     cells[comb, rank] = cell
     log_post = avoid_coalescence(comb_cl, choice, cells, detected, log_post)
-    top = np.full(len(n_comb), -np.inf)
-    np.maximum.at(top, comb_cl, log_post)
-    e = np.exp(log_post - top[comb_cl])
-    pc = e / np.bincount(comb_cl, weights=e)[comb_cl]
+    pc, dropped = _cut_posterior(log_post, comb_cl, len(n_comb), epsilon)
     post = np.bincount(member * n_opt + opt, weights=pc[comb],
                        minlength=M * n_opt).reshape(M, n_opt)
     return post, dropped
