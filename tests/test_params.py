@@ -98,10 +98,11 @@ BAD_TRACKERS = {
     "gpf:death_probability=1.5": ("death_probability=1.5", "a number in [0, 1], or None"),
 }
 BAD_POLICIES = {
-    "renyi:alpha=0": ("alpha=0", "a number > 0"),
-    "renyi:alpha=-1": ("alpha=-1", "a number > 0"),
-    "renyi:alpha=abc": ("alpha='abc'", "a number > 0"),
-    "renyi:alpha=nan": ("alpha=nan", "a number > 0"),
+    "renyi:alpha=0": ("alpha=0", "a number in (0, 100]"),
+    "renyi:alpha=-1": ("alpha=-1", "a number in (0, 100]"),
+    "renyi:alpha=abc": ("alpha='abc'", "a number in (0, 100]"),
+    "renyi:alpha=nan": ("alpha=nan", "a number in (0, 100]"),
+    "renyi:alpha=101": ("alpha=101", "a number in (0, 100]"),
     "renyi:repeats=yes": ("repeats='yes'", "true or false"),
 }
 
@@ -194,7 +195,7 @@ def test_cli_refuses_a_bad_policy_value(tmp_path, capsys):
                  "--no-progress", "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1
-    assert "policy 'renyi': parameter alpha=-1 refused; allowed: a number > 0" in err[0]
+    assert "policy 'renyi': parameter alpha=-1 refused; allowed: a number in (0, 100]" in err[0]
 
 
 # ------------------------------------------------------------------ good values

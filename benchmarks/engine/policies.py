@@ -248,7 +248,8 @@ class RenyiGain(Policy):
     summary = "expected Renyi alpha-divergence gain of each cell's count (tracker's prediction)"
     uses_prediction = True
     parameters: ClassVar[dict[str, Param]] = {
-        "alpha": Param(float, 0, low_open=True, doc="order of the Renyi divergence"),
+        # at most 100: the gains raise likelihood ratios to the power alpha (overflow)
+        "alpha": Param(float, 0, 100, low_open=True, doc="order of the Renyi divergence"),
         "repeats": Param(bool, doc="greedy by marginal gain, a cell may get several looks"),
     }
 
