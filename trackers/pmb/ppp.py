@@ -1,0 +1,53 @@
+"""The Poisson point process of undetected targets, held over the cells.
+
+Intensity ``lambda_c`` = expected number of undetected targets in cell ``c``, uniform
+within the cell, stored as a :class:`~mttbench.trackers.cells.CellField` (one value shared
+by every cell never touched plus the cells that differ): nothing costs ``O(cells)``.
+
+* prior: ``lambda_c = n0 / n_cells`` (the model's initial count mean spread over the grid);
+* predict (Williams 2015, the PPP prediction with a uniform Poisson birth):
+  ``lambda <- p_s lambda + birth_rate / n_cells`` (no spatial diffusion: the undetected
+  targets are not moved, as in the GPF's field and KF-NN's intensity; fine for slow targets);
+* update: ``lambda_c <- lambda_c M_c`` in every looked cell (:mod:`.update`: the targets
+  missed by its looks), nothing elsewhere (its detection probability is 0 outside the
+  looked cells);
+* recycling (Williams 2015, "recycling"): a Bernoulli whose existence falls below the
+  tracker's ``recycle_threshold`` is moved into the PPP, ``lambda_c += r m_c`` with
+  ``m_c`` its Gaussian's mass in cell ``c`` (within its 6-sd box, x-y correlation ignored:
+  :func:`~mttbench.trackers.cells.gaussian_cell_mass_sparse`); its velocity is forgotten.
+  So does a new Bernoulli too weak to keep (``lambda_j += r`` at its cell).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...scenarios.model import Grid
+from .. import kalman
+from ..cells import CellField, gaussian_cell_mass_sparse
+
+
+def predict_intensity(field: CellField, survival: float, birth_rate: float) -> None:
+    """``lambda <- survival lambda + birth_rate / n_cells`` in every cell (in place)."""
+    field.affine(float(survival), float(birth_rate) / field.n_cells)
+
+
+def add_intensity(field: CellField, cells: np.ndarray, amounts: np.ndarray) -> None:
+    """``lambda_c += amount`` at ``cells`` (repeats summed), in place."""
+    cells = np.asarray(cells, dtype=np.int64).reshape(-1)
+    if not len(cells):
+        return
+    u, inv = np.unique(cells, return_inverse=True)
+    add = np.bincount(inv.reshape(-1), weights=np.asarray(amounts, float).reshape(-1),
+                      minlength=len(u))
+    field.set(u, field.at(u) + add)
+
+
+def recycle(field: CellField, grid: Grid, r: np.ndarray, m: np.ndarray, P: np.ndarray
+            ) -> None:
+    """Bernoullis ``r (K,)``, ``m (K, 4)``, ``P (K, 4, 4)`` into the PPP: ``lambda_c +=
+    r m_c`` over each Gaussian's 6-sd box (in place)."""
+    if not len(r):
+        return
+    comp, cells, mass = gaussian_cell_mass_sparse(grid, *kalman.position_marginal(m, P))
+    add_intensity(field, cells, r[comp] * mass)
