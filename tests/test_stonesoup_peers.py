@@ -35,7 +35,7 @@ from mttbench.scenarios.model import Dynamics, Looks
 from mttbench.scenarios.spec import get as get_scenario
 from mttbench.trackers import stonesoup_peers as sp
 
-PEERS = ("ss-gnn", "ss-gmphd")
+PEERS = ("ss-gnn", "ss-gmphd", "ss-jpda")
 
 
 @pytest.fixture
@@ -423,3 +423,24 @@ def test_peers_refuse_the_superposition_sensor_in_words(stonesoup_installed):
     for name in PEERS:
         reason = trackers.make(name).unsupported_reason(model)
         assert reason and "superposition" in reason
+
+
+def test_gmphd_labels_follow_stone_soups_tags(stonesoup_installed):
+    """The labels follow the tags Stone Soup's updater and reducer carry: heaviest first, a
+    label tag seen for the first time keeps its label; a repeated label tag, a birth and a
+    random tag get new labels, never reused; the reported rows carry them."""
+    model = get_scenario("default").model
+    tracker = trackers.make("ss-gmphd")
+    tracker.reset(model, np.random.default_rng(0))
+    tracker.set_components([0.9, 0.8], np.zeros((2, 4)), np.tile(np.eye(4), (2, 1, 1)))
+    ss = sp.stonesoup()
+    tags_weights = [("1", 0.2), ("0", 0.95), ("1", 0.6), ("birth", 0.7), ("a1f3-9c", 0.1),
+                    ("0", 0.05)]
+    comps = [ss.TaggedWeightedGaussianState(np.zeros((4, 1)) + i, np.eye(4), weight=w, tag=t)
+             for i, (t, w) in enumerate(tags_weights)]
+    tracker._set_sorted(comps)
+    # heaviest first: 0 (0.95) keeps 0, birth (0.7) -> 2, 1 (0.6) keeps 1, 1 (0.2) -> 3,
+    # the random tag (0.1) -> 4, the second 0 (0.05) -> 5
+    assert tracker._label.tolist() == [0, 2, 1, 3, 4, 5]
+    est = tracker.estimate()  # extraction threshold 0.3: the three heaviest
+    assert est.labels.tolist() == [0, 2, 1]

@@ -659,12 +659,17 @@ class StoneSoupGMPHD(_StoneSoupPeer):
         self._w = np.zeros(0)
         self._m = np.zeros((0, 4))
         self._P = np.zeros((0, 4, 4))
+        self._label = np.zeros(0, dtype=np.int64)  # a component's label (its tag)
+        self._next_label = 0
 
     def set_components(self, w: np.ndarray, m: np.ndarray, P: np.ndarray) -> None:
-        """Replace the mixture (tests): ``w (K,)``, ``m (K, 4)``, ``P (K, 4, 4)``."""
+        """Replace the mixture (tests): ``w (K,)``, ``m (K, 4)``, ``P (K, 4, 4)``; labels
+        ``0 .. K-1``."""
         self._w = np.array(w, dtype=float).reshape(-1)
         self._m = np.array(m, dtype=float).reshape(-1, 4)
         self._P = np.array(P, dtype=float).reshape(-1, 4, 4)
+        self._label = np.arange(len(self._w), dtype=np.int64)
+        self._next_label = len(self._w)
 
     @property
     def components(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -703,8 +708,8 @@ class StoneSoupGMPHD(_StoneSoupPeer):
         m_pred, _ = kalman.predict(self._m, self._P, self._F, self._Q)
         alive = self._inside(m_pred)
         looked = np.isin(self._cells_of(m_pred), looked_cells) & alive
-        comps = [self._state(w, m, P, f"c{i}", k - 1)
-                 for i, (w, m, P) in enumerate(zip(self._w, self._m, self._P, strict=True))]
+        comps = [self._state(w, m, P, str(lab), k - 1)
+                 for w, m, P, lab in zip(self._w, self._m, self._P, self._label, strict=True)]
         out = []
         for c, on in zip(comps, alive & ~looked, strict=True):
             if on:  # not looked at: detection probability 0, the prediction times p_s
@@ -739,19 +744,32 @@ class StoneSoupGMPHD(_StoneSoupPeer):
         keys = np.column_stack([-w, m, P.reshape(K, 16)])
         order = np.lexsort(keys.T[::-1])
         self._w, self._m, self._P = w[order], m[order], P[order]
+        # labels: Stone Soup's reducer gives a merged component the tag of its heaviest
+        # member and fresh random tags to lighter ones that shared a tag; heaviest first, a
+        # label tag seen for the first time is kept, any other tag (a birth, a fresh one, a
+        # repeat) gets the next new label
+        label, seen = np.zeros(K, dtype=np.int64), set()
+        for j, i in enumerate(order):
+            tag = str(comps[i].tag)
+            if tag.isdigit() and int(tag) not in seen:
+                label[j] = int(tag)
+            else:
+                label[j] = self._next_label
+                self._next_label += 1
+            seen.add(int(label[j]))
+        self._label = label
 
     def estimate(self) -> Estimate:
-        """Components above ``extraction_threshold``; count ``sum w`` or its rounding.
-
-        No labels (None): a GM-PHD keeps no track identity. The adapter tags the
-        components by their index in the sorted mixture at every step (``c0``, ``c1``, ...,
-        for determinism: Stone Soup's own tags are random per process) and the reducer
-        merges components of different tags, so a tag names a row, not a target, and
-        would read as an identity switch at every re-ordering."""
+        """Components above ``extraction_threshold``; count ``sum w`` or its rounding;
+        labels from the components' tags (a GM-PHD keeps no track identity, so the label
+        of a component follows Stone Soup's tags: kept through updates and by the heaviest
+        member of a merge, new for births; deterministic, unlike Stone Soup's own random
+        tags)."""
         total = float(self._w.sum())
         count = total if self.count == "sum" else float(round(total))
         sel = self._w > self.extraction_threshold
-        return Estimate(count, self._m[sel].copy(), self._P[sel].copy())
+        return Estimate(count, self._m[sel].copy(), self._P[sel].copy(),
+                        self._label[sel].copy())
 
     @classmethod
     def resource_terms(cls, params, model, looks_per_step, targets) -> ResourceTerms:
