@@ -382,3 +382,89 @@ def test_cut_moves_each_weight_by_at_most_the_dropped_posterior_mass():
                           max_combinations=10**6)
         bound = got.dropped / (1.0 - got.dropped) + 1e-12
         assert np.all(np.abs(got.weights - ref.weights) <= bound)
+
+
+#: the user's dense scene's sensor (docs/gpf.md section 13): p_f = 2.2e-5, l(1) = 2.7e4
+DENSE_SENSOR = RayleighGridSensor(p_d=0.6, snr=20.0, looks_per_step=64)
+
+
+def test_a_tail_in_a_neighbours_detected_cell_is_weighed_against_the_neighbour():
+    """A track whose looked cells all came back empty reaches, with ``4.6e-7`` of its
+    mass, the detected cell of a neighbour that sits on it. Updated apart (``w m_c`` is far
+    below the interaction threshold) it credited the detection to itself alone, ``l(1) =
+    2.7e4``, and put 3% of itself in that cell (docs/gpf.md section 14); in the joint
+    posterior the neighbour explains the detection and the track's share there is
+    ``~1e-6``. Reference: brute-force enumeration of both tracks' bins (each of the 64
+    looked cells, outside the grid, absent) with scipy's bivariate normal masses; the
+    detected cell weighs ``l(T)``, a cell without a detection ``l(1)`` per target in it
+    (module docstring, "missed cells")."""
+    grid = Grid(8, 8, cell_size=1.0)
+    cells = np.arange(64)
+    c = 2 * 8 + 5
+    returns = cells == c
+    w = np.array([0.999, 0.999])
+    means = np.array([[3.0, 0.0, 4.5, 0.0], [5.5, 0.0, 2.5, 0.0]])
+    covs = np.stack([_cov(0.55, 0.55, 0.0, 0.05, 0.05), _cov(0.3, 0.3, 0.0, 0.05, 0.05)])
+    res = grid_update(w, means, covs, np.array([-1, -1]), cells, returns, grid, DENSE_SENSOR,
+                      epsilon=0.0, max_combinations=10**6, split_share=1e-9)
+    assert res.n_clusters == 1 and res.max_cluster == 2
+    x0, x1, y0, y1 = (b.astype(float) for b in grid.cell_bounds(cells))
+    masses = []
+    for i in range(2):
+        pos = multivariate_normal(means[i][[0, 2]], covs[i][np.ix_([0, 2], [0, 2])])
+        m = np.array([pos.cdf([a1, b1], lower_limit=[a0, b0])
+                      for a0, a1, b0, b1 in zip(x0, x1, y0, y1, strict=True)])
+        masses.append(np.concatenate([w[i] * m, [w[i] * (1.0 - m.sum()), 1.0 - w[i]]]))
+    l1 = {z: float(np.exp(DENSE_SENSOR.log_likelihood_ratio(np.array([z]), np.array([1]))[0]))
+          for z in (True, False)}
+    l2_hit = float(np.exp(DENSE_SENSOR.log_likelihood_ratio(np.array([True]), np.array([2]))[0]))
+    # bins 0..63: cells; 64: outside; 65: absent
+    lik = np.ones((66, 66))
+    for a in range(64):
+        lik[a, :] *= l1[bool(returns[a])]
+        lik[:, a] *= l1[bool(returns[a])]
+    lik[c, c] = l2_hit  # both in the detected cell: l(2), not l(1)^2
+    joint = masses[0][:, None] * masses[1][None, :] * lik
+    share_ref = joint[c].sum() / joint[:65].sum()  # P(in c | present), the first track
+    assert share_ref < 1e-5
+    rows = np.nonzero(res.owner == 0)[0]
+    in_c = rows[grid.cell_of(res.means[rows, 0], res.means[rows, 2]) == c]
+    assert len(in_c) == 1
+    assert res.alpha[in_c[0]] == pytest.approx(share_ref, rel=1e-3)
+
+
+def test_large_cluster_ranked_by_beliefs_matches_the_full_listing():
+    """A cluster too large to list in full (four tracks between four detected cells and a
+    birth candidate on each, 4096 joint choices) at the dense scene's sensor: the 64
+    combinations ranked by :func:`gpf_grid._option_beliefs` give the weights and means of
+    the full listing within 1e-3 and 1e-3 cells. Ranked by the tilted prior (each option
+    weighed by ``l(1)`` as if alone, the ranking before docs/gpf.md section 14) the list
+    holds combinations in which a candidate and a track share a detected cell, and the
+    candidates came out at ``w ~ 0.5`` instead of ``~0.007``."""
+    grid = Grid(6, 6, cell_size=1.0)
+    cells = np.arange(36)
+    det = np.array([7, 9, 20, 22])
+    returns = np.isin(cells, det)
+    means = np.zeros((8, 4))
+    means[:4, [0, 2]] = [[2.0, 1.5], [3.0, 1.6], [3.0, 3.4], [3.9, 3.5]]
+    means[4:, 0], means[4:, 2] = det % 6 + 0.5, det // 6 + 0.5
+    covs = np.stack([np.diag([0.25, 0.01, 0.25, 0.01])] * 4
+                    + [np.diag([0.09, 0.01, 0.09, 0.01])] * 4)
+    w = np.array([0.99] * 4 + [0.003] * 4)
+    ucell = np.concatenate([[-1] * 4, det])
+    full = grid_update(w, means, covs, ucell, cells, returns, grid, DENSE_SENSOR,
+                       epsilon=0.0, max_combinations=4096)
+    assert full.max_cluster == 8 and full.dropped < 1e-6
+    capped = grid_update(w, means, covs, ucell, cells, returns, grid, DENSE_SENSOR,
+                         epsilon=0.0, max_combinations=64)
+    np.testing.assert_allclose(capped.weights, full.weights, atol=1e-3)
+    np.testing.assert_allclose(capped.means[:4], full.means[:4], atol=1e-3)
+    assert np.all(full.weights[4:] < 0.01)
+
+
+def test_beliefs_without_shared_detected_cells_are_the_tilted_options():
+    """No two members reach one detected cell: no coupling, the beliefs are the options."""
+    q = np.array([[0.1, 0.2, 0.7, 0.0], [0.3, 0.3, 0.0, 0.4]])
+    cell = np.array([[-1, -1, 0, -1], [-1, -1, -1, 1]])
+    LLc = np.array([[0.0, 0.0, -9.0], [0.0, 0.0, -9.0]])
+    np.testing.assert_allclose(gpf_grid._option_beliefs(q, cell, LLc), q, rtol=1e-12)

@@ -48,8 +48,11 @@ Step (the harness calls predict, then update, then estimate):
 * **Combinations**: as in the paper, cut on their probability ``<= epsilon``, at most
   ``max_combinations`` (the most probable) kept, renormalised; on the grid the cut acts
   on the combinations' posterior (:mod:`.gpf_grid`, "missed cells"; a deviation: the
-  paper cuts on the prior), and a track joins a detected cell's cluster when ``w m_c >
-  INTERACTION_THRESHOLD``.
+  paper cuts on the prior), and a track joins a detected cell's cluster when its
+  probability of being in the cell, prior ``w m_c`` or updated alone ``w m_c l_c / (w L
+  + 1 - w)``, exceeds ``INTERACTION_THRESHOLD`` (the second: at ``p_f ~ 1e-5`` a track
+  updated apart moved 16% of itself into a neighbour's detected cell, where it had
+  ``3e-6`` of its mass; docs/gpf.md section 14).
 * **Count bound** (models without arrivals): such a model never has more targets than it
   started with, ``n0``, so after each update the existences are replaced by their
   marginals given ``count <= n0`` (:func:`condition_on_count_bound`, exact for
@@ -138,8 +141,9 @@ from .params import Param, Search
 
 #: merged weight rules of :func:`merge_groups` (module docstring, "Merge")
 _MERGE_RULES = ("bounded_sum", "capped_sum")
-#: on the grid, a track joins the cluster of a detected cell when ``w m_c`` exceeds this
-#: (a birth candidate always joins); below it the two are updated apart
+#: on the grid, a track joins the cluster of a detected cell when its probability of being
+#: in the cell, prior ``w m_c`` or updated alone, exceeds this (a birth candidate always
+#: joins); below it the two are updated apart (:func:`.gpf_grid.grid_update`)
 INTERACTION_THRESHOLD = 1e-3
 #: slack on "the group's weight sum stays <= 1" (float round-off of weights that are 1)
 _SUM_TOL = 1e-9

@@ -15,7 +15,10 @@ Single particle (no other particle shares its looked cells), with
 
 and the posterior Gaussian is the moment match of that density (law of total covariance over
 the bins). Clusters of particles that share a looked cell that returned a detection (each
-with occupancy probability ``w m_c`` above ``interaction_threshold``; connected components
+with occupancy probability above ``interaction_threshold``, prior ``w m_c`` or posterior
+as if alone ``w m_c l_c / (w L + 1 - w)``: a particle updated apart credits the
+detection to itself alone, and at ``l_c(1) = p_d / p_f = 2.7e4`` a tail of ``3e-6`` in
+a neighbour's detected cell moved 16% of it there, docs/gpf.md section 14; connected components
 of the particle -- cell graph, so the cost grows with the cluster sizes, never with
 ``2^K``) are updated by enumerating combinations: every particle of the cluster picks one
 option -- absent (prior ``1 - w``), elsewhere (``w m_out``), "missed" (below) or detected
@@ -51,7 +54,11 @@ which the tilt alone makes look improbable whenever another member explains the 
 detection (``l(1) = 2.7e4`` at ``p_f = 2.2e-5``), survive where their posterior is
 above ``epsilon`` (cut on the tilted prior they went, and every member's weight became
 exactly 1: docs/gpf.md section 13). Small clusters list every combination; a larger one
-lists the ``max_combinations`` of largest tilted prior before the cut.
+lists the ``max_combinations`` of largest approximate posterior (the product of each
+member's belief, its tilted options weighed by the coupling expected from the others,
+:func:`_option_beliefs`) before the cut; ranked by the tilted prior the list filled with
+combinations of several members in one detected cell and left the likely ones out
+(docs/gpf.md section 14).
 
 JPDA* (:func:`avoid_coalescence`, Blom and Bloem 2000): of the combinations that differ
 only by which members took which detected cells, only the most probable is kept, so that
@@ -304,15 +311,24 @@ def _cluster_posterior(option_probs: np.ndarray, option_cell: np.ndarray, LL: np
                        epsilon: float, max_combinations: int,
                        detected: np.ndarray) -> tuple[np.ndarray, float]:
     """One cluster too large to list in full: the ``max_combinations`` combinations of
-    largest (tilted) prior by :func:`enumerate_combinations`, then their posterior, the
-    JPDA* rule and the cut on the posterior (:func:`_cut_posterior`). ``option_probs``,
-    ``option_cell`` are ``(n, O)`` (cell ``-1`` = not in a looked cell); returns ``post (n,
-    O)``, the posterior probability of each member's options, and the dropped mass (the
-    listed combinations' posterior at or below ``epsilon``, plus the prior mass beyond the
-    cap). ``detected (n_u,)``: the detected looked cells, for :func:`avoid_coalescence`."""
+    largest approximate posterior -- the product of the members' :func:`_option_beliefs`,
+    which weigh each detected-cell option by the coupling it meets from the others -- by
+    :func:`enumerate_combinations`, then their exact posterior (tilted prior times the
+    coupling), the JPDA* rule and the cut on the posterior (:func:`_cut_posterior`).
+    Ranked by the tilted prior alone, as before, the list filled with combinations in
+    which several members take one detected cell (each option tilted by ``l(1)`` as if
+    alone), whose posterior is ``l(2) / l(1)^2 ~ 5e-5`` of the rest at ``p_f = 2.2e-5``,
+    and the cut kept those (docs/gpf.md section 14). ``option_probs``, ``option_cell`` are
+    ``(n, O)`` (cell ``-1`` = not in a looked cell); returns ``post (n, O)``, the posterior
+    probability of each member's options, and the dropped mass (the listed combinations'
+    posterior at or below ``epsilon``, plus the approximate posterior beyond the cap).
+    ``detected (n_u,)``: the detected looked cells, for :func:`avoid_coalescence`."""
     n, n_opt = option_probs.shape
-    combs = enumerate_combinations(option_probs, 0.0, max_combinations)
+    combs = enumerate_combinations(_option_beliefs(option_probs, option_cell, LL), 0.0,
+                                   max_combinations)
     ch = combs.choice  # (C, n)
+    with np.errstate(divide="ignore"):
+        log_prior = np.log(option_probs)[np.arange(n)[None, :], ch].sum(axis=1)
     cell_of = option_cell[np.arange(n)[None, :], ch]
     # counts per looked cell in each combination, then sum_c LL[c, T_c]
     loc_cells, loc_idx = np.unique(cell_of[cell_of >= 0], return_inverse=True)
@@ -320,12 +336,58 @@ def _cluster_posterior(option_probs: np.ndarray, option_cell: np.ndarray, LL: np
     np.add.at(counts, (np.nonzero(cell_of >= 0)[0], loc_idx), 1)
     loglik = LL[loc_cells[None, :], counts].sum(axis=1)
     log_post = avoid_coalescence(np.zeros(len(ch), dtype=np.int64), ch, cell_of, detected,
-                                 combs.log_prior + loglik)
+                                 log_prior + loglik)
     pc, cut = _cut_posterior(log_post, np.zeros(len(ch), dtype=np.int64), 1, epsilon)
     # post[j, o] = sum over combinations with choice_j = o of p(C | z)
     post = np.bincount((np.arange(n)[None, :] * n_opt + ch).ravel(),
                        weights=np.repeat(pc, n), minlength=n * n_opt).reshape(n, n_opt)
     return post, combs.dropped + cut
+
+
+#: fixed-point iterations of :func:`_option_beliefs` and the share of the new value in each
+_BELIEF_ITERATIONS = 20
+_BELIEF_DAMPING = 0.5
+#: a member's option probability is held below 1 by this much in the leave-one-out counts
+_BELIEF_CLIP = 1e-12
+
+
+def _option_beliefs(option_probs: np.ndarray, option_cell: np.ndarray, LLc: np.ndarray
+                    ) -> np.ndarray:
+    """Approximate posterior option probabilities of one cluster's members (``(n, O)``,
+    rows summing to 1), to rank its combinations.
+
+    The joint posterior is ``prod_j q_j(o_j) exp(sum_c LLc[c, T_c])`` (``q`` the tilted
+    option probabilities, ``LLc`` the coupling, :func:`_aggregate_misses`). Member ``i``'s
+    option at detected cell ``c`` is weighed by the coupling's expected increment given
+    the others, ``b_i(c) ~ q_i(c) E[exp(LLc[c, T_-i + 1] - LLc[c, T_-i])]``, ``T_-i`` the
+    number of other members at ``c`` under the current beliefs, independent Bernoullis
+    (``P(T_-i = 0) = prod_{j != i} (1 - b_j)``, ``P(T_-i = 1) = P(T_-i = 0) sum_{j != i}
+    b_j / (1 - b_j)``,
+    the rest counted at ``T_-i = 2``); a damped fixed-point iteration from ``q``
+    (loopy belief propagation's form on this factor graph, not its exact messages)."""
+    n, n_opt = option_probs.shape
+    rows, cols = np.nonzero(option_cell >= 0)
+    q = option_probs.copy()
+    if len(rows) == 0:
+        return q
+    cells, cidx = np.unique(option_cell[rows, cols], return_inverse=True)
+    steps = np.exp(np.diff(LLc[cells], axis=1))  # exp(LLc[c, T + 1] - LLc[c, T])
+    steps = np.concatenate([steps, steps[:, -1:], steps[:, -1:]], axis=1)[:, :3]
+    n_c = len(cells)
+    for _ in range(_BELIEF_ITERATIONS):
+        b = np.minimum(q[rows, cols], 1.0 - _BELIEF_CLIP)
+        log_free = np.log1p(-b)
+        odds = b / (1.0 - b)
+        p0 = np.exp(np.bincount(cidx, weights=log_free, minlength=n_c)[cidx] - log_free)
+        p1 = p0 * np.maximum(np.bincount(cidx, weights=odds, minlength=n_c)[cidx] - odds, 0.0)
+        p1 = np.minimum(p1, 1.0 - p0)
+        factor = (p0 * steps[cidx, 0] + p1 * steps[cidx, 1]
+                  + (1.0 - p0 - p1) * steps[cidx, 2])
+        new = option_probs.copy()
+        new[rows, cols] *= factor
+        new /= new.sum(axis=1, keepdims=True)
+        q = (1.0 - _BELIEF_DAMPING) * q + _BELIEF_DAMPING * new
+    return q
 
 
 def _small_clusters_posterior(option_probs: np.ndarray, option_cell: np.ndarray,
@@ -498,13 +560,28 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     mass_out = np.clip(1.0 - mass_in, 0.0, 1.0)
     mass_out[~gauss] = 0.0
 
+    # ---- each track's likelihood as if alone, L = m_out + sum_c m_c l_c(1) (log, given
+    # existence): the singletons' update, and the significance of a pair below
+    _, LL1 = look_log_ratios(sensor, cells, returns, 1)
+    log_terms = np.log(np.maximum(mass, 1e-300)) + LL1[pu, 1]  # per pair, log m_c l_c(1)
+    with np.errstate(divide="ignore"):
+        logL = np.log(mass_out)
+        log_w, log_not_w = np.log(w), np.log1p(-w)
+    np.logaddexp.at(logL, pi, log_terms)
+
     # ---- clusters: particles linked through a looked cell both occupy significantly
+    # (prior w m_c, or posterior as if alone w m_c l_c / (w L + 1 - w): a track updated
+    # apart credits a detection to itself alone, so at l_c(1) = p_d / p_f = 2.7e4 a tail
+    # of 3e-6 in a neighbour's detected cell took 16% of it; docs/gpf.md section 14)
     occ = w[pi] * mass
+    with np.errstate(invalid="ignore"):  # a track with no mass at all: nan, not linked
+        occ_alone = np.exp(log_w[pi] + log_terms - np.logaddexp(log_w + logL, log_not_w)[pi])
     # a uniform particle (birth candidate) always links in a cell that returned a detection,
     # so that a return an existing particle explains is not also credited to a new target
     hit = np.zeros(n_u, dtype=bool)
     hit[np.searchsorted(U, cells[returns])] = True
-    signif = (occ > interaction_threshold) | (~gauss[pi] & hit[pu])
+    signif = ((np.maximum(occ, occ_alone) > interaction_threshold)
+              | (~gauss[pi] & hit[pu]))
     signif &= hit[pu]  # members interact only through cells that returned a detection
     n_sig = np.bincount(pu[signif], minlength=n_u)
     link = signif & (n_sig[pu] >= 2)
@@ -521,11 +598,6 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     # singletons, closed form in log space
     single = ~in_cluster
     sp = single[pi]
-    log_terms_pair = np.log(np.maximum(mass[sp], 1e-300)) + LL[pu[sp], 1]
-    logL = np.full(K, -np.inf)
-    with np.errstate(divide="ignore"):
-        logL[single] = np.log(mass_out[single])
-    np.logaddexp.at(logL, pi[sp], log_terms_pair)
     s_idx = np.nonzero(single)[0]
     with np.errstate(divide="ignore"):
         logit = np.log(w[s_idx]) + logL[s_idx] - np.log1p(-w[s_idx])
