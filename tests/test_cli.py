@@ -71,8 +71,11 @@ def test_tiny_run_writes_results_and_summary(tmp_path, capsys):
     assert (summary["n_seeds"] == 2).all()
     assert {"ospa_mean", "ospa_ci95", "gospa_mean", "count_error_mean"} <= set(summary.columns)
     printed = capsys.readouterr().out
-    assert printed.count("| default |") == len(names)
-    assert (out_dir / "summary.md").read_text().count("| default |") == len(names)
+    assert printed.split("Track-level scores")[0].count("| default |") == len(names)
+    accuracy, track_level = (out_dir / "summary.md").read_text().split("## Track-level scores")
+    assert accuracy.count("| default |") == len(names)
+    labelled = [n for n in names if n != "null"]  # null keeps no track identity
+    assert track_level.count("| default |") == len(labelled)
 
 
 def test_run_with_scenario_file_policies_and_looks(tmp_path, capsys):

@@ -22,7 +22,7 @@ def test_compare_writes_the_report_folder(tmp_path, capsys):
     for name in ("results.parquet", "report.md", "report.html", "manifest.json", "summary.csv",
                  "figures/ospa_over_time.png", "figures/count_error_over_time.png",
                  "figures/runtime_per_step.png", "figures/accuracy_vs_runtime.png",
-                 "figures/snapshot.png"):
+                 "figures/snapshot.png", "figures/ospa2_over_time.png"):
         assert (out / name).is_file(), name
     df = pd.read_parquet(out / "results.parquet")
     assert len(df) == 2 * 3 * 6
@@ -50,7 +50,7 @@ def test_compare_writes_the_report_folder(tmp_path, capsys):
     assert "share of gap closed" not in md and "gap_closed_mean" not in (
         out / "summary.csv").read_text()
     page = (out / "report.html").read_text()
-    assert page.count("data:image/png;base64,") == 5
+    assert page.count("data:image/png;base64,") == 6
 
 
 def test_default_trackers_cover_the_registry_with_budget_params():

@@ -254,3 +254,36 @@ def test_markdown_tables_escape_pipes_and_show_the_looks_made():
     assert sum(r.startswith("| a\\|b |") for r in rows) == len(SCENARIOS)
     text = summary.to_markdown(summ)
     assert "| a\\|b |" in text and "| 24 (144 made) |" in text
+
+
+# ------------------------------------------------------- track-level scores (issue 26)
+def test_tiny_sweep_report_has_ospa2_figure_and_crossing_table(tmp_path):
+    """A real sweep on `crossing` (kfnn labels its tracks; null gives no labels): the
+    OSPA(2)-over-time figure, the table of switches around the crossings, and the
+    track-level tables of summary.md."""
+    from mttbench.benchmarks.app import summary
+
+    sc = dataclasses.replace(scenarios.get("crossing"), n_steps=70)
+    results = pd.concat([run_job(Job(sc, TrackerSpec(t), seed=s))
+                         for t in ("kfnn", "null") for s in (0, 1)], ignore_index=True)
+    files = report.build_report(results, tmp_path, reference="kfnn")
+    assert "ospa2" in files.figures
+    assert files.figures["ospa2"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    md = files.markdown.read_text()
+    assert "(figures/ospa2_over_time.png)" in md
+    section = md.split("### Identity switches around the crossings", 1)[1].split("## ", 1)[0]
+    assert "`crossing`:" in section and "crossings per run" in section
+    table = [r for r in section.splitlines() if r.startswith("| kfnn")]
+    assert len(table) == 1 and "null" not in section  # no labels, no row
+    want = summary.crossing_switches(results)
+    near, half = summary.mean_ci95(want["switches_near"].to_numpy())
+    cells = [c.strip() for c in table[0].strip("|").split("|")]
+    assert cells[4] == report.fmt_pm(near, half, 1.0, ".2f")
+    text = summary.write_summary(results, tmp_path, "tiny")
+    assert "## Track-level scores" in text and "No track-level scores for `null`" in text
+    assert "## Identity switches around the crossings" in text
+    assert (tmp_path / "summary.md").read_text() == text
+    track = text.split("## Track-level scores", 1)[1].split("## Identity", 1)[0]
+    runs = summary.per_run(results)
+    tg, tg_half = summary.mean_ci95(runs.loc[runs["tracker"] == "kfnn", "tgospa"].to_numpy())
+    assert f"{tg:.3f} ± {tg_half:.3f}" in track and "| crossing | null" not in track

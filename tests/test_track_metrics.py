@@ -210,7 +210,9 @@ def test_run_level_columns_reach_rows_summary_and_report(tmp_path):
     sc = dataclasses.replace(get("crossing"), n_steps=25)
     rows = pd.concat([loop.run_job(loop.Job(sc, TrackerSpec(t), seed=s))
                       for t in ("kfnn", "null") for s in (0, 1)], ignore_index=True)
-    cols = run_metric_columns()
+    from mttbench.benchmarks.engine.track_series import series_columns
+
+    cols = [c for c in run_metric_columns() if c not in series_columns()]  # per step
     assert {"tgospa", "ospa2", "id_switches", "mostly_tracked"} <= set(cols)
     for (tracker, _), g in rows.groupby(["tracker", "seed"]):
         assert (g[cols].nunique(dropna=False) == 1).all()  # constant over the run
@@ -222,3 +224,178 @@ def test_run_level_columns_reach_rows_summary_and_report(tmp_path):
     files = report.build_report(rows, tmp_path, reference="kfnn", draw=False)
     text = files.markdown.read_text()
     assert "## Track-level scores" in text and "No track-level scores for `null`" in text
+
+
+# ------------------------------------------------------------ per-step series (issue 26)
+def _brute_ospa2_window(tpos, tids, epos, elab, k, w, c, p):
+    """OSPA(2) of the window of ``w`` steps ending at ``k``, from its definition: the
+    tracks present in the window, the time-averaged base distance step by step, the
+    best injection by enumerating every permutation."""
+    steps = range(max(0, k - w + 1), k + 1)
+
+    def tracks(pos, ids):
+        out: dict[int, dict[int, np.ndarray]] = {}
+        for t in steps:
+            for i, x in zip(ids[t].tolist(), pos[t], strict=True):
+                out.setdefault(i, {})[t] = np.asarray(x, float)
+        return list(out.values())
+
+    X, Y = tracks(tpos, tids), tracks(epos, elab)
+    if len(X) > len(Y):
+        X, Y = Y, X
+    m, n = len(X), len(Y)
+    if n == 0:
+        return 0.0
+
+    def base(x, y):
+        ts = sorted(set(x) | set(y))
+        d = [min(np.linalg.norm(x[t] - y[t]), c) if t in x and t in y else c for t in ts]
+        return min(sum(d) / len(ts), c)
+
+    best = min(sum(base(X[i], Y[perm[i]]) ** p for i in range(m))
+               for perm in itertools.permutations(range(n), m))
+    return ((best + c**p * (n - m)) / n) ** (1 / p)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_ospa2_series_equals_brute_force_per_window(seed):
+    from mttbench.benchmarks.engine.metrics import RunData
+    from mttbench.benchmarks.engine.track_series import series_values
+
+    rng = np.random.default_rng(300 + seed)
+    T = int(rng.integers(5, 9))
+    tpos, tids = _random_run(rng, int(rng.integers(1, 4)), T, p_present=0.6)
+    epos, elab = _random_run(rng, int(rng.integers(1, 4)), T, p_present=0.6, id0=20)
+    c, p, w = 2.0, float(rng.choice([1.0, 2.0])), int(rng.integers(1, 5))
+    got = ospa2(tpos, tids, epos, elab, c=c, p=p, window=w).per_step
+    want = [_brute_ospa2_window(tpos, tids, epos, elab, k, w, c, p) for k in range(T)]
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+    if p == 2.0 and w == 3:  # the registered series: the default window is 10 steps
+        return
+    run = RunData(tpos, tids, epos, elab, c=c, p=p)
+    series = series_values(run)["ospa2_window"]
+    want10 = [_brute_ospa2_window(tpos, tids, epos, elab, k, 10, c, p) for k in range(T)]
+    np.testing.assert_allclose(series, want10, rtol=0, atol=1e-9)
+
+
+def test_clean_swap_switches_fall_inside_the_crossing_window_only():
+    """Two targets meet at step 10 (distance |k - 10|) and their tracks swap there:
+    one switch per target, both at the crossing, inside its window; none outside. At
+    step 10 the targets coincide, so the old matches are kept and the swap is counted at
+    step 11, when they have parted."""
+    from mttbench.benchmarks.engine.track_metrics import crossings
+
+    T, w = 20, 2
+    run = _crossing(swap=True, T=T)
+    m = clear_mot(*run, gate=0.5)
+    assert m.switch_steps.tolist() == [0] * 11 + [2] + [0] * 8
+    cr = crossings(run[0], run[1], distance=1.5, window=w)
+    dist = np.array([abs(k - 10) for k in range(T)], float)
+    close = dist < 1.5  # steps 9, 10, 11
+    assert cr.close.tolist() == close.astype(int).tolist()
+    assert cr.starts.tolist() == [0] * 9 + [1] + [0] * 10  # one encounter
+    near = np.array([close[max(0, k - w):k + w + 1].any() for k in range(T)])
+    assert cr.near.tolist() == near.tolist()
+    assert m.switch_steps[cr.near].sum() == 2 and m.switch_steps[~cr.near].sum() == 0
+    # the same swap far from any crossing: a pair of targets 5 apart swapped at step 15
+    far = [np.array([[k * 0.1, 0.0], [k * 0.1, 5.0]]) for k in range(T)]
+    ids = [np.array([0, 1])] * T
+    labs = [np.array([7, 8]) if k < 15 else np.array([8, 7]) for k in range(T)]
+    m2 = clear_mot(far, ids, [x + 0.05 for x in far], labs, gate=0.5)
+    cr2 = crossings(far, ids, distance=1.5, window=w)
+    assert not cr2.near.any() and cr2.starts.sum() == 0
+    assert m2.switch_steps[15] == 2 and m2.switch_steps[~cr2.near].sum() == 2
+
+
+def test_crossings_against_a_direct_loop():
+    from mttbench.benchmarks.engine.track_metrics import crossings
+
+    rng = np.random.default_rng(7)
+    T = 30
+    tpos, tids = _random_run(rng, 4, T, p_present=0.8, spread=2.5)
+    d, w = 1.0, 3
+    cr = crossings(tpos, tids, distance=d, window=w)
+    close = np.zeros(T, int)
+    starts = np.zeros(T, int)
+    pairs_prev: set = set()
+    for k in range(T):
+        now = set()
+        for a, b in itertools.combinations(range(len(tids[k])), 2):
+            if np.linalg.norm(tpos[k][a] - tpos[k][b]) < d:
+                now.add(tuple(sorted((int(tids[k][a]), int(tids[k][b])))))
+        close[k] = len(now)
+        starts[k] = len(now - pairs_prev)
+        pairs_prev = now
+    assert close.sum() > 0
+    assert cr.close.tolist() == close.tolist() and cr.starts.tolist() == starts.tolist()
+    near = [bool((close[max(0, k - w):k + w + 1] > 0).any()) for k in range(T)]
+    assert cr.near.tolist() == near
+
+
+def test_run_job_writes_the_series_one_value_per_step():
+    import dataclasses
+
+    from mttbench.benchmarks.app import summary
+    from mttbench.benchmarks.engine import loop
+    from mttbench.benchmarks.engine.specs import TrackerSpec
+    from mttbench.benchmarks.engine.track_series import series_columns
+    from mttbench.scenarios.spec import get
+
+    sc = dataclasses.replace(get("crossing"), n_steps=70)
+    rows = pd.concat([loop.run_job(loop.Job(sc, TrackerSpec(t), seed=s))
+                      for t in ("kfnn", "null") for s in (0, 1)], ignore_index=True)
+    assert {"ospa2_window", "id_switches_step", "crossings", "crossings_near"} <= set(
+        series_columns())
+    assert (rows[series_columns()].dtypes == np.float64).all()
+    for (tracker, _), g in rows.groupby(["tracker", "seed"]):
+        if tracker == "kfnn":  # the run-level scores are the series' mean and sum
+            assert g["ospa2_window"].mean() == pytest.approx(g["ospa2"].iloc[0], abs=1e-12)
+            assert g["id_switches_step"].sum() == g["id_switches"].iloc[0]
+            assert g["ospa2_window"].nunique() > 1
+        else:
+            assert g[["ospa2_window", "id_switches_step"]].isna().all().all()
+    # the crossings come from the world alone: the same for every tracker of a seed
+    wide = rows.pivot_table(index=["seed", "step"], columns="tracker",
+                            values=["crossings", "crossings_near"])
+    assert (wide.xs("kfnn", axis=1, level=1) == wide.xs("null", axis=1, level=1)).all().all()
+    assert rows["crossings"].sum() > 0
+    # the per-run tables keep the series out (their run values are ospa2, id_switches)
+    assert not set(series_columns()) & set(summary.per_run(rows).columns)
+
+
+def test_crossing_switches_sum_the_series_in_and_out_of_the_windows():
+    rng = np.random.default_rng(11)
+    rows = []
+    for tracker in ("a", "b"):
+        for seed in range(3):
+            near = rng.random(40) < 0.3
+            sw = rng.integers(0, 2, 40).astype(float)
+            for k in range(40):
+                rows.append({"scenario": "x", "tracker_label": tracker, "tracker": tracker,
+                             "policy_label": "raster", "looks_per_step": 24, "seed": seed,
+                             "step": k, "status": "ok", "id_switches_step": sw[k],
+                             "crossings": float(k == 3), "crossings_near": float(near[k])})
+    df = pd.DataFrame(rows)
+    from mttbench.benchmarks.app import summary
+
+    got = summary.crossing_switches(df).set_index(["tracker_label", "seed"])
+    for (tracker, seed), g in df.groupby(["tracker_label", "seed"]):
+        r = got.loc[(tracker, seed)]
+        inside = g["crossings_near"] > 0
+        assert r["switches_near"] == g.loc[inside, "id_switches_step"].sum()
+        assert r["switches_elsewhere"] == g.loc[~inside, "id_switches_step"].sum()
+        assert r["near_rate"] == pytest.approx(r["switches_near"] / inside.sum())
+        assert r["elsewhere_rate"] == pytest.approx(r["switches_elsewhere"] / (~inside).sum())
+        assert r["crossings"] == 1 and r["near_steps"] == inside.sum()
+    summ = summary.crossing_summary(df)
+    a = got.loc["a", "switches_near"].to_numpy()
+    mean, half = summary.mean_ci95(a)
+    row = summ[summ["tracker_label"] == "a"].iloc[0]
+    assert row["switches_near_mean"] == pytest.approx(mean)
+    assert row["switches_near_ci95"] == pytest.approx(half)
+    # an unlabelled tracker (NaN switches) and a failed run have no row
+    df.loc[df["tracker_label"] == "b", "id_switches_step"] = np.nan
+    df.loc[(df["tracker_label"] == "a") & (df["seed"] == 0) & (df["step"] == 5),
+           "status"] = "error"
+    left = summary.crossing_switches(df)
+    assert sorted(zip(left["tracker_label"], left["seed"], strict=True)) == [("a", 1), ("a", 2)]

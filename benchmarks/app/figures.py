@@ -88,9 +88,11 @@ def _legend_below(fig: Figure, axes: list[Axes]) -> None:
 
 
 def metric_over_time(results: pd.DataFrame, metric: str, path: str | Path,
-                     ylabel: str | None = None) -> Path:
+                     ylabel: str | None = None, title: str | None = None) -> Path:
     """``metric`` against step, one panel per scenario, one line per tracker:
-    mean over seeds with a shaded 95% band."""
+    mean over seeds with a shaded 95% band. ``title`` (default ``ylabel``) heads the
+    figure. Trackers without a finite value (e.g. a track score of a tracker without
+    labels) draw no line."""
     st = step_stats(results, metric)
     scen = sorted(st["scenario"].unique())
     colors = tracker_colors(list(results["tracker_label"].unique()))
@@ -108,7 +110,8 @@ def metric_over_time(results: pd.DataFrame, metric: str, path: str | Path,
         ax.set_ylabel(ylabel or metric)
         ax.grid(alpha=0.3)
     _legend_below(fig, axes)
-    fig.suptitle(f"{ylabel or metric}: mean over seeds, shaded 95% interval", fontsize=10)
+    fig.suptitle(f"{title or ylabel or metric}: mean over seeds, shaded 95% interval",
+                 fontsize=10)
     return _save(fig, path)
 
 

@@ -5,8 +5,9 @@ looks x seed x step, see :mod:`benchmarks.engine.loop`) into a report folder::
 
     report.md       tables and links to figures/*.png
     report.html     the same, self-contained (figures embedded as base64 PNG)
-    figures/*.png   OSPA and count error over time, runtime per step, accuracy
-                    against runtime, and (if a trace is given) a snapshot of one run
+    figures/*.png   OSPA and count error over time, OSPA(2) over time (when the
+                    results have track labels), runtime per step, accuracy against
+                    runtime, and (if a trace is given) a snapshot of one run
 
 Every number is a mean over seeds of per-run values (each run's steps averaged
 first; times are the run's median per-step time) with the half-width of the 95%
@@ -85,14 +86,19 @@ ACCURACY_COLUMNS = accuracy_columns()
 GOSPA_COLUMNS = metric_table_columns(get_metric("gospa"))
 def track_columns() -> list[tuple[str, str, float, str]]:
     """``(column stem, header, scale, format)`` of the track-level table: every column of
-    every registered run-level metric (registration order)."""
-    return [col for m in registered_run_metrics() for col in metric_table_columns(m)]
+    every registered run-level metric but the per-step series (registration order)."""
+    series = set(summary.series_columns())
+    return [col for m in registered_run_metrics() for col in metric_table_columns(m)
+            if col[0] not in series]
 
 
 def _track_section(doc: Document, runs: pd.DataFrame, summ: pd.DataFrame,
-                   tuned_on: dict[str, frozenset[str]] | None) -> None:
-    """The track-level scores: one table per scenario, and a line naming the trackers
-    without labels (no track identity, so no track-level score)."""
+                   tuned_on: dict[str, frozenset[str]] | None,
+                   crossings: pd.DataFrame | None = None) -> None:
+    """The track-level scores: one table per scenario, a line naming the trackers
+    without labels (no track identity, so no track-level score), and per scenario with
+    crossings the switches around them (``crossings``: a
+    :func:`benchmarks.app.summary.crossing_summary`)."""
     metrics = registered_run_metrics()
     cols = [c for c in track_columns() if f"{c[0]}_mean" in summ.columns]
     if not cols:
@@ -125,6 +131,45 @@ def _track_section(doc: Document, runs: pd.DataFrame, summ: pd.DataFrame,
                 + ": these trackers report no persistent track labels (a Gaussian mixture "
                   "or a weighted field without track identity, or no estimate at all), so "
                   "there is no identity to score.")
+    _crossing_section(doc, crossings, tuned_on)
+
+
+def crossing_table(crossings: pd.DataFrame) -> pd.DataFrame:
+    """Display table of :func:`benchmarks.app.summary.crossing_summary` rows: the
+    switches per run near the crossings and elsewhere, and per 100 steps of each."""
+    return summary_table(crossings, summary.CROSSING_STATS)
+
+
+def crossing_sentence(crossings: pd.DataFrame) -> str:
+    """What the truth of one scenario's rows holds: crossings per run and the steps
+    near them (the same worlds for every tracker; the first tracker's seeds)."""
+    r = crossings.iloc[0]
+    return (f"`{r['scenario']}`: {fmt_pm(r['crossings_mean'], r['crossings_ci95'], 1, '.1f')} "
+            f"crossings per run, {fmt_pm(r['near_steps_mean'], r['near_steps_ci95'], 1, '.1f')}"
+            f" of {r['n_steps_mean']:.0f} steps near one.")
+
+
+def _crossing_section(doc: Document, crossings: pd.DataFrame | None,
+                      tuned_on: dict[str, frozenset[str]] | None) -> None:
+    if crossings is None or crossings.empty:
+        return
+    spec = next((m for m in registered_run_metrics() if m.name == "crossings"), None)
+    if spec is None:
+        return
+    doc.add("h3", "Identity switches around the crossings")
+    doc.add("p", "A crossing: two true targets closer than "
+                 f"{spec.params['distance']:g} (the CLEAR-MOT gate: a track within the gate of "
+                 "one is then within reach of the other); a step is near a crossing when it is "
+                 f"within {spec.params['window']:g} steps of such a step. Per run, the "
+                 "CLEAR-MOT identity switches at the steps near a crossing and at the other "
+                 "steps, and per 100 steps of each; mean over seeds ± 95% t half-width. A "
+                 "tracker that keeps identities through crossings has few switches near them; "
+                 "switches elsewhere come from lost and re-acquired targets.")
+    for sc in sorted(crossings["scenario"].astype(str).unique()):
+        here = crossings[crossings["scenario"].astype(str) == sc]
+        doc.add("p", crossing_sentence(here))
+        doc.add("table", mark_out_of_sample(crossing_table(here), tuned_on)
+                .drop(columns=["scenario"], errors="ignore"))
 
 
 #: (column stem, header, scale, format) of the runtime table
@@ -559,7 +604,7 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
                  "p-th-power domain (they add up to GOSPA^p per step; missed and false are "
                  "c^p/2 per missed or false target).")
     doc.add("table", mark_out_of_sample(summary_table(summ, GOSPA_COLUMNS), tuned_on))
-    _track_section(doc, runs, summ, tuned_on)
+    _track_section(doc, runs, summ, tuned_on, summary.crossing_summary(results))
     doc.add("h2", "Runtime")
     doc.add("p", "Tracker time is predict + update + estimate per step (median over the steps "
                  "of a run, then mean over seeds, ± 95% interval); selection time is the cell "
@@ -584,6 +629,9 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
     captions = {
         "ospa": "OSPA over time: mean over seeds with a shaded 95% band, per tracker.",
         "count_error": "Count error over time: mean over seeds with a shaded 95% band.",
+        "ospa2": "OSPA(2) over time: at step k, OSPA(2) between the tracks of the window of "
+                 "steps ending at k (clipped at step 0), mean over seeds with a shaded 95% "
+                 "band, per tracker with track labels.",
         "runtime": "Tracker time per step: one dot per run (its median step), bar = mean.",
         "accuracy_runtime": "Mean OSPA against mean time per step, one point per tracker "
                             "and parameter setting, 95% error bars.",
@@ -613,6 +661,13 @@ def _draw_figures(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame,
     figs["count_error"] = figures.metric_over_time(results, "count_error",
                                                    fig_dir / "count_error_over_time.png",
                                                    "count error |N_est - N|")
+    if "ospa2_window" in results.columns and results["ospa2_window"].notna().any():
+        window = next((m.params.get("window") for m in registered_run_metrics()
+                       if m.name == "ospa2_window"), None)
+        figs["ospa2"] = figures.metric_over_time(
+            results, "ospa2_window", fig_dir / "ospa2_over_time.png", "OSPA(2)",
+            "OSPA(2) of the window ending at the step (c = {:g}, p = {:g}".format(
+                *_cp(results)) + (f", {window:g} steps)" if window else ")"))
     figs["runtime"] = figures.runtime_per_step(runs, fig_dir / "runtime_per_step.png")
     figs["accuracy_runtime"] = figures.accuracy_vs_runtime(summ,
                                                            fig_dir / "accuracy_vs_runtime.png")

@@ -41,6 +41,13 @@ trackers, nor one where no contestant (neither floor, ceiling nor a tracker or p
 uses the truth) beats the floor, its paired difference's 95% interval above 0: its row
 says so (``rankable``, ``reason``). Rows of trackers or policies that
 use the truth are marked `` (uses truth)`` in the tables (:func:`truth_labels`).
+
+**Track-level scores.** The run-level (track) metrics are one value per run
+(:func:`track_metrics_of`), summarised like the others; ``summary.md`` shows their
+headlines in a table of their own (:func:`track_markdown`), without the trackers that
+give no labels. The per-step series of :mod:`~mttbench.benchmarks.engine.track_series`
+stay out of the per-run tables; :func:`crossing_switches` sums the switches per step
+near the truth's crossings and elsewhere.
 """
 
 from __future__ import annotations
@@ -61,6 +68,7 @@ from ..engine.metrics import (
     registered_run_metrics,
     run_metric_columns,
 )
+from ..engine.track_series import series_columns
 
 #: per-run statistics of the run time, summarised over seeds after the metrics
 RUN_TIMES = ["tracker_wall_s", "tracker_wall_p95_s", "tracker_wall_max_s", "tracker_cpu_s",
@@ -80,8 +88,12 @@ def step_metrics_of(table: pd.DataFrame) -> list[str]:
 
 def track_metrics_of(table: pd.DataFrame) -> list[str]:
     """The registered run-level (track) metrics' columns that ``table`` has, in
-    registration order: constant over a run's rows, taken once per run."""
-    return [c for c in run_metric_columns() if c in table.columns]
+    registration order: constant over a run's rows, taken once per run. The per-step
+    series (:func:`~mttbench.benchmarks.engine.track_series.series_columns`) are left
+    out: their run values are the track scores already listed (``ospa2``,
+    ``id_switches``); :func:`crossing_switches` and the figures read them per step."""
+    series = set(series_columns())
+    return [c for c in run_metric_columns() if c in table.columns and c not in series]
 
 
 def unlabelled_trackers(runs: pd.DataFrame) -> list[str]:
@@ -264,6 +276,78 @@ def run_failures(results: pd.DataFrame) -> tuple[int, int, str]:
     step = int(r["step"]) if "step" in r.index else -1
     message = str(r["error"]) + (f" (step {step})" if step >= 0 else "")
     return len(bad), n, f"{where}: {message}"
+
+
+# ---------------------------------------------------- switches around the crossings
+#: per-run statistics of :func:`crossing_switches`, as ``(column, header, scale, format)``
+CROSSING_STATS = [
+    ("switches_near", "switches near crossings", 1.0, ".2f"),
+    ("switches_elsewhere", "switches elsewhere", 1.0, ".2f"),
+    ("near_rate", "per 100 steps near", 100.0, ".2f"),
+    ("elsewhere_rate", "per 100 steps elsewhere", 100.0, ".2f"),
+]
+_CROSSING_SERIES = ("id_switches_step", "crossings", "crossings_near")
+
+
+def crossing_switches(results: pd.DataFrame) -> pd.DataFrame:
+    """The identity switches of each run around the truth's crossings and elsewhere.
+
+    From the per-step series of :mod:`~mttbench.benchmarks.engine.track_series`: with
+    ``s_k`` the CLEAR-MOT switches at step ``k`` (``id_switches_step``) and ``near_k``
+    whether ``k`` is within the window of a step where two true targets are closer than
+    the crossing distance (``crossings_near``), per run::
+
+        switches_near      = sum_k s_k near_k      near_steps = sum_k near_k
+        switches_elsewhere = sum_k s_k (1 - near_k)
+        near_rate          = switches_near / near_steps          (NaN if no near step)
+        elsewhere_rate     = switches_elsewhere / (n_steps - near_steps)
+
+    and ``crossings`` the close encounters that began in the run. One row per ok run of
+    a labelled tracker (a tracker without labels has NaN switches and no row), with
+    ``RUN_KEYS``, the carried columns, ``status`` ("ok"), ``error`` (""), ``n_steps`` and
+    the columns above; empty (same columns) when the table has no such series.
+    """
+    carry = [c for c in _CARRY if c in results.columns]
+    cols = [*RUN_KEYS, *carry, "status", "error", "n_steps", "crossings", "near_steps",
+            *(c for c, *_ in CROSSING_STATS)]
+    if not set(_CROSSING_SERIES) <= set(results.columns) or results.empty:
+        return pd.DataFrame(columns=cols)
+    df = results[[*RUN_KEYS, *carry, "status", *_CROSSING_SERIES]].copy()
+    bad = df.groupby(RUN_KEYS, sort=False)["status"].transform(lambda s: (s != "ok").any())
+    df = df[~bad]
+    sw = df["id_switches_step"].to_numpy(float)
+    near = df["crossings_near"].to_numpy(float) > 0
+    df = df.assign(_sw_near=np.where(near, sw, 0.0), _sw_far=np.where(near, 0.0, sw),
+                   _near=near.astype(float), _n=1.0,
+                   _labelled=np.isfinite(sw).astype(float))
+    agg = {"_sw_near": "sum", "_sw_far": "sum", "_near": "sum", "_n": "sum",
+           "_labelled": "min", "crossings": "sum", **{c: "first" for c in carry}}
+    runs = df.groupby(RUN_KEYS, sort=True).agg(agg).reset_index()
+    runs = runs[runs["_labelled"] > 0]
+    out = runs[[*RUN_KEYS, *carry]].assign(status="ok", error="")
+    out["n_steps"] = runs["_n"].astype(int)
+    out["crossings"] = runs["crossings"]
+    out["near_steps"] = runs["_near"]
+    out["switches_near"] = runs["_sw_near"]
+    out["switches_elsewhere"] = runs["_sw_far"]
+    far = runs["_n"] - runs["_near"]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out["near_rate"] = np.where(runs["_near"] > 0, runs["_sw_near"] / runs["_near"],
+                                    math.nan)
+        out["elsewhere_rate"] = np.where(far > 0, runs["_sw_far"] / far, math.nan)
+    return out[cols].reset_index(drop=True)
+
+
+def crossing_summary(results: pd.DataFrame) -> pd.DataFrame:
+    """:func:`summarize` of :func:`crossing_switches` (means over seeds with 95% t
+    half-widths of ``crossings``, ``near_steps``, ``n_steps`` and :data:`CROSSING_STATS`)
+    for the scenario groups where some run has a crossing; empty otherwise."""
+    runs = crossing_switches(results)
+    stats_ = ["crossings", "near_steps", "n_steps", *(c for c, *_ in CROSSING_STATS)]
+    if runs.empty:
+        return summarize(runs, metrics=stats_).iloc[0:0]
+    has = runs.groupby(GAP_GROUP)["crossings"].transform("max") > 0
+    return summarize(runs[has], metrics=stats_)
 
 
 # ------------------------------------------------------------------ uses the truth
@@ -592,19 +676,61 @@ def gap_notes(gc: GapClosed) -> list[str]:
     return out
 
 
+def track_markdown_metrics() -> list[tuple[str, str, float, str]]:
+    """``(column stem, header, scale, format)`` of the track-level table of
+    ``summary.md``: the headline of every registered run-level metric but the per-step
+    series (registration order)."""
+    series = set(series_columns())
+    return [(m.name, m.label, m.scale, m.fmt) for m in registered_run_metrics()
+            if m.name not in series]
+
+
+def track_markdown(runs: pd.DataFrame, summ: pd.DataFrame,
+                   crossings: pd.DataFrame | None = None) -> str:
+    """The track-level sections of ``summary.md`` (``""`` when ``summ``, a
+    :func:`summarize` output, has no track score): the headline of each track score per
+    labelled tracker, the trackers without labels, and (``crossings``, a
+    :func:`crossing_summary`) the switches around the crossings."""
+    shown = [m for m in track_markdown_metrics() if f"{m[0]}_mean" in summ.columns]
+    if not shown:
+        return ""
+    unlabelled = unlabelled_trackers(runs)
+    labelled = summ[~summ["tracker_label"].astype(str).isin(unlabelled)]
+    params = "; ".join(f"{m.label}: " + ", ".join(f"{k} = {v:g}" for k, v in m.params.items())
+                       for m in registered_run_metrics() if m.params)
+    text = ("\n## Track-level scores\n\nWhole runs scored on the trackers' track labels "
+            "against the true ids (trajectory GOSPA in workspace units, OSPA(2) the mean "
+            "over steps of its sliding window, ID switches and fragmentations counts per "
+            "run, mostly tracked / lost shares of the targets); parameters: "
+            f"{params}.\n\n" + to_markdown(labelled, shown))
+    if unlabelled:
+        text += ("\nNo track-level scores for " + ", ".join(f"`{t}`" for t in unlabelled)
+                 + ": no persistent track labels, so no identity to score.\n")
+    if crossings is not None and not crossings.empty:
+        text += ("\n## Identity switches around the crossings\n\nCLEAR-MOT switches per "
+                 "run at the steps within the window of two true targets closer than the "
+                 "crossing distance, and at the other steps; and per 100 such steps.\n\n"
+                 + to_markdown(crossings, [(c, h, s, f) for c, h, s, f in CROSSING_STATS]))
+    return text
+
+
 def write_summary(results: pd.DataFrame, out_dir: str | Path, title: str,
                   notes: Sequence[str] = ()) -> str:
     """Write ``summary.csv`` and ``summary.md`` (headed ``title``) of ``results`` into
     ``out_dir``, each all or nothing; return the Markdown text. ``notes``: more lines
-    listed under the table (``compare``: which parameters each tracker ran)."""
+    listed under the table (``compare``: which parameters each tracker ran).
+    ``summary.md`` then has the track-level sections of :func:`track_markdown` (the
+    switches around the crossings only from a step table with the per-step series)."""
     from ..engine.store import write_text_atomic
 
     out_dir = Path(out_dir)
-    table = with_gap_closed(summarize(results), gc := gap_closed(results))
+    runs = _as_runs(results)
+    table = with_gap_closed(summarize(runs), gc := gap_closed(runs))
     write_text_atomic(out_dir / "summary.csv", table.to_csv(index=False))
     text = f"# {title}\n\n" + to_markdown(table)
     extra = [*gap_notes(gc), *notes]
     if extra:
         text += "\n" + "\n".join(f"- {line}" for line in extra) + "\n"
+    text += track_markdown(runs, table, crossing_summary(results))
     write_text_atomic(out_dir / "summary.md", text)
     return text

@@ -32,6 +32,11 @@ table bit for bit, timing and memory columns aside.
   ``Client.submit``; :func:`~mttbench.benchmarks.engine.loop.run_job` itself turns a
   tracker's failure into rows, so this is for e.g. a worker that cannot load the job).
 
+A "job" here may be a batch of runs (:class:`~mttbench.benchmarks.engine.sweep.Batch`,
+the dataset layout of docs/result_store.md): the executors treat it as one run (one
+task, one file, its retries and wall-time limit), and the sweep splits a batch lost for
+good into one-run tasks.
+
 Ctrl-C (or a part that cannot be written) stops either executor: queued runs are
 dropped, the local pool's running ones are ended, a Dask cluster's are released (a task
 already running on an existing cluster's worker finishes there and is discarded), and

@@ -78,7 +78,10 @@ param_<name>       one column per tracker parameter (all of them, defaults inclu
                    ``mostly_tracked``, ``mostly_lost`` and parts), computed once at the
                    end of the run from its truth ids and the estimate's labels and
                    written on every row of the run (constant over it); NaN for a run
-                   that failed or whose tracker gives no labels
+                   that failed or whose tracker gives no labels; the per-step series
+                   of :mod:`~mttbench.benchmarks.engine.track_series` (``ospa2_window``,
+                   ``id_switches_step``, ``crossings``, ``crossings_near``) are computed
+                   at the end too but written one value per step
 <metric columns>   the columns of every metric registered beyond the built-ins
                    (:func:`~mttbench.benchmarks.engine.metrics.register_metric`), in
                    registration order
@@ -123,6 +126,7 @@ from .metrics import (
 )
 from .policies import Policy, Raster
 from .specs import PolicySpec, TrackerSpec
+from .track_series import series_values
 
 if TYPE_CHECKING:
     pass
@@ -246,8 +250,11 @@ def _nan_metrics() -> dict[str, float]:
     return dict.fromkeys(metric_columns(), math.nan)
 
 
-def _frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
-    """Rows -> DataFrame with the fixed columns in order and stable dtypes."""
+def _frame(rows: list[dict[str, Any]] | dict[str, list[Any]]) -> pd.DataFrame:
+    """Rows (a list of dicts, or a dict of equal-length column lists) -> DataFrame with the
+    fixed columns in order and stable dtypes."""
+    if isinstance(rows, dict):
+        return _frame_of_columns(rows)
     df = pd.DataFrame(rows)
     params = sorted(c for c in df.columns if c.startswith("param_"))
     # the run-level (track) metrics' columns, then those of metrics registered later
@@ -259,6 +266,22 @@ def _frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
     df[floats] = df[floats].astype("float64")
     df[TRUTH_COLUMNS] = df[TRUTH_COLUMNS].astype(bool)
     return df
+
+
+def _frame_of_columns(cols: dict[str, list[Any]]) -> pd.DataFrame:
+    """:func:`_frame` of column lists: the same columns, order, dtypes and values, each
+    typed column made once with numpy instead of table-wide ``astype`` calls on a table
+    built from a dict per row (docs/result_store.md: ``run_job`` of the null tracker in
+    0.79x the time)."""
+    params = sorted(c for c in cols if c.startswith("param_"))
+    track = [c for c in run_metric_columns() if c in cols]
+    extra = [c for c in cols if c not in COLUMNS and c not in params and c not in track]
+    typed = dict.fromkeys(_INT_COLUMNS, np.int64)
+    typed.update(dict.fromkeys(
+        [*_FLOAT_COLUMNS, *track, *(c for c in metric_columns() if c in extra)], np.float64))
+    typed.update(dict.fromkeys(TRUTH_COLUMNS, bool))
+    return pd.DataFrame({c: np.asarray(cols[c], dtype=typed[c]) if c in typed else cols[c]
+                         for c in [*COLUMNS, *params, *track, *extra]})
 
 
 @dataclass(frozen=True)
@@ -483,13 +506,26 @@ def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
     track_run: list[list[np.ndarray]] = [[], [], [], []]
     labelled = True
     run_values = dict.fromkeys(run_metric_columns(), math.nan)
+    # the per-step series of the track scores (track_series.RunSeries): row k gets [k]
+    run_series: dict[str, np.ndarray] = {}
+
+    # the ok steps' own columns, one list each (the job's constant columns, ``base``,
+    # are broadcast once in finish: no dict per step, one table built column-wise)
+    step_cols: dict[str, list[Any]] = {}
 
     def finish() -> pd.DataFrame:
         rss = _peak_rss_mb()
-        for r in rows:
-            r["peak_rss_mb"] = rss
-            r.update(run_values)
-        return _frame(rows)
+        n_ok = len(step_cols.get("step", ()))
+        table: dict[str, list[Any]] = {k: [v] * n_ok for k, v in base.items()} if n_ok else {}
+        table.update(step_cols)
+        for r in rows:  # the special row: unsupported, or the step that failed
+            for k, v in r.items():
+                table.setdefault(k, []).append(v)
+        n = n_ok + len(rows)
+        table["peak_rss_mb"] = [rss] * n
+        table.update((k, [v] * n) for k, v in run_values.items())
+        table.update((col, [float(v[k]) for k in range(n)]) for col, v in run_series.items())
+        return _frame(table)
 
     playback = None
     try:
@@ -511,6 +547,11 @@ def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
         playback = play(sc, tracker, job.seed, policy=policy,
                         looks_per_step=job.looks_per_step, tracker_label=job.tracker.label,
                         policy_label=job.policy_label)
+        m_cols = metric_columns()  # the registry does not change during a run
+        step_cols.update((k, []) for k in (
+            "step", "true_count", "est_count", *m_cols, "n_looks", "n_positive",
+            *TIMING_COLUMNS, "status", "error"))
+        col = step_cols
         for rec in playback:
             est = rec.estimate
             states = np.asarray(est.states, dtype=float).reshape(-1, 4)
@@ -521,23 +562,28 @@ def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
             for acc, v in zip(track_run, (rec.truth[:, [0, 2]], rec.truth_ids, states[:, [0, 2]],
                                           labels), strict=True):
                 acc.append(v)
-            rows.append({
-                **base, "step": rec.k, "true_count": float(len(rec.truth)),
-                "est_count": float(est.count),
-                **{name: float(m[name]) for name in metric_columns()},
-                "n_looks": len(rec.looks.cells),
-                "n_positive": int(np.count_nonzero(rec.looks.returns)),
-                "tracker_wall_s": rec.tracker_wall_s, "tracker_cpu_s": rec.tracker_cpu_s,
-                "select_wall_s": rec.select_wall_s, "select_cpu_s": rec.select_cpu_s,
-                "status": "ok", "error": "",
-            })
+            col["step"].append(rec.k)
+            col["true_count"].append(float(len(rec.truth)))
+            col["est_count"].append(float(est.count))
+            for name in m_cols:
+                col[name].append(float(m[name]))
+            col["n_looks"].append(len(rec.looks.cells))
+            col["n_positive"].append(int(np.count_nonzero(rec.looks.returns)))
+            col["tracker_wall_s"].append(rec.tracker_wall_s)
+            col["tracker_cpu_s"].append(rec.tracker_cpu_s)
+            col["select_wall_s"].append(rec.select_wall_s)
+            col["select_cpu_s"].append(rec.select_cpu_s)
+            col["status"].append("ok")
+            col["error"].append("")
         if run_values:  # the run finished: its track-level scores, on every row
             t, ids, e, lab = track_run
             try:
-                run_values.update(run_level_metrics(
-                    RunData(t, ids, e, lab if labelled else None, c=c, p=p)))
+                whole = RunData(t, ids, e, lab if labelled else None, c=c, p=p)
+                values = run_level_metrics(whole)
+                run_series.update(series_values(whole))  # one row per step: rows[k] is k
+                run_values.update(values)
             except Exception:  # noqa: BLE001 - a score that fails stays NaN; the run is ok
-                pass
+                run_series.clear()
     except BaseException as exc:  # noqa: BLE001 - any failure of a tracker is a result
         if isinstance(exc, KeyboardInterrupt):  # SystemExit too is the tracker's failure
             raise

@@ -23,7 +23,11 @@ are Euclidean; ``c`` is the cut-off and ``p`` the order.
   the time-averaged OSPA of two tracks as base distance; averaged over the run's windows.
 * :func:`clear_mot` -- CLEAR-MOT correspondences (Bernardin & Stiefelhagen, "Evaluating
   multiple object tracking performance: the CLEAR MOT metrics", EURASIP JIVP 2008) with
-  a gating distance: identity switches, fragmentations, mostly tracked / mostly lost.
+  a gating distance: identity switches (in total and per step), fragmentations, mostly
+  tracked / mostly lost.
+* :func:`crossings` -- where the truth alone makes identity hard: the steps at which two
+  true targets are closer than a stated distance, and the steps within a window of them
+  (to count the switches around the crossings).
 """
 
 from __future__ import annotations
@@ -38,10 +42,12 @@ from scipy.spatial.distance import cdist
 
 __all__ = [
     "ClearMOT",
+    "Crossings",
     "OSPA2",
     "TrajectoryGOSPA",
     "as_dense",
     "clear_mot",
+    "crossings",
     "ospa2",
     "trajectory_gospa",
 ]
@@ -310,7 +316,9 @@ class ClearMOT:
     ``id_switches`` and ``fragmentations`` are counts over the run; ``mostly_tracked``
     and ``mostly_lost`` are the FRACTIONS of the run's truths (0 with no truth) covered
     on at least ``mt`` (resp. at most ``ml``) of their lifetime; ``coverage`` is per
-    truth (sorted ids), the share of its steps with a correspondence.
+    truth (sorted ids), the share of its steps with a correspondence; ``switch_steps``
+    ``(T,)`` int counts the switches at each step (``switch_steps.sum() ==
+    id_switches``).
     """
 
     id_switches: int
@@ -318,6 +326,7 @@ class ClearMOT:
     mostly_tracked: float
     mostly_lost: float
     coverage: np.ndarray
+    switch_steps: np.ndarray
 
 
 def clear_mot(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
@@ -335,8 +344,8 @@ def clear_mot(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
     Scores:
 
     * ``id_switches``: a truth matched with a track other than the one it was last
-      matched with (at any earlier step) counts one switch; so a clean swap at a
-      crossing counts one per truth;
+      matched with (at any earlier step) counts one switch, at the step of the new
+      match (``switch_steps[k]``); so a clean swap at a crossing counts one per truth;
     * ``fragmentations``: per truth, the number of times its correspondence resumes
       after an interruption within its lifetime (tracked segments - 1); a truth
       followed by k tracks with gaps between them counts k - 1;
@@ -352,7 +361,7 @@ def clear_mot(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
     T, nx = ax.shape
     last = np.full(nx, -1)
     tracked = np.zeros((T, nx), dtype=bool)
-    switches = 0
+    switch_steps = np.zeros(T, dtype=np.int64)
     for k in range(T):
         ti = np.nonzero(ax[k])[0]
         tj = np.nonzero(ay[k])[0] if Y.shape[1] else np.zeros(0, int)
@@ -379,7 +388,7 @@ def clear_mot(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
         for a, b in match.items():
             i, j = ti[a], tj[b]
             if last[i] >= 0 and last[i] != j:
-                switches += 1
+                switch_steps[k] += 1
             last[i] = j
             tracked[k, i] = True
     frags = 0
@@ -390,6 +399,56 @@ def clear_mot(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
         cover[i] = seq.mean() if len(seq) else 0.0
         starts = int(seq[0]) + int(np.sum(seq[1:] & ~seq[:-1])) if len(seq) else 0
         frags += max(starts - 1, 0)
-    return ClearMOT(switches, frags,
+    return ClearMOT(int(switch_steps.sum()), frags,
                     float(np.mean(cover >= mt)) if nx else 0.0,
-                    float(np.mean(cover <= ml)) if nx else 0.0, cover)
+                    float(np.mean(cover <= ml)) if nx else 0.0, cover, switch_steps)
+
+
+# ---------------------------------------------------------------------- crossings
+@dataclass(frozen=True)
+class Crossings:
+    """The truth's close encounters in one run, per step ``k = 0..T-1``.
+
+    ``close (T,)`` int: pairs of true targets present together at ``k`` closer than the
+    distance; ``starts (T,)`` int: encounters that begin at ``k`` (an encounter is one
+    pair's maximal run of consecutive close steps; ``starts.sum()`` counts the run's
+    crossings); ``near (T,)`` bool: ``k`` is within ``window`` steps of a close step.
+    """
+
+    close: np.ndarray
+    starts: np.ndarray
+    near: np.ndarray
+
+
+def crossings(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
+              distance: float = 2.0, window: int = 5) -> Crossings:
+    """Close encounters of the true targets (positions and ids as the other scores)::
+
+        close[k] = #{ i < j : both present at k, ||x_i(k) - x_j(k)|| < distance }
+        near[k]  = any(close[t] > 0 for |t - k| <= window)
+
+    With ``distance`` the CLEAR-MOT gate, a close step is one where a track inside the
+    gate of one target is inside the gate of another, so an identity switch is possible
+    by geometry alone; the switches at the ``near`` steps are the ones "around the
+    crossings". ``window`` (steps, >= 0) widens each close step on both sides, since a
+    tracker often swaps a few steps after the targets part. A pair that stays close for
+    many steps (targets moving together) is one encounter.
+    """
+    if not (np.isfinite(distance) and distance > 0):
+        raise ValueError(f"the crossing distance must be positive and finite, got {distance}")
+    if int(window) != window or window < 0:
+        raise ValueError(f"the crossing window must be an integer >= 0 steps, got {window}")
+    X, ax = as_dense(truth, truth_ids)
+    T, n = ax.shape
+    if T == 0 or n < 2:
+        zero = np.zeros(T, dtype=np.int64)
+        return Crossings(zero, zero.copy(), np.zeros(T, dtype=bool))
+    i, j = np.triu_indices(n, 1)
+    both = ax[:, i] & ax[:, j]
+    d = np.sqrt(((X[:, i] - X[:, j]) ** 2).sum(-1))  # NaN where either is absent
+    pair_close = both & (np.nan_to_num(d, nan=np.inf) < distance)  # (T, pairs)
+    began = pair_close & ~np.vstack([np.zeros((1, len(i)), bool), pair_close[:-1]])
+    close = pair_close.sum(axis=1).astype(np.int64)
+    w = int(window)
+    hits = np.convolve((close > 0).astype(np.int64), np.ones(2 * w + 1, np.int64))[w:w + T]
+    return Crossings(close, began.sum(axis=1).astype(np.int64), hits > 0)
