@@ -9,6 +9,8 @@
     mttbench compare                        # the main job: head-to-head report
     mttbench reproduce paper [--reduced] [--check]   # the paper's figures, checked
     mttbench reproduce kreucher [--reduced] [--check]  # managed against periodic looks
+    mttbench export default --seeds 5 --policy random --out worlds   # open world files
+    mttbench score worlds --estimates est.csv --name mine   # an outside tracker's estimates
 
 Exit status, always with at most one line on stderr saying why (never a traceback):
 
@@ -78,9 +80,6 @@ MAX_INT64 = 2**63 - 1
 MAX_SEEDS = 1_000_000
 #: c ** p of the OSPA/GOSPA metrics stays within 10 ** -E .. 10 ** E
 MAX_C_POWER_P_EXP = 200
-#: the largest Renyi order of --policy renyi:alpha=... (the gains raise likelihood ratios
-#: to the power alpha)
-MAX_RENYI_ALPHA = 100.0
 #: most trials of one tuning study
 MAX_TRIALS = 100_000
 #: the tuning sampler's seed is a 32-bit unsigned integer
@@ -141,16 +140,6 @@ def _check_common(args: argparse.Namespace) -> None:
     if timeout is not None and not (math.isfinite(timeout) and 0 < timeout <= MAX_TIMEOUT_S):
         raise UsageError(f"--run-timeout {timeout} is not allowed: expected seconds > 0 and "
                          f"<= {MAX_TIMEOUT_S:g}")
-
-
-def _check_policies(specs) -> None:
-    """Policy parameters beyond their declared ranges that would overflow in a run."""
-    for spec in specs or []:
-        alpha = spec.params.get("alpha") if spec.name == "renyi" else None
-        if isinstance(alpha, int | float) and alpha > MAX_RENYI_ALPHA:
-            raise UsageError(f"--policy {spec.label}: alpha = {alpha!r} is not allowed: "
-                             f"expected a number > 0 and <= {MAX_RENYI_ALPHA:g} (the gains "
-                             "raise likelihood ratios to the power alpha)")
 
 
 def _shown(text: str) -> str:
@@ -361,7 +350,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     scs = resolve_scenarios(_scenario_names(args), args.steps)
     tracker_specs = resolve_trackers(args.trackers)
     policy_specs = resolve_policies(args.policy)
-    _check_policies(policy_specs)
     looks = _int_list(args.looks, "--looks value", 0)
     seeds = _seeds(args, default=10)
     out_dir = _out_dir(args, "run-", _run_finished)
@@ -424,7 +412,6 @@ def cmd_tune(args: argparse.Namespace) -> int:
     scs = tuple(resolve_scenarios(args.scenarios, args.steps))
     specs = resolve_trackers(args.trackers)
     policy = resolve_policies(args.policy)
-    _check_policies(policy)
     if len(policy) != 1:
         raise UsageError("--policy: give one policy to tune under")
     looks = _int_list(args.looks, "--looks value", 0)
@@ -547,6 +534,46 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
                      "particle filter's run then diverges: --check without --exact allows "
                      "for that)" if args.exact else ""), file=sys.stderr)
     return 1
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    """Write open world files (:mod:`~mttbench.benchmarks.app.export`): exit 0; 2 for bad
+    input, a closed-loop policy or a scenario without cells, refused before any file."""
+    from . import export
+
+    if args.steps is not None and args.steps < 1:
+        raise UsageError(f"--steps {args.steps} is not allowed: expected an integer >= 1")
+    scs = resolve_scenarios(args.scenarios, args.steps)
+    policy_specs = resolve_policies(args.policy)
+    for sc in scs:
+        export.check_exportable(sc, policy_specs)
+    looks = _int_list(args.looks, "--looks value", 0)
+    seeds = _seeds(args, default=10)
+    out_dir = Path(args.out) if args.out else REPORTS / f"export-{_timestamp()}"
+    prepare_out_dir(out_dir, parts=False)
+    index = export.export_worlds(scs, policy_specs, seeds, out_dir, looks)
+    print(f"wrote {len(index)} world(s) into {out_dir}/ ({export.WORLDS_INDEX}; per world "
+          f"{', '.join(export.WORLD_FILES)}, {export.CARD}); schema: docs/world_format.md")
+    return 0
+
+
+def cmd_score(args: argparse.Namespace) -> int:
+    """Score an outside tracker's estimates (:mod:`~mttbench.benchmarks.app.score`): exit 0;
+    2 for a bad world, estimates file or option, refused before anything is written."""
+    from . import score
+
+    _check_common(args)
+    _check_path("WORLD_DIR", args.world_dir, must_exist=True)
+    _check_path("--beside", args.beside, must_exist=True)
+    out_dir = Path(args.out) if args.out else REPORTS / f"score-{_timestamp()}"
+    if (out_dir / "results.parquet").exists() and not (out_dir / "score.json").exists():
+        raise UsageError(f"--out {out_dir} holds the results of another command; choose "
+                         "another folder")
+    res = score.run_score(args.world_dir, args.estimates, args.name, out_dir, c=args.c,
+                          p=args.p, beside=args.beside)
+    print((out_dir / "summary.md").read_text(encoding="utf-8"))
+    print(f"wrote {out_dir}/: {', '.join(res.files)}")
+    return 0
 
 
 def cmd_screenshot(args: argparse.Namespace) -> int:
@@ -835,6 +862,73 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_executor_arguments(p)
     p.set_defaults(func=cmd_reproduce)
+
+    p = sub.add_parser(
+        "export", help="write open world files (truth, every look, a model card) for a "
+                       "tracker that runs elsewhere",
+        formatter_class=fmt,
+        description="For each world (scenario x policy x looks x seed), drawn by the same "
+                    "step loop as `run` (the same seeds give the same truth and looks), write "
+                    "the truth, every look with its 0/1 return (zeros included), Stone Soup "
+                    "CSV files and a model card (JSON: model, policy, seed, versions, sha256 "
+                    "of each file) as Parquet and CSV into --out/<world>/ (default "
+                    "reports/export-<UTC timestamp>). Open-loop policies only (all, random, "
+                    "raster): a closed-loop policy's looks depend on the tracker's own "
+                    "estimates. Columns: docs/world_format.md.",
+        epilog=textwrap.dedent("""\
+            examples:
+              mttbench export default --seeds 5 --policy random --out worlds
+              mttbench export births my.toml --seed-list 7,8 --policy raster --looks 12,24"""))
+    p.add_argument("scenarios", nargs="+", metavar="SCENARIO",
+                   help="preset names, envelope points (env-...) or paths to .toml files")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--seeds", type=int, metavar="N",
+                   help=f"worlds of seeds 0..N-1 (default 10; N <= {MAX_SEEDS})")
+    g.add_argument("--seed-list", nargs="+", metavar="SEED",
+                   help="explicit seeds, space or comma separated")
+    p.add_argument("--policy", nargs="+", default=["raster"], metavar="SPEC",
+                   help="open-loop policies, comma or space separated (default raster)")
+    p.add_argument("--looks", nargs="+", metavar="M",
+                   help="looks per step (default: each scenario's looks_per_step)")
+    p.add_argument("--steps", type=int, metavar="K",
+                   help="override every scenario's n_steps (default: the scenario's)")
+    p.add_argument("--out", metavar="DIR",
+                   help="output folder (default reports/export-<UTC timestamp>)")
+    p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser(
+        "score", help="score an outside tracker's estimates on exported worlds",
+        formatter_class=fmt,
+        description="Read an outside tracker's estimates (CSV or Parquet; columns step, x, y, "
+                    "optional label and count) on the worlds of WORLD_DIR (one world, or an "
+                    "export folder: then FILE is relative to each world's folder) and write "
+                    "the same per-step rows, summaries and track scores as an in-process "
+                    "tracker, under the tracker name outside:NAME, into --out (default "
+                    "reports/score-<UTC timestamp>). --beside DIR adds the runs of a `run` or "
+                    "`compare` folder on the same worlds (left unchanged) and writes the "
+                    "report of both. A bad estimates file: exit 2 and one line. Format: "
+                    "docs/world_format.md.",
+        epilog=textwrap.dedent("""\
+            examples:
+              mttbench score worlds/default__seed0__random__m24 --estimates est.csv --name mine
+              mttbench score worlds --estimates estimates.csv --name mine \\
+                  --beside reports/inside --out reports/mine"""))
+    p.add_argument("world_dir", metavar="WORLD_DIR",
+                   help="a world folder, or an export folder (its worlds.csv)")
+    p.add_argument("--estimates", required=True, metavar="FILE",
+                   help="the estimates (.csv or .parquet); with an export folder, the file's "
+                        "path inside each world's folder")
+    p.add_argument("--name", metavar="NAME",
+                   help="the outside tracker's name (default: the estimates file's stem); its "
+                        "rows are labelled outside:NAME")
+    p.add_argument("--out", metavar="DIR",
+                   help="output folder (default reports/score-<UTC timestamp>)")
+    p.add_argument("--beside", metavar="DIR",
+                   help="a folder written by `mttbench run` or `compare` on the same worlds: "
+                        "its rows join the summary and a report (report.md, report.html)")
+    p.add_argument("--c", type=float, default=2.0, help="OSPA/GOSPA cut-off c (default 2)")
+    p.add_argument("--p", type=float, default=2.0, help="OSPA/GOSPA order p (default 2)")
+    p.set_defaults(func=cmd_score, steps=None, workers=None)
 
     p = sub.add_parser(
         "screenshot", help="check a report in a real browser (headless chromium)",
