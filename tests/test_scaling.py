@@ -24,7 +24,12 @@ from mttbench.benchmarks.engine.information import (
 from mttbench.benchmarks.engine.loop import play
 from mttbench.benchmarks.engine.policies import Oracle, make_policy
 from mttbench.scenarios.model import Grid
-from mttbench.scenarios.simulator import pcg64_uniforms, simulate, tracker_seed
+from mttbench.scenarios.simulator import (
+    pcg64_uniforms,
+    simulate,
+    stream_uniforms,
+    tracker_seed,
+)
 from mttbench.testing import _assert_count_distribution_valid
 from mttbench.trackers import kalman
 from mttbench.trackers.cells import (
@@ -470,6 +475,21 @@ def test_jumped_stream_is_numpy_generator_random():
         b.advance(far)
         want = np.random.Generator(b).random(5)
         np.testing.assert_array_equal(pcg64_uniforms(state, inc, far + np.arange(5)), want)
+
+
+@pytest.mark.parametrize("n", [1, 7, 300])
+def test_the_prefix_and_the_jumps_give_the_same_draws(n):
+    """stream_uniforms draws the prefix when the largest position is small and jumps
+    otherwise: both equal the jumps bit for bit, at positions on either side of the
+    switch (16 per position asked for, plus 4096)."""
+    ss = np.random.SeedSequence(5, spawn_key=(9,))
+    bits = np.random.PCG64(ss)
+    state, inc = bits.state["state"]["state"], bits.state["state"]["inc"]
+    rng = np.random.default_rng(n)
+    for top in (16 * n + 4096, 16 * n + 4097, 10**6):
+        pos = np.r_[top - 1, rng.integers(0, top, n - 1)]
+        np.testing.assert_array_equal(stream_uniforms(state, inc, pos),
+                                      pcg64_uniforms(state, inc, pos))
 
 
 def test_looks_count_the_targets_of_the_looked_cells_only():
