@@ -295,3 +295,26 @@ def test_dataset_on_dask_equals_the_local_pool(tmp_path, dataset):
     pd.testing.assert_frame_equal(_rows(load_results(tmp_path / "dask")),
                                   _rows(load_results(local)), check_exact=True)
     pd.testing.assert_frame_equal(_runs(runs), _runs(dataset[1]), check_exact=True)
+
+
+def test_the_command_line_writes_a_dataset_and_resumes_it(tmp_path, capsys):
+    """``mttbench run --store dataset``: batch files by scenario and tracker, runs.parquet,
+    the same per-run table as the default layout; ``--resume`` of the finished folder runs
+    nothing again and keeps the table."""
+    from mttbench.benchmarks.app.cli import main
+
+    args = ["run", "--scenarios", "default", "--trackers", "null", "kfnn", "--seeds", "3",
+            "--steps", "4", "--workers", "1", "--no-progress"]
+    assert main([*args, "--store", "dataset", "--out", str(tmp_path / "d")]) == 0
+    assert main([*args, "--out", str(tmp_path / "p")]) == 0
+    assert "dataset/ (the rows" in capsys.readouterr().out
+    files = sorted((tmp_path / "d" / "dataset").rglob("*.parquet"))
+    assert {f.parent.name for f in files} == {"tracker=null", "tracker=kfnn"}
+    rows = load_results(tmp_path / "d").sort_values(["tracker", "seed", "step"])
+    want = pd.read_parquet(tmp_path / "p" / "results.parquet").sort_values(
+        ["tracker", "seed", "step"])
+    pd.testing.assert_series_equal(rows["ospa"].reset_index(drop=True),
+                                   want["ospa"].reset_index(drop=True))
+    before = {f: f.stat().st_mtime_ns for f in files}
+    assert main([*args, "--store", "dataset", "--resume", "--out", str(tmp_path / "d")]) == 0
+    assert {f: f.stat().st_mtime_ns for f in files} == before

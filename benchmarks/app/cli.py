@@ -289,10 +289,13 @@ def _sweep(args: argparse.Namespace, scs, tracker_specs, policy_specs, looks, se
                   file=sys.stderr)
             results = run_sweep(jobs, out_dir, workers=workers, progress=not args.no_progress,
                                 resume=resume, c=args.c, p=args.p,
-                                run_timeout=args.run_timeout or default_run_timeout(jobs))
+                                run_timeout=args.run_timeout or default_run_timeout(jobs),
+                                store=getattr(args, "store", None))
             text = write_summary(results, out_dir, title)
     print(text)
-    print(f"wrote {out_dir}/: results.parquet, summary.csv, summary.md")
+    rows = ("dataset/ (the rows, by scenario and tracker), runs.parquet"
+            if (Path(out_dir) / "runs.parquet").is_file() else "results.parquet")
+    print(f"wrote {out_dir}/: {rows}, summary.csv, summary.md")
     failed = _failure_line(results, out_dir)
     if failed:
         print(failed, file=sys.stderr)
@@ -676,6 +679,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--policy", nargs="+", default=["raster"], metavar="SPEC",
                    help="cell-selection policies, comma or space separated "
                         "(default raster; see `mttbench trackers`)")
+    p.add_argument("--store", choices=("parts", "dataset"), default=None,
+                   help="how the rows are kept: parts (one Parquet file per run, then "
+                        "results.parquet; the default) or dataset (one file per worker "
+                        "batch, partitioned by scenario and tracker, plus runs.parquet: "
+                        "for studies of 10^4 runs and more, docs/result_store.md); "
+                        "default: the folder's own on --resume, else $MTTBENCH_STORE, "
+                        "else parts")
     p.add_argument("--looks", nargs="+", metavar="M",
                    help="looks per step, comma or space separated "
                         "(default: each scenario's looks_per_step)")
