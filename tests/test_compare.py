@@ -11,6 +11,7 @@ import pytest
 from mttbench import trackers
 from mttbench.benchmarks.app import compare
 from mttbench.benchmarks.app.cli import main
+from mttbench.benchmarks.engine.specs import TrackerSpec
 
 
 def test_compare_writes_the_report_folder(tmp_path, capsys):
@@ -104,9 +105,14 @@ def test_a_failed_compare_is_marked_in_its_manifest(tmp_path, monkeypatch):
 
 def test_default_scenarios_can_rank_trackers():
     """``paper`` at 24 looks cannot rank trackers (every tracker within ~0.2 OSPA of the
-    floor); the default scenarios are presets that can, and the reference stays kfnn."""
+    floor); the default scenarios are presets that can, and the reference is pmb (the
+    principled peer) when it runs, else kfnn."""
     from mttbench import scenarios
 
     assert compare.COMPARE_SCENARIOS == ("default", "crossing", "births", "kreucher")
     assert set(compare.COMPARE_SCENARIOS) <= set(scenarios.preset_names())
-    assert compare.COMPARE_REFERENCE == "kfnn"
+    assert compare.COMPARE_REFERENCES == ("pmb", "kfnn")
+    specs = [TrackerSpec(n) for n in ("null", "gpf", "kfnn", "pmb", "truth-aided")]
+    assert compare.default_reference(specs) == "pmb"
+    assert compare.default_reference([s for s in specs if s.name != "pmb"]) == "kfnn"
+    assert compare.default_reference([TrackerSpec("truth-aided"), TrackerSpec("gpf")]) == "gpf"

@@ -61,7 +61,7 @@ from ..engine.specs import (
 from ..engine.store import check_sweep, prepare_out_dir, sweep_lock
 from . import resources
 from .compare import (
-    COMPARE_REFERENCE,
+    COMPARE_REFERENCES,
     COMPARE_SCENARIOS,
     COMPARE_SEEDS,
     OUTPUT_FILES,
@@ -720,8 +720,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="parallel worker processes (default: the number of CPUs)")
     p.add_argument("--reference", default=None, metavar="TRACKER",
                    help="tracker (name or label) that paired differences subtract "
-                        f"(default {COMPARE_REFERENCE}, or the first tracker that does not use "
-                        "the truth if it does not run)")
+                        f"(default: the first of {', '.join(COMPARE_REFERENCES)} that runs, "
+                        "else the first tracker that does not use the truth)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--untuned", action="store_true",
                    help="run every tracker's defaults, not its tuned parameters")
