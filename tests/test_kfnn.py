@@ -269,7 +269,9 @@ def test_birth_score_is_its_cells_log_ratio_and_one_detection_confirms_in_low_cl
     table = tracker.track_table()
     t2, _ = _thresholds(0.1, 0.05)  # 2.20 + 3.86: the prior odds of 3 targets in 144 cells
     assert np.log(0.5 / model.sensor.p_f) > t2
-    assert table["confirmed"][0] and table["score"][0] == pytest.approx(t2)  # capped at T2
+    assert table["confirmed"][0]
+    assert table["score"][0] == pytest.approx(np.log(0.5 / model.sensor.p_f), rel=1e-12)
+    assert table["peak"][0] == table["score"][0]  # not capped: the peak follows it
     tracker = KFNNTracker()
     tracker.reset(_model(p_d=0.9, snr=np.log(0.31) / np.log(0.9) - 1), np.random.default_rng(0))
     tracker.predict()
@@ -315,13 +317,14 @@ def test_unlooked_track_coasts_with_its_score() -> None:
 def test_confirmed_track_deleted_after_the_lost_track_drop(beta: float) -> None:
     """Every cell looked at and empty: a step's score change lies between log(1 - 0.999
     (1 - r)) and log r (r = (1 - p_d) / (1 - p_f): the track's whole mass, most of it on
-    the grid), so the drop |T1| takes between |T1| / |log r| and |T1| / |log(1 - 0.999 (1 -
-    r))| steps."""
+    the grid), so the drop log(1 / beta) below its peak (Ville's bound on deleting a track
+    still there) takes between that drop over |log r| and over |log(1 - 0.999 (1 - r))|
+    steps, whatever alpha."""
     model = _model()
     tracker = KFNNTracker(lost_track_probability=beta)
     tracker.reset(model, np.random.default_rng(0))
     _confirmed_track(tracker, _cell(6.5, 6.5))
-    _, t1 = _thresholds(tracker.false_track_probability, beta)
+    t1 = np.log(beta)  # minus the drop
     r = (1 - model.sensor.p_d) / (1 - model.sensor.p_f)
     steps = 0
     while tracker.estimate().count:
@@ -332,16 +335,21 @@ def test_confirmed_track_deleted_after_the_lost_track_drop(beta: float) -> None:
 
 
 def test_a_hit_restores_the_confirmed_score() -> None:
+    """Two misses (each about log 0.5) take the score below its peak; one hit at p_f = 5e-4
+    (log 1020 = 6.9) lifts it above, so the peak is its score again, and the track lives
+    through misses that never add up to log(1 / beta) = 3.0 below the peak."""
     tracker = KFNNTracker(lost_track_probability=0.05)
     tracker.reset(_model(), np.random.default_rng(0))
     cell = _cell(6.5, 6.5)
     _confirmed_track(tracker, cell)
-    t2, _ = _thresholds(tracker.false_track_probability, 0.05)
-    for positives in ([], [], [cell], [], []):  # never 5 misses in a row (|T1| / 0.69 = 4.9)
+    for positives in ([], [], [cell], [], []):  # never 5 misses in a row (3.0 / 0.69 = 4.3)
         tracker.predict()
         tracker.update(_looks(positives))
+        table = tracker.track_table()
         if positives:
-            assert tracker.track_table()["score"][0] == pytest.approx(t2)
+            assert table["peak"][0] == table["score"][0]
+        else:
+            assert table["peak"][0] - 3.0 < table["score"][0] < table["peak"][0]
     assert tracker.estimate().count == 1.0
 
 

@@ -66,20 +66,25 @@ Track score (sequential probability ratio test; Blackman and Popoli 1999, ch. 6.
 
         confirm when L0 + L >= log((1 - alpha) / alpha)   (P(false track) <= alpha)
         delete  when L <= T1 = log(beta / (1 - alpha))     (Wald's lower threshold)
+        delete a confirmed track when L <= max L - log(1 / beta)
 
-    The deletion reads the evidence since the birth alone: in heavy clutter the prior
-    odds of a single detection are far below ``T1``, and a test that starts below its
-    lower threshold never runs. A confirmed track's score is capped at the confirmation
-    level and the track deleted when it drops ``|T1|`` below it (Blackman's score-drop
-    deletion), whatever its history. The thresholds keep their meaning at any clutter
-    and density: at ``p_f = 5e-4`` with 3 targets on 144 cells one detection confirms
-    (``6.93 - 3.86 >= 0``), at ``p_d = 0.9, p_f = 0.31`` (``log r = 1.07`` per hit,
+    The tentative deletion reads the evidence since the birth alone: in heavy clutter the
+    prior odds of a single detection are far below ``T1``, and a test that starts below its
+    lower threshold never runs. A confirmed track is deleted when its score drops ``log(1 /
+    beta)`` below the highest it reached (Blackman's score-drop deletion): under "still
+    there" the ratio of "gone" to "there" is a martingale, so it grows by ``1 / beta`` with
+    probability at most ``beta`` (Ville), whatever ``alpha``. (Wald's ``|T1|`` as the drop
+    tied it to ``alpha``: at ``alpha = 1/2`` two misses deleted a held track under the renyi
+    policy, which looks at tracks often; docs/kfnn.md.) The score is not capped, so
+    ``sigmoid(L0 + L)`` of a long-held track tends to 1. The thresholds keep their meaning
+    at any clutter and density: at ``p_f = 5e-4`` with 3 targets on 144 cells one detection
+    confirms (``6.93 - 3.86 >= 0``), at ``p_d = 0.9, p_f = 0.31`` (``log r = 1.07`` per hit,
     ``-1.93`` per miss) several. Under H0 the ratio is a martingale from the birth's
-    ``r_c``, so of the tracks born from false alarms at most ``r_birth / exp(T2 - L0)``
-    are confirmed (Ville's inequality; a test checks it), ``T2 = log((1 - alpha) /
-    alpha)``. The default ``alpha = 1/2`` reports a track once it is more likely a
-    target than not: GOSPA (``alpha = 2``) charges a false and a missed target the same
-    ``c**p / 2``, so that is the report that minimises its expected value.
+    ``r_c``, so of the tracks born from false alarms at most ``r_birth / exp(T2 - L0)`` are
+    confirmed (Ville's inequality; a test checks it), ``T2 = log((1 - alpha) / alpha)``. The
+    default ``alpha = 1/2`` reports a track once it is more likely a target than not: GOSPA
+    (``alpha = 2``) charges a false and a missed target the same ``c**p / 2``, so that is
+    the report that minimises its expected value.
     A track whose box holds no looked cell coasts (``L`` unchanged).
 
 Estimate
@@ -425,12 +430,17 @@ class KFNNTracker(Tracker):
         # confirmed when P(false track | looks) <= alpha: L >= log((1 - alpha) / alpha) - L0
         self._confirm_at = math.log1p(-alpha) - math.log(alpha) - self._prior_logodds
         self._delete_at = math.log(beta) - math.log1p(-alpha)  # T1
+        # a confirmed track is deleted when its score drops log(1 / beta) below its peak:
+        # under "still there" the ratio of "gone" to "there" is a martingale, so it rises
+        # by 1 / beta with probability at most beta (Ville), whatever alpha
+        self._drop = -math.log(beta)
         self._undetected = CellField(n, bd.initial_count_mean / n)  # lambda_c
         # the tracks: leading axis K
         self._m = np.zeros((0, 4))
         self._P = np.zeros((0, 4, 4))
         self._id = np.zeros(0, dtype=np.int64)
         self._score = np.zeros(0)  # L: the SPRT log-likelihood ratio since birth
+        self._peak = np.zeros(0)  # a confirmed track's highest L (its deletion reference)
         self._confirmed = np.zeros(0, dtype=bool)
         self._age = np.zeros(0, dtype=np.int64)  # steps since birth
         self._next_id = 0
@@ -438,7 +448,7 @@ class KFNNTracker(Tracker):
     def _keep(self, keep: np.ndarray) -> None:
         """Drop the tracks where ``keep (K,)`` is False."""
         self._m, self._P, self._id = self._m[keep], self._P[keep], self._id[keep]
-        self._score = self._score[keep]
+        self._score, self._peak = self._score[keep], self._peak[keep]
         self._confirmed = self._confirmed[keep]
         self._age = self._age[keep]
 
@@ -503,12 +513,10 @@ class KFNNTracker(Tracker):
             self._m[rows], self._P[rows] = m_new, P_new
             det_used[cols] = True
 
-        confirmed = self._confirmed | (self._score >= self._confirm_at)
-        self._score = np.where(confirmed, np.minimum(self._score, self._confirm_at),
-                               self._score)
-        self._confirmed = confirmed
-        # a tentative track's test ends at T1; a confirmed one's restarts at T2 (its cap)
-        self._keep(self._score > np.where(confirmed, self._confirm_at, 0.0) + self._delete_at)
+        self._confirm()
+        # a tentative track's test ends at T1; a confirmed one is deleted below its peak
+        self._keep(np.where(self._confirmed, self._score > self._peak - self._drop,
+                            self._score > self._delete_at))
 
         # untracked targets (for P_c): a look detects one with probability p_d
         new_cells = det_cells[~det_used]
@@ -523,10 +531,17 @@ class KFNNTracker(Tracker):
             self._id = np.concatenate([self._id, self._next_id + np.arange(n_new)])
             self._next_id += n_new
             self._score = np.concatenate([self._score, score_new])
-            self._confirmed = np.concatenate([self._confirmed, score_new >= self._confirm_at])
+            self._peak = np.concatenate([self._peak, score_new])
+            self._confirmed = np.concatenate([self._confirmed, np.zeros(n_new, dtype=bool)])
             self._age = np.concatenate([self._age, 0 * ones])
-            self._score = np.where(self._confirmed, np.minimum(self._score, self._confirm_at),
-                                   self._score)
+            self._confirm()
+
+    def _confirm(self) -> None:
+        """Confirm the tracks whose score reaches the level; a confirmed track's peak
+        follows its highest score (``L`` itself is not capped: ``sigmoid(L0 + L)`` is the
+        track's existence in ``P_c(t)``, near 1 for a track long held)."""
+        self._confirmed = self._confirmed | (self._score >= self._confirm_at)
+        self._peak = np.where(self._confirmed, np.maximum(self._peak, self._score), self._score)
 
     def _evidence(self, mean_xy: np.ndarray, cov_xy: np.ndarray, looked: np.ndarray,
                   log_r: np.ndarray, det_cells: np.ndarray, rows: np.ndarray,
@@ -574,6 +589,7 @@ class KFNNTracker(Tracker):
         """Copies of the track arrays (ids, means, covariances, flags, counters)."""
         return {"id": self._id.copy(), "mean": self._m.copy(), "cov": self._P.copy(),
                 "confirmed": self._confirmed.copy(), "score": self._score.copy(),
+                "peak": self._peak.copy(),
                 "age": self._age.copy()}
 
     @classmethod
