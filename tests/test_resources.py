@@ -755,3 +755,22 @@ def test_mttbench_run_accepts_and_runs_a_huge_grid(monkeypatch, tmp_path, capsys
                "--workers", "1", "--no-progress", "--out", str(tmp_path / "out")])
     assert rc == 0, capsys.readouterr().err
     assert any((tmp_path / "out").rglob("*.parquet"))
+
+
+def test_every_sweep_of_the_app_has_a_run_timeout(monkeypatch, tmp_path):
+    """The app's run_sweep (run, compare, tune, reproduce) passes a wall-time limit to the
+    engine: the one given, else 10x the slowest run's estimate, at least 60 s."""
+    from mttbench.benchmarks.app import progress
+    from mttbench.benchmarks.engine import sweep
+    from mttbench.benchmarks.engine.loop import Job
+    from mttbench.benchmarks.engine.specs import TrackerSpec
+
+    seen = {}
+    monkeypatch.setattr(sweep, "run_sweep", lambda jobs, out, **kw: seen.update(kw))
+    jobs = [Job(scenarios.get("large"), TrackerSpec("gpf")),
+            Job(scenarios.get("default"), TrackerSpec("null"))]
+    progress.run_sweep(jobs, tmp_path, progress=False)
+    slowest = max(resources.estimate_job(j).seconds for j in jobs)
+    assert seen["run_timeout"] == max(60.0, 10.0 * slowest)
+    progress.run_sweep(jobs, tmp_path, progress=False, run_timeout=7.5)
+    assert seen["run_timeout"] == 7.5

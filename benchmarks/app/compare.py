@@ -65,6 +65,7 @@ from ..engine.specs import PolicySpec, TrackerSpec, resolve_scenarios, resolve_t
 from ..engine.store import check_sweep, prepare_out_dir, write_text_atomic
 from . import resources, summary, tuned
 from .progress import run_sweep
+from .resources import default_run_timeout
 from .usage import UsageError
 
 if TYPE_CHECKING:
@@ -156,22 +157,6 @@ class CompareOutput:
     out_dir: Path
     files: ReportFiles
     manifest: dict[str, Any]
-
-
-#: the least default wall-time limit of one run (seconds), and its factor over the
-#: sweep's slowest estimated run (:func:`default_run_timeout`)
-RUN_TIMEOUT_FLOOR_S = 60.0
-RUN_TIMEOUT_FACTOR = 10.0
-
-
-def default_run_timeout(jobs: Sequence[Any]) -> float:
-    """``--run-timeout``'s default: 10x the slowest run's time estimate
-    (:func:`~mttbench.benchmarks.app.resources.estimate_job`), at least 60 s."""
-    slowest = 0.0
-    for job in jobs:
-        with contextlib.suppress(Exception):  # no estimate: the floor
-            slowest = max(slowest, float(resources.estimate_job(job).seconds))
-    return max(RUN_TIMEOUT_FLOOR_S, RUN_TIMEOUT_FACTOR * slowest)
 
 
 def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,

@@ -1,4 +1,5 @@
-"""The command line's progress bar over a sweep (the engine only reports counts)."""
+"""The command line's progress bar over a sweep (the engine only reports counts), and the
+default wall-time limit of a run for every command that sweeps."""
 
 from __future__ import annotations
 
@@ -11,12 +12,18 @@ import pandas as pd
 
 from ..engine import sweep
 from ..engine.loop import Job
+from .resources import default_run_timeout
 
 
 def run_sweep(jobs: Sequence[Job], out_dir: str | Path, *, progress: bool = True,
               **options: Any) -> pd.DataFrame:
     """:func:`~mttbench.benchmarks.engine.sweep.run_sweep` with a tqdm bar on stderr
-    (``progress=False``: none); ``options`` go to it unchanged."""
+    (``progress=False``: none); ``options`` go to it unchanged, except that a missing or
+    None ``run_timeout`` becomes :func:`~.resources.default_run_timeout` of the jobs (10x
+    the slowest run's estimate, at least 60 s): run, compare, tune and reproduce all end a
+    hung run with an error row."""
+    if options.get("run_timeout") is None:
+        options["run_timeout"] = default_run_timeout(jobs)
     if not progress:
         return sweep.run_sweep(list(jobs), out_dir, **options)
     from tqdm.auto import tqdm

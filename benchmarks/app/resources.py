@@ -74,8 +74,10 @@ tracker.update_seconds + m * tracker.look_seconds + prediction)``, the predictio
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -345,3 +347,19 @@ def check_jobs(jobs: list[Any], workers: int, available: float | None = None) ->
                 f"worker(s) (a rough upper estimate; the slowest run, "
                 f"{_describe(jobs[slow])}, about {fmt_seconds(estimates[slow].seconds)})"]
     return []
+
+
+#: the least default wall-time limit of one run (seconds), and its factor over the
+#: sweep's slowest estimated run (:func:`default_run_timeout`)
+RUN_TIMEOUT_FLOOR_S = 60.0
+RUN_TIMEOUT_FACTOR = 10.0
+
+
+def default_run_timeout(jobs: Sequence[Any]) -> float:
+    """The default wall-time limit of one run (``--run-timeout``; tune and reproduce
+    always): 10x the slowest run's time estimate (:func:`estimate_job`), at least 60 s."""
+    slowest = 0.0
+    for job in jobs:
+        with contextlib.suppress(Exception):  # no estimate: the floor
+            slowest = max(slowest, float(estimate_job(job).seconds))
+    return max(RUN_TIMEOUT_FLOOR_S, RUN_TIMEOUT_FACTOR * slowest)
