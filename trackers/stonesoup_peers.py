@@ -421,7 +421,7 @@ class StoneSoupGNN(_StoneSoupPeer):
 
     name = "ss-gnn"
     summary = ("Stone Soup's GNN (2-D assignment, Kalman, multi-measurement initiator, "
-               "time-based deleter) on cell detections; optional extra")
+               "time-based and track-score deleters) on cell detections; optional extra")
     parameters: ClassVar[dict[str, Param]] = {
         "gate": Param(float, 0, low_open=True, search=Search(1.5, 6.0),
                       doc="Mahalanobis distance (not squared) beyond which a detection is "
