@@ -604,9 +604,19 @@ def _tgospa_columns(run: RunData, gamma: float) -> dict[str, float]:
             "tgospa_false": g.false, "tgospa_switch": g.switch}
 
 
+def ospa2_of(run: RunData, window: float) -> track_metrics.OSPA2:
+    """The run's OSPA(2) for ``window``, computed once per run (the run-level columns and
+    the per-step series of :mod:`.track_series` share it through ``run.cache``)."""
+    key = ("ospa2", float(run.c), float(run.p), int(window))
+    if key not in run.cache:
+        run.cache[key] = track_metrics.ospa2(run.truth, run.truth_ids, run.estimate,
+                                             run.labels, c=run.c, p=run.p,
+                                             window=int(window))
+    return run.cache[key]
+
+
 def _ospa2_columns(run: RunData, window: float) -> dict[str, float]:
-    o = track_metrics.ospa2(run.truth, run.truth_ids, run.estimate, run.labels,
-                            c=run.c, p=run.p, window=int(window))
+    o = ospa2_of(run, window)
     return {"ospa2": o.total, "ospa2_loc": o.localisation, "ospa2_card": o.cardinality}
 
 

@@ -40,7 +40,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import metrics, track_metrics
-from .metrics import RunData, RunMetric, register_run_metric, registered_run_metrics
+from .metrics import (
+    RunData,
+    RunMetric,
+    ospa2_of,
+    register_run_metric,
+    registered_run_metrics,
+)
 
 __all__ = [
     "CROSSING_DISTANCE",
@@ -122,12 +128,7 @@ def series_columns() -> list[str]:
 
 
 def _ospa2_window(run: RunData, window: float) -> dict[str, np.ndarray]:
-    key = ("ospa2", float(run.c), float(run.p), int(window))
-    if key not in run.cache:  # shared with any other user of the same OSPA(2)
-        run.cache[key] = track_metrics.ospa2(run.truth, run.truth_ids, run.estimate,
-                                             run.labels, c=run.c, p=run.p,
-                                             window=int(window))
-    return {"ospa2_window": run.cache[key].per_step}
+    return {"ospa2_window": ospa2_of(run, window).per_step}
 
 
 def _switch_steps(run: RunData, gate: float) -> dict[str, np.ndarray]:
