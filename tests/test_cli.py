@@ -160,3 +160,26 @@ def test_a_policy_named_by_class_path_runs(tmp_path):
     df = pd.read_parquet(out / "results.parquet")
     assert set(df["policy"]) == {"crashing_tracker:FirstCells"}
     assert (df["status"] == "ok").all() and (df["n_looks"] == 24).all()
+
+
+def test_a_new_output_folder_is_locked_before_anything_runs(tmp_path, monkeypatch):
+    """compare into a folder that does not exist: the folder is created and locked before
+    run_compare starts (no window for a second command), and a refused compare leaves no
+    folder behind."""
+    import os
+
+    from mttbench.benchmarks.app import compare
+    from mttbench.benchmarks.engine import store
+
+    out = tmp_path / "new" / "cmp"
+    seen = {}
+
+    def fake_run_compare(*args, **kwargs):
+        seen["locked"] = os.path.realpath(out) in store._LOCKS
+        raise compare.UsageError("refused for the test")
+
+    monkeypatch.setattr(compare, "run_compare", fake_run_compare)
+    assert main(["compare", "--trackers", "null", "--seeds", "1", "--out", str(out),
+                 "--no-progress"]) == 2
+    assert seen == {"locked": True}
+    assert not out.exists()

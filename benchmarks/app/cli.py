@@ -58,7 +58,7 @@ from ..engine.specs import (
     resolve_trackers,
     split_specs,
 )
-from ..engine.store import check_sweep, prepare_out_dir, sweep_lock
+from ..engine.store import LOCK_FILE, check_sweep, prepare_out_dir, sweep_lock
 from . import resources
 from .compare import (
     COMPARE_REFERENCES,
@@ -268,11 +268,31 @@ def _failure_line(results: pd.DataFrame, out_dir: Path) -> str | None:
 
 
 # ---------------------------------------------------------------------- outputs
+@contextlib.contextmanager
 def _folder_lock(out_dir: Path):
     """The output folder's lock (:func:`~mttbench.benchmarks.engine.store.sweep_lock`) for
-    the whole command when the folder exists (a second process is refused at once); a
-    new folder is locked by its sweep once created."""
-    return sweep_lock(out_dir) if Path(out_dir).is_dir() else contextlib.nullcontext()
+    the whole command, so a second process is refused at once. A folder that does not
+    exist yet is created to hold the lock (no window in which two commands could both
+    start in it); if the command then fails before writing anything into it (a refused
+    setting), the folder is removed again."""
+    folder = Path(out_dir)
+    created = False
+    if not folder.exists():
+        try:
+            folder.mkdir(parents=True)
+            created = True
+        except OSError:  # the command's own checks say why, in one line
+            yield
+            return
+    try:
+        with sweep_lock(folder):
+            yield
+    except BaseException:
+        if created and {p.name for p in folder.iterdir()} <= {LOCK_FILE}:
+            with contextlib.suppress(OSError):
+                (folder / LOCK_FILE).unlink(missing_ok=True)
+                folder.rmdir()
+        raise
 
 
 def _sweep(args: argparse.Namespace, scs, tracker_specs, policy_specs, looks, seeds,
