@@ -217,6 +217,22 @@ class Interrupting(Executor):
                 yield outcome
 
 
+def test_a_hung_run_gets_its_error_row_on_dask(tmp_path):
+    """--run-timeout on Dask: a run on its worker for longer than the limit is cancelled
+    and its worker restarted; it gets its error row (no retry), the others finish, and the
+    cluster has its workers again for the next sweep."""
+    pytest.importorskip("distributed", reason="distributed is not installed (mttbench[dask])")
+    jobs = jobs_of(short("default", 6), [("faulty_tracker:Hang", [0]), ("null", [0, 1])])
+    with DaskExecutor(workers=2) as executor:
+        out = run_sweep(jobs, tmp_path / "out", executor=executor, run_timeout=2.0)
+        hung = out[out["tracker"] == "faulty_tracker:Hang"]
+        assert len(hung) == 1 and hung["status"].iloc[0] == "error"
+        assert "timed out" in hung["error"].iloc[0] and "--run-timeout" in hung["error"].iloc[0]
+        assert (out[out["tracker"] == "null"]["status"] == "ok").all()
+        again = run_sweep(jobs[1:], tmp_path / "again", executor=executor, run_timeout=2.0)
+        assert (again["status"] == "ok").all()
+
+
 def test_an_interrupted_dask_sweep_resumes(dask_two, tmp_path):
     jobs = build_jobs([short("default", 30)], [TrackerSpec("kfnn"), TrackerSpec("null")],
                       None, None, [0, 1, 2, 3])

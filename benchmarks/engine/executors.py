@@ -31,6 +31,9 @@ table bit for bit, timing and memory columns aside.
   (``KilledWorker``). A run that raises is retried ``retries`` times (``retries=`` of
   ``Client.submit``; :func:`~mttbench.benchmarks.engine.loop.run_job` itself turns a
   tracker's failure into rows, so this is for e.g. a worker that cannot load the job).
+  A run executing on its worker for longer than its wall-time limit (``--run-timeout``,
+  timed from when a worker reports it executing, not from its queueing) is cancelled
+  and its worker restarted by its nanny, which ends the run: its error row, no retry.
 
 A "job" here may be a batch of runs (:class:`~mttbench.benchmarks.engine.sweep.Batch`,
 the dataset layout of docs/result_store.md): the executors treat it as one run (one
@@ -342,6 +345,12 @@ def dask_setup(worker: Any) -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+def _executing_keys(dask_worker: Any) -> list[str]:
+    """Run on each Dask worker: the keys of the tasks its threads are executing now (not
+    those queued on it, which the scheduler's ``processing`` includes)."""
+    return [str(ts.key) for ts in dask_worker.state.executing]
+
+
 def _worker_identity() -> tuple[str, str]:
     """Run on each Dask worker: its mttbench version and :func:`source_digest`."""
     import mttbench
@@ -465,23 +474,62 @@ class DaskExecutor(Executor):
         futures = client.map(work.encoded, [job for job, _ in todo], key=keys, pure=False,
                              retries=self.retries)
         index = {fut.key: i for i, fut in enumerate(futures)}
+        #: when a run was first seen executing on a worker: the start of its wall-time
+        #: limit; a run over it is cancelled and its worker restarted
+        #: (the nanny brings it back), which ends the run: its error row, no retry
+        seen: dict[str, float] = {}
+        timed_out: set[str] = set()
+        pending = set(futures)
+        ready = distributed.as_completed(futures, loop=client.loop)
         try:
-            for fut in distributed.as_completed(futures, loop=client.loop):
-                i = index[fut.key]
-                try:
-                    data = fut.result()
-                except Exception as exc:  # noqa: BLE001 - KilledWorker after the retries
+            while pending:
+                ended = ready.next_batch(block=False) if ready.has_ready() else []
+                if not ended:
+                    time.sleep(_POLL_S)
+                pending -= set(ended)
+                for fut in sorted(ended, key=lambda f: index[f.key]):
+                    i = index[fut.key]
+                    if fut.key in timed_out:
+                        continue
+                    try:
+                        data = fut.result()
+                    except Exception as exc:  # noqa: BLE001 - KilledWorker after the retries
+                        fut.release()
+                        yield i, _lost(exc)
+                        continue
                     fut.release()
-                    yield i, _lost(exc)
-                    continue
-                fut.release()
-                work.write_bytes(todo[i][1], data)  # an OSError stops the sweep
-                yield i, None
+                    work.write_bytes(todo[i][1], data)  # an OSError stops the sweep
+                    yield i, None
+                if work.timeout is not None and pending:
+                    yield from self._end_overdue(client, pending, index, seen, timed_out,
+                                                 work.timeout)
         finally:
             waiting = [fut for fut in futures if not fut.done()]
             if waiting:
                 with contextlib.suppress(Exception):
                     client.cancel(waiting)
+
+    @staticmethod
+    def _end_overdue(client: Any, pending: set, index: dict, seen: dict, timed_out: set,
+                     timeout: float) -> Iterator[Outcome]:
+        """Cancel the pending runs on a worker for longer than ``timeout`` seconds and
+        restart their workers; yield their error rows (and drop them from ``pending``)."""
+        now = time.monotonic()
+        mine = {fut.key: fut for fut in pending}
+        with contextlib.suppress(Exception):  # workers that cannot say: no limit now
+            for worker, keys in client.run(_executing_keys).items():
+                for key in keys:
+                    if key not in mine or key in timed_out:
+                        continue
+                    if now - seen.setdefault(key, now) <= timeout:
+                        continue
+                    timed_out.add(key)
+                    pending.discard(mine[key])
+                    client.cancel([mine[key]])
+                    with contextlib.suppress(Exception):
+                        client.restart_workers([worker], raise_for_error=False)
+                    yield index[key], (f"timed out: ended after {timeout:g} s of wall "
+                                       "time (--run-timeout)")
 
     def close(self) -> None:
         client, cluster = self._client, self._cluster
