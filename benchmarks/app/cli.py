@@ -639,13 +639,18 @@ def _add_sweep_options(p: argparse.ArgumentParser, *, seeds_default: int,
                    help="skip runs already saved in DIR/parts (an interrupted sweep; damaged "
                         "parts are recomputed); without --out: the most recent unfinished "
                         "folder of this command under reports/")
-    p.add_argument("--c", type=float, default=2.0, help="OSPA/GOSPA cut-off c (default 2)")
-    p.add_argument("--p", type=float, default=2.0, help="OSPA/GOSPA order p (default 2)")
+    _add_metric_options(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--run-timeout", type=float, default=None, metavar="SECONDS",
                    help="wall-time limit of one run: a run still going is ended and gets "
                         "an error row (default: 10x the slowest run's estimate, at least "
                         "60 s)")
+
+
+def _add_metric_options(p: argparse.ArgumentParser) -> None:
+    """``--c`` and ``--p``: the OSPA/GOSPA cut-off and order."""
+    p.add_argument("--c", type=float, default=2.0, help="OSPA/GOSPA cut-off c (default 2)")
+    p.add_argument("--p", type=float, default=2.0, help="OSPA/GOSPA order p (default 2)")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -827,8 +832,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true",
                    help="continue the studies in DIR (runs already saved are read back); "
                         "without --out: the most recent unfinished reports/tune-* folder")
-    p.add_argument("--c", type=float, default=2.0, help="OSPA/GOSPA cut-off c (default 2)")
-    p.add_argument("--p", type=float, default=2.0, help="OSPA/GOSPA order p (default 2)")
+    _add_metric_options(p)
     p.add_argument("--no-progress", action="store_true", help="no progress lines")
     add_executor_arguments(p)
     p.set_defaults(func=cmd_tune)
@@ -956,8 +960,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--beside", metavar="DIR",
                    help="a folder written by `mttbench run` or `compare` on the same worlds: "
                         "its rows join the summary and a report (report.md, report.html)")
-    p.add_argument("--c", type=float, default=2.0, help="OSPA/GOSPA cut-off c (default 2)")
-    p.add_argument("--p", type=float, default=2.0, help="OSPA/GOSPA order p (default 2)")
+    _add_metric_options(p)
     p.set_defaults(func=cmd_score, steps=None, workers=None)
 
     p = sub.add_parser(

@@ -120,6 +120,16 @@ class TrajectoryGOSPA:
     integral: bool
 
 
+
+def _dense_pair(truth, truth_ids, estimate, labels):
+    """:func:`as_dense` of the truth and of the estimates, which must have as many steps:
+    ``(X, ax, Y, ay)``."""
+    X, ax = as_dense(truth, truth_ids)
+    Y, ay = as_dense(estimate, labels)
+    if len(X) != len(Y):
+        raise ValueError(f"{len(X)} steps of truth but {len(Y)} of estimates")
+    return X, ax, Y, ay
+
 def trajectory_gospa(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
                      estimate: Sequence[np.ndarray], labels: Sequence[np.ndarray],
                      c: float = 2.0, p: float = 2.0, gamma: float = 2.0
@@ -163,10 +173,7 @@ def trajectory_gospa(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray
     _check(c, p)
     if not (np.isfinite(gamma) and gamma > 0):
         raise ValueError(f"switching cost gamma must be positive and finite, got {gamma}")
-    X, ax = as_dense(truth, truth_ids)
-    Y, ay = as_dense(estimate, labels)
-    if len(X) != len(Y):
-        raise ValueError(f"{len(X)} steps of truth but {len(Y)} of estimates")
+    X, ax, Y, ay = _dense_pair(truth, truth_ids, estimate, labels)
     T = len(X)
     half = c**p / 2
     const = half * (ax.sum() + ay.sum())
@@ -266,10 +273,7 @@ def ospa2(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
     (and of its parts); ``per_step`` holds OSPA2(k).
     """
     _check(c, p)
-    X, ax = as_dense(truth, truth_ids)
-    Y, ay = as_dense(estimate, labels)
-    if len(X) != len(Y):
-        raise ValueError(f"{len(X)} steps of truth but {len(Y)} of estimates")
+    X, ax, Y, ay = _dense_pair(truth, truth_ids, estimate, labels)
     T = len(X)
     if T == 0:
         return OSPA2(0.0, 0.0, 0.0, np.zeros(0))
@@ -354,10 +358,7 @@ def clear_mot(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
     """
     if not (np.isfinite(gate) and gate > 0):
         raise ValueError(f"the CLEAR-MOT gate must be positive and finite, got {gate}")
-    X, ax = as_dense(truth, truth_ids)
-    Y, ay = as_dense(estimate, labels)
-    if len(X) != len(Y):
-        raise ValueError(f"{len(X)} steps of truth but {len(Y)} of estimates")
+    X, ax, Y, ay = _dense_pair(truth, truth_ids, estimate, labels)
     T, nx = ax.shape
     last = np.full(nx, -1)
     tracked = np.zeros((T, nx), dtype=bool)
