@@ -285,7 +285,7 @@ def _stonesoup():
 
 def test_ss_gnn_counts_equal_the_dense_computation():
     _stonesoup()
-    from mttbench.trackers.stonesoup_peers import HOLDING_EXISTENCE, track_key
+    from mttbench.trackers.stonesoup_peers import track_key
 
     sc = _scenario("births", 30)
     tr = trackers.make("ss-gnn")
@@ -293,7 +293,7 @@ def test_ss_gnn_counts_equal_the_dense_computation():
     for lam in _steps_with_dense_intensity(sc, tr, 4, 30):
         holding = sorted(tr._initiator.holding_tracks, key=track_key)
         m, P = tr._predicted(tr._tracks + holding)
-        exist = np.r_[np.ones(len(tr._tracks)), np.full(len(holding), HOLDING_EXISTENCE)]
+        exist = tr._existence(tr._tracks + holding)
         box, full = _kfnn_like_old(sc.grid, m, P, exist, lam)
         _dense_with_tail(tr.cell_count_distribution().dense(), box, full, len(m))
         tracks += len(m)

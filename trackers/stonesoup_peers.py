@@ -74,9 +74,15 @@ Determinism
     mean over the steps so far; the model's look budget before the first). At ``p_f =
     5e-4`` and raster 24 of 144 cells: one point and 27 steps; every cell looked at: 4
     steps; ``p_d = 0.9, p_f = 0.31`` and 20% of the cells: 7 points and 12 steps.
-    Estimate: the confirmed tracks, count = their number.
-    ``P_c(t)``: each track is a target in its predicted position Gaussian (existence 1
-    confirmed, :data:`HOLDING_EXISTENCE` holding), plus KF-NN's undetected Poisson
+    Existence (the adapter's, as KF-NN's): ``r = sigmoid(L0 + log(p_d / p_f) + L)``, the
+    prior log-odds of the model's target density, the birth detection and the score
+    deleter's ``L``, for confirmed and holding tracks alike.
+    Estimate: the ``round(sum r)`` tracks of largest ``r``, confirmed or holding (count
+    ``sum r``), as KF-NN and pmb. Stone Soup's output, the confirmed tracks, reported
+    nothing where a detection is worth too little to confirm within the run (``p_f =
+    0.3``; 3.1 for 9 in the clutter-and-density corner); docs/stonesoup.md.
+    ``P_c(t)``: each track is a target in its predicted position Gaussian, present with
+    probability ``r``, plus KF-NN's undetected Poisson
     intensity per cell for targets not yet tracked (a :class:`~mttbench.trackers.cells.
     CellField`); per cell the count is Poisson-binomial (:func:`~mttbench.trackers.cells.
     bernoulli_cell_counts` of :func:`~mttbench.trackers.cells.gaussian_cell_mass_sparse`:
@@ -134,6 +140,7 @@ from types import SimpleNamespace
 from typing import Any, ClassVar
 
 import numpy as np
+from scipy.special import expit
 from scipy.stats import poisson
 
 from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
@@ -163,8 +170,6 @@ EXTRA_HINT = "needs the stonesoup extra: pip install 'mttbench[stonesoup]'"
 MIN_VERSION = (1, 9)
 #: count columns of P_c: 0, 1, 2 and "3 or more"
 N_COUNTS = 4
-#: P_c(t): existence of a holding (not yet confirmed) GNN track
-HOLDING_EXISTENCE = 0.5
 #: per target and step of Stone Soup's peers (Python objects per track and detection):
 #: ss-gmphd 210 ms per step with 25 targets on 12x12, ss-gnn 26 ms
 PEER_TARGET_S = 1e-2
@@ -483,6 +488,11 @@ class StoneSoupGNN(_StoneSoupPeer):
         self._p_s, self._birth_per_cell = bd.survival_probability, bd.birth_rate / n
         self._p_d = model.sensor.p_d
         self._undetected = CellField(n, bd.initial_count_mean / n)
+        # a track's existence: sigmoid(prior log-odds + its birth detection + its score)
+        q = -math.expm1(-(bd.initial_count_mean + bd.birth_rate) / n)
+        self._birth_logodds = (
+            (math.log(q) - math.log1p(-q) if q > 0 else -math.inf)
+            + math.log(sensor.p_d) - math.log(max(sensor.p_f, sys.float_info.min)))
 
     def min_points(self, p_d: float, p_f: float) -> int:
         """The fewest detections ``n`` with ``L0 + n log(p_d / p_f) >= log((1 - alpha) /
@@ -529,13 +539,13 @@ class StoneSoupGNN(_StoneSoupPeer):
         return kalman.predict(m, P, self._F, self._Q)
 
     def cell_count_distribution(self) -> CellCounts:
-        """Poisson-binomial of the tracks (existence 1 or :data:`HOLDING_EXISTENCE`) in
+        """Poisson-binomial of the tracks (existence ``r``, :meth:`_existence`) in
         their predicted Gaussians (within 6 sd), and of the untracked targets."""
-        holding = sorted(self._initiator.holding_tracks, key=track_key)
-        m, P = self._predicted(self._tracks + holding)
+        tracks = self._tracks + sorted(self._initiator.holding_tracks, key=track_key)
+        m, P = self._predicted(tracks)
         comp, cells, mass = gaussian_cell_mass_sparse(self._grid,
                                                       *kalman.position_marginal(m, P))
-        exist = np.r_[np.ones(len(self._tracks)), np.full(len(holding), HOLDING_EXISTENCE)]
+        exist = self._existence(tracks)
         return bernoulli_cell_counts(self._grid.n_cells, N_COUNTS, cells, mass * exist[comp],
                                      *untracked_probabilities(self._undetected))
 
@@ -569,16 +579,31 @@ class StoneSoupGNN(_StoneSoupPeer):
         self._tracks += sorted(new, key=track_key)
         self._undetected.multiply(looked, (1.0 - self._p_d) ** n_looks)
 
+    def _existence(self, tracks: list[Any]) -> np.ndarray:
+        """``sigmoid(L0 + log(p_d / p_f) + L)`` per track: the model's prior log-odds, its
+        birth detection and the score deleter's ``L`` (brought up to date first: a track
+        the initiator has just promoted was last scored a step ago)."""
+        score = self._score_deleter
+        for tr in tracks:
+            score.check_for_deletion(tr)
+        return expit(self._birth_logodds + np.array([score.scores[tr.id][0] for tr in tracks]))
+
     def estimate(self) -> Estimate:
-        """The confirmed tracks: count, states ``(n, 4)``, covariances ``(n, 4, 4)`` and a
+        """The ``round(sum r)`` tracks of largest existence ``r``, confirmed or holding:
+        count ``sum r``, states ``(n, 4)``, covariances ``(n, 4, 4)`` and a
         persistent label per track."""
-        n = len(self._tracks)
+        tracks = self._tracks + sorted(self._initiator.holding_tracks, key=track_key)
+        r = self._existence(tracks)
+        total = float(r.sum())
+        keep = np.sort(np.argsort(-r, kind="stable")[:min(int(round(total)), len(r))])
+        tracks = [tracks[i] for i in keep]
+        n = len(tracks)
         m, P = np.zeros((n, 4)), np.zeros((n, 4, 4))
         labels = np.zeros(n, dtype=np.int64)
-        for i, tr in enumerate(self._tracks):
+        for i, tr in enumerate(tracks):
             m[i], P[i] = _mean_cov(tr.state)
             labels[i] = self._track_labels.setdefault(tr.id, len(self._track_labels))
-        return Estimate(float(n), m, P, labels)
+        return Estimate(total, m, P, labels)
 
     @classmethod
     def resource_terms(cls, params, model, looks_per_step, targets) -> ResourceTerms:
