@@ -82,9 +82,10 @@ Track score (sequential probability ratio test; Blackman and Popoli 1999, ch. 6.
     ``-1.93`` per miss) several. Under H0 the ratio is a martingale from the birth's
     ``r_c``, so of the tracks born from false alarms at most ``r_birth / exp(T2 - L0)`` are
     confirmed (Ville's inequality; a test checks it), ``T2 = log((1 - alpha) / alpha)``. The
-    default ``alpha = 1/2`` reports a track once it is more likely a target than not: GOSPA
-    (``alpha = 2``) charges a false and a missed target the same ``c**p / 2``, so that is
-    the report that minimises its expected value.
+    default ``alpha = 1/2`` confirms a track once it is more likely a target than not.
+    Confirmation no longer decides what is reported (Estimate, below), so ``alpha`` only
+    moves a track from Wald's test to the drop from its peak (0.1 to 0.5 measured alike,
+    docs/kfnn.md).
     A track whose box holds no looked cell coasts (``L`` unchanged).
 
 Estimate
@@ -357,8 +358,8 @@ class KFNNTracker(Tracker):
     parameters: ClassVar[dict[str, Param]] = {
         # tuning (mttbench tune): the gate as d^2 = 4.6 ... 23; the two SPRT error rates
         # over the decades where Wald's thresholds move from one detection to many (alpha
-        # up to 1/2, the default: report a track once it is more likely a target than not,
-        # the decision that minimises expected GOSPA, docs/kfnn.md); the
+        # up to 1/2, the default: confirm a track once it is more likely a target than
+        # not, docs/kfnn.md); the
         # birth velocity sd as a multiple of the model's, half to twice
         "gate_probability": Param(float, 0, 1, low_open=True, high_open=True,
                                   doc="gate d^2 < chi2.ppf(gate_probability, 2)",
