@@ -354,7 +354,8 @@ def test_gnn_reports_the_round_sum_most_likely_tracks(stonesoup_installed):
     for rec in play(sc, tracker, 3):
         confirmed = list(tracker._tracks)
         tracks = confirmed + sorted(tracker._initiator.holding_tracks, key=sp.track_key)
-        r = expit(l0 + np.array([tracker._score_deleter.scores[t.id][0] for t in tracks]))
+        scores = tracker._score_deleter.scores  # a holding track born this step: L = 0
+        r = expit(l0 + np.array([scores[t.id][0] if t.id in scores else 0.0 for t in tracks]))
         top = np.sort(np.argsort(-r, kind="stable")[:int(np.round(r.sum()))])
         want = np.array([np.ravel(tracks[i].state.mean) for i in top]).reshape(-1, 4)
         np.testing.assert_array_equal(rec.estimate.states, want)

@@ -173,6 +173,8 @@ N_COUNTS = 4
 #: per target and step of Stone Soup's peers (Python objects per track and detection):
 #: ss-gmphd 210 ms per step with 25 targets on 12x12, ss-gnn 26 ms
 PEER_TARGET_S = 1e-2
+#: the score deleter's entry of a track it has not scored yet (a holding track just born)
+_UNSCORED = (0.0,)
 #: the timestamp of step 0 (Stone Soup needs datetimes; only differences matter)
 EPOCH = datetime.datetime(2000, 1, 1)
 #: the kit's checks that run the tracker (skipped, with EXTRA_HINT, when Stone Soup is
@@ -576,17 +578,18 @@ class StoneSoupGNN(_StoneSoupPeer):
             self._tracks = [tr for tr, ok in zip(self._tracks, inside, strict=True)
                             if ok and tr not in dead]
         new = self._initiator.initiate({d for d in dets if d not in used}, t)
+        for track in new:  # promoted by the initiator before its deleter scored this step
+            self._score_deleter.check_for_deletion(track)
         self._tracks += sorted(new, key=track_key)
         self._undetected.multiply(looked, (1.0 - self._p_d) ** n_looks)
 
     def _existence(self, tracks: list[Any]) -> np.ndarray:
         """``sigmoid(L0 + log(p_d / p_f) + L)`` per track: the model's prior log-odds, its
-        birth detection and the score deleter's ``L`` (brought up to date first: a track
-        the initiator has just promoted was last scored a step ago)."""
-        score = self._score_deleter
-        for tr in tracks:
-            score.check_for_deletion(tr)
-        return expit(self._birth_logodds + np.array([score.scores[tr.id][0] for tr in tracks]))
+        birth detection and the score deleter's ``L`` (current for every track after
+        :meth:`update`; 0 for a holding track born this step)."""
+        scores = self._score_deleter.scores
+        return expit(self._birth_logodds
+                     + np.array([scores.get(tr.id, _UNSCORED)[0] for tr in tracks]))
 
     def estimate(self) -> Estimate:
         """The ``round(sum r)`` tracks of largest existence ``r``, confirmed or holding:
