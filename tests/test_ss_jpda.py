@@ -69,7 +69,8 @@ def _jipda_reference(m, P, r, z, model, p_g):
     its gate, every cell of its mass looked at once: JIPDA (PDA when ``r = 1``) by hand.
     Returns the posterior existence, mean and covariance."""
     F, Q = model.dynamics.F, model.dynamics.Q
-    p_d, p_f = model.sensor.p_d, model.sensor.p_f
+    p_f = model.sensor.p_f
+    p_d = (model.sensor.p_d - p_f) / (1 - p_f)  # a target's detection beside the clutter
     kappa = p_f / model.grid.cell_size ** 2
     R = model.grid.cell_size ** 2 / 12 * np.eye(2)
     mp, Pp = F @ m, F @ P @ F.T + Q
@@ -127,7 +128,8 @@ def test_two_tracks_sharing_detections_equal_enumeration():
     tracker.update(Looks(cells, returns))
 
     F, Q = model.dynamics.F, model.dynamics.Q
-    p_d, p_f = model.sensor.p_d, model.sensor.p_f
+    p_f = model.sensor.p_f
+    p_d = (model.sensor.p_d - p_f) / (1 - p_f)  # a target's detection beside the clutter
     R = np.eye(2) / 12
     z = np.array([[6.5, 6.5], [7.5, 6.5]])
     preds = [(F @ mi, F @ Pi @ F.T + Q) for mi, Pi in zip(m, P, strict=True)]

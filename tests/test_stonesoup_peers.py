@@ -260,10 +260,10 @@ def test_gnn_track_score_follows_blackmans_increments(stonesoup_installed):
     """ss-gnn's score deleter: one track fed at its cell on steps 0-3 (every cell looked
     at), then missed on every look at every cell but its own. Its score, recomputed here
     from the track's innovations with scipy (``log(p_d N(y; 0, S) cell^2 / p_f)`` per hit,
-    ``log(1 - p_d m)`` per miss with ``m`` the predicted Gaussian's mass in the looked
-    cells: its mass on the grid less its own cell's), equals the deleter's to 1e-9
-    (relative), and the track is deleted at the first step its score lies ``log((1 -
-    alpha) / beta)`` below its highest."""
+    ``log(1 - m (p_d - p_f) / (1 - p_f))`` per miss with ``m`` the predicted Gaussian's
+    mass in the looked cells: its mass on the grid less its own cell's), equals the
+    deleter's to 1e-9 (relative), and the track is deleted at the first step its score
+    lies ``log((1 - alpha) / beta)`` below its highest."""
     model = get_scenario("default").model
     grid, sensor = model.grid, model.sensor
     tracker = trackers.make("ss-gnn", gate=10.0)
@@ -300,7 +300,7 @@ def test_gnn_track_score_follows_blackmans_increments(stonesoup_installed):
             edges = np.arange(grid.nx + 1) * grid.cell_size
             px, py = np.diff(norm.cdf(edges, m[0], sd[0])), np.diff(norm.cdf(edges, m[1], sd[1]))
             mass = px.sum() * py.sum() - px[cell % grid.nx] * py[cell // grid.nx]
-            score += np.log1p(-sensor.p_d * mass)
+            score += np.log1p(-mass * (sensor.p_d - sensor.p_f) / (1 - sensor.p_f))
         best = max(best, score)
         if track.id not in deleter.scores:  # promoted by the initiator: checked a step later
             assert k == 1
@@ -367,12 +367,12 @@ def test_gnn_reports_the_round_sum_most_likely_tracks(stonesoup_installed):
 def test_gmphd_expected_count_follows_the_closed_form(stonesoup_installed):
     """From an empty mixture, one detection at cell ``c`` (every cell looked once) makes
     the birth component's weight ``w1 = p b q / (kappa + p b q)`` with ``q`` the Gaussian
-    density of the detection under the predicted birth component, ``p = p_d`` and
-    ``kappa = p_f / cell area`` and ``b`` the birth scale times the model's target
-    density (the initial count over the cells); then a negative look at ``c``
-    multiplies the count by
-    ``1 - p_d``, two negative looks by ``(1 - p_d)^2``, and a step that does not look at
-    ``c`` leaves it unchanged. ``P_c(t)`` is Poisson with the predicted intensity mass."""
+    density of the detection under the predicted birth component, ``p = (p_d - p_f) / (1 -
+    p_f)`` (the cell sensor as detections with independent clutter) and ``kappa = p_f /
+    cell area`` and ``b`` the birth scale times the model's target density (the initial
+    count over the cells); then a negative look at ``c`` multiplies the count by ``1 - p``,
+    two negative looks by ``(1 - p)^2``, and a step that does not look at ``c`` leaves it
+    unchanged. ``P_c(t)`` is Poisson with the predicted intensity mass."""
     sc = get_scenario("default")
     model = sc.model
     grid, sensor = model.grid, model.sensor
@@ -390,7 +390,8 @@ def test_gmphd_expected_count_follows_the_closed_form(stonesoup_installed):
     P_birth = F @ np.diag([r, sv * sv, r, sv * sv]) @ F.T + Q
     S = P_birth[np.ix_([0, 2], [0, 2])] + r * np.eye(2)
     q = multivariate_normal(mean=z, cov=S).pdf(z)
-    p, kappa = sensor.p_d, sensor.p_f / grid.cell_size ** 2
+    p = (sensor.p_d - sensor.p_f) / (1 - sensor.p_f)
+    kappa = sensor.p_f / grid.cell_size ** 2
     w1 = p * b * q / (kappa + p * b * q)
 
     tracker.predict()
@@ -413,7 +414,7 @@ def test_gmphd_expected_count_follows_the_closed_form(stonesoup_installed):
     box_y = (edges[1:] > mp[2] - 6 * sy) & (edges[:-1] <= mp[2] + 6 * sy)
     assert not box_x.all() and 1.0 - np.outer(my[box_y], mx[box_x]).sum() < 4e-9
     lam = (w1 * np.outer(np.where(box_y, my, 0.0), np.where(box_x, mx, 0.0)).ravel()
-           + lam0 * (1 - p))
+           + lam0 * (1 - sensor.p_d))  # KF-NN's undetected intensity: (1 - p_d) per look
     np.testing.assert_allclose(pc[:, 0], np.exp(-lam), rtol=1e-12)
     np.testing.assert_allclose(pc[:, 1], lam * np.exp(-lam), rtol=1e-12)
 
@@ -433,10 +434,10 @@ def test_gmphd_expected_count_follows_the_closed_form(stonesoup_installed):
 
 def test_gmphd_averages_detection_probability_over_the_looked_cells(stonesoup_installed):
     """Looks at ``c`` twice and at another cell once, all negative: the update uses
-    ``p = ((1 - (1 - p_d)^2) + p_d) / 2`` for every looked component (Stone Soup takes
-    one ``prob_detection`` per update; docs/stonesoup.md)."""
+    ``p = ((1 - (1 - P)^2) + P) / 2`` for every looked component, ``P = (p_d - p_f) / (1 -
+    p_f)`` (Stone Soup takes one ``prob_detection`` per update; docs/stonesoup.md)."""
     model = get_scenario("default").model
-    p_d = model.sensor.p_d
+    p_d = (model.sensor.p_d - model.sensor.p_f) / (1 - model.sensor.p_f)
     tracker = trackers.make("ss-gmphd", prune_threshold=1e-12)
     tracker.reset(model, np.random.default_rng(0))
     c = 40

@@ -22,7 +22,9 @@ Per-track hypothesiser (the detection probability of a track)
     ``PDAHypothesiser`` weighs the missed detection ``1 - P_D P_G`` and detection ``i``
     ``P_D N(z_i; H x, S) / kappa`` (``P_G`` = ``gate_probability``, detections outside the
     ``P_G`` chi-square gate dropped). The adapter gives each track its own hypothesiser with
-    ``P_D = r sum_c q_c (1 - (1 - p_d)^n_c)``: ``q_c`` the predicted position Gaussian's
+    ``P_D = r sum_c q_c (1 - (1 - p)^n_c)``, ``p = (p_d - p_f) / (1 - p_f)`` the cell
+    sensor's detection of a target beside independent clutter (:func:`~mttbench.trackers.
+    stonesoup_peers.target_detection_probability`): ``q_c`` the predicted position Gaussian's
     mass in looked cell ``c`` (within 6 sd), ``n_c`` the looks at it this step, ``r`` the
     track's existence probability. With that ``P_D`` the joint association weights that
     JPDA's EHM marginalises are JIPDA's (Musicki & Evans, "Joint integrated probabilistic
@@ -126,7 +128,13 @@ from .cells import (
     untracked_probabilities,
 )
 from .params import Param, Search
-from .stonesoup_peers import N_COUNTS, _mean_cov, _StoneSoupPeer, stonesoup
+from .stonesoup_peers import (
+    N_COUNTS,
+    _mean_cov,
+    _StoneSoupPeer,
+    stonesoup,
+    target_detection_probability,
+)
 
 #: a track whose detection probability this step (its mass in the looked cells times p_d)
 #: is below this is not looked at: it keeps its prediction
@@ -240,6 +248,7 @@ class StoneSoupJPDA(_StoneSoupPeer):
                                                         measurement_model=self._measurement)
         self._p_s, self._birth_per_cell = bd.survival_probability, bd.birth_rate / n
         self._p_d, self._p_f = sensor.p_d, sensor.p_f
+        self._p_target = target_detection_probability(sensor.p_d, sensor.p_f)
         self._undetected = CellField(n, bd.initial_count_mean / n)
         self._gate_d2 = float(chi2.ppf(self.gate_probability, 2))
         sd = self.max_position_sd * model.grid.cell_size
@@ -356,12 +365,12 @@ class StoneSoupJPDA(_StoneSoupPeer):
 
     def _detection_probability(self, m: np.ndarray, P: np.ndarray, looked: np.ndarray,
                                n_looks: np.ndarray) -> np.ndarray:
-        """``(K,)``: ``sum_c q_kc (1 - (1 - p_d)^n_c)`` over the looked cells, ``q_kc`` the
+        """``(K,)``: ``sum_c q_kc (1 - (1 - p)^n_c)`` over the looked cells, ``q_kc`` the
         predicted position Gaussian's mass in cell ``c`` (within 6 sd)."""
         comp, cells, mass = gaussian_cell_mass_sparse(self._grid,
                                                       *kalman.position_marginal(m, P))
         n = _looks_at(cells, looked, n_looks)
-        return np.bincount(comp, weights=mass * -np.expm1(n * math.log1p(-self._p_d)),
+        return np.bincount(comp, weights=mass * -np.expm1(n * math.log1p(-self._p_target)),
                            minlength=len(m))
 
     def _in_gate(self, m: np.ndarray, P: np.ndarray, z: np.ndarray) -> np.ndarray:

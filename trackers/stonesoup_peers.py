@@ -29,9 +29,12 @@ Detections
 Detection probability and clutter (GM-PHD; the GNN's distance association uses neither)
     Stone Soup 1.9's ``PHDUpdater`` takes one ``prob_detection`` and one
     ``clutter_spatial_density`` per update, so both are the **per-step average over the
-    looked cells**: ``p = mean_c (1 - (1 - p_d)^n_c)`` and ``kappa = mean_c (1 - (1 -
-    p_f)^n_c) / cell_size^2`` over the cells looked ``n_c >= 1`` times (``p_d`` the
-    sensor's detection probability of one target, ``p_f`` its false-alarm probability).
+    looked cells**: ``p = mean_c (1 - (1 - P)^n_c)`` and ``kappa = mean_c (1 - (1 -
+    p_f)^n_c) / cell_size^2`` over the cells looked ``n_c >= 1`` times (``p_f`` the
+    sensor's false-alarm probability; ``P = (p_d - p_f) / (1 - p_f)`` the detection of a
+    target beside independent clutter, :func:`target_detection_probability`: a point
+    detector with clutter sees a target's cell positive with ``1 - (1 - P)(1 - p_f) =
+    p_d``, as the cell sensor does; ``p_d`` itself counted the clutter's share twice).
     What follows the looks **per look** is where the update applies: a component whose
     predicted mean lies in a cell not looked at has detection probability 0, so it does
     not enter Stone Soup's update and keeps its predicted weight (times ``p_s``). That
@@ -61,7 +64,9 @@ Determinism
     ``max_steps_without_update`` steps without an update) and the adapter's
     ``ScoreDeleter``, Blackman's track score on Stone Soup's ``Deleter`` interface (each
     update adds ``log(p_d g(z) cell^2 / p_f)``, ``g`` the innovation's Gaussian density,
-    each miss ``log(1 - p_d m)``, ``m`` the predicted mass in the looked cells; deleted
+    each miss ``log(1 - m (p_d - p_f) / (1 - p_f))``, ``m`` the predicted mass in the
+    looked cells (the cell sensor's ratio of a negative look, ``(1 - p_d) / (1 - p_f)``,
+    where Blackman's ``log(1 - p_d m)`` assumes ``p_f`` near 0); deleted
     ``log((1 - alpha) / beta)`` below its highest score). Counting updates alone kept
     tracks that live on clutter: 14-16 reported for 3 at ``p_f >= 0.06``
     (docs/stonesoup.md). The counts come
@@ -244,17 +249,21 @@ def _import_stonesoup() -> SimpleNamespace:
         6.2): each step a track's log-likelihood ratio of "target" against "false track"
         moves by ``log(p_d g(z) / kappa)`` for an update with detection ``z`` (``g`` the
         Gaussian density of the innovation, ``kappa = p_f / cell area`` the clutter
-        density in a looked cell) or by ``log(1 - p_d m)`` for a miss, ``m`` the predicted
-        position Gaussian's mass in the cells looked at this step (:attr:`looked_mass`,
-        set by the adapter); the track is deleted when its score falls ``drop`` below the
-        highest it has reached. Updates by clutter far inside a wide gate lower the score,
-        so a track kept alive only by clutter dies, which counting steps without an update
-        cannot tell."""
+        density in a looked cell) or by ``log(1 - m (p_d - p_f) / (1 - p_f))`` for a miss,
+        ``m`` the predicted position Gaussian's mass in the cells looked at this step
+        (:attr:`looked_mass`, set by the adapter): a negative look at the target's cell is
+        ``(1 - p_d) / (1 - p_f)`` times as likely with the target as without. Blackman's
+        ``log(1 - p_d m)`` is its ``p_f -> 0`` limit; at ``p_f = 0.3`` it charged a miss
+        twice the log-ratio it is worth. The track is deleted when its score falls
+        ``drop`` below the highest it has reached. Updates by clutter far inside a wide
+        gate lower the score, so a track kept alive only by clutter dies, which counting
+        steps without an update cannot tell."""
 
         def __init__(self, *args, **kwargs):
             super().__init__(*args, **kwargs)
             self.log_hit_scale = 0.0  # log(p_d / kappa)
             self.p_d = 0.0
+            self.p_f = 0.0
             self.drop = math.inf
             self.looked_mass = None  # callable(mean_xy (2,), cov_xy (2, 2)) -> mass
             self.scores: dict[str, list] = {}  # track id -> [L, max L, time of L]
@@ -281,7 +290,8 @@ def _import_stonesoup() -> SimpleNamespace:
                 else:
                     m = np.asarray(state.mean, dtype=float).ravel()[[0, 2]]
                     P = np.asarray(state.covar, dtype=float)[np.ix_([0, 2], [0, 2])]
-                    step = math.log1p(-self.p_d * min(1.0, self.looked_mass(m, P)))
+                    step = math.log1p(-min(1.0, self.looked_mass(m, P))
+                                      * (self.p_d - self.p_f) / (1.0 - self.p_f))
                 entry[0] += step
                 entry[1] = max(entry[1], entry[0])
                 entry[2] = state.timestamp
@@ -310,6 +320,16 @@ def stonesoup() -> SimpleNamespace:
         return _import_stonesoup()
     except ImportError as exc:
         raise ImportError(f"{EXTRA_HINT} ({exc})") from exc
+
+
+def target_detection_probability(p_d: float, p_f: float) -> float:
+    """The cell sensor as a point-detection model with independent clutter: a look at a
+    target's cell is positive with ``p_d``, which such a model writes as ``1 - (1 - P_D)(1 -
+    p_f)``, so ``P_D = (p_d - p_f) / (1 - p_f)``; a miss is then ``(1 - p_d) / (1 - p_f)``
+    times as likely with the target as without, as on the cell sensor. Using ``p_d`` itself
+    counts the clutter's share of a positive look twice (0.5 for 0.29 at ``p_d = 0.5, p_f
+    = 0.3``; equal to 1e-3 at the presets' ``p_f``)."""
+    return (p_d - p_f) / (1.0 - p_f)
 
 
 def detection_key(detection: Any) -> tuple[datetime.datetime, int]:
@@ -466,7 +486,7 @@ class StoneSoupGNN(_StoneSoupPeer):
         self._time_deleter = ss.UpdateTimeStepsDeleter(
             time_steps_since_update=self.steps_without_update(self._looked_share[0]))
         score = self._score_deleter = ss.ScoreDeleter()
-        score.p_d = sensor.p_d
+        score.p_d, score.p_f = sensor.p_d, sensor.p_f
         score.log_hit_scale = (math.log(sensor.p_d) + 2 * math.log(model.grid.cell_size)
                                - math.log(max(sensor.p_f, sys.float_info.min)))
         score.drop = math.log1p(-self.false_track_probability) - math.log(
@@ -680,6 +700,7 @@ class StoneSoupGMPHD(_StoneSoupPeer):
         self._birth_P = np.diag([self._r_var, sv * sv, self._r_var, sv * sv])
         sensor = model.sensor
         self._p_d, self._p_f = sensor.p_d, sensor.p_f
+        self._p_target = target_detection_probability(sensor.p_d, sensor.p_f)
         n = model.grid.n_cells
         self._birth_per_cell = bd.birth_rate / n
         self._birth_weight = self.birth_scale * (bd.initial_count_mean + bd.birth_rate) / n
@@ -746,7 +767,7 @@ class StoneSoupGMPHD(_StoneSoupPeer):
                                        np.asarray(pred.state_vector, float),
                                        np.asarray(pred.covar, float), c.tag, k))
         if len(n_looked):
-            p = float(np.mean(-np.expm1(n_looked * np.log1p(-self._p_d))))
+            p = float(np.mean(-np.expm1(n_looked * np.log1p(-self._p_target))))
             kappa = float(np.mean(-np.expm1(n_looked * np.log1p(-self._p_f)))
                           / self._grid.cell_size ** 2)
             births = [self._state(self._birth_weight,
