@@ -33,12 +33,14 @@ GRID = Grid(nx=12, ny=12, cell_size=1.0)
 H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
 
 
-def _model(wna: float = 1e-6, p_d: float = 0.5, snr: float = 10.0, **bd) -> TrackingModel:
+def _model(wna: float = 1e-6, p_d: float = 0.5, snr: float = 10.0, looks: int = 24,
+           **bd) -> TrackingModel:
     """The 12x12 grid; three random targets expected unless ``bd`` says otherwise."""
     if "initial_states" not in bd:
         bd.setdefault("n_random_initial", 3)
     return TrackingModel(grid=GRID, dynamics=Dynamics(tau=1.0, wna_intensity=wna),
-                         birth_death=BirthDeath(**bd), sensor=RayleighGridSensor(p_d=p_d, snr=snr))
+                         birth_death=BirthDeath(**bd),
+                         sensor=RayleighGridSensor(p_d=p_d, snr=snr, looks_per_step=looks))
 
 
 def _looks(positive_cells: list[int] | np.ndarray, looked: np.ndarray | None = None) -> Looks:
@@ -321,8 +323,9 @@ def test_confirmed_track_deleted_after_the_lost_track_drop(beta: float) -> None:
     (1 - r)) and log r (r = (1 - p_d) / (1 - p_f): the track's whole mass, most of it on
     the grid), so the drop log(1 / beta) below its peak (Ville's bound on deleting a track
     still there) takes between that drop over |log r| and over |log(1 - 0.999 (1 - r))|
-    steps, whatever alpha."""
-    model = _model()
+    steps, whatever alpha. The model's look budget is the whole grid, so the track is
+    looked at no more often than the budget spread evenly would: the drop is not raised."""
+    model = _model(looks=GRID.n_cells)
     tracker = KFNNTracker(lost_track_probability=beta)
     tracker.reset(model, np.random.default_rng(0))
     _confirmed_track(tracker, _cell(6.5, 6.5))
@@ -334,6 +337,40 @@ def test_confirmed_track_deleted_after_the_lost_track_drop(beta: float) -> None:
         tracker.update(_looks([]))
         steps += 1
     assert abs(t1) / abs(np.log(r)) <= steps <= np.ceil(abs(t1) / abs(np.log1p(-0.999 * (1 - r))))
+
+
+@pytest.mark.parametrize("looks", [36, 72, 144])
+def test_the_drop_rises_with_how_often_a_track_is_tested(looks: int) -> None:
+    """The model's budget looks at ``f = looks / 144`` of the grid a step and the test looks
+    at every cell, so a track is tested up to ``1 / f`` times as often as the budget spread
+    evenly would test it, and with the plain drop its false deletions per step would be
+    that many times ``beta``'s (CUSUM: a false alarm every ``e^h`` tests). Its drop is
+    ``log(1 / beta) + max(0, log(rate / f))``, ``rate = (tested mass + 1) / (age + 1 / f)``.
+    A confirmed track missed at every step is deleted at the first step where its score,
+    falling by the same amount each step, lies that drop below its peak: counted here
+    from the track table (tested mass 1 a step: every cell looked at)."""
+    beta = 0.1
+    f = looks / GRID.n_cells
+    tracker = KFNNTracker(lost_track_probability=beta)
+    tracker.reset(_model(looks=looks), np.random.default_rng(0))
+    _confirmed_track(tracker, _cell(6.5, 6.5))
+    table = tracker.track_table()
+    age0, peak = int(table["age"][0]), float(table["peak"][0])
+    tested0 = float(tracker._tested[0])
+    tracker.predict()
+    tracker.update(_looks([]))
+    step = float(tracker.track_table()["score"][0]) - peak  # one miss with everything looked
+    steps = 1
+    while tracker.track_table()["id"].size:
+        tracker.predict()
+        tracker.update(_looks([]))
+        steps += 1
+        assert steps < 50
+    want = next(k for k in range(1, 50)
+                if k * step <= -(np.log(1 / beta) + max(0.0, np.log(
+                    (tested0 + 0.999 * k + 1) / (age0 + k + 1 / f) / f))))
+    assert steps == want
+    assert (steps > 4) == (looks < GRID.n_cells)  # the plain drop of 2.3 takes 4 misses
 
 
 def test_a_hit_restores_the_confirmed_score() -> None:

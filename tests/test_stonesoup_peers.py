@@ -263,9 +263,12 @@ def test_gnn_track_score_follows_blackmans_increments(stonesoup_installed):
     ``log(1 - m (p_d - p_f) / (1 - p_f))`` per miss with ``m`` the predicted Gaussian's
     mass in the looked cells: its mass on the grid less its own cell's), equals the
     deleter's to 1e-9 (relative), and the track is deleted at the first step its score
-    lies ``log((1 - alpha) / beta)`` below its highest."""
+    lies ``log((1 - alpha) / beta) + max(0, log(rate / f))`` below its highest: ``f`` the
+    model's looks per step over the cells (24 / 144), ``rate = (tested + 1) / (steps + 1 /
+    f)``, ``tested`` the sum of 1 per hit and ``m`` per miss (KF-NN's raised drop)."""
     model = get_scenario("default").model
     grid, sensor = model.grid, model.sensor
+    f = sensor.looks_per_step / grid.n_cells
     tracker = trackers.make("ss-gnn", gate=10.0)
     tracker.steps_without_update = lambda share: 10**6  # the score alone deletes here
     tracker.reset(model, np.random.default_rng(0))
@@ -273,7 +276,16 @@ def test_gnn_track_score_follows_blackmans_increments(stonesoup_installed):
     cell = int(grid.cell_of(6.5, 6.5))
     deleter = tracker._score_deleter
     drop = np.log(1 - tracker.false_track_probability) - np.log(tracker.lost_track_probability)
-    score = best = 0.0
+    edges = np.arange(grid.nx + 1) * grid.cell_size
+
+    def missed_mass(state) -> float:
+        m = np.ravel(state.mean)[[0, 2]]
+        sd = np.sqrt(np.diag(np.asarray(state.covar, float))[[0, 2]])
+        px, py = np.diff(norm.cdf(edges, m[0], sd[0])), np.diff(norm.cdf(edges, m[1], sd[1]))
+        return px.sum() * py.sum() - px[cell % grid.nx] * py[cell // grid.nx]
+
+    score = best = tested = 0.0
+    scored = 0
     track = None
     for k in range(40):
         looked = every if k < 4 else every[every != cell]  # misses: its own cell unlooked
@@ -281,8 +293,10 @@ def test_gnn_track_score_follows_blackmans_increments(stonesoup_installed):
         tracker.update(_looks(looked, (looked == cell) & (k < 4)))
         tracks = tracker._tracks + list(tracker._initiator.holding_tracks)
         if not tracks:  # deleted by this step's miss: the deleter's final score says why
-            L, high, _ = deleter.scores[track.id]  # the track of the step before
-            assert k >= 4 and L <= high - drop and L < score
+            L, high, *_ = deleter.scores[track.id]  # the track of the step before
+            rate = (tested + missed_mass(track[-1]) + 1) / (scored + 1 + 1 / f)
+            assert k >= 4 and L < score
+            assert L <= high - drop - max(0.0, np.log(rate / f))
             break
         (track,) = tracks
         state = track[-1]
@@ -294,20 +308,17 @@ def test_gnn_track_score_follows_blackmans_increments(stonesoup_installed):
             score += (np.log(sensor.p_d * grid.cell_size ** 2 / sensor.p_f)
                       + multivariate_normal(np.zeros(2), np.asarray(mp.covar,
                                                                     float)).logpdf(y))
+            tested += 1.0
         else:
-            m = np.ravel(state.mean)[[0, 2]]
-            sd = np.sqrt(np.diag(np.asarray(state.covar, float))[[0, 2]])
-            edges = np.arange(grid.nx + 1) * grid.cell_size
-            px, py = np.diff(norm.cdf(edges, m[0], sd[0])), np.diff(norm.cdf(edges, m[1], sd[1]))
-            mass = px.sum() * py.sum() - px[cell % grid.nx] * py[cell // grid.nx]
+            mass = missed_mass(state)
             score += np.log1p(-mass * (sensor.p_d - sensor.p_f) / (1 - sensor.p_f))
+            tested += mass
+        scored += 1
         best = max(best, score)
-        if track.id not in deleter.scores:  # promoted by the initiator: checked a step later
-            assert k == 1
-            continue
-        L, high, _ = deleter.scores[track.id]
+        L, high, *_ = deleter.scores[track.id]
         assert L == pytest.approx(score, rel=1e-9) and high == pytest.approx(best, rel=1e-9)
-        assert score > best - drop
+        rate = (tested + 1) / (scored + 1 / f)
+        assert score > best - drop - max(0.0, np.log(rate / f))
     else:
         pytest.fail("the track outlived its score")
 

@@ -66,7 +66,7 @@ Track score (sequential probability ratio test; Blackman and Popoli 1999, ch. 6.
 
         confirm when L0 + L >= log((1 - alpha) / alpha)   (P(false track) <= alpha)
         delete  when L <= T1 = log(beta / (1 - alpha))     (Wald's lower threshold)
-        delete a confirmed track when L <= max L - log(1 / beta)
+        delete a confirmed track when L <= max L - log(1 / beta) - max(0, log(rate / f))
 
     The tentative deletion reads the evidence since the birth alone: in heavy clutter the
     prior odds of a single detection are far below ``T1``, and a test that starts below its
@@ -75,7 +75,15 @@ Track score (sequential probability ratio test; Blackman and Popoli 1999, ch. 6.
     there" the ratio of "gone" to "there" is a martingale, so it grows by ``1 / beta`` with
     probability at most ``beta`` (Ville), whatever ``alpha``. (Wald's ``|T1|`` as the drop
     tied it to ``alpha``: at ``alpha = 1/2`` two misses deleted a held track under the renyi
-    policy, which looks at tracks often; docs/kfnn.md.) The score is not capped, so
+    policy, which looks at tracks often; docs/kfnn.md.) That test starts again at every new
+    peak (a CUSUM, with a false alarm about every ``1 / beta`` tests), so a track tested
+    more often deletes a present target more often per step: the drop is raised by
+    ``log(rate / f)``, ``f`` the model's looks per step over the grid's cells (how often
+    the budget spread evenly tests a track) and ``rate = (tested + 1) / (age + 1 / f)``,
+    ``tested`` the sum over its steps of its predicted mass in the cells that bore on its
+    score. Under raster ``rate`` stays near ``f`` and nothing changes; under renyi, which
+    looks at held tracks every step, the false deletions per step return to ``beta``'s
+    (docs/kfnn.md). The score is not capped, so
     ``sigmoid(L0 + L)`` of a long-held track tends to 1. The thresholds keep their meaning
     at any clutter and density: at ``p_f = 5e-4`` with 3 targets on 144 cells one detection
     confirms (``6.93 - 3.86 >= 0``), at ``p_d = 0.9, p_f = 0.31`` (``log r = 1.07`` per hit,
@@ -441,6 +449,7 @@ class KFNNTracker(Tracker):
         # under "still there" the ratio of "gone" to "there" is a martingale, so it rises
         # by 1 / beta with probability at most beta (Ville), whatever alpha
         self._drop = -math.log(beta)
+        self._budget_share = min(1.0, model.sensor.looks_per_step / n)
         self._undetected = CellField(n, bd.initial_count_mean / n)  # lambda_c
         # the tracks: leading axis K
         self._m = np.zeros((0, 4))
@@ -448,6 +457,7 @@ class KFNNTracker(Tracker):
         self._id = np.zeros(0, dtype=np.int64)
         self._score = np.zeros(0)  # L: the SPRT log-likelihood ratio since birth
         self._peak = np.zeros(0)  # a confirmed track's highest L (its deletion reference)
+        self._tested = np.zeros(0)  # sum over steps of its predicted mass in tested cells
         self._confirmed = np.zeros(0, dtype=bool)
         self._age = np.zeros(0, dtype=np.int64)  # steps since birth
         self._next_id = 0
@@ -456,6 +466,7 @@ class KFNNTracker(Tracker):
         """Drop the tracks where ``keep (K,)`` is False."""
         self._m, self._P, self._id = self._m[keep], self._P[keep], self._id[keep]
         self._score, self._peak = self._score[keep], self._peak[keep]
+        self._tested = self._tested[keep]
         self._confirmed = self._confirmed[keep]
         self._age = self._age[keep]
 
@@ -512,8 +523,10 @@ class KFNNTracker(Tracker):
                 rows, cols = associate_pairs(pr, pc, d2, self._gate, self.association)
         if K:
             # the score's evidence from the predicted Gaussians, then the Kalman update
-            self._score = self._score + self._evidence(pred_z, P_pos, looked, log_r,
-                                                       det_cells, rows, det_cells[cols])
+            gain, tested = self._evidence(pred_z, P_pos, looked, log_r, det_cells, rows,
+                                          det_cells[cols])
+            self._score = self._score + gain
+            self._tested = self._tested + tested
         if len(rows):
             m_new, P_new, _, _ = kalman.update(self._m[rows], self._P[rows], z[cols],
                                                _H, self._R)
@@ -521,8 +534,11 @@ class KFNNTracker(Tracker):
             det_used[cols] = True
 
         self._confirm()
-        # a tentative track's test ends at T1; a confirmed one is deleted below its peak
-        self._keep(np.where(self._confirmed, self._score > self._peak - self._drop,
+        # a tentative track's test ends at T1; a confirmed one is deleted below its peak,
+        # by a drop raised where the track is looked at more often than the budget's share
+        rate = (self._tested + 1.0) / (self._age + 1.0 / self._budget_share)
+        drop = self._drop + np.maximum(np.log(rate / self._budget_share), 0.0)
+        self._keep(np.where(self._confirmed, self._score > self._peak - drop,
                             self._score > self._delete_at))
 
         # untracked targets (for P_c): a look detects one with probability p_d
@@ -541,6 +557,7 @@ class KFNNTracker(Tracker):
             self._peak = np.concatenate([self._peak, score_new])
             self._confirmed = np.concatenate([self._confirmed, np.zeros(n_new, dtype=bool)])
             self._age = np.concatenate([self._age, 0 * ones])
+            self._tested = np.concatenate([self._tested, np.zeros(n_new)])
             self._confirm()
 
     def _confirm(self) -> None:
@@ -552,10 +569,11 @@ class KFNNTracker(Tracker):
 
     def _evidence(self, mean_xy: np.ndarray, cov_xy: np.ndarray, looked: np.ndarray,
                   log_r: np.ndarray, det_cells: np.ndarray, rows: np.ndarray,
-                  hit_cells: np.ndarray) -> np.ndarray:
+                  hit_cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``log(1 + sum_c m_kc (r_c - 1))`` per track ``(K,)``: ``c`` over the negative
         looked cells in the track's 6-sd box and, for the tracks ``rows``, their associated
-        detection's cell ``hit_cells``; ``m_kc`` the predicted position Gaussian's mass."""
+        detection's cell ``hit_cells``; ``m_kc`` the predicted position Gaussian's mass.
+        Also ``min(1, sum_c m_kc)`` per track, the share of it those looks tested."""
         grid, s = self._grid, self._grid.cell_size
         sx = np.maximum(np.sqrt(np.maximum(cov_xy[:, 0, 0], 0.0)), 1e-12 * s)
         sy = np.maximum(np.sqrt(np.maximum(cov_xy[:, 1, 1], 0.0)), 1e-12 * s)
@@ -569,7 +587,7 @@ class KFNNTracker(Tracker):
         box = np.concatenate([box, np.asarray(rows, dtype=np.int64)])
         cell = np.concatenate([negative[i], np.asarray(hit_cells, dtype=np.int64)])
         if not len(box):
-            return np.zeros(len(mean_xy))
+            return np.zeros(len(mean_xy)), np.zeros(len(mean_xy))
         ix, iy = cell % grid.nx, cell // grid.nx
         mass = ((ndtr(((ix + 1) * s - mx[box]) / sx[box]) - ndtr((ix * s - mx[box]) / sx[box]))
                 * (ndtr(((iy + 1) * s - my[box]) / sy[box])
@@ -577,8 +595,9 @@ class KFNNTracker(Tracker):
         ratio_minus_1 = np.expm1(log_r[np.searchsorted(looked, cell)])
         total = np.zeros(len(mean_xy))
         np.add.at(total, box, mass * ratio_minus_1)
+        looked_mass = np.minimum(np.bincount(box, weights=mass, minlength=len(mean_xy)), 1.0)
         # r_c - 1 >= -1, so the sum stays above -1 (mass <= 1): log1p is finite
-        return np.log1p(np.maximum(total, -1.0 + 1e-300))
+        return np.log1p(np.maximum(total, -1.0 + 1e-300)), looked_mass
 
     def estimate(self) -> Estimate:
         """The ``round(sum r)`` tracks of largest ``r = sigmoid(L0 + L)``, in track order

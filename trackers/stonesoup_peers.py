@@ -67,7 +67,9 @@ Determinism
     each miss ``log(1 - m (p_d - p_f) / (1 - p_f))``, ``m`` the predicted mass in the
     looked cells (the cell sensor's ratio of a negative look, ``(1 - p_d) / (1 - p_f)``,
     where Blackman's ``log(1 - p_d m)`` assumes ``p_f`` near 0); deleted
-    ``log((1 - alpha) / beta)`` below its highest score). Counting updates alone kept
+    ``log((1 - alpha) / beta)`` below its highest score, a drop raised by ``log(rate / f)``
+    for a track tested more often than the model's look budget spread evenly would, as
+    KF-NN's (:mod:`~mttbench.trackers.kfnn`)). Counting updates alone kept
     tracks that live on clutter: 14-16 reported for 3 at ``p_f >= 0.06``
     (docs/stonesoup.md). The counts come
     from the model as a careful user would set them, with KF-NN's error rates
@@ -255,9 +257,13 @@ def _import_stonesoup() -> SimpleNamespace:
         ``(1 - p_d) / (1 - p_f)`` times as likely with the target as without. Blackman's
         ``log(1 - p_d m)`` is its ``p_f -> 0`` limit; at ``p_f = 0.3`` it charged a miss
         twice the log-ratio it is worth. The track is deleted when its score falls
-        ``drop`` below the highest it has reached. Updates by clutter far inside a wide
-        gate lower the score, so a track kept alive only by clutter dies, which counting
-        steps without an update cannot tell."""
+        ``drop + max(0, log(rate / f))`` below the highest it has reached: ``f`` the
+        model's looks per step over the cells (:attr:`budget_share`), ``rate = (tested +
+        1) / (steps + 1 / f)``, ``tested`` the sum of 1 per update and ``m`` per miss (the
+        test restarts at every new peak, so a track tested more often than the budget
+        spread evenly would test it is deleted while present more often per step).
+        Updates by clutter far inside a wide gate lower the score, so a track kept alive
+        only by clutter dies, which counting steps without an update cannot tell."""
 
         def __init__(self, *args, **kwargs):
             super().__init__(*args, **kwargs)
@@ -265,6 +271,7 @@ def _import_stonesoup() -> SimpleNamespace:
             self.p_d = 0.0
             self.p_f = 0.0
             self.drop = math.inf
+            self.budget_share = 1.0  # the model's looks per step over the grid's cells
             self.looked_mass = None  # callable(mean_xy (2,), cov_xy (2, 2)) -> mass
             self.scores: dict[str, list] = {}  # track id -> [L, max L, time of L]
 
@@ -272,7 +279,9 @@ def _import_stonesoup() -> SimpleNamespace:
             # a new track's score starts at 0 at its first state; the states since the
             # last check are scored in order (a track promoted by the initiator is first
             # checked one step later, after an update)
-            entry = self.scores.setdefault(track.id, [0.0, 0.0, track.states[0].timestamp])
+            # [L, highest L, time of L, tested mass, steps scored]
+            entry = self.scores.setdefault(track.id,
+                                           [0.0, 0.0, track.states[0].timestamp, 0.0, 0])
             fresh = []
             for state in reversed(track.states):
                 if state.timestamp <= entry[2]:
@@ -287,15 +296,20 @@ def _import_stonesoup() -> SimpleNamespace:
                     d2 = float(y @ np.linalg.solve(S, y))
                     step = (self.log_hit_scale - math.log(2 * math.pi)
                             - 0.5 * math.log(np.linalg.det(S)) - 0.5 * d2)
+                    tested = 1.0  # its detection's cell was looked at
                 else:
                     m = np.asarray(state.mean, dtype=float).ravel()[[0, 2]]
                     P = np.asarray(state.covar, dtype=float)[np.ix_([0, 2], [0, 2])]
-                    step = math.log1p(-min(1.0, self.looked_mass(m, P))
-                                      * (self.p_d - self.p_f) / (1.0 - self.p_f))
+                    tested = min(1.0, self.looked_mass(m, P))
+                    step = math.log1p(-tested * (self.p_d - self.p_f) / (1.0 - self.p_f))
                 entry[0] += step
                 entry[1] = max(entry[1], entry[0])
                 entry[2] = state.timestamp
-            return entry[0] <= entry[1] - self.drop
+                entry[3] += tested
+                entry[4] += 1
+            f = self.budget_share
+            rate = (entry[3] + 1.0) / (entry[4] + 1.0 / f)
+            return entry[0] <= entry[1] - self.drop - max(math.log(rate / f), 0.0)
 
     return SimpleNamespace(
         GNNWith2DAssignment=GNNWith2DAssignment, UpdateTimeStepsDeleter=UpdateTimeStepsDeleter,
@@ -492,6 +506,7 @@ class StoneSoupGNN(_StoneSoupPeer):
         score.drop = math.log1p(-self.false_track_probability) - math.log(
             self.lost_track_probability)  # |T1|, Wald's lower threshold
         score.looked_mass = self._looked_mass
+        score.budget_share = min(1.0, sensor.looks_per_step / model.grid.n_cells)
         self._looked = np.zeros(0, dtype=np.int64)
         self._deleter = ss.CompositeDeleter([self._time_deleter, score], intersect=False)
         sv2 = (self.velocity_scale * model.birth_death.birth_velocity_std) ** 2
