@@ -143,7 +143,8 @@ class UnseededKFNN(KFNNTracker):
         return Estimate(est.count, est.states + jitter, est.covariances)
 
 
-_TRACK_ARRAYS = ("_m", "_P", "_id", "_score", "_peak", "_confirmed", "_age", "_next_id")
+_TRACK_ARRAYS = ("_m", "_P", "_id", "_score", "_peak", "_tested", "_confirmed", "_age",
+                 "_next_id")
 
 
 class LeakyKFNN(KFNNTracker):
