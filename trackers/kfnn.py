@@ -536,8 +536,9 @@ class KFNNTracker(Tracker):
         self._confirm()
         # a tentative track's test ends at T1; a confirmed one is deleted below its peak,
         # by a drop raised where the track is looked at more often than the budget's share
-        rate = (self._tested + 1.0) / (self._age + 1.0 / self._budget_share)
-        drop = self._drop + np.maximum(np.log(rate / self._budget_share), 0.0)
+        # rate / f = (tested + 1) / (f age + 1), the budget share f
+        drop = self._drop + np.log(np.maximum(
+            (self._tested + 1.0) / (self._budget_share * self._age + 1.0), 1.0))
         self._keep(np.where(self._confirmed, self._score > self._peak - drop,
                             self._score > self._delete_at))
 
@@ -593,8 +594,7 @@ class KFNNTracker(Tracker):
                 * (ndtr(((iy + 1) * s - my[box]) / sy[box])
                    - ndtr((iy * s - my[box]) / sy[box])))
         ratio_minus_1 = np.expm1(log_r[np.searchsorted(looked, cell)])
-        total = np.zeros(len(mean_xy))
-        np.add.at(total, box, mass * ratio_minus_1)
+        total = np.bincount(box, weights=mass * ratio_minus_1, minlength=len(mean_xy))
         looked_mass = np.minimum(np.bincount(box, weights=mass, minlength=len(mean_xy)), 1.0)
         # r_c - 1 >= -1, so the sum stays above -1 (mass <= 1): log1p is finite
         return np.log1p(np.maximum(total, -1.0 + 1e-300)), looked_mass
