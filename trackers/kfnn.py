@@ -182,6 +182,26 @@ _MAX_LOG_RATIO = 700.0
 _H = np.eye(4)[kalman.POSITION]
 
 
+def target_prior_logodds(model: TrackingModel) -> float:
+    """Blackman's prior log-odds that a detection's track is a target, ``L0 = log(q / (1 -
+    q))``, ``q = 1 - exp(-rho)``, ``rho`` the model's target density per cell (initial count
+    and one step's arrivals over the grid); ``-inf`` for a model without targets."""
+    bd = model.birth_death
+    q = -math.expm1(-(bd.initial_count_mean + bd.birth_rate) / model.grid.n_cells)
+    if q <= 0.0:
+        return -math.inf
+    return math.log(q) - math.log1p(-q) if q < 1.0 else math.inf
+
+
+def drop_raise(tested: np.ndarray | float, steps: np.ndarray | float,
+               budget_share: float) -> np.ndarray:
+    """``max(0, log(rate / f))``, ``rate = (tested + 1) / (steps + 1 / f)``: what a
+    confirmed track's deletion drop rises by when its ``steps`` tested it (``tested`` the
+    sum of its predicted mass in the tested cells) more often than the model's look budget,
+    a share ``f`` of the grid a step spread evenly, would (module docstring)."""
+    return np.log(np.maximum((tested + 1.0) / (budget_share * steps + 1.0), 1.0))
+
+
 def associate(cost: np.ndarray, gate: float, method: str = "global"
               ) -> tuple[np.ndarray, np.ndarray]:
     """Nearest-neighbour association of tracks (rows) to detections (columns).
@@ -437,11 +457,7 @@ class KFNNTracker(Tracker):
         self._log_pos = math.log(self._p_d) - math.log(max(p_f, sys.float_info.min))
         self._log_neg = math.log1p(-self._p_d) - math.log1p(-p_f)
         alpha, beta = self.false_track_probability, self.lost_track_probability
-        # the prior log-odds that a detection's track is a target: the model's target
-        # density per cell (initial count and one step's arrivals)
-        q = -math.expm1(-(bd.initial_count_mean + bd.birth_rate) / n)
-        self._prior_logodds = math.log(q) - math.log1p(-q) if 0 < q < 1 else (
-            -math.inf if q <= 0 else math.inf)
+        self._prior_logodds = target_prior_logodds(model)
         # confirmed when P(false track | looks) <= alpha: L >= log((1 - alpha) / alpha) - L0
         self._confirm_at = math.log1p(-alpha) - math.log(alpha) - self._prior_logodds
         self._delete_at = math.log(beta) - math.log1p(-alpha)  # T1
@@ -536,9 +552,7 @@ class KFNNTracker(Tracker):
         self._confirm()
         # a tentative track's test ends at T1; a confirmed one is deleted below its peak,
         # by a drop raised where the track is looked at more often than the budget's share
-        # rate / f = (tested + 1) / (f age + 1), the budget share f
-        drop = self._drop + np.log(np.maximum(
-            (self._tested + 1.0) / (self._budget_share * self._age + 1.0), 1.0))
+        drop = self._drop + drop_raise(self._tested, self._age, self._budget_share)
         self._keep(np.where(self._confirmed, self._score > self._peak - drop,
                             self._score > self._delete_at))
 

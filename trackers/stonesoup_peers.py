@@ -170,6 +170,7 @@ from .cells import (
     gaussian_cell_mass_sparse,
     untracked_probabilities,
 )
+from .kfnn import drop_raise, target_prior_logodds
 from .params import Param, Search
 
 #: the one-line reason when Stone Soup is missing (run rows, ``mttbench trackers``)
@@ -307,9 +308,8 @@ def _import_stonesoup() -> SimpleNamespace:
                 entry[2] = state.timestamp
                 entry[3] += tested
                 entry[4] += 1
-            f = self.budget_share
-            rate = (entry[3] + 1.0) / (entry[4] + 1.0 / f)
-            return entry[0] <= entry[1] - self.drop - max(math.log(rate / f), 0.0)
+            return entry[0] <= entry[1] - self.drop - drop_raise(entry[3], entry[4],
+                                                                 self.budget_share)
 
     return SimpleNamespace(
         GNNWith2DAssignment=GNNWith2DAssignment, UpdateTimeStepsDeleter=UpdateTimeStepsDeleter,
@@ -526,20 +526,17 @@ class StoneSoupGNN(_StoneSoupPeer):
         self._p_d = model.sensor.p_d
         self._undetected = CellField(n, bd.initial_count_mean / n)
         # a track's existence: sigmoid(prior log-odds + its birth detection + its score)
-        q = -math.expm1(-(bd.initial_count_mean + bd.birth_rate) / n)
-        self._birth_logodds = (
-            (math.log(q) - math.log1p(-q) if q > 0 else -math.inf)
-            + math.log(sensor.p_d) - math.log(max(sensor.p_f, sys.float_info.min)))
+        self._birth_logodds = (target_prior_logodds(model) + math.log(sensor.p_d)
+                               - math.log(max(sensor.p_f, sys.float_info.min)))
 
     def min_points(self, p_d: float, p_f: float) -> int:
         """The fewest detections ``n`` with ``L0 + n log(p_d / p_f) >= log((1 - alpha) /
         alpha)``, ``L0`` the prior log-odds of the model's target density per cell."""
         alpha = self.false_track_probability
-        bd, n_cells = self._model.birth_death, self._model.grid.n_cells
-        q = -math.expm1(-(bd.initial_count_mean + bd.birth_rate) / n_cells)
-        if q <= 0.0:
+        prior = target_prior_logodds(self._model)
+        if prior == -math.inf:
             return 2**31 - 1  # a model without targets: nothing is ever confirmed
-        need = math.log1p(-alpha) - math.log(alpha) - (math.log(q) - math.log1p(-q))
+        need = math.log1p(-alpha) - math.log(alpha) - prior
         per_hit = math.log(p_d) - math.log(max(p_f, sys.float_info.min))
         return max(1, math.ceil(need / per_hit - 1e-12))
 
