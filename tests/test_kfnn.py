@@ -339,6 +339,45 @@ def test_confirmed_track_deleted_after_the_lost_track_drop(beta: float) -> None:
     assert abs(t1) / abs(np.log(r)) <= steps <= np.ceil(abs(t1) / abs(np.log1p(-0.999 * (1 - r))))
 
 
+def test_a_deleted_tracks_existence_returns_to_the_undetected_intensity() -> None:
+    """A confirmed track missed on every cell until it is deleted: at that step the
+    undetected intensity is the step before's, predicted (``p_s lambda + b / n``) and
+    multiplied by ``1 - p_d`` for the step's look at each cell, plus ``r m_c``: ``r =
+    sigmoid(L0 + L)`` its existence from its final score (the score before plus this
+    step's evidence, written out with scipy) and ``m_c`` its updated Gaussian's mass per
+    cell (scipy's normal cdf; the trackers' boxes stop at 6 sd: 4e-9)."""
+    model = _model(looks=GRID.n_cells)
+    bd, sensor = model.birth_death, model.sensor
+    tracker = KFNNTracker()
+    tracker.reset(model, np.random.default_rng(0))
+    _confirmed_track(tracker, _cell(6.5, 6.5))
+    q = 1 - np.exp(-(bd.initial_count_mean + bd.birth_rate) / GRID.n_cells)
+    l0 = np.log(q / (1 - q))
+    edges = np.arange(GRID.nx + 1) * GRID.cell_size
+    for _ in range(100):
+        table = tracker.track_table()
+        before = tracker.undetected_intensity().dense()
+        tracker.predict()
+        pred = tracker.track_table()
+        mean, cov = pred["mean"][0], pred["cov"][0]
+        tracker.update(_looks([]))
+        if tracker.track_table()["id"].size:
+            continue
+        score = table["score"][0] + _direct_evidence(mean, cov, model, np.arange(GRID.n_cells),
+                                                     [])
+        r = 1 / (1 + np.exp(-(l0 + score)))
+        px = np.diff(stats.norm.cdf(edges, mean[0], np.sqrt(cov[0, 0])))
+        py = np.diff(stats.norm.cdf(edges, mean[2], np.sqrt(cov[2, 2])))
+        want = ((bd.survival_probability * before + bd.birth_rate / GRID.n_cells)
+                * (1 - sensor.p_d) + r * np.outer(py, px).ravel())
+        np.testing.assert_allclose(tracker.undetected_intensity().dense(), want, rtol=0,
+                                   atol=1e-8)
+        assert r > 1e-3  # the recycled share is visible at that tolerance
+        break
+    else:
+        pytest.fail("the track was never deleted")
+
+
 @pytest.mark.parametrize("looks", [36, 72, 144])
 def test_the_drop_rises_with_how_often_a_track_is_tested(looks: int) -> None:
     """The model's budget looks at ``f = looks / 144`` of the grid a step and the test looks

@@ -125,16 +125,23 @@ def test_bernoulli_cell_counts_is_poisson_binomial_of_the_dense_array(n_counts):
 
 
 def test_cell_field_is_the_dense_array_bit_for_bit():
-    """Random affine maps and per-cell factors, on the field and on a dense array: equal
-    bit for bit at every step; a cell whose value meets the default again rejoins it."""
+    """Random affine maps, per-cell factors and per-cell additions, on the field and on a
+    dense array: equal bit for bit at every step; a cell whose value meets the default
+    again rejoins it."""
     rng = np.random.default_rng(5)
     n = 50
     field, dense = CellField(n, 0.37), np.full(n, 0.37)
     for _ in range(300):
-        if rng.random() < 0.5:
+        u = rng.random()
+        if u < 0.4:
             a, b = float(rng.uniform(0.5, 1.0)), float(rng.uniform(0, 0.01))
             field.affine(a, b)
             dense = a * dense + b
+        elif u < 0.6:
+            cells = np.sort(rng.choice(n, int(rng.integers(0, 8)), replace=False))
+            amounts = rng.uniform(0, 0.05, len(cells))
+            field.add(cells, amounts)
+            dense[cells] = dense[cells] + amounts
         else:
             cells = np.sort(rng.choice(n, int(rng.integers(0, 8)), replace=False))
             f = (1.0 - 0.5) ** rng.integers(1, 4, len(cells))
@@ -200,30 +207,58 @@ def _steps(sc, tracker, seed: int, n_steps: int):
         tracker.update(looks)
 
 
-def _steps_with_dense_intensity(sc, tracker, seed: int, n_steps: int):
-    """:func:`_steps`, yielding after each predict the undetected intensity the former
-    dense rules give (``p_s lambda + b / n`` per predict, ``(1 - p_d)^looks`` per look)."""
+def _steps_with_dense_intensity(sc, tracker, seed: int, n_steps: int, monkeypatch):
+    """:func:`_steps`, yielding after each predict the undetected intensity the dense
+    rules give (``p_s lambda + b / n`` per predict, ``(1 - p_d)^looks`` per look, then
+    ``+ r m_c`` for each deleted track the tracker recycles, ``m_c`` the dense cell mass
+    cut to its 6-sd box) and the number of tracks recycled so far. The tracker module's
+    ``recycle`` is wrapped to record what it recycles (its ``r``, means and covariances)
+    and still does it."""
     bd, n, p_d = sc.model.birth_death, sc.grid.n_cells, sc.model.sensor.p_d
+    module = __import__(type(tracker).__module__, fromlist=["recycle"])
+    recycled = []
+
+    def recording(field, grid, r, m, P):
+        recycled.append((np.array(r), np.array(m), np.array(P)))
+        return original(field, grid, r, m, P)
+
+    original = module.recycle
+    monkeypatch.setattr(module, "recycle", recording)
     lam = np.full(n, bd.initial_count_mean / n)
+    total = 0
     for _k, looks in _steps(sc, tracker, seed, n_steps):
         if looks is not None:
             cells, counts = np.unique(looks.cells, return_counts=True)
             lam[cells] = lam[cells] * (1.0 - p_d) ** counts
+            for r, m, P in recycled:
+                total += len(r)
+                if len(r):
+                    means, covs = kalman.position_marginal(m, P)
+                    mass = np.where(_in_box(sc.grid, means, covs),
+                                    gaussian_cell_mass(sc.grid, means, covs), 0.0)
+                    add = np.zeros(n)
+                    for k in range(len(r)):  # in order, as the sparse sum
+                        add = add + r[k] * mass[k]
+                    touched = add != 0.0
+                    lam[touched] = lam[touched] + add[touched]
+            recycled.clear()
         lam = bd.survival_probability * lam + bd.birth_rate / n
-        yield lam
+        yield lam, total
 
 
 @pytest.mark.parametrize("name", ["births", "large"])
-def test_kfnn_counts_equal_the_dense_computation(name):
-    """The undetected intensity followed densely by the former rules (``p_s lambda + b /
-    n`` per predict, ``(1 - p_d)^looks`` per look, bit for bit) and the tracks' masses
+def test_kfnn_counts_equal_the_dense_computation(name, monkeypatch):
+    """The undetected intensity followed densely (``p_s lambda + b / n`` per predict,
+    ``(1 - p_d)^looks`` per look, deleted tracks' ``r m_c`` added, bit for bit; some are
+    recycled in the run) and the tracks' masses
     dense: the new ``P_c(t)`` is that computation with the masses cut to the 6-sd boxes,
     bit for bit, and within the boxes' tail of the uncut one."""
-    sc = _scenario(name, 30)
+    sc = _scenario(name, {"births": 100, "large": 60}[name])  # long enough to delete
     tr = trackers.make("kfnn")
     n = sc.grid.n_cells
     tracks = 0
-    for lam in _steps_with_dense_intensity(sc, tr, 2, 30):
+    for lam, recycled in _steps_with_dense_intensity(sc, tr, 2, sc.n_steps,  # noqa: B007
+                                                     monkeypatch):
         np.testing.assert_array_equal(tr.undetected_intensity().dense(), lam)
         cc = tr.cell_count_distribution()
         assert isinstance(cc, CellCounts) and cc.n_cells == n
@@ -231,7 +266,7 @@ def test_kfnn_counts_equal_the_dense_computation(name):
         box, full = _kfnn_like_old(sc.grid, tr._m, tr._P, exist, lam)
         _dense_with_tail(cc.dense(), box, full, len(tr._m))
         tracks += len(tr._m)
-    assert tracks > 0
+    assert tracks > 0 and recycled > 0
 
 
 def _truth_aided_old(tr) -> tuple[np.ndarray, np.ndarray]:
@@ -283,21 +318,21 @@ def _stonesoup():
     pytest.importorskip("stonesoup")
 
 
-def test_ss_gnn_counts_equal_the_dense_computation():
+def test_ss_gnn_counts_equal_the_dense_computation(monkeypatch):
     _stonesoup()
     from mttbench.trackers.stonesoup_peers import track_key
 
     sc = _scenario("births", 30)
     tr = trackers.make("ss-gnn")
     tracks = 0
-    for lam in _steps_with_dense_intensity(sc, tr, 4, 30):
+    for lam, recycled in _steps_with_dense_intensity(sc, tr, 4, 30, monkeypatch):  # noqa: B007
         holding = sorted(tr._initiator.holding_tracks, key=track_key)
         m, P = tr._predicted(tr._tracks + holding)
         exist = tr._existence(tr._tracks + holding)
         box, full = _kfnn_like_old(sc.grid, m, P, exist, lam)
         _dense_with_tail(tr.cell_count_distribution().dense(), box, full, len(m))
         tracks += len(m)
-    assert tracks > 0
+    assert tracks > 0 and recycled > 0
 
 
 def test_ss_gmphd_counts_equal_the_dense_computation():

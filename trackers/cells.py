@@ -407,16 +407,32 @@ class CellField:
         factors = np.asarray(factors, dtype=float).reshape(-1)
         if not len(cells):
             return
+        i = self._own(cells)
+        self.values[i] = self.values[i] * factors
+        self._rejoin()
+
+    def add(self, cells: np.ndarray, amounts: np.ndarray) -> None:
+        """``x_c <- x_c + amount_c`` at the sorted unique ``cells``."""
+        cells = np.asarray(cells, dtype=np.int64).reshape(-1)
+        amounts = np.asarray(amounts, dtype=float).reshape(-1)
+        if not len(cells):
+            return
+        i = self._own(cells)
+        self.values[i] = self.values[i] + amounts
+        self._rejoin()
+
+    def _own(self, cells: np.ndarray) -> np.ndarray:
+        """The positions of the sorted unique ``cells`` in :attr:`cells`, after inserting
+        those that had the default (sorted, with the default value: a memory move)."""
         i = np.searchsorted(self.cells, cells)
         new = cells[(i == len(self.cells)) | (self.cells[np.minimum(i, len(self.cells) - 1)]
                                               != cells)] if len(self.cells) else cells
-        if len(new):  # insert them, sorted, with the default value (a memory move)
+        if len(new):
             at = np.searchsorted(self.cells, new)
             self.cells = np.insert(self.cells, at, new)
             self.values = np.insert(self.values, at, self.default)
             i = np.searchsorted(self.cells, cells)
-        self.values[i] = self.values[i] * factors
-        self._rejoin()
+        return i
 
     def at(self, cells: np.ndarray) -> np.ndarray:
         """The values at ``cells`` (any order, repeats allowed)."""

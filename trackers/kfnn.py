@@ -116,7 +116,11 @@ Predicted count distribution ``P_c(t)`` (for sensor management)
     ``lambda_c`` per cell: ``initial_count_mean / n_cells`` at reset, ``lambda <- p_s
     lambda + birth_rate / n_cells`` at each predict (no spatial diffusion), and
     ``lambda_c <- (1 - p_d) lambda_c`` for each look at ``c`` (a look detects an
-    untracked target with probability ``p_d``; detected ones become tracks). The
+    untracked target with probability ``p_d``; detected ones become tracks). A deleted
+    track's existence ``sigmoid(L0 + L)`` returns to it over its Gaussian's cells,
+    ``lambda_c += r m_c`` (recycling, Williams 2012, as pmb: without it a target whose
+    track was deleted left no trace, so a policy that looks where it expects targets did
+    not look there again; a track leaving the workspace under ``die`` is not recycled). The
     intensity enters as one more Bernoulli per cell with probability ``1 -
     exp(-lambda_c)`` (at least one untracked target). Per cell, the count of these
     independent Bernoullis is Poisson-binomial (:func:`trackers.cells.
@@ -145,7 +149,7 @@ from scipy.spatial import cKDTree
 from scipy.special import expit, ndtr
 from scipy.stats import chi2
 
-from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
+from ..scenarios.model import Grid, Looks, RayleighGridSensor, TrackingModel
 from . import kalman
 from .base import (
     BOX_CELLS,
@@ -168,6 +172,7 @@ from .cells import (
     untracked_probabilities,
 )
 from .params import Param, Search
+from .pmb.ppp import recycle
 
 #: count columns of P_c: 0, 1, 2 and "3 or more"
 N_COUNTS = 4
@@ -200,6 +205,52 @@ def drop_raise(tested: np.ndarray | float, steps: np.ndarray | float,
     sum of its predicted mass in the tested cells) more often than the model's look budget,
     a share ``f`` of the grid a step spread evenly, would (module docstring)."""
     return np.log(np.maximum((tested + 1.0) / (budget_share * steps + 1.0), 1.0))
+
+
+def looked_log_ratios(cells: np.ndarray, returns: np.ndarray, log_pos: float,
+                      log_neg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The looked cells (sorted), the looks at each, the positive cells (one detection
+    each) and ``log r_c`` per looked cell, one target in it against none: ``k_c log_pos +
+    (n_c - k_c) log_neg`` (clipped at :data:`_MAX_LOG_RATIO`)."""
+    cells = np.asarray(cells, dtype=np.int64)
+    returns = np.asarray(returns, dtype=bool)
+    looked, n_looks = np.unique(cells, return_counts=True)
+    det_cells = np.unique(cells[returns])
+    positive = np.bincount(np.searchsorted(looked, cells[returns]), minlength=len(looked))
+    log_r = np.minimum(positive * log_pos + (n_looks - positive) * log_neg, _MAX_LOG_RATIO)
+    return looked, n_looks, det_cells, log_r
+
+
+def cell_evidence(grid: Grid, mean_xy: np.ndarray, cov_xy: np.ndarray, looked: np.ndarray,
+                  log_r: np.ndarray, det_cells: np.ndarray, rows: np.ndarray,
+                  hit_cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``log(1 + sum_c m_kc (r_c - 1))`` per track ``(K,)``: ``c`` over the negative
+    looked cells in the track's 6-sd box and, for the tracks ``rows``, their associated
+    detection's cell ``hit_cells``; ``m_kc`` the predicted position Gaussian's mass.
+    Also ``min(1, sum_c m_kc)`` per track, the share of it those looks tested."""
+    s = grid.cell_size
+    sx = np.maximum(np.sqrt(np.maximum(cov_xy[:, 0, 0], 0.0)), 1e-12 * s)
+    sy = np.maximum(np.sqrt(np.maximum(cov_xy[:, 1, 1], 0.0)), 1e-12 * s)
+    mx, my = mean_xy[:, 0], mean_xy[:, 1]
+    negative = looked[~_member(looked, det_cells)]
+    with np.errstate(invalid="ignore", over="ignore"):
+        box, i = looked_in_boxes(
+            np.floor((mx - BOX_SD * sx) / s), np.floor((mx + BOX_SD * sx) / s),
+            np.floor((my - BOX_SD * sy) / s), np.floor((my + BOX_SD * sy) / s),
+            negative, grid.nx, grid.ny)
+    box = np.concatenate([box, np.asarray(rows, dtype=np.int64)])
+    cell = np.concatenate([negative[i], np.asarray(hit_cells, dtype=np.int64)])
+    if not len(box):
+        return np.zeros(len(mean_xy)), np.zeros(len(mean_xy))
+    ix, iy = cell % grid.nx, cell // grid.nx
+    mass = ((ndtr(((ix + 1) * s - mx[box]) / sx[box]) - ndtr((ix * s - mx[box]) / sx[box]))
+            * (ndtr(((iy + 1) * s - my[box]) / sy[box])
+               - ndtr((iy * s - my[box]) / sy[box])))
+    ratio_minus_1 = np.expm1(log_r[np.searchsorted(looked, cell)])
+    total = np.bincount(box, weights=mass * ratio_minus_1, minlength=len(mean_xy))
+    looked_mass = np.minimum(np.bincount(box, weights=mass, minlength=len(mean_xy)), 1.0)
+    # r_c - 1 >= -1, so the sum stays above -1 (mass <= 1): log1p is finite
+    return np.log1p(np.maximum(total, -1.0 + 1e-300)), looked_mass
 
 
 def associate(cost: np.ndarray, gate: float, method: str = "global"
@@ -510,18 +561,11 @@ class KFNNTracker(Tracker):
     def update(self, looks: Looks) -> None:
         """Associate, update, score hits/misses, confirm/delete, and start new tracks."""
         grid = self._grid
-        cells = np.asarray(looks.cells, dtype=np.int64)
-        returns = np.asarray(looks.returns, dtype=bool)
-        looked, n_looks = np.unique(cells, return_counts=True)  # looked cells, looks at each
-        det_cells = np.unique(cells[returns])  # one detection per positive cell
+        # log r_c of each looked cell: one target in it against none
+        looked, n_looks, det_cells, log_r = looked_log_ratios(
+            looks.cells, looks.returns, self._log_pos, self._log_neg)
         z = grid.cell_centers(det_cells)  # (D, 2)
         K, D = len(self._m), len(det_cells)
-
-        looked_pos = np.zeros(len(looked), dtype=np.int64)  # positive looks per looked cell
-        np.add.at(looked_pos, np.searchsorted(looked, cells[returns]), 1)
-        # log r_c of each looked cell: one target in it against none
-        log_r = looked_pos * self._log_pos + (n_looks - looked_pos) * self._log_neg
-        log_r = np.minimum(log_r, _MAX_LOG_RATIO)
         det_used = np.zeros(D, dtype=bool)
         rows = cols = np.zeros(0, dtype=np.int64)
         if K:
@@ -539,8 +583,8 @@ class KFNNTracker(Tracker):
                 rows, cols = associate_pairs(pr, pc, d2, self._gate, self.association)
         if K:
             # the score's evidence from the predicted Gaussians, then the Kalman update
-            gain, tested = self._evidence(pred_z, P_pos, looked, log_r, det_cells, rows,
-                                          det_cells[cols])
+            gain, tested = cell_evidence(grid, pred_z, P_pos, looked, log_r, det_cells, rows,
+                                         det_cells[cols])
             self._score = self._score + gain
             self._tested = self._tested + tested
         if len(rows):
@@ -553,12 +597,18 @@ class KFNNTracker(Tracker):
         # a tentative track's test ends at T1; a confirmed one is deleted below its peak,
         # by a drop raised where the track is looked at more often than the budget's share
         drop = self._drop + drop_raise(self._tested, self._age, self._budget_share)
-        self._keep(np.where(self._confirmed, self._score > self._peak - drop,
-                            self._score > self._delete_at))
+        keep = np.where(self._confirmed, self._score > self._peak - drop,
+                        self._score > self._delete_at)
+        gone = ~keep
+        dropped = (expit(self._prior_logodds + self._score[gone]), self._m[gone],
+                   self._P[gone])
+        self._keep(keep)
 
-        # untracked targets (for P_c): a look detects one with probability p_d
+        # untracked targets (for P_c): a look detects one with probability p_d; a deleted
+        # track's existence returns to them (recycling, as pmb and the Stone Soup peers)
         new_cells = det_cells[~det_used]
         self._undetected.multiply(looked, (1.0 - self._p_d) ** n_looks)
+        recycle(self._undetected, grid, *dropped)
 
         n_new = len(new_cells)
         if n_new:
@@ -581,37 +631,6 @@ class KFNNTracker(Tracker):
         track's existence in ``P_c(t)``, near 1 for a track long held)."""
         self._confirmed = self._confirmed | (self._score >= self._confirm_at)
         self._peak = np.where(self._confirmed, np.maximum(self._peak, self._score), self._score)
-
-    def _evidence(self, mean_xy: np.ndarray, cov_xy: np.ndarray, looked: np.ndarray,
-                  log_r: np.ndarray, det_cells: np.ndarray, rows: np.ndarray,
-                  hit_cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``log(1 + sum_c m_kc (r_c - 1))`` per track ``(K,)``: ``c`` over the negative
-        looked cells in the track's 6-sd box and, for the tracks ``rows``, their associated
-        detection's cell ``hit_cells``; ``m_kc`` the predicted position Gaussian's mass.
-        Also ``min(1, sum_c m_kc)`` per track, the share of it those looks tested."""
-        grid, s = self._grid, self._grid.cell_size
-        sx = np.maximum(np.sqrt(np.maximum(cov_xy[:, 0, 0], 0.0)), 1e-12 * s)
-        sy = np.maximum(np.sqrt(np.maximum(cov_xy[:, 1, 1], 0.0)), 1e-12 * s)
-        mx, my = mean_xy[:, 0], mean_xy[:, 1]
-        negative = looked[~_member(looked, det_cells)]
-        with np.errstate(invalid="ignore", over="ignore"):
-            box, i = looked_in_boxes(
-                np.floor((mx - BOX_SD * sx) / s), np.floor((mx + BOX_SD * sx) / s),
-                np.floor((my - BOX_SD * sy) / s), np.floor((my + BOX_SD * sy) / s),
-                negative, grid.nx, grid.ny)
-        box = np.concatenate([box, np.asarray(rows, dtype=np.int64)])
-        cell = np.concatenate([negative[i], np.asarray(hit_cells, dtype=np.int64)])
-        if not len(box):
-            return np.zeros(len(mean_xy)), np.zeros(len(mean_xy))
-        ix, iy = cell % grid.nx, cell // grid.nx
-        mass = ((ndtr(((ix + 1) * s - mx[box]) / sx[box]) - ndtr((ix * s - mx[box]) / sx[box]))
-                * (ndtr(((iy + 1) * s - my[box]) / sy[box])
-                   - ndtr((iy * s - my[box]) / sy[box])))
-        ratio_minus_1 = np.expm1(log_r[np.searchsorted(looked, cell)])
-        total = np.bincount(box, weights=mass * ratio_minus_1, minlength=len(mean_xy))
-        looked_mass = np.minimum(np.bincount(box, weights=mass, minlength=len(mean_xy)), 1.0)
-        # r_c - 1 >= -1, so the sum stays above -1 (mass <= 1): log1p is finite
-        return np.log1p(np.maximum(total, -1.0 + 1e-300)), looked_mass
 
     def estimate(self) -> Estimate:
         """The ``round(sum r)`` tracks of largest ``r = sigmoid(L0 + L)``, in track order

@@ -444,8 +444,7 @@ class StoneSoupJPDA(_StoneSoupPeer):
             m = np.array([_mean_cov(tr.state)[0] for tr, g in zip(tracks, recycle, strict=True)
                           if g]).reshape(-1, 4)
             own, inv = np.unique(self._cells_of(m), return_inverse=True)
-            self._undetected.set(own, self._undetected.at(own)
-                                 + np.bincount(inv, weights=r[recycle], minlength=len(own)))
+            self._undetected.add(own, np.bincount(inv, weights=r[recycle], minlength=len(own)))
         self._tracks = [tr for tr, k in zip(tracks, keep, strict=True) if k]
         self._r, self._confirmed = r[keep], confirmed[keep]
 

@@ -62,15 +62,21 @@ Determinism
     velocity sd) and two deleters, either of which deletes a track, confirmed or holding
     (Stone Soup's ``CompositeDeleter``): an ``UpdateTimeStepsDeleter`` (after
     ``max_steps_without_update`` steps without an update) and the adapter's
-    ``ScoreDeleter``, Blackman's track score on Stone Soup's ``Deleter`` interface (each
-    update adds ``log(p_d g(z) cell^2 / p_f)``, ``g`` the innovation's Gaussian density,
-    each miss ``log(1 - m (p_d - p_f) / (1 - p_f))``, ``m`` the predicted mass in the
-    looked cells (the cell sensor's ratio of a negative look, ``(1 - p_d) / (1 - p_f)``,
-    where Blackman's ``log(1 - p_d m)`` assumes ``p_f`` near 0); deleted
-    ``log((1 - alpha) / beta)`` below its highest score, a drop raised by ``log(rate / f)``
-    for a track tested more often than the model's look budget spread evenly would, as
-    KF-NN's (:mod:`~mttbench.trackers.kfnn`)). Counting updates alone kept
-    tracks that live on clutter: 14-16 reported for 3 at ``p_f >= 0.06``
+    ``ScoreDeleter``, Blackman's track score on Stone Soup's ``Deleter`` interface with
+    KF-NN's cell likelihood ratio (each step adds ``log(1 + sum_c m_c (r_c - 1))``,
+    ``m_c`` the predicted position Gaussian's mass in cell ``c``, over the negative looked
+    cells and an update's detection cell, ``r_c`` the cell's ratio of one target against
+    none: ``p_d / p_f`` per positive look, ``(1 - p_d) / (1 - p_f)`` per negative;
+    :func:`~mttbench.trackers.kfnn.cell_evidence`); deleted ``log((1 - alpha) / beta)``
+    below its highest score, a drop raised by ``log(rate / f)`` for a track tested more
+    often than the model's look budget spread evenly would, as KF-NN's
+    (:mod:`~mttbench.trackers.kfnn`). Blackman's point score, ``log(p_d g(z) cell^2 /
+    p_f)`` per update (``g`` the innovation's Gaussian density at the cell centre), charged
+    an update from the next cell about -1.4 where a miss costs -0.59 (``p_d`` 0.5, ``p_f``
+    0.1): the quantisation treated as Gaussian noise has thin tails, so tracks of present
+    targets crossing a cell edge, or updated by clutter beside them, were deleted (3.0
+    reported for 9 in the clutter-and-density corner under renyi). Counting updates
+    alone kept tracks that live on clutter: 14-16 reported for 3 at ``p_f >= 0.06``
     (docs/stonesoup.md). The counts come
     from the model as a careful user would set them, with KF-NN's error rates
     (:mod:`~mttbench.trackers.kfnn`): ``min_points`` is the fewest detections ``n`` whose
@@ -89,11 +95,13 @@ Determinism
     nothing where a detection is worth too little to confirm within the run (``p_f =
     0.3``; 3.1 for 9 in the clutter-and-density corner); docs/stonesoup.md.
     ``P_c(t)``: each track is a target in its predicted position Gaussian, present with
-    probability ``r``, plus KF-NN's undetected Poisson
-    intensity per cell for targets not yet tracked (a :class:`~mttbench.trackers.cells.
-    CellField`); per cell the count is Poisson-binomial (:func:`~mttbench.trackers.cells.
-    bernoulli_cell_counts` of :func:`~mttbench.trackers.cells.gaussian_cell_mass_sparse`:
-    the cells within 6 sd of each track).
+    probability ``r``, plus KF-NN's undetected Poisson intensity per cell for targets
+    not yet tracked (a :class:`~mttbench.trackers.cells.CellField`), to which a deleted
+    track's ``r`` returns over its Gaussian's cells (recycling, Williams 2012, as pmb and
+    ss-jpda; a track leaving the workspace under ``die`` is not recycled); per cell the
+    count is Poisson-binomial (:func:`~mttbench.trackers.cells.bernoulli_cell_counts` of
+    :func:`~mttbench.trackers.cells.gaussian_cell_mass_sparse`: the cells within 6 sd of
+    each track).
 
 ``ss-gmphd``
     ``PHDUpdater`` over a ``GaussianMixtureHypothesiser`` (a ``DistanceHypothesiser`` with
@@ -170,8 +178,9 @@ from .cells import (
     gaussian_cell_mass_sparse,
     untracked_probabilities,
 )
-from .kfnn import drop_raise, target_prior_logodds
+from .kfnn import cell_evidence, drop_raise, looked_log_ratios, target_prior_logodds
 from .params import Param, Search
+from .pmb.ppp import recycle
 
 #: the one-line reason when Stone Soup is missing (run rows, ``mttbench trackers``)
 EXTRA_HINT = "needs the stonesoup extra: pip install 'mttbench[stonesoup]'"
@@ -249,32 +258,26 @@ def _import_stonesoup() -> SimpleNamespace:
 
     class ScoreDeleter(Deleter):
         """A track-score deleter on Stone Soup's interface (Blackman and Popoli 1999, ch.
-        6.2): each step a track's log-likelihood ratio of "target" against "false track"
-        moves by ``log(p_d g(z) / kappa)`` for an update with detection ``z`` (``g`` the
-        Gaussian density of the innovation, ``kappa = p_f / cell area`` the clutter
-        density in a looked cell) or by ``log(1 - m (p_d - p_f) / (1 - p_f))`` for a miss,
-        ``m`` the predicted position Gaussian's mass in the cells looked at this step
-        (:attr:`looked_mass`, set by the adapter): a negative look at the target's cell is
-        ``(1 - p_d) / (1 - p_f)`` times as likely with the target as without. Blackman's
-        ``log(1 - p_d m)`` is its ``p_f -> 0`` limit; at ``p_f = 0.3`` it charged a miss
-        twice the log-ratio it is worth. The track is deleted when its score falls
-        ``drop + max(0, log(rate / f))`` below the highest it has reached: ``f`` the
-        model's looks per step over the cells (:attr:`budget_share`), ``rate = (tested +
-        1) / (steps + 1 / f)``, ``tested`` the sum of 1 per update and ``m`` per miss (the
-        test restarts at every new peak, so a track tested more often than the budget
-        spread evenly would test it is deleted while present more often per step).
-        Updates by clutter far inside a wide gate lower the score, so a track kept alive
-        only by clutter dies, which counting steps without an update cannot tell."""
+        6.2, with KF-NN's cell-exact ratio): each step a track's log-likelihood ratio of
+        "target" against "false track" moves by ``log(1 + sum_c m_c (r_c - 1))``
+        (:func:`~mttbench.trackers.kfnn.cell_evidence` through :attr:`evidence`, set by the
+        adapter each step): ``m_c`` its predicted position Gaussian's mass in cell ``c``,
+        ``c`` over the negative looked cells and, for an update, its detection's cell,
+        ``r_c`` the cell's ratio of one target against none. The track is deleted when its
+        score falls ``drop + max(0, log(rate / f))`` below the highest it has reached:
+        ``f`` the model's looks per step over the cells (:attr:`budget_share`), ``rate =
+        (tested + 1) / (steps + 1 / f)``, ``tested`` the sum of the masses ``m_c`` its
+        looks tested (the test restarts at every new peak, so a track tested more often
+        than the budget spread evenly would test it is deleted while present more often
+        per step)."""
 
         def __init__(self, *args, **kwargs):
             super().__init__(*args, **kwargs)
-            self.log_hit_scale = 0.0  # log(p_d / kappa)
-            self.p_d = 0.0
-            self.p_f = 0.0
             self.drop = math.inf
             self.budget_share = 1.0  # the model's looks per step over the grid's cells
-            self.looked_mass = None  # callable(mean_xy (2,), cov_xy (2, 2)) -> mass
-            self.scores: dict[str, list] = {}  # track id -> [L, max L, time of L]
+            #: callable(mean_xy (2,), cov_xy (2, 2), hit cell or None) -> (gain, tested)
+            self.evidence = None
+            self.scores: dict[str, list] = {}  # track id -> [L, max L, time of L, ...]
 
         def check_for_deletion(self, track, **kwargs):
             # a new track's score starts at 0 at its first state; the states since the
@@ -290,19 +293,13 @@ def _import_stonesoup() -> SimpleNamespace:
                 fresh.append(state)
             for state in reversed(fresh):
                 if isinstance(state, Update):
-                    mp = state.hypothesis.measurement_prediction
-                    y = np.asarray(state.hypothesis.measurement.state_vector - mp.state_vector,
-                                   dtype=float).ravel()
-                    S = np.asarray(mp.covar, dtype=float)
-                    d2 = float(y @ np.linalg.solve(S, y))
-                    step = (self.log_hit_scale - math.log(2 * math.pi)
-                            - 0.5 * math.log(np.linalg.det(S)) - 0.5 * d2)
-                    tested = 1.0  # its detection's cell was looked at
+                    prior, hit = state.hypothesis.prediction, state.hypothesis.measurement
+                    cell = hit.metadata["cell"]
                 else:
-                    m = np.asarray(state.mean, dtype=float).ravel()[[0, 2]]
-                    P = np.asarray(state.covar, dtype=float)[np.ix_([0, 2], [0, 2])]
-                    tested = min(1.0, self.looked_mass(m, P))
-                    step = math.log1p(-tested * (self.p_d - self.p_f) / (1.0 - self.p_f))
+                    prior, cell = state, None
+                m = np.asarray(prior.mean, dtype=float).ravel()[[0, 2]]
+                P = np.asarray(prior.covar, dtype=float)[np.ix_([0, 2], [0, 2])]
+                step, tested = self.evidence(m, P, cell)
                 entry[0] += step
                 entry[1] = max(entry[1], entry[0])
                 entry[2] = state.timestamp
@@ -500,14 +497,15 @@ class StoneSoupGNN(_StoneSoupPeer):
         self._time_deleter = ss.UpdateTimeStepsDeleter(
             time_steps_since_update=self.steps_without_update(self._looked_share[0]))
         score = self._score_deleter = ss.ScoreDeleter()
-        score.p_d, score.p_f = sensor.p_d, sensor.p_f
-        score.log_hit_scale = (math.log(sensor.p_d) + 2 * math.log(model.grid.cell_size)
-                               - math.log(max(sensor.p_f, sys.float_info.min)))
         score.drop = math.log1p(-self.false_track_probability) - math.log(
             self.lost_track_probability)  # |T1|, Wald's lower threshold
-        score.looked_mass = self._looked_mass
+        score.evidence = self._evidence
         score.budget_share = min(1.0, sensor.looks_per_step / model.grid.n_cells)
-        self._looked = np.zeros(0, dtype=np.int64)
+        # per-look log ratios of one target against none: a positive and a negative look
+        self._log_pos = math.log(sensor.p_d) - math.log(max(sensor.p_f, sys.float_info.min))
+        self._log_neg = math.log1p(-sensor.p_d) - math.log1p(-sensor.p_f)
+        self._step_looks = looked_log_ratios(np.zeros(0, np.int64), np.zeros(0, bool),
+                                             self._log_pos, self._log_neg)
         self._deleter = ss.CompositeDeleter([self._time_deleter, score], intersect=False)
         sv2 = (self.velocity_scale * model.birth_death.birth_velocity_std) ** 2
         prior = ss.GaussianState(np.zeros((4, 1)), np.diag([0.0, sv2, 0.0, sv2]),
@@ -551,12 +549,15 @@ class StoneSoupGNN(_StoneSoupPeer):
         return max(1, math.ceil(math.log(self.lost_track_probability) / math.log(miss)
                                 - 1e-12))
 
-    def _looked_mass(self, mean_xy: np.ndarray, cov_xy: np.ndarray) -> float:
-        """A position Gaussian's mass in this step's looked cells (within 6 sd)."""
-        _, cells, mass = gaussian_cell_mass_sparse(self._grid, mean_xy[None], cov_xy[None])
-        i = np.minimum(np.searchsorted(self._looked, cells), max(len(self._looked) - 1, 0))
-        hit = self._looked[i] == cells if len(self._looked) else np.zeros(len(cells), bool)
-        return float(mass[hit].sum())
+    def _evidence(self, mean_xy: np.ndarray, cov_xy: np.ndarray, hit_cell: int | None
+                  ) -> tuple[float, float]:
+        """One track's score gain from this step's looks and the mass they tested
+        (:func:`~mttbench.trackers.kfnn.cell_evidence`; ``hit_cell`` its detection's)."""
+        looked, _, det_cells, log_r = self._step_looks
+        rows = np.zeros(0 if hit_cell is None else 1, dtype=np.int64)
+        gain, tested = cell_evidence(self._grid, mean_xy[None], cov_xy[None], looked, log_r,
+                                     det_cells, rows, np.full(len(rows), hit_cell or 0))
+        return float(gain[0]), float(tested[0])
 
     def predict(self) -> None:
         """The next step (Stone Soup predicts inside the association); the undetected
@@ -586,6 +587,8 @@ class StoneSoupGNN(_StoneSoupPeer):
     def update(self, looks: Looks) -> None:
         """Stone Soup's GNN step: associate, update or coast, delete, initiate."""
         dets, looked, n_looks = self._detections(looks)
+        self._step_looks = looked_log_ratios(looks.cells, looks.returns, self._log_pos,
+                                             self._log_neg)
         t = self._time(self._k)
         # the deleter follows the share of the grid looked at per step so far
         if self._k == 0:
@@ -593,8 +596,8 @@ class StoneSoupGNN(_StoneSoupPeer):
         self._looked_share.append(len(looked) / self._grid.n_cells)
         self._time_deleter.time_steps_since_update = self.steps_without_update(
             float(np.mean(self._looked_share)))
-        self._looked = looked
         used = set()
+        dropped: list[Any] = []  # deleted inside the workspace: recycled
         if self._tracks:
             assoc = self._associator.associate(self._tracks, dets, t)
             for track in self._tracks:
@@ -607,13 +610,33 @@ class StoneSoupGNN(_StoneSoupPeer):
             dead = self._deleter.delete_tracks(set(self._tracks))
             m = np.array([_mean_cov(tr.state)[0] for tr in self._tracks]).reshape(-1, 4)
             inside = self._inside(m)
+            dropped += [tr for tr, ok in zip(self._tracks, inside, strict=True)
+                        if ok and tr in dead]
             self._tracks = [tr for tr, ok in zip(self._tracks, inside, strict=True)
                             if ok and tr not in dead]
+        holding = set(self._initiator.holding_tracks)
         new = self._initiator.initiate({d for d in dets if d not in used}, t)
         for track in new:  # promoted by the initiator before its deleter scored this step
             self._score_deleter.check_for_deletion(track)
         self._tracks += sorted(new, key=track_key)
+        dropped += sorted(holding - self._initiator.holding_tracks - set(new), key=track_key)
         self._undetected.multiply(looked, (1.0 - self._p_d) ** n_looks)
+        self._recycle(dropped)
+
+    def _recycle(self, tracks: list[Any]) -> None:
+        """Deleted tracks' existence back into the undetected intensity over their
+        position Gaussians (Williams 2012's recycling, as pmb and ss-jpda): ``lambda_c +=
+        r m_c``. Their scores are brought up to this step first (the composite deleter stops
+        at the first deleter that deletes)."""
+        if not tracks:
+            return
+        for track in tracks:
+            self._score_deleter.check_for_deletion(track)
+        r = self._existence(tracks)
+        for track in tracks:
+            del self._score_deleter.scores[track.id]
+        m, P = zip(*(_mean_cov(tr.state) for tr in tracks), strict=True)
+        recycle(self._undetected, self._grid, r, np.array(m), np.array(P))
 
     def _existence(self, tracks: list[Any]) -> np.ndarray:
         """``sigmoid(L0 + log(p_d / p_f) + L)`` per track: the model's prior log-odds, its

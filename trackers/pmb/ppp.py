@@ -38,9 +38,8 @@ def add_intensity(field: CellField, cells: np.ndarray, amounts: np.ndarray) -> N
     if not len(cells):
         return
     u, inv = np.unique(cells, return_inverse=True)
-    add = np.bincount(inv.reshape(-1), weights=np.asarray(amounts, float).reshape(-1),
-                      minlength=len(u))
-    field.set(u, field.at(u) + add)
+    field.add(u, np.bincount(inv.reshape(-1), weights=np.asarray(amounts, float).reshape(-1),
+                             minlength=len(u)))
 
 
 def recycle(field: CellField, grid: Grid, r: np.ndarray, m: np.ndarray, P: np.ndarray
