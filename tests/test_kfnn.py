@@ -342,7 +342,8 @@ def test_confirmed_track_deleted_after_the_lost_track_drop(beta: float) -> None:
 def test_a_deleted_tracks_existence_returns_to_the_undetected_intensity() -> None:
     """A confirmed track missed on every cell until it is deleted: at that step the
     undetected intensity is the step before's, predicted (``p_s lambda + b / n``) and
-    multiplied by ``1 - p_d`` for the step's look at each cell, plus ``r m_c``: ``r =
+    multiplied by ``(1 - p_d) / (1 - p_f)`` for the step's look at each cell (the ratio of
+    a look that misses a target, pmb's), plus ``r m_c``: ``r =
     sigmoid(L0 + L)`` its existence from its final score (the score before plus this
     step's evidence, written out with scipy) and ``m_c`` its updated Gaussian's mass per
     cell (scipy's normal cdf; the trackers' boxes stop at 6 sd: 4e-9)."""
@@ -369,7 +370,7 @@ def test_a_deleted_tracks_existence_returns_to_the_undetected_intensity() -> Non
         px = np.diff(stats.norm.cdf(edges, mean[0], np.sqrt(cov[0, 0])))
         py = np.diff(stats.norm.cdf(edges, mean[2], np.sqrt(cov[2, 2])))
         want = ((bd.survival_probability * before + bd.birth_rate / GRID.n_cells)
-                * (1 - sensor.p_d) + r * np.outer(py, px).ravel())
+                * ((1 - sensor.p_d) / (1 - sensor.p_f)) + r * np.outer(py, px).ravel())
         np.testing.assert_allclose(tracker.undetected_intensity().dense(), want, rtol=0,
                                    atol=1e-8)
         assert r > 1e-3  # the recycled share is visible at that tolerance
@@ -481,7 +482,7 @@ def test_cell_count_distribution_matches_its_ingredients() -> None:
     for _ in range(2):
         tracker.predict()
         tracker.update(_looks([cell], looked=looked))
-        lam[looked] *= 0.5  # (1 - p_d) per look
+        lam[looked] *= (1 - model.sensor.p_d) / (1 - model.sensor.p_f)  # per look
     tracker.predict()
     np.testing.assert_array_equal(tracker.undetected_intensity().dense(), lam)
     cc = tracker.cell_count_distribution()

@@ -209,12 +209,14 @@ def _steps(sc, tracker, seed: int, n_steps: int):
 
 def _steps_with_dense_intensity(sc, tracker, seed: int, n_steps: int, monkeypatch):
     """:func:`_steps`, yielding after each predict the undetected intensity the dense
-    rules give (``p_s lambda + b / n`` per predict, ``(1 - p_d)^looks`` per look, then
+    rules give (``p_s lambda + b / n`` per predict, ``((1 - p_d) / (1 - p_f))^looks`` per
+    look, then
     ``+ r m_c`` for each deleted track the tracker recycles, ``m_c`` the dense cell mass
     cut to its 6-sd box) and the number of tracks recycled so far. The tracker module's
     ``recycle`` is wrapped to record what it recycles (its ``r``, means and covariances)
     and still does it."""
-    bd, n, p_d = sc.model.birth_death, sc.grid.n_cells, sc.model.sensor.p_d
+    bd, n = sc.model.birth_death, sc.grid.n_cells
+    miss = (1.0 - sc.model.sensor.p_d) / (1.0 - sc.model.sensor.p_f)
     module = __import__(type(tracker).__module__, fromlist=["recycle"])
     recycled = []
 
@@ -229,7 +231,7 @@ def _steps_with_dense_intensity(sc, tracker, seed: int, n_steps: int, monkeypatc
     for _k, looks in _steps(sc, tracker, seed, n_steps):
         if looks is not None:
             cells, counts = np.unique(looks.cells, return_counts=True)
-            lam[cells] = lam[cells] * (1.0 - p_d) ** counts
+            lam[cells] = lam[cells] * miss ** counts
             for r, m, P in recycled:
                 total += len(r)
                 if len(r):
@@ -249,7 +251,8 @@ def _steps_with_dense_intensity(sc, tracker, seed: int, n_steps: int, monkeypatc
 @pytest.mark.parametrize("name", ["births", "large"])
 def test_kfnn_counts_equal_the_dense_computation(name, monkeypatch):
     """The undetected intensity followed densely (``p_s lambda + b / n`` per predict,
-    ``(1 - p_d)^looks`` per look, deleted tracks' ``r m_c`` added, bit for bit; some are
+    ``((1 - p_d) / (1 - p_f))^looks`` per look, deleted tracks' ``r m_c`` added, bit for
+    bit; some are
     recycled in the run) and the tracks' masses
     dense: the new ``P_c(t)`` is that computation with the masses cut to the 6-sd boxes,
     bit for bit, and within the boxes' tail of the uncut one."""

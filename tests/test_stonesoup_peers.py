@@ -355,10 +355,11 @@ def test_gnn_track_score_is_the_cell_likelihood_ratio(stonesoup_installed):
 def test_gnn_recycles_a_deleted_tracks_existence(stonesoup_installed):
     """At the step the missed track of the test above is deleted, the undetected
     intensity is what the step's prediction and looks make of the step before's (``p_s
-    lambda + b / n``, times ``(1 - p_d)`` per look) plus ``r m_c``: ``r = sigmoid(L0 +
-    log(p_d / p_f) + L)`` its existence from its final score (recomputed with the deleter's
-    increments on a copy) and ``m_c`` its last state's mass per cell (scipy, to 1e-8).
-    Without recycling its existence was lost with it."""
+    lambda + b / n``, times ``(1 - p_d) / (1 - p_f)`` per look, the ratio of a look that
+    misses a target) plus ``r m_c``: ``r = sigmoid(L0 + log(p_d / p_f) + L)`` its existence
+    from its final score (the score before plus the miss's cell ratio, written with scipy)
+    and ``m_c`` its last state's mass per cell (scipy, to 1e-8). Without recycling its
+    existence was lost with it."""
     from scipy.special import expit
 
     model = get_scenario("default").model
@@ -373,7 +374,7 @@ def test_gnn_recycles_a_deleted_tracks_existence(stonesoup_installed):
         if not tracks:
             looked = np.arange(grid.n_cells) != cell
             want = (bd.survival_probability * before + bd.birth_rate / grid.n_cells) * np.where(
-                looked, 1 - sensor.p_d, 1.0)
+                looked, (1 - sensor.p_d) / (1 - sensor.p_f), 1.0)
             state = track[-1]
             mass = _cell_masses(state, grid)
             miss = np.log1p((mass.sum() - mass[cell]) * ((1 - sensor.p_d) / (1 - sensor.p_f)
@@ -481,7 +482,7 @@ def test_gmphd_expected_count_follows_the_closed_form(stonesoup_installed):
     assert len(w) == 1 and np.allclose(m[0], [z[0], 0.0, z[1], 0.0], atol=1e-12)
 
     # P_c(t) before the next update: Poisson(lambda_c), lambda_c = w1 * mass_c + the
-    # undetected intensity, every cell looked at once: lam0 (1 - p_d)
+    # undetected intensity, every cell looked at once: lam0 (1 - p_d) / (1 - p_f)
     tracker.predict()
     pc = tracker.cell_count_distribution().dense()
     mp, Pp = F @ m[0], F @ P[0] @ F.T + Q
@@ -494,7 +495,7 @@ def test_gmphd_expected_count_follows_the_closed_form(stonesoup_installed):
     box_y = (edges[1:] > mp[2] - 6 * sy) & (edges[:-1] <= mp[2] + 6 * sy)
     assert not box_x.all() and 1.0 - np.outer(my[box_y], mx[box_x]).sum() < 4e-9
     lam = (w1 * np.outer(np.where(box_y, my, 0.0), np.where(box_x, mx, 0.0)).ravel()
-           + lam0 * (1 - sensor.p_d))  # KF-NN's undetected intensity: (1 - p_d) per look
+           + lam0 * (1 - sensor.p_d) / (1 - sensor.p_f))  # KF-NN's undetected intensity
     np.testing.assert_allclose(pc[:, 0], np.exp(-lam), rtol=1e-12)
     np.testing.assert_allclose(pc[:, 1], lam * np.exp(-lam), rtol=1e-12)
 

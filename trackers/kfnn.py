@@ -115,8 +115,11 @@ Predicted count distribution ``P_c(t)`` (for sensor management)
     of its mass). Targets not yet tracked are an undetected Poisson intensity
     ``lambda_c`` per cell: ``initial_count_mean / n_cells`` at reset, ``lambda <- p_s
     lambda + birth_rate / n_cells`` at each predict (no spatial diffusion), and
-    ``lambda_c <- (1 - p_d) lambda_c`` for each look at ``c`` (a look detects an
-    untracked target with probability ``p_d``; detected ones become tracks). A deleted
+    ``lambda_c <- lambda_c (1 - p_d) / (1 - p_f)`` for each look at ``c``, positive or not
+    (the ratio of a look that misses a target, pmb's ``l(0)``: a negative look is ``(1 -
+    p_d) / (1 - p_f)`` times as likely with the target as without, and a positive one's
+    target becomes a track; ``(1 - p_d)``, used until issue 23's last stop, counted the
+    clutter's share of a negative look as evidence against targets). A deleted
     track's existence ``sigmoid(L0 + L)`` returns to it over its Gaussian's cells,
     ``lambda_c += r m_c`` (recycling, Williams 2012, as pmb: without it a target whose
     track was deleted left no trace, so a policy that looks where it expects targets did
@@ -507,6 +510,9 @@ class KFNNTracker(Tracker):
         # per-look log ratios of one target against none: a positive and a negative look
         self._log_pos = math.log(self._p_d) - math.log(max(p_f, sys.float_info.min))
         self._log_neg = math.log1p(-self._p_d) - math.log1p(-p_f)
+        # an untracked target's intensity after a look at its cell, positive or not: the
+        # ratio of a look that misses it (pmb's l(0)), (1 - p_d) / (1 - p_f)
+        self._miss = (1.0 - self._p_d) / (1.0 - p_f)
         alpha, beta = self.false_track_probability, self.lost_track_probability
         self._prior_logodds = target_prior_logodds(model)
         # confirmed when P(false track | looks) <= alpha: L >= log((1 - alpha) / alpha) - L0
@@ -607,7 +613,7 @@ class KFNNTracker(Tracker):
         # untracked targets (for P_c): a look detects one with probability p_d; a deleted
         # track's existence returns to them (recycling, as pmb and the Stone Soup peers)
         new_cells = det_cells[~det_used]
-        self._undetected.multiply(looked, (1.0 - self._p_d) ** n_looks)
+        self._undetected.multiply(looked, self._miss ** n_looks)
         recycle(self._undetected, grid, *dropped)
 
         n_new = len(new_cells)

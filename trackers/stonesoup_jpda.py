@@ -62,14 +62,19 @@ Existence and the state (JIPDA on Stone Soup's marginals)
 Initiation (births from the model)
     The adapter keeps KF-NN's undetected Poisson intensity ``lambda_c`` per cell (as
     ``ss-gnn``: initial count over the grid, ``p_s lambda + birth_rate / n`` per step,
-    ``(1 - p_d)^n`` per look). A detection in cell ``c`` that the tracks do not explain
-    (``s``: the sum of every track's marginal probability of it) starts a tentative track
-    with existence
+    ``((1 - p_d) / (1 - p_f))^n`` per look). A detection in cell ``c`` that the tracks do
+    not explain (``s``: the sum of every track's marginal probability of it) starts a
+    tentative track with existence
 
         r0 = (1 - s) (1 - exp(-lambda_c P)) / (1 - (1 - p_f,c) exp(-lambda_c P)),
 
     ``P = 1 - (1 - p_d)^n``, ``p_f,c = 1 - (1 - p_f)^n``: the probability that the
-    positive cell holds a newly detected target rather than only clutter. (The
+    positive cell holds a newly detected target rather than only clutter. (For one look
+    and a small ``lambda_c`` this is ``lambda p_d / (p_f + lambda p_d (1 - p_f))``, near the
+    exact ``lambda p_d / (p_f + lambda (p_d - p_f))``: a present target leaves the cell
+    positive with ``p_d`` whatever the clutter. ``P_D = (p_d - p_f) / (1 - p_f)`` in place
+    of ``p_d`` counts only the target's own detections and was worse at ``p_f = 0.3``,
+    +0.054 ± 0.052 under raster, 8 seeds.) (The
     track-oriented PMB puts the new target into the joint association; using the tracks'
     marginal ``s`` is the usual approximation of JIPDA trackers.) At ``p_f = 5e-4`` on the
     presets a first detection gives ``r0`` near 0.95; at ``p_f = 0.3``, 0.034.
@@ -249,6 +254,7 @@ class StoneSoupJPDA(_StoneSoupPeer):
         self._p_s, self._birth_per_cell = bd.survival_probability, bd.birth_rate / n
         self._p_d, self._p_f = sensor.p_d, sensor.p_f
         self._p_target = target_detection_probability(sensor.p_d, sensor.p_f)
+        self._miss = (1.0 - sensor.p_d) / (1.0 - sensor.p_f)  # KF-NN's, per look
         self._undetected = CellField(n, bd.initial_count_mean / n)
         self._gate_d2 = float(chi2.ppf(self.gate_probability, 2))
         sd = self.max_position_sd * model.grid.cell_size
@@ -436,7 +442,7 @@ class StoneSoupJPDA(_StoneSoupPeer):
             best = idx[np.argsort(-r[idx], kind="stable")[:self.max_tracks]]
             keep = np.zeros(len(r), bool)
             keep[best] = True
-        self._undetected.multiply(looked, (1.0 - self._p_d) ** n_looks)
+        self._undetected.multiply(looked, self._miss ** n_looks)
         # recycling (Williams 2012): the existence of a dropped tentative track (already
         # updated by this step's looks) goes back to the undetected intensity of its cell
         recycle = keep_alive & ~confirmed & ~keep

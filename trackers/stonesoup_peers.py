@@ -124,8 +124,8 @@ Determinism
     ``extraction_threshold``; count = the sum of the weights (``count="sum"``) or its
     rounding (``"round"``). ``P_c(t)``: Poisson with the cell's predicted intensity mass
     ``sum_i p_s w_i m_ic + lambda_c``, ``lambda_c`` KF-NN's undetected intensity (the
-    initial count over the grid, ``p_s lambda + birth_rate / n`` per step, ``(1 - p_d)``
-    per look; the components' masses within 6 sd, the undetected intensity alone in
+    initial count over the grid, ``p_s lambda + birth_rate / n`` per step, ``(1 - p_d) /
+    (1 - p_f)`` per look; the components' masses within 6 sd, the undetected intensity alone in
     every cell outside them). Cost: Stone Soup's update makes a
     hypothesis object per (component, detection) pair, so a step costs about
     ``max_components`` times the detections; ``max_components`` (default 100) and
@@ -521,7 +521,7 @@ class StoneSoupGNN(_StoneSoupPeer):
         bd = model.birth_death
         n = model.grid.n_cells
         self._p_s, self._birth_per_cell = bd.survival_probability, bd.birth_rate / n
-        self._p_d = model.sensor.p_d
+        self._miss = (1.0 - sensor.p_d) / (1.0 - sensor.p_f)  # KF-NN's, per look
         self._undetected = CellField(n, bd.initial_count_mean / n)
         # a track's existence: sigmoid(prior log-odds + its birth detection + its score)
         self._birth_logodds = (target_prior_logodds(model) + math.log(sensor.p_d)
@@ -620,7 +620,7 @@ class StoneSoupGNN(_StoneSoupPeer):
             self._score_deleter.check_for_deletion(track)
         self._tracks += sorted(new, key=track_key)
         dropped += sorted(holding - self._initiator.holding_tracks - set(new), key=track_key)
-        self._undetected.multiply(looked, (1.0 - self._p_d) ** n_looks)
+        self._undetected.multiply(looked, self._miss ** n_looks)
         self._recycle(dropped)
 
     def _recycle(self, tracks: list[Any]) -> None:
@@ -736,6 +736,7 @@ class StoneSoupGMPHD(_StoneSoupPeer):
         sensor = model.sensor
         self._p_d, self._p_f = sensor.p_d, sensor.p_f
         self._p_target = target_detection_probability(sensor.p_d, sensor.p_f)
+        self._miss = (1.0 - sensor.p_d) / (1.0 - sensor.p_f)  # KF-NN's, per look
         n = model.grid.n_cells
         self._birth_per_cell = bd.birth_rate / n
         self._birth_weight = self.birth_scale * (bd.initial_count_mean + bd.birth_rate) / n
@@ -816,7 +817,7 @@ class StoneSoupGMPHD(_StoneSoupPeer):
         if out:
             out = self._reducer.reduce(out)
         self._set_sorted(out)
-        self._undetected.multiply(looked_cells, (1.0 - self._p_d) ** n_looked)
+        self._undetected.multiply(looked_cells, self._miss ** n_looked)
 
     def _set_sorted(self, comps: list[Any]) -> None:
         """The mixture as arrays, sorted by (weight descending, mean, covariance)."""
