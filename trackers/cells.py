@@ -403,27 +403,18 @@ class CellField:
 
     def multiply(self, cells: np.ndarray, factors: np.ndarray) -> None:
         """``x_c <- x_c * factor_c`` at the sorted unique ``cells``."""
-        cells = np.asarray(cells, dtype=np.int64).reshape(-1)
-        factors = np.asarray(factors, dtype=float).reshape(-1)
-        if not len(cells):
-            return
-        i = self._own(cells)
-        self.values[i] = self.values[i] * factors
-        self._rejoin()
+        self._apply(np.multiply, cells, factors)
 
     def add(self, cells: np.ndarray, amounts: np.ndarray) -> None:
         """``x_c <- x_c + amount_c`` at the sorted unique ``cells``."""
+        self._apply(np.add, cells, amounts)
+
+    def _apply(self, op, cells: np.ndarray, operands: np.ndarray) -> None:
+        """``x_c <- op(x_c, operand_c)`` at the sorted unique ``cells``: the cells that had
+        the default are first inserted (sorted, with the default value: a memory move)."""
         cells = np.asarray(cells, dtype=np.int64).reshape(-1)
-        amounts = np.asarray(amounts, dtype=float).reshape(-1)
         if not len(cells):
             return
-        i = self._own(cells)
-        self.values[i] = self.values[i] + amounts
-        self._rejoin()
-
-    def _own(self, cells: np.ndarray) -> np.ndarray:
-        """The positions of the sorted unique ``cells`` in :attr:`cells`, after inserting
-        those that had the default (sorted, with the default value: a memory move)."""
         i = np.searchsorted(self.cells, cells)
         new = cells[(i == len(self.cells)) | (self.cells[np.minimum(i, len(self.cells) - 1)]
                                               != cells)] if len(self.cells) else cells
@@ -432,7 +423,8 @@ class CellField:
             self.cells = np.insert(self.cells, at, new)
             self.values = np.insert(self.values, at, self.default)
             i = np.searchsorted(self.cells, cells)
-        return i
+        self.values[i] = op(self.values[i], np.asarray(operands, dtype=float).reshape(-1))
+        self._rejoin()
 
     def at(self, cells: np.ndarray) -> np.ndarray:
         """The values at ``cells`` (any order, repeats allowed)."""
