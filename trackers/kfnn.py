@@ -142,7 +142,7 @@ from __future__ import annotations
 
 import math
 import sys
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -199,6 +199,25 @@ def target_prior_logodds(model: TrackingModel) -> float:
     if q <= 0.0:
         return -math.inf
     return math.log(q) - math.log1p(-q) if q < 1.0 else math.inf
+
+
+class LookRatios(NamedTuple):
+    """A look at a cell, one target in it against none (the Rayleigh sensor's ``p_d`` and
+    ``p_f``): ``log_pos = log(p_d / p_f)`` for a positive look, ``log_neg = log((1 - p_d)
+    / (1 - p_f))`` for a negative one, and ``miss = (1 - p_d) / (1 - p_f)``, the ratio of
+    a look that misses a target (pmb's ``l(0)``), by which an untracked target's
+    intensity falls at every look, positive or not."""
+
+    log_pos: float
+    log_neg: float
+    miss: float
+
+
+def look_ratios(sensor: RayleighGridSensor) -> LookRatios:
+    """:class:`LookRatios` of ``sensor`` (``p_f`` floored at the smallest float)."""
+    p_d, p_f = sensor.p_d, sensor.p_f
+    return LookRatios(math.log(p_d) - math.log(max(p_f, sys.float_info.min)),
+                      math.log1p(-p_d) - math.log1p(-p_f), (1.0 - p_d) / (1.0 - p_f))
 
 
 def drop_raise(tested: np.ndarray | float, steps: np.ndarray | float,
@@ -506,13 +525,8 @@ class KFNNTracker(Tracker):
         n = model.grid.n_cells
         self._birth_per_cell = bd.birth_rate / n
         sensor = model.sensor
-        self._p_d, p_f = sensor.p_d, sensor.p_f
-        # per-look log ratios of one target against none: a positive and a negative look
-        self._log_pos = math.log(self._p_d) - math.log(max(p_f, sys.float_info.min))
-        self._log_neg = math.log1p(-self._p_d) - math.log1p(-p_f)
-        # an untracked target's intensity after a look at its cell, positive or not: the
-        # ratio of a look that misses it (pmb's l(0)), (1 - p_d) / (1 - p_f)
-        self._miss = (1.0 - self._p_d) / (1.0 - p_f)
+        self._p_d = sensor.p_d
+        self._log_pos, self._log_neg, self._miss = look_ratios(sensor)
         alpha, beta = self.false_track_probability, self.lost_track_probability
         self._prior_logodds = target_prior_logodds(model)
         # confirmed when P(false track | looks) <= alpha: L >= log((1 - alpha) / alpha) - L0

@@ -132,7 +132,9 @@ from .cells import (
     gaussian_cell_mass_sparse,
     untracked_probabilities,
 )
+from .kfnn import look_ratios
 from .params import Param, Search
+from .pmb.ppp import add_intensity
 from .stonesoup_peers import (
     N_COUNTS,
     _mean_cov,
@@ -254,7 +256,7 @@ class StoneSoupJPDA(_StoneSoupPeer):
         self._p_s, self._birth_per_cell = bd.survival_probability, bd.birth_rate / n
         self._p_d, self._p_f = sensor.p_d, sensor.p_f
         self._p_target = target_detection_probability(sensor.p_d, sensor.p_f)
-        self._miss = (1.0 - sensor.p_d) / (1.0 - sensor.p_f)  # KF-NN's, per look
+        self._miss = look_ratios(sensor).miss
         self._undetected = CellField(n, bd.initial_count_mean / n)
         self._gate_d2 = float(chi2.ppf(self.gate_probability, 2))
         sd = self.max_position_sd * model.grid.cell_size
@@ -449,8 +451,7 @@ class StoneSoupJPDA(_StoneSoupPeer):
         if recycle.any():
             m = np.array([_mean_cov(tr.state)[0] for tr, g in zip(tracks, recycle, strict=True)
                           if g]).reshape(-1, 4)
-            own, inv = np.unique(self._cells_of(m), return_inverse=True)
-            self._undetected.add(own, np.bincount(inv, weights=r[recycle], minlength=len(own)))
+            add_intensity(self._undetected, self._cells_of(m), r[recycle])
         self._tracks = [tr for tr, k in zip(tracks, keep, strict=True) if k]
         self._r, self._confirmed = r[keep], confirmed[keep]
 

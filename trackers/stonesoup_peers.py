@@ -149,7 +149,6 @@ import functools
 import importlib.util
 import math
 import re
-import sys
 from importlib import metadata
 from types import SimpleNamespace
 from typing import Any, ClassVar
@@ -178,7 +177,13 @@ from .cells import (
     gaussian_cell_mass_sparse,
     untracked_probabilities,
 )
-from .kfnn import cell_evidence, drop_raise, looked_log_ratios, target_prior_logodds
+from .kfnn import (
+    cell_evidence,
+    drop_raise,
+    look_ratios,
+    looked_log_ratios,
+    target_prior_logodds,
+)
 from .params import Param, Search
 from .pmb.ppp import recycle
 
@@ -501,9 +506,7 @@ class StoneSoupGNN(_StoneSoupPeer):
             self.lost_track_probability)  # |T1|, Wald's lower threshold
         score.evidence = self._evidence
         score.budget_share = min(1.0, sensor.looks_per_step / model.grid.n_cells)
-        # per-look log ratios of one target against none: a positive and a negative look
-        self._log_pos = math.log(sensor.p_d) - math.log(max(sensor.p_f, sys.float_info.min))
-        self._log_neg = math.log1p(-sensor.p_d) - math.log1p(-sensor.p_f)
+        self._log_pos, self._log_neg, self._miss = look_ratios(sensor)
         self._step_looks = looked_log_ratios(np.zeros(0, np.int64), np.zeros(0, bool),
                                              self._log_pos, self._log_neg)
         self._deleter = ss.CompositeDeleter([self._time_deleter, score], intersect=False)
@@ -513,7 +516,7 @@ class StoneSoupGNN(_StoneSoupPeer):
         self._initiator = ss.MultiMeasurementInitiator(
             prior_state=prior, deleter=self._deleter, data_associator=self._associator,
             updater=self._updater, measurement_model=self._measurement,
-            min_points=self.min_points(sensor.p_d, sensor.p_f))
+            min_points=self.min_points(self._log_pos))
         self._tracks: list[Any] = []  # confirmed, in track_key order
         #: a track's label (the estimate's), by its Stone Soup id: numbered in the order
         #: the tracks are first reported (so deterministic), kept for the track's life
@@ -521,21 +524,19 @@ class StoneSoupGNN(_StoneSoupPeer):
         bd = model.birth_death
         n = model.grid.n_cells
         self._p_s, self._birth_per_cell = bd.survival_probability, bd.birth_rate / n
-        self._miss = (1.0 - sensor.p_d) / (1.0 - sensor.p_f)  # KF-NN's, per look
         self._undetected = CellField(n, bd.initial_count_mean / n)
         # a track's existence: sigmoid(prior log-odds + its birth detection + its score)
-        self._birth_logodds = (target_prior_logodds(model) + math.log(sensor.p_d)
-                               - math.log(max(sensor.p_f, sys.float_info.min)))
+        self._birth_logodds = target_prior_logodds(model) + self._log_pos
 
-    def min_points(self, p_d: float, p_f: float) -> int:
-        """The fewest detections ``n`` with ``L0 + n log(p_d / p_f) >= log((1 - alpha) /
-        alpha)``, ``L0`` the prior log-odds of the model's target density per cell."""
+    def min_points(self, per_hit: float) -> int:
+        """The fewest detections ``n`` with ``L0 + n per_hit >= log((1 - alpha) / alpha)``,
+        ``per_hit = log(p_d / p_f)`` a detection's log ratio, ``L0`` the prior log-odds of
+        the model's target density per cell."""
         alpha = self.false_track_probability
         prior = target_prior_logodds(self._model)
         if prior == -math.inf:
             return 2**31 - 1  # a model without targets: nothing is ever confirmed
         need = math.log1p(-alpha) - math.log(alpha) - prior
-        per_hit = math.log(p_d) - math.log(max(p_f, sys.float_info.min))
         return max(1, math.ceil(need / per_hit - 1e-12))
 
     def steps_without_update(self, looked_share: float) -> int:
@@ -736,7 +737,7 @@ class StoneSoupGMPHD(_StoneSoupPeer):
         sensor = model.sensor
         self._p_d, self._p_f = sensor.p_d, sensor.p_f
         self._p_target = target_detection_probability(sensor.p_d, sensor.p_f)
-        self._miss = (1.0 - sensor.p_d) / (1.0 - sensor.p_f)  # KF-NN's, per look
+        self._miss = look_ratios(sensor).miss
         n = model.grid.n_cells
         self._birth_per_cell = bd.birth_rate / n
         self._birth_weight = self.birth_scale * (bd.initial_count_mean + bd.birth_rate) / n

@@ -120,7 +120,6 @@ class TrajectoryGOSPA:
     integral: bool
 
 
-
 def _dense_pair(truth, truth_ids, estimate, labels):
     """:func:`as_dense` of the truth and of the estimates, which must have as many steps:
     ``(X, ax, Y, ay)``."""
@@ -129,6 +128,7 @@ def _dense_pair(truth, truth_ids, estimate, labels):
     if len(X) != len(Y):
         raise ValueError(f"{len(X)} steps of truth but {len(Y)} of estimates")
     return X, ax, Y, ay
+
 
 def trajectory_gospa(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
                      estimate: Sequence[np.ndarray], labels: Sequence[np.ndarray],
