@@ -525,7 +525,6 @@ class KFNNTracker(Tracker):
         n = model.grid.n_cells
         self._birth_per_cell = bd.birth_rate / n
         sensor = model.sensor
-        self._p_d = sensor.p_d
         self._log_pos, self._log_neg, self._miss = look_ratios(sensor)
         alpha, beta = self.false_track_probability, self.lost_track_probability
         self._prior_logodds = target_prior_logodds(model)
@@ -624,8 +623,8 @@ class KFNNTracker(Tracker):
                    self._P[gone])
         self._keep(keep)
 
-        # untracked targets (for P_c): a look detects one with probability p_d; a deleted
-        # track's existence returns to them (recycling, as pmb and the Stone Soup peers)
+        # untracked targets (for P_c): each look scales them by the miss ratio, positive or
+        # not; a deleted track's existence returns to them (recycling, as pmb)
         new_cells = det_cells[~det_used]
         self._undetected.multiply(looked, self._miss ** n_looks)
         recycle(self._undetected, grid, *dropped)
