@@ -11,6 +11,7 @@
     mttbench reproduce kreucher [--reduced] [--check]  # managed against periodic looks
     mttbench export default --seeds 5 --policy random --out worlds   # open world files
     mttbench score worlds --estimates est.csv --name mine   # an outside tracker's estimates
+    mttbench bayes default --seeds 10       # the converged Bayes reference, stored
 
 Exit status, always with at most one line on stderr saying why (never a traceback):
 
@@ -395,7 +396,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
                           progress=not args.no_progress, resume=args.resume, c=args.c,
                           p=args.p, argv=args.argv, tuned_dir=args.tuned_dir,
                           untuned=args.untuned, tuning_effect=args.tuning_effect,
-                          run_timeout=args.run_timeout)
+                          run_timeout=args.run_timeout, compute_bayes=args.bayes)
     print((res.out_dir / "summary.md").read_text(encoding="utf-8"))
     man = res.manifest
     wall = f"{man['wall_time_s']:.0f} s"
@@ -599,6 +600,45 @@ def cmd_score(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bayes(args: argparse.Namespace) -> int:
+    """The converged Bayes reference of each scenario (:mod:`benchmarks.app.bayes`),
+    computed on a particle-count ladder and stored: exit 0 (converged or not: the table
+    says which), 1 when a run failed, 2 for bad input."""
+    from . import bayes
+
+    _check_common(args)
+    if bool(args.scenarios) == bool(args.suite):
+        raise UsageError("name the scenarios (SCENARIO ...) or --suite, one of the two")
+    ladder = bayes.Ladder(n_start=args.n_start, factor=args.factor, n_max=args.n_max,
+                          tolerance=args.tolerance, run_limit_s=args.run_limit)
+    scs = resolve_scenarios(_scenario_names(args), args.steps)
+    pols = resolve_policies(args.policy)
+    if len(pols) != 1:
+        raise UsageError("--policy: one policy per reference (run the command once per "
+                         "policy)")
+    policy = pols[0]
+    looks = _int_list(args.looks, "--looks value", 1)
+    if looks is not None and len(looks) > 1:
+        raise UsageError("--looks: one look budget per reference (run the command once per "
+                         "budget)")
+    seeds = _seeds(args, default=bayes.DEFAULT_SEEDS)
+    store = Path(args.store) if args.store else bayes.default_write_store()
+    out_dir = _out_dir(args, "bayes-", lambda f: (f / "ladder.md").is_file())
+    args.out_dir = out_dir  # for the resume line after Ctrl-C
+    workers = args.workers or os.cpu_count() or 1
+    with _folder_lock(out_dir):
+        refs = bayes.run_command(scs, seeds, ladder, policy, None if looks is None else looks[0],
+                                 out_dir, store, workers=workers,
+                                 progress=not args.no_progress, resume=args.resume, c=args.c,
+                                 p=args.p, run_timeout=args.run_timeout, argv=args.argv)
+    failed = [name for name, ref in refs.items() if "failed" in ref.provenance.get("reason", "")]
+    if failed:
+        print(f"runs failed on {', '.join(failed)}; see {out_dir / 'ladder.md'}",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
 def cmd_screenshot(args: argparse.Namespace) -> int:
     """Open a report folder's ``report.html`` in headless chromium; write ``screenshot.png``."""
     from .report import screenshot
@@ -756,6 +796,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tuned-dir", metavar="DIR",
                    help="tuned parameter files (default: the package's tuned/; a tracker "
                         "with DIR/<name>.toml runs its parameters, labelled name(tuned))")
+    p.add_argument("--bayes", action="store_true",
+                   help="compute the converged Bayes reference of every scenario that has "
+                        "none stored for these seeds (`mttbench bayes` with its defaults, "
+                        "into DIR/bayes/; minutes to hours: docs/bayes.md); without it the "
+                        "stored references are shown where they exist")
     add_executor_arguments(p)
     p.set_defaults(func=cmd_compare)
 
@@ -962,6 +1007,73 @@ def build_parser() -> argparse.ArgumentParser:
                         "its rows join the summary and a report (report.md, report.html)")
     _add_metric_options(p)
     p.set_defaults(func=cmd_score, steps=None, workers=None)
+
+    p = sub.add_parser(
+        "bayes", help="compute and store the converged Bayes reference of scenarios",
+        formatter_class=fmt,
+        description="\n\n".join(textwrap.fill(" ".join(para.split()), 88) for para in (
+            "The model's Bayes filter, approximated by jmpd-ap on a ladder of particle "
+            "counts (--n-start, x --factor, up to --n-max) on the same worlds, until two "
+            "consecutive counts' paired OSPA difference has a 95% interval within "
+            "+-TOLERANCE (converged), or until the next count's runs would exceed "
+            "--run-limit CPU seconds each (not converged: the largest count is an estimate, "
+            "never a bound). docs/bayes.md.",
+            "Every count's runs are a sweep in --out (default reports/bayes-<UTC "
+            "timestamp>): progress, --resume, --executor dask as for `run`. The reference "
+            "(the converged count's rows and its provenance: scenario hash, seeds, ladder, "
+            "each count's OSPA and cost, commit) is written to --store (default: the "
+            "checkout's reports/reference/bayes/, from an installed package ./bayes), where "
+            "`mttbench compare` finds it and adds the `bayes` row and each tracker's share "
+            "of the achievable gap.")),
+        epilog=textwrap.dedent("""\
+            examples:
+              mttbench bayes default crossing births kreucher --seeds 10
+              mttbench bayes --suite envelope --seeds 8 --n-max 16000 --workers 2
+              mttbench bayes my.toml --seeds 10 --store refs --out reports/bayes-mine"""))
+    p.add_argument("scenarios", nargs="*", metavar="SCENARIO", default=[],
+                   help="preset names, envelope points (env-...) or paths to .toml files")
+    p.add_argument("--suite", metavar="SUITE", help=SUITE_HELP)
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--seeds", type=int, metavar="N",
+                   help=f"seeds 0..N-1 (default 10; N <= {MAX_SEEDS})")
+    g.add_argument("--seed-list", nargs="+", metavar="SEED",
+                   help="explicit seeds, space or comma separated")
+    p.add_argument("--steps", type=int, metavar="K",
+                   help="override every scenario's n_steps (default: the scenario's)")
+    p.add_argument("--policy", nargs="+", default=["raster"], metavar="SPEC",
+                   help="the cell-selection policy (default raster: the same looks as every "
+                        "tracker's)")
+    p.add_argument("--looks", nargs="+", metavar="M",
+                   help="looks per step (default: the scenario's looks_per_step)")
+    p.add_argument("--n-start", type=int, default=1000, metavar="N",
+                   help="the first particle count (default 1000)")
+    p.add_argument("--factor", type=int, default=4, metavar="F",
+                   help="each rung has F times the particles of the last (default 4)")
+    p.add_argument("--n-max", type=int, default=64000, metavar="N",
+                   help="the largest particle count (default 64000)")
+    p.add_argument("--tolerance", type=float, default=0.02, metavar="D",
+                   help="converged when the paired OSPA difference's 95%% interval lies "
+                        "within +-D (default 0.02)")
+    p.add_argument("--run-limit", type=float, default=600.0, metavar="SECONDS",
+                   help="skip a rung whose runs would take more CPU seconds each (4x the "
+                        "last rung's, measured; default 600)")
+    p.add_argument("--store", metavar="DIR",
+                   help="where the references go (default: the checkout's "
+                        "reports/reference/bayes/; from an installed package ./bayes)")
+    p.add_argument("--out", metavar="DIR",
+                   help="the ladder's runs (default reports/bayes-<UTC timestamp>)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted ladder in --out (runs already saved are "
+                        "read back)")
+    _add_metric_options(p)
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="parallel worker processes (default: the number of CPUs)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--run-timeout", type=float, default=None, metavar="SECONDS",
+                   help="wall-time limit of one run (default: 10x the slowest run's "
+                        "estimate, at least 60 s)")
+    add_executor_arguments(p)
+    p.set_defaults(func=cmd_bayes)
 
     p = sub.add_parser(
         "screenshot", help="check a report in a real browser (headless chromium)",

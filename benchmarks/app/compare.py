@@ -63,7 +63,7 @@ from ..engine.loop import build_jobs, spec_uses_truth
 from ..engine.metrics import run_metric_params
 from ..engine.specs import PolicySpec, TrackerSpec, resolve_scenarios, resolve_trackers
 from ..engine.store import check_sweep, prepare_out_dir, write_text_atomic
-from . import resources, summary, tuned
+from . import bayes, resources, summary, tuned
 from .progress import run_sweep
 from .resources import default_run_timeout
 from .usage import UsageError
@@ -167,7 +167,8 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
                 snapshot: bool = True, argv: Sequence[str] | None = None,
                 tuned_dir: str | Path | None = None, untuned: bool = False,
                 tuning_effect: bool = False,
-                run_timeout: float | None = None) -> CompareOutput:
+                run_timeout: float | None = None, compute_bayes: bool = False,
+                bayes_ladder: bayes.Ladder | None = None) -> CompareOutput:
     """Run the comparison and write the report folder (see the module docstring).
 
     ``tracker_texts`` None means :func:`default_tracker_texts`; ``seeds`` None means
@@ -183,6 +184,12 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
     cannot be written, all before any run and before the folder is touched.
     ``resume=True`` keeps the parts already in the folder and adds this session to the
     manifest's ``sessions``.
+
+    The converged Bayes reference (:mod:`~mttbench.benchmarks.app.bayes`) of each scenario
+    whose stored reference covers the seeds (the package's, and the folder's
+    ``bayes/store``) joins the summary and the report as the row ``bayes`` with each
+    tracker's share of the achievable gap; ``compute_bayes`` first computes the missing
+    ones (``bayes_ladder``) into ``<out>/bayes/`` with a progress bar.
 
     Tuned parameters (:mod:`~mttbench.benchmarks.app.tuned`): a tracker with a file
     ``<tuned_dir>/<name>.toml`` (None: the package's ``tuned/``) runs its parameters under
@@ -264,9 +271,16 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
     try:
         results = run_sweep(jobs, out, workers=workers, progress=progress, resume=resume,
                             c=c, p=p, run_timeout=run_timeout or default_run_timeout(jobs))
+        stores = [bayes.default_store(), out / "bayes" / "store"]
+        if compute_bayes:
+            _compute_missing_bayes(scs, seeds, out, stores, bayes_ladder or bayes.Ladder(),
+                                   workers, progress, c, p, run_timeout)
         t_runs = time.perf_counter() - t0
         manifest["runs_wall_time_s"] = round(t_runs, 3)
         manifest["n_rows"] = len(results)
+        results, bayes_lines = bayes.attach(results, scs, seeds, PolicySpec("raster"), None,
+                                            c, p, stores)
+        manifest["bayes"] = bayes_lines
 
         summary.write_summary(results, out, "mttbench compare",
                               notes=tuned.parameter_notes(plan))
@@ -291,6 +305,7 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
                                                              "the truth)",
             "floor and ceiling": f"{summary.FLOOR_TRACKER} and {summary.CEILING_TRACKER} "
                                  "(share of the OSPA gap closed)",
+            "Bayes reference": "; ".join(bayes_lines),
             "workers": describe_current(workers),
             "wall time of the runs": wall_text,
         }
@@ -316,6 +331,22 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
         raise
     save_manifest("finished")
     return CompareOutput(results, out, files, manifest)
+
+
+def _compute_missing_bayes(scs, seeds: list[int], out: Path, stores: list[Path],
+                           ladder: bayes.Ladder, workers: int, progress: bool, c: float,
+                           p: float, run_timeout: float | None) -> None:
+    """The Bayes reference of every scenario that has none stored for these seeds, run in
+    ``<out>/bayes/ladder`` (resumable with the comparison) and stored in ``stores[-1]``."""
+    missing = [sc for sc in scs
+               if bayes.find(sc, PolicySpec("raster"), None, seeds, c, p, stores) is None]
+    if not missing:
+        return
+    print(f"computing the bayes reference of {', '.join(sc.name for sc in missing)} "
+          f"(docs/bayes.md)", file=sys.stderr)
+    bayes.run_command(missing, seeds, ladder, PolicySpec("raster"), None,
+                      out / "bayes" / "ladder", stores[-1], workers=workers,
+                      progress=progress, resume=True, c=c, p=p, run_timeout=run_timeout)
 
 
 def default_reference(specs: Sequence[TrackerSpec]) -> str | None:

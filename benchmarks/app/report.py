@@ -325,7 +325,39 @@ def gap_table(gc: summary.GapClosed,
             ceil_head: fmt_pm(r.ceiling_mean, r.ceiling_ci95),
             "gap": fmt_pm(r.gap_mean, r.gap_ci95),
             "ranks trackers": "yes" if r.rankable else "no"})
+        if gc.bayes_label is not None:
+            rows[-1].update({
+                f"bayes {name}": fmt_pm(r.bayes_mean, r.bayes_ci95),
+                "achievable gap": fmt_pm(r.achievable_mean, r.achievable_ci95),
+                "bayes closes": fmt_pm(r.bayes_share_mean, r.bayes_share_ci95, 1.0, ".2f")
+                + (" (problem-limited)" if r.problem_limited else "")})
     return pd.DataFrame(rows)
+
+
+def bayes_notes(gc: summary.GapClosed) -> list[str]:
+    """One line per group where the Bayes reference closes less than
+    :data:`~.summary.PROBLEM_LIMITED_SHARE` of the floor-to-ceiling gap (the problem limits
+    accuracy there, not the trackers) and one per contestant that beats the Bayes
+    reference beyond its 95% interval (a finding to explain, not a share above 1)."""
+    if gc.bayes_label is None or gc.gaps.empty:
+        return []
+    out = []
+    for r in gc.gaps.itertuples(index=False):
+        if r.problem_limited:
+            out.append(f"{summary.group_text(r.scenario, r.policy_label, r.looks_per_step)}: "
+                       f"the Bayes reference closes only {r.bayes_share_mean:.2f} of the gap "
+                       "between floor and ceiling: here the problem (what the looks reveal), "
+                       "not the trackers, limits accuracy; read the shares of the achievable "
+                       "gap.")
+    sh = gc.shares
+    beat = sh[(sh["role"] == "") & (sh["vs_bayes_mean"] + sh["vs_bayes_ci95"] < 0)]
+    for r in beat.itertuples(index=False):
+        out.append(f"{summary.group_text(r.scenario, r.policy_label, r.looks_per_step)}: "
+                   f"`{r.tracker_label}` beats the Bayes reference beyond noise "
+                   f"({r.vs_bayes_mean:+.3f} ± {r.vs_bayes_ci95:.3f} OSPA): a finding to "
+                   "explain (the reference's approximations, docs/bayes.md, or a point "
+                   "estimate that suits OSPA better than the posterior mean).")
+    return out
 
 
 def share_table(gc: summary.GapClosed,
@@ -338,12 +370,12 @@ def share_table(gc: summary.GapClosed,
         return pd.DataFrame()
     name = column_label(gc.metric)
     m = gc.metric
-    order = {"floor": 0, "": 1, "ceiling": 2}
+    order = {"floor": 0, "": 1, "bayes": 2, "ceiling": 3}
     sh = gc.shares.assign(_o=gc.shares["role"].map(order), _m=-gc.shares[f"{m}_mean"])
     sh = sh.sort_values([*summary.GAP_GROUP, "_o", "_m", "tracker_label"], kind="stable")
     rows = []
     for r in sh.itertuples(index=False):
-        if r.role:
+        if r.role in ("floor", "ceiling"):
             share = f"{1 if r.role == 'ceiling' else 0} ({r.role})"
         else:
             share = fmt_pm(r.share_mean, r.share_ci95, 1.0, ".2f")
@@ -353,6 +385,10 @@ def share_table(gc: summary.GapClosed,
             "tracker": summary.mark_truth(r.tracker_label, truth[0]), "pairs": int(r.n_pairs),
             name: fmt_pm(getattr(r, f"{m}_mean"), getattr(r, f"{m}_ci95")),
             "share of gap closed": share})
+        if gc.bayes_label is not None:
+            rows[-1]["share of achievable gap"] = (
+                "1 (bayes)" if r.role == "bayes" else "0 (floor)" if r.role == "floor"
+                else fmt_pm(r.achievable_mean, r.achievable_ci95, 1.0, ".2f"))
     return pd.DataFrame(rows)
 
 
@@ -373,7 +409,15 @@ def _floor_ceiling_section(doc: Document, gc: summary.GapClosed,
     if not gc.available:
         doc.add("p", gc.absent)
         return
-    flags = summary.gap_notes(gc)
+    if gc.bayes_label is not None:
+        doc.add("p", f"The `{summary.BAYES_TRACKER}` reference is the model's Bayes filter "
+                     "(no truth: the best achievable on average, approximated by jmpd-ap at a "
+                     "particle count where four times more changes OSPA by less than its "
+                     "tolerance; `mttbench bayes`, docs/bayes.md). A tracker's share of the "
+                     f"achievable gap is (OSPA_{floor} - OSPA) / (OSPA_{floor} - "
+                     f"OSPA_{summary.BAYES_TRACKER}) over the same seeds; where the reference "
+                     "is far from the ceiling, the problem limits accuracy, not the trackers.")
+    flags = summary.gap_notes(gc) + bayes_notes(gc)
     if flags:
         doc.add("list", flags)
     doc.add("table", gap_table(gc, truth))
@@ -496,7 +540,9 @@ def baseline_notes(summ: pd.DataFrame) -> list[str]:
         return []
     truth_trackers, _ = summary.truth_labels(summ)
     # a tracker given the truth is a reference, not "the best tracker"
-    competing = ~summ["tracker_label"].astype(str).isin(truth_trackers)
+    # ... and so is the Bayes reference (no truth, but not a contestant)
+    competing = ~summ["tracker_label"].astype(str).isin(truth_trackers
+                                                         | {summary.BAYES_TRACKER})
     notes = []
     group = [k for k in ("scenario", "policy_label", "looks_per_step") if k in summ.columns]
     for key, g in summ.groupby(group, sort=True):

@@ -388,6 +388,12 @@ def mark_truth(label: object, users: set[str]) -> str:
 FLOOR_TRACKER = "null"
 #: registered name of the ceiling: told the count and the association (uses the truth)
 CEILING_TRACKER = "truth-aided"
+#: label of the converged Bayes reference (:mod:`~mttbench.benchmarks.app.bayes`): no
+#: truth, the best achievable on average; a reference, not a contestant
+BAYES_TRACKER = "bayes"
+#: where the Bayes reference closes less than this share of the floor-to-ceiling gap,
+#: the problem (not the trackers) limits accuracy
+PROBLEM_LIMITED_SHARE = 0.5
 #: a floor-to-ceiling gap below this (OSPA, cells) is too small to rank trackers
 MIN_GAP = 0.15
 GAP_GROUP = ["scenario", "policy_label", "looks_per_step"]
@@ -422,7 +428,20 @@ class GapClosed:
     ``<metric>_mean``, ``<metric>_ci95`` over its pairs and ``share_mean``,
     ``share_ci95``; only groups where floor and ceiling both have ok runs.
     ``absent`` is ``""`` when floor and ceiling both ran, else the sentence saying
-    which did not (and then both tables are empty)."""
+    which did not (and then both tables are empty).
+
+    Where the converged Bayes reference ``bayes`` has rows (attached by
+    :func:`~mttbench.benchmarks.app.bayes.attach`), ``gaps`` also has ``bayes_mean,
+    bayes_ci95`` (its metric over the seeds it shares with floor and ceiling),
+    ``achievable_mean, achievable_ci95`` (``F - B``, the achievable gap),
+    ``bayes_share_mean, bayes_share_ci95`` (the share of the floor-to-ceiling gap the
+    Bayes filter closes) and ``problem_limited`` (that share below
+    :data:`PROBLEM_LIMITED_SHARE`: accuracy is limited by the problem, not by the
+    trackers); ``shares`` has ``achievable_mean, achievable_ci95`` (``(F - X) / (F -
+    B)``, a tracker's share of the achievable gap, delta-method interval) and
+    ``vs_bayes_mean, vs_bayes_ci95`` (``X - B`` paired: a contestant below 0 beyond
+    its interval beats the Bayes reference, a finding to explain), NaN elsewhere;
+    ``bayes_label`` names it (None when it did not run)."""
 
     metric: str
     floor_label: str | None
@@ -430,6 +449,7 @@ class GapClosed:
     gaps: pd.DataFrame
     shares: pd.DataFrame
     absent: str
+    bayes_label: str | None = None
 
     @property
     def available(self) -> bool:
@@ -482,9 +502,12 @@ def gap_closed(results: pd.DataFrame, metric: str = "ospa", floor: str = FLOOR_T
                if lab is None]
     gap_cols = [*GAP_GROUP, "floor_label", "ceiling_label", "n_pairs", "floor_mean",
                 "floor_ci95", "ceiling_mean", "ceiling_ci95", "gap_mean", "gap_ci95",
-                "rankable", "reason"]
+                "rankable", "reason", "bayes_mean", "bayes_ci95", "achievable_mean",
+                "achievable_ci95", "bayes_share_mean", "bayes_share_ci95", "problem_limited"]
     share_cols = [*GAP_GROUP, "tracker_label", "role", "n_pairs", f"{metric}_mean",
-                  f"{metric}_ci95", "share_mean", "share_ci95"]
+                  f"{metric}_ci95", "share_mean", "share_ci95", "achievable_mean",
+                  "achievable_ci95", "vs_bayes_mean", "vs_bayes_ci95"]
+    b_label = _pick_label(runs, BAYES_TRACKER)
     if missing:
         absent = (" and ".join(missing) + " did not run, so no tracker's share of the "
                   f"{name} gap between floor and ceiling can be computed (run `{floor}` and "
@@ -506,7 +529,10 @@ def gap_closed(results: pd.DataFrame, metric: str = "ospa", floor: str = FLOOR_T
             wide = pd.DataFrame()
         row = {**key_d, "floor_label": f_label, "ceiling_label": c_label, "n_pairs": 0,
                **dict.fromkeys(["floor_mean", "floor_ci95", "ceiling_mean", "ceiling_ci95",
-                                "gap_mean", "gap_ci95"], math.nan), "rankable": False}
+                                "gap_mean", "gap_ci95", "bayes_mean", "bayes_ci95",
+                                "achievable_mean", "achievable_ci95", "bayes_share_mean",
+                                "bayes_share_ci95"], math.nan), "rankable": False,
+               "problem_limited": False}
         absent_here = [f"the {role} `{lab}`" for role, lab in (("floor", f_label),
                                                                ("ceiling", c_label))
                        if lab not in wide.columns or wide[lab].notna().sum() == 0]
@@ -523,12 +549,22 @@ def gap_closed(results: pd.DataFrame, metric: str = "ospa", floor: str = FLOOR_T
         row["ceiling_mean"], row["ceiling_ci95"] = mean_ci95(ce)
         row["gap_mean"], row["gap_ci95"] = mean_ci95(fl - ce)
         row["reason"] = _gap_reason(row["gap_mean"], row["gap_ci95"], n, min_gap, name)
+        has_bayes = b_label is not None and b_label in wide.columns and \
+            wide[b_label].notna().sum() >= 1
+        if has_bayes:
+            trio = wide[[f_label, c_label, b_label]].dropna()
+            fl_b, b = trio[f_label].to_numpy(float), trio[b_label].to_numpy(float)
+            row["bayes_mean"], row["bayes_ci95"] = mean_ci95(b)
+            row["achievable_mean"], row["achievable_ci95"] = mean_ci95(fl_b - b)
+            row["bayes_share_mean"], row["bayes_share_ci95"] = ratio_ci95(
+                fl_b - b, fl_b - trio[c_label].to_numpy(float))
+            row["problem_limited"] = bool(row["bayes_share_mean"] < PROBLEM_LIMITED_SHARE)
         gaps.append(row)
         beats_floor = False
         for lab in sorted(set(g["tracker_label"].astype(str))):
             if lab not in wide.columns:
                 continue
-            if lab not in (f_label, c_label) and lab not in truth_users:
+            if lab not in (f_label, c_label, b_label) and lab not in truth_users:
                 # a contestant beats the floor when its paired difference's 95% interval
                 # lies above 0 (lower is better)
                 pair = wide[[f_label]].assign(_x=wide[lab]).dropna()
@@ -541,17 +577,28 @@ def gap_closed(results: pd.DataFrame, metric: str = "ospa", floor: str = FLOOR_T
             b = trio[f_label].to_numpy(float) - trio[c_label].to_numpy(float)
             share, half = ratio_ci95(a, b)
             mean, mhalf = mean_ci95(x)
+            achievable = dict.fromkeys(["achievable_mean", "achievable_ci95", "vs_bayes_mean",
+                                        "vs_bayes_ci95"], math.nan)
+            if has_bayes:
+                quad = wide[[f_label, c_label, b_label]].assign(_x=wide[lab]).dropna()
+                xb, fb = quad["_x"].to_numpy(float), quad[f_label].to_numpy(float)
+                bb = quad[b_label].to_numpy(float)
+                achievable["achievable_mean"], achievable["achievable_ci95"] = ratio_ci95(
+                    fb - xb, fb - bb)
+                achievable["vs_bayes_mean"], achievable["vs_bayes_ci95"] = mean_ci95(xb - bb)
             shares.append({**key_d, "tracker_label": lab,
                            "role": ("floor" if lab == f_label else
-                                    "ceiling" if lab == c_label else ""),
+                                    "ceiling" if lab == c_label else
+                                    "bayes" if lab == b_label else ""),
                            "n_pairs": len(trio), f"{metric}_mean": mean,
-                           f"{metric}_ci95": mhalf, "share_mean": share, "share_ci95": half})
+                           f"{metric}_ci95": mhalf, "share_mean": share, "share_ci95": half,
+                           **achievable})
         if not row["reason"] and not beats_floor:
             row["reason"] = (f"this scenario cannot rank trackers: no contestant's {name} "
                              f"beats the floor `{f_label}` within its 95% interval.")
         row["rankable"] = not row["reason"]
     return GapClosed(metric, f_label, c_label, pd.DataFrame(gaps, columns=gap_cols),
-                     pd.DataFrame(shares, columns=share_cols), "")
+                     pd.DataFrame(shares, columns=share_cols), "", b_label)
 
 
 # ------------------------------------------------------------------------ markdown
@@ -579,7 +626,8 @@ def markdown_metrics() -> list[tuple[str, str, float, str]]:
     """``(column stem, header, scale, format)`` of the default markdown table: the
     headline of every registered metric (display order), time per step, gap closed."""
     return [*((m.name, m.label, m.scale, m.fmt) for m in display_metrics()),
-            ("tracker_wall_s", "ms/step", 1e3, ".3g"), ("gap_closed", "gap closed", 1.0, ".2f")]
+            ("tracker_wall_s", "ms/step", 1e3, ".3g"), ("gap_closed", "gap closed", 1.0, ".2f"),
+            ("achievable_closed", "of achievable", 1.0, ".2f")]
 
 
 def _pm(mean: float, half: float, scale: float, fmt: str) -> str:
@@ -636,6 +684,11 @@ def to_markdown(summary: pd.DataFrame,
                      f"OSPA_{CEILING_TRACKER}) over the seeds where all three runs are ok "
                      "(1 = as good as the ceiling, 0 = no better than reporting nothing), "
                      "± its 95% delta-method half-width.")
+    if any(m[0] == "achievable_closed" for m in shown):
+        lines.append(f"of achievable = (OSPA_{FLOOR_TRACKER} - OSPA) / (OSPA_{FLOOR_TRACKER} - "
+                     f"OSPA_{BAYES_TRACKER}): the share of the gap to the converged Bayes "
+                     "reference (no truth; `mttbench bayes`, docs/bayes.md), where it is "
+                     "stored.")
     if truth_trackers or truth_policies:
         lines.append(f"`{TRUTH_MARK.strip()}`: the tracker or policy was given the truth "
                      "(a reference, not a competitor).")
@@ -651,8 +704,11 @@ def with_gap_closed(summ: pd.DataFrame, gc: GapClosed) -> pd.DataFrame:
     keys = [*GAP_GROUP, "tracker_label"]
     if not set(keys) <= set(summ.columns):
         return summ
-    add = gc.shares[[*keys, "share_mean", "share_ci95"]].rename(
-        columns={"share_mean": "gap_closed_mean", "share_ci95": "gap_closed_ci95"})
+    cols = {"share_mean": "gap_closed_mean", "share_ci95": "gap_closed_ci95"}
+    if gc.bayes_label is not None and gc.shares["achievable_mean"].notna().any():
+        cols |= {"achievable_mean": "achievable_closed_mean",
+                 "achievable_ci95": "achievable_closed_ci95"}
+    add = gc.shares[[*keys, *cols]].rename(columns=cols)
     return summ.merge(add, on=keys, how="left")
 
 
