@@ -19,6 +19,11 @@ point x tracker, Markdown tables of:
    better than null (upper bound >= 0: equal to null, as a tracker that reports nothing is,
    counts), nothing when better (upper bound < 0);
 
+Where a converged Bayes reference is stored for a point (`mttbench bayes --suite envelope`;
+the package's store, or `--bayes-store DIR`) and the run's seeds, the gap table gains the
+share of the floor-to-ceiling gap the Bayes filter closes (`bayes closes`; * where it is below
+0.5, the problem limiting accuracy there) and a table of each tracker's share of the
+achievable gap `(null - X) / (null - bayes)`;
 then every flagged (point, tracker) as a list, and per tracker how many points it fails and
 its median share of the gap closed over the points. Several tables (say a raster and a renyi
 sweep) are read as one.
@@ -37,10 +42,13 @@ import sys
 import numpy as np
 import pandas as pd
 
-from mttbench.benchmarks.app.summary import gap_closed, paired_difference
+from mttbench.benchmarks.app import bayes
+from mttbench.benchmarks.app.summary import PROBLEM_LIMITED_SHARE, gap_closed, paired_difference
+from mttbench.benchmarks.engine.specs import PolicySpec, resolve_scenarios
 from mttbench.scenarios import envelope
 
 FLOOR, CEILING = "null", "truth-aided"
+BAYES = bayes.REFERENCE
 #: a row of the tables: one point at one look budget under one policy
 ROW = ["scenario", "looks_per_step"]
 
@@ -108,9 +116,10 @@ def tables(df: pd.DataFrame, metric: str = "ospa") -> str:
     order = {n: i for i, n in enumerate(envelope.point_names())}
     labels = sorted(set(df["tracker_label"].astype(str)))
     floor = next((lab for lab in labels if lab.split("(")[0] == FLOOR), None)
-    refs = {lab for lab in labels if lab.split("(")[0] in (FLOOR, CEILING)}
+    refs = {lab for lab in labels if lab.split("(")[0] in (FLOOR, CEILING, BAYES)}
     players = [lab for lab in labels if lab not in refs]
     gc = gap_closed(df, metric)
+    with_bayes = gc.bayes_label is not None
     name_m = metric.upper()
     counts = second_half_counts(df)
     diffs = paired_difference(df, floor, metric) if floor else pd.DataFrame(
@@ -138,6 +147,10 @@ def tables(df: pd.DataFrame, metric: str = "ospa") -> str:
                         cell(float(gap["gap_mean"].iloc[0]), float(gap["gap_ci95"].iloc[0]),
                              "{:.2f}") + ("" if bool(gap["rankable"].iloc[0]) else " (!)"))
             row = [name[s], gap_text]
+            if with_bayes:
+                closes = float(gap["bayes_share_mean"].iloc[0]) if not gap.empty else math.nan
+                row.append("–" if math.isnan(closes) else f"{closes:.2f}"
+                           + ("*" if closes < PROBLEM_LIMITED_SHARE else ""))
             shares = sel(gc.shares, s)
             for lab in players:
                 sh = shares[shares["tracker_label"] == lab]
@@ -147,7 +160,30 @@ def tables(df: pd.DataFrame, metric: str = "ospa") -> str:
         out.append(f"### Share of the {name_m} gap closed (1 = truth-aided, 0 = null)\n\n"
                    f"gap = {name_m}(null) - {name_m}(truth-aided) ± 95% half-width; (!) the gap "
                    "cannot rank trackers (below 0.15 or its interval reaches 0).\n")
-        out.append(md(["point", "gap", *map(short, players)], rows))
+        out.append(md(["point", "gap", *(["bayes closes"] if with_bayes else []),
+                       *map(short, players)], rows))
+        if with_bayes:
+            out.append("\nbayes closes: the converged Bayes reference's share of the same gap "
+                       "(`mttbench bayes`, docs/bayes.md); * below "
+                       f"{PROBLEM_LIMITED_SHARE:g}: the problem, not the trackers, limits "
+                       "accuracy there; – no stored reference.\n")
+            rows = []
+            for s in pairs:
+                gap = sel(gc.gaps, s)
+                if gap.empty or math.isnan(float(gap["bayes_mean"].iloc[0])):
+                    continue
+                shares = sel(gc.shares, s)
+                row = [name[s], cell(float(gap["achievable_mean"].iloc[0]),
+                                     float(gap["achievable_ci95"].iloc[0]), "{:.2f}")]
+                for lab in players:
+                    sh = shares[shares["tracker_label"] == lab]
+                    row.append("n/a" if sh.empty else
+                               cell(float(sh["achievable_mean"].iloc[0]), math.nan, "{:.2f}"))
+                rows.append(row)
+            out.append(f"\n### Share of the achievable {name_m} gap closed (1 = bayes, "
+                       "0 = null)\n\nachievable gap = "
+                       f"{name_m}(null) - {name_m}(bayes) ± 95% half-width.\n")
+            out.append(md(["point", "achievable gap", *map(short, players)], rows))
 
         # 2. counts over the second half
         rows = []
@@ -214,13 +250,39 @@ def tables(df: pd.DataFrame, metric: str = "ospa") -> str:
             mine = [f for f in flags if f[1] == lab]
             n = [len({f[0] for f in mine if word in f[2]}) for word in
                  ("explodes", "collapses", "worse than null", "not better than null")]
+            ach = shares_all.loc[shares_all["tracker_label"] == lab, "achievable_mean"]
             tally.append([short(lab), *map(str, n), str(len({f[0] for f in mine})),
-                          "n/a" if math.isnan(med) else f"{med:.2f}"])
+                          "n/a" if math.isnan(med) else f"{med:.2f}"]
+                         + ([f"{ach.median():.2f} ({ach.notna().sum()} points)"
+                             if ach.notna().any() else "n/a"] if with_bayes else []))
         out.append(f"\n### Points flagged per tracker (of {len(pairs)})\n")
         out.append(md(["tracker", "explodes", "collapses", "worse than null",
-                       "not better than null", "any flag", "median gap closed"], tally))
+                       "not better than null", "any flag", "median gap closed",
+                       *(["median share of achievable"] if with_bayes else [])], tally))
         out.append("")
     return "\n".join(out)
+
+
+def with_bayes_rows(df: pd.DataFrame, stores: list[str] | None) -> pd.DataFrame:
+    """``df`` with the stored Bayes reference's rows of every raster point whose seeds it
+    covers (one line on stderr per point without one)."""
+    frames = [df]
+    raster = df[df["policy_label"] == "raster"]
+    for (sc_name, looks), g in raster.groupby(["scenario", "looks_per_step"], sort=True):
+        n_steps = int(g["step"].max()) + 1
+        try:
+            (sc,) = resolve_scenarios([str(sc_name)], n_steps)
+        except Exception:  # noqa: BLE001 - a scenario this package does not know
+            continue
+        default_looks = int(sc.model.sensor.looks_per_step)
+        ref = bayes.find(sc, PolicySpec("raster"), None if int(looks) == default_looks
+                         else int(looks), sorted(set(g["seed"].astype(int))),
+                         float(g["ospa_c"].iloc[0]), float(g["ospa_p"].iloc[0]), stores)
+        if ref is None:
+            print(f"no stored bayes reference for {sc_name} @{looks}", file=sys.stderr)
+            continue
+        frames.append(ref.rows)
+    return pd.concat(frames, ignore_index=True, sort=False)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -230,10 +292,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--points", action="store_true", help="print the points table first")
     ap.add_argument("--metric", default="ospa", choices=["ospa", "gospa"],
                     help="metric of the gap closed and of the paired differences (default ospa)")
+    ap.add_argument("--bayes-store", nargs="+", default=None, metavar="DIR",
+                    help="stored Bayes references (default: the package's)")
+    ap.add_argument("--no-bayes", action="store_true", help="leave the Bayes reference out")
     args = ap.parse_args(argv)
     if args.points:
         print(points_table() + "\n")
     df = pd.concat([pd.read_parquet(f) for f in args.results], ignore_index=True)
+    if not args.no_bayes:
+        df = with_bayes_rows(df, args.bayes_store)
     print(tables(df, args.metric))
     return 0
 

@@ -288,3 +288,28 @@ def test_mttbench_bayes_refuses_bad_input_in_one_line(tmp_path, capsys, extra, w
 def test_mttbench_bayes_needs_scenarios_or_a_suite(capsys):
     assert main(["bayes"]) == 2
     assert "SCENARIO" in capsys.readouterr().err
+
+
+def test_a_look_budget_equal_to_the_scenarios_own_is_the_default_key():
+    own = TINY.model.sensor.looks_per_step
+    raster = PolicySpec("raster")
+    assert bayes.reference_key(TINY, raster, own, 2, 2) == \
+        bayes.reference_key(TINY, raster, None, 2, 2)
+
+
+def test_mttbench_run_summarises_with_a_stored_reference(tmp_path, monkeypatch, capsys):
+    """`run` adds the stored reference of its raster runs to its summary (the rows file
+    keeps only the sweep's own runs)."""
+    ref = stored(tmp_path)
+    monkeypatch.setattr(bayes, "default_store", lambda: tmp_path / "store")
+    assert ref.seeds == [0, 1, 2]
+    code = main(["run", "--scenarios", "env-centre", "--steps", "3", "--seeds", "2",
+                 "--trackers", "null", "--workers", "1", "--no-progress", "--out",
+                 str(tmp_path / "run")])
+    assert code == 0
+    assert "bayes reference: `env-centre`: `bayes` converged" in capsys.readouterr().err
+    summ = pd.read_csv(tmp_path / "run" / "summary.csv", keep_default_na=False,
+                       na_values=[""])
+    assert set(summ["tracker_label"]) == {"null", "bayes"}
+    assert set(pd.read_parquet(tmp_path / "run" / "results.parquet")["tracker_label"]) == \
+        {"null"}

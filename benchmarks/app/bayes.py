@@ -114,7 +114,11 @@ class Ladder:
 
 def reference_key(scenario: Scenario, policy: PolicySpec, looks: int | None,
                   c: float, p: float) -> str:
-    """What determines a reference's numbers, hashed (the seeds are stored inside)."""
+    """What determines a reference's numbers, hashed (the seeds are stored inside); a
+    look budget equal to the scenario's own is the same as None."""
+    own = getattr(scenario.model.sensor, "looks_per_step", None)
+    if looks is not None and own is not None and int(looks) == int(own):
+        looks = None
     ident = {"scenario": scenario_text(scenario), "policy": [policy.name, policy.params],
              "looks": looks, "c": float(c), "p": float(p), "tracker": LADDER_TRACKER,
              "format": FORMAT}

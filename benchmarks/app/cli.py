@@ -312,7 +312,8 @@ def _sweep(args: argparse.Namespace, scs, tracker_specs, policy_specs, looks, se
                                 resume=resume, c=args.c, p=args.p,
                                 run_timeout=args.run_timeout or default_run_timeout(jobs),
                                 store=getattr(args, "store", None))
-            text = write_summary(results, out_dir, title)
+            text = write_summary(_with_bayes(results, scs, policy_specs, looks, seeds, args),
+                                 out_dir, title)
     print(text)
     rows = ("dataset/ (the rows, by scenario and tracker), runs.parquet"
             if (Path(out_dir) / "runs.parquet").is_file() else "results.parquet")
@@ -322,6 +323,25 @@ def _sweep(args: argparse.Namespace, scs, tracker_specs, policy_specs, looks, se
         print(failed, file=sys.stderr)
         return 1
     return 0
+
+
+def _with_bayes(results: pd.DataFrame, scs, policy_specs, looks, seeds,
+                args: argparse.Namespace) -> pd.DataFrame:
+    """The summary's table: ``results`` with the stored Bayes reference of every raster
+    scenario and look budget whose seeds it covers (a line on stderr for each attached)."""
+    from . import bayes
+    from ..engine.specs import PolicySpec
+
+    if not any(p.name == "raster" and not p.params for p in policy_specs or []) or \
+            "step" not in results.columns:
+        return results
+    for m in looks or [None]:
+        results, notes = bayes.attach(results, scs, seeds, PolicySpec("raster"), m, args.c,
+                                      args.p)
+        for line in notes:
+            if "no stored" not in line:
+                print(f"bayes reference: {line}", file=sys.stderr)
+    return results
 
 
 # --------------------------------------------------------------------- commands
