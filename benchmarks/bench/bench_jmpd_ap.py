@@ -90,3 +90,35 @@ def test_jmpd_ap_grid_scaling(benchmark, accuracy, side):
     docstring, "Grid scaling")."""
     time_grid_step(benchmark, accuracy, JMPDAPTracker(n_particles=500), start_ap_on_truth,
                    side, OSPA_BOUND, n_particles=500)
+
+
+# ------------------------------------------------------------ cost per particle
+#: (scenario, particles): the converged reference's range on the paper's grid, and an
+#: envelope point with false alarms in every look (more births and clusters)
+PER_PARTICLE = [("default", 4000), ("default", 16000), ("env-pf-0.1", 4000)]
+#: untimed steps before the timed ones (the scenario must have 10 more), rounds
+PER_PARTICLE_WARM_STEPS, PER_PARTICLE_ROUNDS = 28, 10
+
+
+@pytest.mark.parametrize(("name", "n"), PER_PARTICLE, ids=[f"{s}-N{n}" for s, n in PER_PARTICLE])
+def test_jmpd_ap_per_particle(benchmark, warm_up, accuracy, name, n):
+    """One harness step of ``jmpd-ap`` at ``N`` particles after 28 steps from its own
+    prior under the scenario's raster (the harness's default policy); each round is the
+    next step. ``extra_info["us_per_particle_step"]``: the fastest round over ``N``, in
+    microseconds (docs/speed.md; goal at most 1 us at ``N >= 4000``). The accuracy is
+    recorded, not bounded: under a raster of 24 looks the tracker may still be
+    acquiring a target at step 28."""
+    from mttbench.benchmarks.engine.specs import resolve_scenarios
+
+    scenario = resolve_scenarios([name])[0]
+    warm = warm_up(scenario, JMPDAPTracker(n_particles=n), PER_PARTICLE_WARM_STEPS)
+    rounds = 1 if benchmark.disabled else PER_PARTICLE_ROUNDS
+    step, done = warm.advance(rounds + 1)
+    benchmark.extra_info.update(scenario=name, n_particles=n, warm_steps=warm.step,
+                                warm_from_truth=False, warm_policy="raster",
+                                timed_policy="raster")
+    benchmark.pedantic(step, rounds=rounds, warmup_rounds=1)
+    if not benchmark.disabled:
+        benchmark.extra_info["us_per_particle_step"] = benchmark.stats.stats.min / n * 1e6
+    k0, est0 = done[0]
+    accuracy(warm.world.states[k0], est0, None)

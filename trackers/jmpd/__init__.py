@@ -36,7 +36,9 @@ weighs like the bootstrap (no single-target likelihood).
 Estimates (:mod:`.estimation`): count = posterior mode of ``T``; states = weighted
 means over the particles with ``T = mode``, targets aligned by K-means over
 permutations. Three per-slot passes run as numba kernels when numba is installed
-(:mod:`.kernels`), bit-identical to the numpy forms.
+(:mod:`.kernels`), bit-identical to the numpy forms; so does ``jmpd-ap``'s
+per-particle work (:mod:`.ap_kernels`: every number a computation reads is the numpy
+form's, bit for bit).
 
 Cost: ``O(N t_max^2 + looks)`` per step and ``O(N t_max + looks)`` memory, whatever the
 grid's size. The look tables are keyed by the looked cells and ``P_c(t)`` is a

@@ -110,10 +110,11 @@ from ..base import (
 )
 from ..cells import CellCounts
 from ..params import Param, Search
+from .backend import compiled_ap_kernels
 from .cell_proposal import axis_window, truncated_normal
 from .estimation import cell_count_distribution_from
 from .likelihood import grid_log_likelihood, grid_log_likelihood_tables
-from .partitions import cluster_slots, merge_slots, sort_slots
+from .partitions import SORT_MAX, cluster_slots, merge_slots, permutations, sort_slots
 from .resampling import effective_sample_size, systematic_resample
 from .sparse import CellTable
 from .state import fold
@@ -169,7 +170,9 @@ class JMPDAPTracker(Tracker):
 
     After ``reset``: ``count_mean`` (``E[T]`` of the last estimate), ``ess`` (effective
     sample size before the last resampling), ``n_clusters`` and ``largest_cluster`` of
-    the last update, ``undetected_mass`` (the expected number of undetected targets).
+    the last update, ``undetected_mass`` (the expected number of undetected targets),
+    ``uses_compiled_kernels`` (the per-particle passes run as the numba kernels of
+    :mod:`.ap_kernels`, decided at ``reset``; the same numbers either way).
     """
 
     name = "jmpd-ap"
@@ -242,6 +245,14 @@ class JMPDAPTracker(Tracker):
     def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
         self.validate_params(self.get_params())
         self._model, self._rng = model, rng
+        self._kernels = compiled_ap_kernels()
+        self.uses_compiled_kernels = self._kernels is not None
+        # compiled path: per-step arrays reuse these buffers (a fresh large array costs
+        # its page faults every step), and the slot arrays' spares take gathers
+        self._scratch_bufs: dict[str, np.ndarray] = {}
+        self._spares: dict[str, np.ndarray] = {}
+        if self._kernels is not None:
+            self._kernels.warm_up()  # compile (or load) them now, not in a timed step
         grid, bd, dyn = model.grid, model.birth_death, model.dynamics
         N = int(self.n_particles)
         T = int(self.t_max) if self.t_max is not None else _auto_slots(model)
@@ -350,6 +361,16 @@ class JMPDAPTracker(Tracker):
 
     def predict(self) -> None:
         self._k += 1
+        if self._kernels is not None:  # the same in one compiled pass, with sqrt(psi)
+            shape = self.pos.shape
+            rhohat, psi = self._scratch("rhohat", shape), self._scratch("psi", shape)
+            self._pred_sd = self._scratch("sd", shape)
+            self._kernels.predict(self.pos, self.vel, self.vvar, self._tau, self._tau ** 2,
+                                  self._q11, np.asarray(self._model.grid.extent, float),
+                                  self._reflect, rhohat, psi, self._pred_sd)
+            self._pred = (rhohat, psi)
+            self._kp_cells = None
+            return
         rhohat = self.pos + self._tau * self.vel
         psi = self._tau ** 2 * self.vvar + self._q11
         if self._reflect:
@@ -410,18 +431,17 @@ class JMPDAPTracker(Tracker):
         grid = model.grid
         N, T, J = self._N, self._T, grid.n_cells
         rhohat, psi = self._pred
-        sd = np.sqrt(psi)
+        sd = np.sqrt(psi) if self._kernels is None else self._pred_sd
         index, table = grid_log_likelihood_tables(
             model.sensor, np.asarray(looks.cells, dtype=np.int64),
             np.asarray(looks.returns, dtype=bool), J, T)
         beta = self._beta
 
         # 1. partitions from the predicted centres
-        held = self.valid.sum(axis=0)
+        held, centres, boxes = self._slot_means(rhohat)
         active = held > 0
-        centres = (rhohat * self.valid[..., None]).sum(axis=0) / np.maximum(held, 1)[:, None]
         clusters = cluster_slots(centres, active, self.cluster_distance * grid.cell_size,
-                                 _boxes(rhohat, self.valid))
+                                 boxes)
         self.n_clusters = len(clusters)
         self.largest_cluster = max((len(c) for c in clusters), default=0)
 
@@ -431,9 +451,16 @@ class JMPDAPTracker(Tracker):
         log_w += self._births(centres, active, index, table)
 
         # full likelihood (all targets, newborns included)
-        cells = grid.cell_of(self.pos[..., 0], self.pos[..., 1])
-        cells = np.where(self.valid & (cells >= 0), cells, J)
-        log_w += grid_log_likelihood(cells, index, table)
+        if self._kernels is None:
+            cells = grid.cell_of(self.pos[..., 0], self.pos[..., 1])
+            cells = np.where(self.valid & (cells >= 0), cells, J)
+            log_w += grid_log_likelihood(cells, index, table)
+        else:
+            direct = index.direct_table()
+            self._kernels.slot_log_likelihood(
+                self.pos, self.valid, grid.nx, grid.ny, float(grid.cell_size), J,
+                direct is not None, np.zeros(1, np.int32) if direct is None else direct,
+                index.keys, table, log_w)
 
         # weights, resampling every step
         if self._fixed_count is not None:
@@ -448,7 +475,12 @@ class JMPDAPTracker(Tracker):
         self.ess = float(effective_sample_size(w))
         idx = systematic_resample(w, rng.random())
         for name in ("pos", "vel", "vvar", "valid"):
-            setattr(self, name, getattr(self, name)[idx])
+            if self._kernels is None:
+                setattr(self, name, getattr(self, name)[idx])
+            else:
+                spare = self._spare(name)
+                self._kernels.gather(getattr(self, name), idx, spare)
+                self._install(name, spare)
 
         # undetected targets after this step's looks: u, v <- (u, v) (1 - p_d)^(looks)
         if len(looks):
@@ -467,14 +499,88 @@ class JMPDAPTracker(Tracker):
 
         # K-means partition sorting within clusters (after resampling, before estimation)
         if self.sort_iterations > 0:
-            held = self.valid.sum(axis=0)
-            mean_pos = (self.pos * self.valid[..., None]).sum(axis=0) / \
-                np.maximum(held, 1)[:, None]
+            held, mean_pos, boxes = self._slot_means(self.pos)
             now = cluster_slots(mean_pos, held > 0, self.cluster_distance * grid.cell_size,
-                                _boxes(self.pos, self.valid))
+                                boxes)
             arrays = [self.pos, self.vel, self.vvar, self.valid]
-            sort_slots(self.pos, self.valid, now, arrays, self.sort_iterations)
-            merge_slots(self.pos, self.valid, arrays, self.merge_distance * grid.cell_size)
+            if self._kernels is None:
+                sort_slots(self.pos, self.valid, now, arrays, self.sort_iterations)
+                merge_slots(self.pos, self.valid, arrays, self.merge_distance * grid.cell_size)
+            else:
+                self._sort_compiled(now)
+                held, sums, _, _ = self._slot_sums(self.pos)
+                merge_slots(self.pos, self.valid, arrays, self.merge_distance * grid.cell_size,
+                            slot_sums=(held, sums))
+
+    # ------------------------------------------------------------- per-slot passes
+    def _scratch(self, name: str, shape: tuple[int, ...], dtype=np.float64) -> np.ndarray:
+        """A C-contiguous array of ``shape`` on the persistent buffer ``name`` (contents
+        undefined; valid until the next call with that name)."""
+        n = math.prod(shape)
+        buf = self._scratch_bufs.get(name)
+        if buf is None or buf.size < n or buf.dtype != dtype:
+            buf = np.empty(n, dtype=dtype)
+            self._scratch_bufs[name] = buf
+        return buf[:n].reshape(shape)
+
+    def _spare(self, name: str) -> np.ndarray:
+        """The spare of slot array ``name`` (``pos``, ``vel``, ``vvar``, ``valid``): an
+        array of its shape and type that nothing else refers to, to be written and then
+        installed (:meth:`_install`)."""
+        arr = getattr(self, name)
+        spare = self._spares.get(name)
+        if spare is None or spare.shape != arr.shape or spare.dtype != arr.dtype:
+            spare = np.empty_like(arr)
+            self._spares[name] = spare
+        return spare
+
+    def _install(self, name: str, new: np.ndarray) -> None:
+        """``new`` (the spare, written) becomes slot array ``name``; the old one the
+        spare."""
+        self._spares[name] = getattr(self, name)
+        setattr(self, name, new)
+
+    def _slot_sums(self, pos: np.ndarray, with_vel: bool = False
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Compiled: per slot the holders ``(T,)``, the sums of ``pos`` and of the
+        velocity means over them ``(T, 2)`` (in particle order, as numpy's
+        ``sum(axis=0)``; velocities only ``with_vel``) and the extents ``(T, 4)``."""
+        T = self._T
+        held, sums, vel_sums = np.empty(T, np.int64), np.empty((T, 2)), np.empty((T, 2))
+        boxes = np.empty((T, 4))
+        self._kernels.slot_sums(pos, self.vel, self.valid, with_vel, held, sums, vel_sums,
+                                boxes)
+        return held, sums, vel_sums, boxes
+
+    def _slot_means(self, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per slot: the holders ``(T,)``, the mean of ``pos (N, T, 2)`` over them
+        (0 for a slot held nowhere) and the extent :func:`_boxes`."""
+        if self._kernels is not None:
+            held, sums, _, boxes = self._slot_sums(pos)
+            return held, sums / np.maximum(held, 1)[:, None], boxes
+        held = self.valid.sum(axis=0)
+        means = (pos * self.valid[..., None]).sum(axis=0) / np.maximum(held, 1)[:, None]
+        return held, means, _boxes(pos, self.valid)
+
+    def _sort_compiled(self, clusters: list[np.ndarray]) -> None:
+        """:func:`.partitions.sort_slots` on the four slot arrays by
+        :func:`.ap_kernels.sort_cluster`, sweep by sweep (the same means, costs and
+        permutations)."""
+        for slots in clusters:
+            slots = np.asarray(slots, dtype=np.int64)
+            h = len(slots)
+            if h < 2 or h > SORT_MAX:
+                continue
+            perms = permutations(h)
+            for _ in range(self.sort_iterations):
+                held, sums, _, _ = self._slot_sums(self.pos)
+                held = held[slots]
+                if (held == 0).all():
+                    break
+                means = sums[slots] / np.maximum(held, 1)[:, None]
+                if not self._kernels.sort_cluster(self.pos, self.vel, self.vvar, self.valid,
+                                                  slots, perms, means, held):
+                    break
 
     def _rescale_shares(self) -> None:
         """``v <- v / sum v`` over every cell, ``_v_total = 1``. The sum is numpy's over
@@ -494,6 +600,9 @@ class JMPDAPTracker(Tracker):
     def _move_persistent(self, clusters, rhohat, psi, sd, index, table, beta):
         """Steps 2-3 of the module docstring for every cluster at once, in place; returns
         the per-particle ``-sum_l log pi_l(z | X_il)``."""
+        if self._kernels is not None:
+            return self._move_persistent_compiled(clusters, rhohat, psi, sd, index, table,
+                                                  beta)
         rng, grid = self._rng, self._model.grid
         N = self._N
         tau, q12, q22 = self._tau, self._q12, self._q22
@@ -597,6 +706,61 @@ class JMPDAPTracker(Tracker):
         # the weight keeps p(z | X) / prod_l pi_l: nonzero only where clusters share a cell
         return -log_pi[anc, np.arange(len(clusters))[None, :]].sum(axis=1)
 
+    def _move_persistent_compiled(self, clusters, rhohat, psi, sd, index, table, beta):
+        """:meth:`_move_persistent` by :func:`.ap_kernels.propose` and
+        :func:`.ap_kernels.place`: the same random draws in the same calls and order."""
+        rng, grid, K = self._rng, self._model.grid, self._kernels
+        N, T = self._N, self._T
+        sizes = np.array([len(c) for c in clusters], dtype=np.int64)
+        C, h_max = len(clusters), int(sizes.max())
+        members = np.full((C, h_max), -1, dtype=np.int64)
+        for i, c in enumerate(clusters):
+            members[i, :len(c)] = c
+        slots = members[members >= 0]
+        S = len(slots)
+        cluster_of = np.repeat(np.arange(C), sizes)
+        col = np.full(T, -1, dtype=np.int64)
+        col[slots] = np.arange(S)
+        big = K.max_held_sd(sd, self.valid, slots)
+        width = int(min(math.floor(8.0 * big / grid.cell_size) + 2, 2 * self.max_window + 1))
+        wx, wy = min(width, grid.nx), min(width, grid.ny)
+        # member i's uniforms, one call per member as in the numpy form
+        uniforms = self._scratch("uniforms", (h_max, N, C))
+        for i in range(h_max):
+            live = np.flatnonzero(sizes > i)
+            if len(live) == C:
+                rng.random(out=uniforms[i])
+            else:
+                uniforms[i][:, live] = rng.random(out=self._scratch("draw", (N, len(live))))
+        log_z, log_pi = self._scratch("log_z", (N, C)), self._scratch("log_pi", (N, C))
+        new_cell = self._scratch("new_cell", (N, S), np.int64)
+        new_valid = self._scratch("new_valid", (N, S), np.bool_)
+        # per drawn cell and axis, the CDF values its position's draw starts from
+        starts, masses = self._scratch("starts", (N, S, 2)), self._scratch("masses", (N, S, 2))
+        sides = self._scratch("sides", (N, S, 2), np.int8)
+        direct = index.direct_table()
+        K.propose(rhohat, sd, self.valid, slots, members, sizes, col, uniforms, grid.nx,
+                  grid.ny, float(grid.cell_size), grid.n_cells, wx, wy, self._reflect, beta,
+                  direct is not None, np.zeros(1, np.int32) if direct is None else direct,
+                  index.keys, table, log_z, log_pi, new_cell, new_valid, starts, masses,
+                  sides)
+        anc = np.empty((N, C), dtype=np.int64)
+        for c in range(C):
+            p = np.exp(log_z[:, c] - log_z[:, c].max())
+            anc[:, c] = rng.permutation(systematic_resample(p / p.sum(), rng.random()))
+        uu = rng.random(out=self._scratch("uu", (N, S, 2)))
+        # the velocity posteriors go to the spares (the sources are the ancestors'); the
+        # slots not in a cluster keep theirs
+        vel, vvar = self._spare("vel"), self._spare("vvar")
+        vel[...] = self.vel
+        vvar[...] = self.vvar
+        K.place(anc, cluster_of, slots, new_cell, new_valid, starts, masses, sides, rhohat,
+                sd, psi, uu, grid.nx, float(grid.cell_size), self._tau, self._q12, self._q22,
+                self.vel, self.vvar, self.pos, vel, vvar, self.valid)
+        self._install("vel", vel)
+        self._install("vvar", vvar)
+        return -log_pi[anc, np.arange(C)[None, :]].sum(axis=1)
+
     def _births(self, centres, active, index, table) -> np.ndarray:
         """Step 4 of the module docstring; returns the per-particle prior/proposal log
         ratio of the birth decisions at the detected cells."""
@@ -613,9 +777,14 @@ class JMPDAPTracker(Tracker):
         remaining = self._remaining()
         pi_init, pi_arr = self._undetected_probability(det, remaining)  # (N, D)
         pi = 1.0 - (1.0 - pi_init) * (1.0 - pi_arr)
-        cells = grid.cell_of(self.pos[..., 0], self.pos[..., 1])
-        cells = np.where(self.valid, cells, -1)
-        occupied = (cells[:, :, None] == det[None, None, :]).any(axis=1)  # (N, D)
+        if self._kernels is None:
+            cells = grid.cell_of(self.pos[..., 0], self.pos[..., 1])
+            cells = np.where(self.valid, cells, -1)
+            occupied = (cells[:, :, None] == det[None, None, :]).any(axis=1)  # (N, D)
+        else:
+            occupied = np.empty((N, det.size), dtype=bool)
+            self._kernels.occupied(self.pos, self.valid, det, grid.nx, grid.ny,
+                                   float(grid.cell_size), occupied)
         # the slot each particle's birth in cell d would take
         centre_cell = grid.cell_of(centres[:, 0], centres[:, 1])
         free = list(np.flatnonzero(~active)[::-1])
@@ -656,17 +825,23 @@ class JMPDAPTracker(Tracker):
         particles and steps, so a label follows its target while the target keeps its
         slot; a slot freed by a death (or emptied in every particle) may later be reused
         by another target, which then inherits the label (read as an identity switch)."""
-        held = self.valid.sum(axis=0)
+        if self._kernels is not None:
+            held, pos_sums, vel_sums, _ = self._slot_sums(self.pos, with_vel=True)
+        else:
+            held = self.valid.sum(axis=0)
         self.count_mean = float(held.sum() / self._N)
         n_hat = int(round(self.count_mean))
         if n_hat == 0:
             return Estimate(self.count_mean, np.zeros((0, 4)), labels=np.zeros(0, np.int64))
         top = np.argsort(-held, kind="stable")[:n_hat]
         top = top[held[top] > 0]
-        v = self.valid[:, top][..., None]
         n = held[top][:, None]
-        pos = (self.pos[:, top] * v).sum(axis=0) / n
-        vel = (self.vel[:, top] * v).sum(axis=0) / n
+        if self._kernels is not None:
+            pos, vel = pos_sums[top] / n, vel_sums[top] / n
+        else:
+            v = self.valid[:, top][..., None]
+            pos = (self.pos[:, top] * v).sum(axis=0) / n
+            vel = (self.vel[:, top] * v).sum(axis=0) / n
         states = np.stack([pos[:, 0], vel[:, 0], pos[:, 1], vel[:, 1]], axis=1)
         return Estimate(self.count_mean, states, labels=top.astype(np.int64))
 

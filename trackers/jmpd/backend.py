@@ -62,3 +62,12 @@ def use_backend(backend: Literal["auto", "numpy", "compiled"]) -> Iterator[None]
         yield
     finally:
         _KERNELS = previous
+
+
+def compiled_ap_kernels() -> ModuleType | None:
+    """:mod:`.ap_kernels` (numba, ``jmpd-ap``'s per-particle passes) when
+    :func:`compiled_kernels` is on, else None (the numpy forms run; same numbers)."""
+    if compiled_kernels() is None:
+        return None
+    from . import ap_kernels
+    return ap_kernels

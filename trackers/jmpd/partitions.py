@@ -62,7 +62,8 @@ def cluster_slots(centres: np.ndarray, active: np.ndarray, gamma: float,
     return [np.array(g, dtype=np.int64) for _, g in sorted(groups.items())]
 
 
-def _permutations(h: int) -> np.ndarray:
+def permutations(h: int) -> np.ndarray:
+    """The ``h!`` permutations of ``range(h)`` ``(h!, h)``, the identity first."""
     return np.array(list(itertools.permutations(range(h))), dtype=np.int64)
 
 
@@ -83,7 +84,7 @@ def sort_slots(pos: np.ndarray, valid: np.ndarray, clusters: list[np.ndarray],
         h = len(slots)
         if h < 2 or h > SORT_MAX:
             continue
-        perms = _permutations(h)  # (P, h)
+        perms = permutations(h)  # (P, h)
         for _ in range(iterations):
             v = valid[:, slots]  # (N, h)
             held = v.sum(axis=0)
@@ -109,18 +110,25 @@ def sort_slots(pos: np.ndarray, valid: np.ndarray, clusters: list[np.ndarray],
 
 
 def merge_slots(pos: np.ndarray, valid: np.ndarray, arrays: list[np.ndarray],
-                distance: float) -> int:
+                distance: float,
+                slot_sums: tuple[np.ndarray, np.ndarray] | None = None) -> int:
     """Give one target one slot: when the means of two slots are closer than
     ``distance``, every particle that holds the second slot but not the first moves its
     target into the first (the slot held by more particles). Slots differ only in their
     labels, so the density is unchanged; the split arises when particles start the same
-    target in different steps. ``arrays`` as in :func:`sort_slots`. Returns the number
-    of targets moved."""
-    held = valid.sum(axis=0)
+    target in different steps. ``arrays`` as in :func:`sort_slots`; ``slot_sums``
+    optionally the holders ``(T,)`` and the sums of the held positions ``(T, 2)`` of
+    the current state (in particle order), computed otherwise. Returns the number of
+    targets moved."""
+    held = valid.sum(axis=0) if slot_sums is None else slot_sums[0]
     slots = np.flatnonzero(held > 0)
     if len(slots) < 2:
         return 0
-    means = (pos[:, slots] * valid[:, slots, None]).sum(axis=0) / held[slots, None]
+    if slot_sums is None:
+        sums = (pos[:, slots] * valid[:, slots, None]).sum(axis=0)
+    else:
+        sums = slot_sums[1][slots]
+    means = sums / held[slots, None]
     d = np.linalg.norm(means[:, None] - means[None, :], axis=-1)
     moved = 0
     order = slots[np.argsort(-held[slots], kind="stable")]  # keep the most-held slot

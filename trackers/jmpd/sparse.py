@@ -76,6 +76,11 @@ class CellIndex:
         # keys plus the missing row's entry: a query equal to it is missing either way
         self._keys_ext = np.append(keys, np.int64(-1))
 
+    def direct_table(self) -> np.ndarray | None:
+        """The direct path's table ``(n_cells + 1,)`` int32 (``index(c) = table[min(c,
+        n_cells)]`` for ``c >= 0``), None on the hashed path."""
+        return self._table if self.direct else None
+
     def __call__(self, cells: np.ndarray) -> np.ndarray:
         cells = np.asarray(cells)
         if self.direct:

@@ -1,0 +1,211 @@
+"""``jmpd-ap``'s numba kernels (``trackers/jmpd/ap_kernels.py``) against the numpy forms.
+
+Every comparison is exact (bit for bit): the kernels promise the same IEEE operations in
+the same order, so a seed gives the same numbers with or without numba. Whole runs
+compare everything a computation reads: the validity, the positions and velocity means
+of the held slots, every velocity variance, the effective sample size and the estimates.
+(The positions and velocity means of empty slots are never read; the compiled form
+fills them differently: ``place``'s docstring.) Each run picks the backend with
+``use_backend``, so ``MTTBENCH_NO_NUMBA`` does not matter here.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+
+from mttbench import scenarios
+from mttbench.benchmarks.engine.loop import play
+from mttbench.scenarios.model import (
+    BirthDeath,
+    Dynamics,
+    Grid,
+    Looks,
+    RayleighGridSensor,
+    TrackingModel,
+)
+from mttbench.trackers.jmpd import JMPDAPTracker, use_backend
+from mttbench.trackers.jmpd.cell_proposal import axis_window, truncated_normal
+from mttbench.trackers.jmpd.likelihood import grid_log_likelihood_tables
+
+ap_kernels = pytest.importorskip("mttbench.trackers.jmpd.ap_kernels",
+                                 reason="numba is not installed")
+
+
+def _observed(tr: JMPDAPTracker) -> list[np.ndarray]:
+    """What later computations read of the tracker's state."""
+    held = tr.valid[..., None]
+    return [tr.valid, np.where(held, tr.pos, 0.0), np.where(held, tr.vel, 0.0), tr.vvar,
+            np.array([tr.ess, tr.count_mean, tr.n_clusters, tr.largest_cluster])]
+
+
+def _digests(scenario, n_particles: int, steps: int, compiled: bool, policy=None,
+             **params) -> list[str]:
+    """Per step, SHA-256 of :func:`_observed` and the estimate."""
+    out = []
+    with use_backend("compiled" if compiled else "numpy"):
+        tr = JMPDAPTracker(n_particles=n_particles, **params)
+        for rec in play(scenario, tr, 0, policy=policy, n_steps=steps):
+            digest = hashlib.sha256()
+            for a in _observed(tr) + [rec.estimate.states, np.array([rec.estimate.count])]:
+                digest.update(np.ascontiguousarray(a).tobytes())
+            out.append(digest.hexdigest())
+        assert tr.uses_compiled_kernels == compiled
+    return out
+
+
+#: (scenario, particles, steps, tracker parameters): reflecting walls (``default``,
+#: ``crossing``), walls where targets die and births (``births``, ``kreucher-50``), the
+#: declared start (``kreucher``), false alarms in every look (``env-pf-0.1``: many births
+#: and clusters), the look-all sensor on 2,500 cells, and a wide proposal window
+RUNS = [("default", 300, 25, {}), ("births", 300, 40, {}), ("crossing", 300, 30, {}),
+        ("kreucher", 300, 20, {"init_fraction": 0.1}), ("kreucher-50", 150, 10, {}),
+        ("env-pf-0.1", 300, 25, {}), ("default", 200, 12, {"position_noise_floor": 0.3}),
+        ("default", 100, 8, {"position_noise_floor": 1.2})]
+
+
+@pytest.mark.parametrize(("name", "n", "steps", "params"), RUNS,
+                         ids=[f"{r[0]}-{i}" for i, r in enumerate(RUNS)])
+def test_runs_are_identical_with_and_without_kernels(name, n, steps, params):
+    sc = scenarios.get(name) if not name.startswith("env-") else _envelope(name)
+    numpy_run = _digests(sc, n, steps, False, **params)
+    compiled_run = _digests(sc, n, steps, True, **params)
+    assert compiled_run == numpy_run
+
+
+def _envelope(name):
+    from mttbench.benchmarks.engine.specs import resolve_scenarios
+    return resolve_scenarios([name])[0]
+
+
+def test_hashed_look_index_and_die_walls_are_identical():
+    """A 300 x 300 grid (90,000 cells: the look index hashes instead of a direct table),
+    targets that die at the walls, hand-made looks at the targets' cells and at random
+    cells, some with returns."""
+    grid = Grid(300, 300)
+    model = TrackingModel(grid, Dynamics(wna_intensity=1e-3),
+                          BirthDeath(initial_states=((299.2, 0.3, 150.5, 0.0),
+                                                     (10.5, -0.1, 20.5, 0.1),
+                                                     (11.5, 0.0, 21.0, -0.1)),
+                                     boundary="die", birth_rate=0.1,
+                                     survival_probability=0.99),
+                          RayleighGridSensor())
+    digests = []
+    for compiled in (False, True):
+        with use_backend("compiled" if compiled else "numpy"):
+            tr = JMPDAPTracker(n_particles=300, init_fraction=0.5)
+            tr.reset(model, np.random.default_rng(2))
+            rng = np.random.default_rng(3)
+            digest = hashlib.sha256()
+            for k in range(10):
+                tr.predict()
+                P = tr.cell_count_distribution()
+                truth = np.array([[150, 299 + k // 3], [20, 10], [21, 11]])
+                cells = np.concatenate([truth[:, 0] * 300 + np.minimum(truth[:, 1], 299),
+                                        rng.integers(0, grid.n_cells, 40)])
+                returns = np.r_[[True, True, False], rng.random(40) < 0.05]
+                tr.update(Looks(cells.astype(np.int64), returns))
+                est = tr.estimate()
+                for a in _observed(tr) + [est.states, P.cells, P.rows]:
+                    digest.update(np.ascontiguousarray(a).tobytes())
+            digests.append(digest.hexdigest())
+    assert digests[0] == digests[1]
+
+
+def test_managed_policy_runs_are_identical():
+    """With a policy that reads ``P_c(t)`` (the kinematic draw, the undetected rows)."""
+    from mttbench.benchmarks.engine.policies import make_policy
+    sc = scenarios.get("kreucher")
+    runs = [_digests(sc, 200, 12, compiled, policy=make_policy("renyi"))
+            for compiled in (False, True)]
+    assert runs[0] == runs[1]
+
+
+@pytest.mark.parametrize("n", [0, 1, 7, 8, 9, 16, 127, 128, 129, 169, 300, 1000, 4099])
+def test_np_sum_is_numpys_pairwise_sum(n):
+    rng = np.random.default_rng(n)
+    x = rng.random(n) * 10.0 ** rng.uniform(-8, 8, n)
+    assert ap_kernels.np_sum(x, n) == x.sum()
+
+
+def test_windows_and_draws_equal_the_numpy_forms():
+    """Cell masses of the window (both tails, means on and off the grid, narrow and wide
+    predictives) and the in-cell draws from the CDF values the window keeps equal
+    :func:`axis_window` and :func:`truncated_normal`."""
+    rng = np.random.default_rng(7)
+    n, cell, width = 12, 1.0, 5
+    means = np.r_[rng.uniform(-2, 14, 400), 0.0, 12.0, 5.5, 5.0, -40.0, 60.0]
+    sds = np.r_[10.0 ** rng.uniform(-2.5, 1, 400), 0.03, 0.03, 1e-3, 2.0, 0.5, 0.5]
+    index, mass, inside = axis_window(means, sds, n, cell, 0, width=width)
+    idx, m, start = np.empty(width, np.int64), np.empty(width), np.empty(width)
+    scratch = (np.empty(width + 1), np.empty(width + 1))
+    for i, (mu, sd) in enumerate(zip(means, sds, strict=True)):
+        got_inside = ap_kernels._axis_window(mu, sd, n, cell, width, True, idx, m, start,
+                                             *scratch)
+        assert np.array_equal(idx, index[i])
+        assert np.array_equal(m, mass[i]) and got_inside == inside[i]
+        u = rng.random(width)
+        lo = idx * cell
+        expected = truncated_normal(np.full(width, mu), np.full(width, sd), lo, lo + cell, u)
+        upper = (lo - mu) / sd > 0.0
+        for k in range(width):
+            x = ap_kernels._draw_in_cell(mu, sd, lo[k], lo[k] + cell, u[k], start[k], m[k],
+                                         upper[k])
+            assert x == expected[k]
+            assert x == ap_kernels._truncated_normal(mu, sd, lo[k], lo[k] + cell, u[k])
+
+
+def test_slot_log_likelihood_equals_the_numpy_form():
+    """Several targets in one looked cell, cells looked twice, empty slots."""
+    from mttbench.trackers.jmpd.likelihood import grid_log_likelihood
+    rng = np.random.default_rng(8)
+    grid = Grid(6, 5)
+    N, T = 500, 6
+    pos = np.stack([rng.uniform(0, 6, (N, T)), rng.uniform(0, 5, (N, T))], axis=-1)
+    pos[:, :3] = pos[:, :1]  # three targets in one cell
+    valid = rng.random((N, T)) < 0.7
+    looks = rng.integers(0, grid.n_cells, 25)
+    returns = rng.random(25) < 0.4
+    sensor = RayleighGridSensor()
+    index, table = grid_log_likelihood_tables(sensor, looks, returns, grid.n_cells, T)
+    cells = grid.cell_of(pos[..., 0], pos[..., 1])
+    cells = np.where(valid & (cells >= 0), cells, grid.n_cells)
+    start = rng.normal(size=N)
+    expected = start + grid_log_likelihood(cells, index, table)
+    for direct in (True, False):
+        got = start.copy()
+        ap_kernels.slot_log_likelihood(pos, valid, grid.nx, grid.ny, 1.0, grid.n_cells,
+                                       direct, index.direct_table() if direct else
+                                       np.zeros(1, np.int32), index.keys, table, got)
+        assert np.array_equal(got, expected)
+
+
+def test_sort_and_sums_equal_the_numpy_forms():
+    """One K-means sweep over a cluster of 4 slots, and the per-slot sums, holders and
+    extents, against :func:`.partitions.sort_slots` and numpy's reductions."""
+    from mttbench.trackers.jmpd.partitions import permutations, sort_slots
+    rng = np.random.default_rng(9)
+    N, T = 800, 6
+    pos = rng.normal(5.0, 2.0, (N, T, 2))
+    vel, vvar = rng.normal(size=(N, T, 2)), rng.random((N, T, 2))
+    valid = rng.random((N, T)) < 0.8
+    slots = np.array([0, 2, 3, 5])
+    arrays = [a.copy() for a in (pos, vel, vvar, valid)]
+    sort_slots(arrays[0], arrays[3], [slots], arrays, iterations=1)
+    held, sums = np.empty(T, np.int64), np.empty((T, 2))
+    vel_sums, boxes = np.empty((T, 2)), np.empty((T, 4))
+    ap_kernels.slot_sums(pos, vel, valid, True, held, sums, vel_sums, boxes)
+    assert np.array_equal(held, valid.sum(axis=0))
+    assert np.array_equal(sums, (pos * valid[..., None]).sum(axis=0))
+    assert np.array_equal(vel_sums, (vel * valid[..., None]).sum(axis=0))
+    from mttbench.trackers.jmpd.ap import _boxes
+    assert np.array_equal(boxes, _boxes(pos, valid))
+    means = sums[slots] / np.maximum(held[slots], 1)[:, None]
+    got = [a.copy() for a in (pos, vel, vvar, valid)]
+    moved = ap_kernels.sort_cluster(*got, slots, permutations(len(slots)), means,
+                                    held[slots])
+    assert moved > 0
+    for a, b in zip(got, arrays, strict=True):
+        assert np.array_equal(a, b)

@@ -1,0 +1,660 @@
+"""Compiled (numba) kernels of ``jmpd-ap``'s per-particle work, each equal bit for bit
+to the numpy form it replaces (:mod:`.ap`, :mod:`.cell_proposal`, :mod:`.partitions`).
+
+Why: a ``jmpd-ap`` step is a few dozen small operations per particle and slot (the
+predictive, a window of cell masses, a sequential draw per cluster member, the
+recombined positions and velocity updates, the sorting's permutation costs, the slots'
+means and extents). In numpy each is a pass over ``(N, t_max, ...)`` temporaries;
+here each group is one loop over the particles (docs/speed.md has the profiles).
+
+Exactness: every kernel performs the same IEEE operations, in the same order, as its
+numpy form: numpy's ``sum`` over a last axis is its pairwise summation
+(:func:`_pairwise`, starting from 0), a sum over the particles is sequential, the
+normal CDF and its inverse are scipy's own functions (``cython_special``), ``exp`` and
+``log`` the C library's, as numpy's are without AVX-512 (the tests compare both forms
+on whole runs and on random inputs). All random draws stay in numpy, in the same
+calls and order; the kernels take them as arrays.
+
+Importing this module imports numba; :func:`.backend.compiled_ap_kernels` imports it on
+first use only. Kernels compile on first call and are cached on disk (``cache=True``);
+:func:`warm_up` does that on tiny inputs so that no timed step pays for it.
+"""
+
+from __future__ import annotations
+
+import llvmlite.binding
+import numpy as np
+from numba import njit, types
+from numba.extending import get_cython_function_address
+
+from .kernels import _outside
+
+
+def _scipy_function(symbol: str, name: str) -> types.ExternalFunction:
+    """scipy's C function ``name`` of ``cython_special`` (``double (double, int
+    skip_dispatch)``) as an external symbol, so that the kernels calling it can be
+    cached on disk (a ctypes pointer cannot)."""
+    llvmlite.binding.add_symbol(symbol, get_cython_function_address(
+        "scipy.special.cython_special", name))
+    return types.ExternalFunction(symbol, types.float64(types.float64, types.intc))
+
+
+#: scipy.special.ndtr and ndtri for doubles (the ufuncs' own C functions)
+_ndtr = _scipy_function("mttbench_scipy_ndtr", "__pyx_fuse_1ndtr")
+_ndtri = _scipy_function("mttbench_scipy_ndtri", "ndtri")
+
+
+@njit(cache=True)
+def _block(a: np.ndarray, lo: int, n: int) -> float:
+    """numpy's pairwise sum of ``a[lo:lo + n]`` for ``n <= 128`` (8 accumulators)."""
+    if n < 8:
+        res = -0.0
+        for i in range(n):
+            res += a[lo + i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    m = n - n % 8
+    for i in range(lo + 8, lo + m, 8):
+        r0 += a[i]
+        r1 += a[i + 1]
+        r2 += a[i + 2]
+        r3 += a[i + 3]
+        r4 += a[i + 4]
+        r5 += a[i + 5]
+        r6 += a[i + 6]
+        r7 += a[i + 7]
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    for i in range(lo + m, lo + n):
+        res += a[i]
+    return res
+
+
+@njit(cache=True)
+def _pairwise(a: np.ndarray, lo: int, n: int) -> float:
+    """numpy's pairwise sum of ``a[lo:lo + n]``: blocks of at most 128 (:func:`_block`)
+    added as the halves of numpy's recursion (``n / 2`` rounded down to a multiple of
+    8), here by an explicit stack (numba cannot cache a recursive function)."""
+    if n <= 128:
+        return _block(a, lo, n)
+    seg_lo = np.empty(64, np.int64)
+    seg_n = np.empty(64, np.int64)
+    stage = np.zeros(64, np.int64)
+    values = np.empty(64)
+    sp, vp = 0, 0
+    seg_lo[0], seg_n[0] = lo, n
+    while sp >= 0:
+        sl, sn = seg_lo[sp], seg_n[sp]
+        if sn <= 128:
+            values[vp] = _block(a, sl, sn)
+            vp += 1
+            sp -= 1
+            continue
+        n2 = sn // 2
+        n2 -= n2 % 8
+        if stage[sp] == 0:  # the left half first
+            stage[sp] = 1
+            sp += 1
+            seg_lo[sp], seg_n[sp], stage[sp] = sl, n2, 0
+        elif stage[sp] == 1:  # then the right half
+            stage[sp] = 2
+            sp += 1
+            seg_lo[sp], seg_n[sp], stage[sp] = sl + n2, sn - n2, 0
+        else:  # both done: left + right
+            values[vp - 2] = values[vp - 2] + values[vp - 1]
+            vp -= 1
+            sp -= 1
+    return values[0]
+
+
+@njit(cache=True)
+def np_sum(a: np.ndarray, n: int) -> float:
+    """``a[:n].sum()`` as numpy computes it (0 plus the pairwise sum)."""
+    return 0.0 + _pairwise(a, 0, n)
+
+
+# ------------------------------------------------------------------ predict
+@njit(cache=True)
+def predict(pos: np.ndarray, vel: np.ndarray, vvar: np.ndarray, tau: float, tau2: float,
+            q11: np.ndarray, extent: np.ndarray, reflect: bool, rhohat: np.ndarray,
+            psi: np.ndarray, sd: np.ndarray) -> None:
+    """``rhohat = pos + tau vel``, ``psi = tau^2 vvar + q11``, ``sd = sqrt(psi)`` (all
+    ``(N, T, 2)``; ``q11`` and ``extent`` per axis, ``tau2 = tau ** 2`` as Python
+    computes it); under ``reflect`` a mean outside ``[0, L)`` is folded back
+    (:func:`.state.fold`) and its velocity mean mirrored, in place in ``vel`` (numpy
+    form: :meth:`.ap.JMPDAPTracker.predict` and the ``sqrt`` of its update)."""
+    N, T = pos.shape[0], pos.shape[1]
+    for p in range(N):
+        for t in range(T):
+            for a in range(2):
+                r = pos[p, t, a] + tau * vel[p, t, a]
+                v = tau2 * vvar[p, t, a] + q11[a]
+                psi[p, t, a] = v
+                sd[p, t, a] = np.sqrt(v)
+                length = extent[a]
+                if reflect and (r < 0.0 or r >= length):
+                    r, vel[p, t, a], _ = _outside(r, vel[p, t, a], length,
+                                                  np.nextafter(length, 0.0), True)
+                rhohat[p, t, a] = r
+
+
+@njit(cache=True)
+def gather(src: np.ndarray, idx: np.ndarray, out: np.ndarray) -> None:
+    """``out[k] = src[idx[k]]`` along the first axis (numpy's ``src[idx]``)."""
+    for k in range(idx.shape[0]):
+        out[k] = src[idx[k]]
+
+
+@njit(cache=True)
+def _cell_of(x: float, y: float, nx: int, ny: int, cell_size: float) -> int:
+    """``Grid.cell_of`` of one position: the flat cell, -1 outside the grid."""
+    ix = np.floor(x / cell_size)
+    iy = np.floor(y / cell_size)
+    if ix >= 0 and ix < nx and iy >= 0 and iy < ny:
+        return np.int64(iy * nx + ix)
+    return -1
+
+
+@njit(cache=True)
+def slot_log_likelihood(pos: np.ndarray, valid: np.ndarray, nx: int, ny: int,
+                        cell_size: float, n_cells: int, direct: bool, row_table: np.ndarray,
+                        keys: np.ndarray, table: np.ndarray, out: np.ndarray) -> None:
+    """``out[p] += log p(z | X_p)`` (:func:`.likelihood.grid_log_likelihood` of the
+    slots' cells, an empty slot or one outside the grid at ``n_cells``): slot ``t`` adds
+    ``table[r, k] - table[r, k - 1]``, ``r`` its cell's row and ``k - 1`` the earlier
+    slots in that row, the terms summed in slot order (as the dense path's kernel)
+    before they are added to ``out``."""
+    N, T = valid.shape
+    n_counts = table.shape[1]
+    rows = np.empty(T, np.int64)
+    for p in range(N):
+        total = 0.0
+        for t in range(T):
+            cell = n_cells
+            if valid[p, t]:
+                c = _cell_of(pos[p, t, 0], pos[p, t, 1], nx, ny, cell_size)
+                if c >= 0:
+                    cell = c
+            r = _row(cell, direct, row_table, keys)
+            rows[t] = r
+            k = 1
+            for q in range(t):
+                k += rows[q] == r
+            k = min(k, n_counts - 1)
+            inc = table[r, k] - table[r, k - 1]
+            total = inc if t == 0 else total + inc
+        out[p] += total
+
+
+@njit(cache=True)
+def occupied(pos: np.ndarray, valid: np.ndarray, det: np.ndarray, nx: int, ny: int,
+             cell_size: float, out: np.ndarray) -> None:
+    """``out[p, d]``: particle ``p`` holds a target in cell ``det[d]`` (``det`` sorted,
+    ``out (N, D)`` bool)."""
+    N, T = valid.shape
+    D = det.shape[0]
+    for p in range(N):
+        for d in range(D):
+            out[p, d] = False
+        for t in range(T):
+            if valid[p, t]:
+                c = _cell_of(pos[p, t, 0], pos[p, t, 1], nx, ny, cell_size)
+                d = np.searchsorted(det, c)
+                if d < D and det[d] == c:
+                    out[p, d] = True
+
+
+# ------------------------------------------------------------ slot summaries
+@njit(cache=True)
+def slot_sums(pos: np.ndarray, vel: np.ndarray, valid: np.ndarray, with_vel: bool,
+              held: np.ndarray, sum_pos: np.ndarray, sum_vel: np.ndarray,
+              boxes: np.ndarray) -> None:
+    """Per slot over the particles: ``held (T,)`` the holders, ``sum_pos``, ``sum_vel``
+    ``(T, 2)`` the sums of ``pos * valid`` (``vel``: only when ``with_vel``) in
+    particle order (numpy's ``(x * valid[..., None]).sum(axis=0)``) and ``boxes (T,
+    4)`` the extent ``x0, x1, y0, y1`` of the held positions (:func:`.ap._boxes`)."""
+    N, T = valid.shape
+    held[:] = 0
+    sum_pos[:] = 0.0
+    sum_vel[:] = 0.0
+    for t in range(T):
+        boxes[t, 0] = np.inf
+        boxes[t, 1] = -np.inf
+        boxes[t, 2] = np.inf
+        boxes[t, 3] = -np.inf
+    for p in range(N):
+        for t in range(T):
+            v = valid[p, t]
+            f = 1.0 if v else 0.0
+            x, y = pos[p, t, 0], pos[p, t, 1]
+            sum_pos[t, 0] += x * f
+            sum_pos[t, 1] += y * f
+            if with_vel:
+                sum_vel[t, 0] += vel[p, t, 0] * f
+                sum_vel[t, 1] += vel[p, t, 1] * f
+            if v:
+                held[t] += 1
+                if x < boxes[t, 0]:
+                    boxes[t, 0] = x
+                if x > boxes[t, 1]:
+                    boxes[t, 1] = x
+                if y < boxes[t, 2]:
+                    boxes[t, 2] = y
+                if y > boxes[t, 3]:
+                    boxes[t, 3] = y
+
+
+@njit(cache=True)
+def max_held_sd(sd: np.ndarray, valid: np.ndarray, slots: np.ndarray) -> float:
+    """``max(where(valid[:, slots], sd[:, slots], 0))`` over both axes."""
+    big = 0.0
+    for p in range(sd.shape[0]):
+        for t in slots:
+            if valid[p, t]:
+                for a in range(2):
+                    if sd[p, t, a] > big:
+                        big = sd[p, t, a]
+    return big
+
+
+# ------------------------------------------------------------ the proposal
+@njit(cache=True)
+def _axis_window(mean: float, sd: float, n: int, cell_size: float, width: int,
+                 with_inside: bool, index: np.ndarray, mass: np.ndarray, start: np.ndarray,
+                 cdf: np.ndarray, zs: np.ndarray) -> float:
+    """:func:`.cell_proposal.axis_window` (the ``width`` form) for one mean: fills
+    ``index`` and ``mass`` (``width`` entries) and returns the in-grid mass (0 unless
+    ``with_inside``). Each cell's mass is a difference of normal CDFs in the tail that
+    keeps its precision: ``pb - pa``, ``pa = start[k]`` (:func:`_truncated_normal`'s
+    ``pa`` for the cell, so that a draw in the cell needs no CDF again). Only the CDF
+    values these differences use are computed (``cdf`` and ``zs``: scratch of ``width +
+    1``)."""
+    f = np.floor((mean - 4.0 * sd) / cell_size)
+    top = float(max(n - width, 0))
+    if f < 0.0:
+        f = 0.0
+    if f > top:
+        f = top
+    first = np.int64(f)
+    for k in range(width + 1):
+        zs[k] = ((first + k) * cell_size - mean) / sd
+    for k in range(width):
+        i = first + k
+        if i >= 0 and i < n:
+            index[k] = i
+        else:
+            index[k] = -1
+    # the lower-tail CDF at each edge: ndtr(z) below the mean, ndtr(-z) above it; a
+    # cell's side is its left edge's, so the edge where the side changes needs both
+    for k in range(width + 1):
+        upper = zs[k] > 0.0
+        cdf[k] = _ndtr(-zs[k], 0) if upper else _ndtr(zs[k], 0)
+        if k == 0:
+            continue
+        if index[k - 1] < 0:
+            mass[k - 1] = 0.0
+            start[k - 1] = 0.0
+            continue
+        if zs[k - 1] > 0.0:  # above the mean: ndtr(-z_left) - ndtr(-z_right)
+            right = cdf[k] if upper else _ndtr(-zs[k], 0)
+            mass[k - 1] = cdf[k - 1] - right
+            start[k - 1] = right
+        else:  # ndtr(z_right) - ndtr(z_left)
+            right = _ndtr(zs[k], 0) if upper else cdf[k]
+            mass[k - 1] = right - cdf[k - 1]
+            start[k - 1] = cdf[k - 1]
+    if not with_inside:
+        return 0.0
+    za = (0.0 - mean) / sd
+    zb = (n * cell_size - mean) / sd
+    if za > 0.0:
+        return _ndtr(-za, 0) - _ndtr(-zb, 0)
+    return _ndtr(zb, 0) - _ndtr(za, 0)
+
+
+@njit(cache=True)
+def _row(cell: int, direct: bool, table: np.ndarray, keys: np.ndarray) -> int:
+    """:class:`.sparse.CellIndex`: the row of ``cell`` (in ``[0, n_cells]``)."""
+    m = keys.shape[0]
+    if direct:
+        return table[min(cell, table.shape[0] - 1)]
+    i = np.searchsorted(keys, cell)
+    if i < m and keys[i] == cell:
+        return i
+    return m
+
+
+@njit(cache=True)
+def propose(rhohat: np.ndarray, sd: np.ndarray, valid: np.ndarray, slots: np.ndarray,
+            members: np.ndarray, sizes: np.ndarray, col: np.ndarray, uniforms: np.ndarray,
+            nx: int, ny: int, cell_size: float, n_cells: int, wx: int, wy: int,
+            reflect: bool, beta: float, direct: bool, row_table: np.ndarray,
+            keys: np.ndarray, table: np.ndarray, log_z: np.ndarray, log_pi: np.ndarray,
+            new_cell: np.ndarray, new_valid: np.ndarray, cdf_start: np.ndarray,
+            cdf_mass: np.ndarray, cdf_upper: np.ndarray) -> None:
+    """Steps 2-3 of :meth:`.ap.JMPDAPTracker._move_persistent` up to the recombination:
+    every particle's proposal windows and sequential draws, cluster by cluster.
+
+    ``slots (S,)`` the active slots (``col[t]`` the column of slot ``t``), ``members
+    (C, h)`` the clusters' slots (-1 padded), ``sizes (C,)``, ``uniforms (h, N, C)``
+    member ``i``'s uniforms of the clusters that have one (numpy's ``rng.random((N,
+    k))`` of the live clusters, put in their columns); the look table's rows by
+    ``row_table`` (``direct``) or a search of ``keys``. Writes ``log_z``, ``log_pi``
+    ``(N, C)``, ``new_cell``, ``new_valid (N, S)`` and, per axis of each drawn cell,
+    :func:`_truncated_normal`'s ``pa``, ``pb - pa`` and side (``cdf_start``,
+    ``cdf_mass``, ``cdf_upper (N, S, 2)``; side -1: a cell outside the window's grid
+    cells, whose draw computes them anew). A slot the particle does not hold is skipped
+    (the numpy form computes its window and draw, and keeps neither).
+    """
+    N = rhohat.shape[0]
+    C = members.shape[0]
+    h_max = members.shape[1]
+    S = slots.shape[0]
+    W = wx * wy
+    rows, n_counts = table.shape
+    one_beta = 1.0 - beta
+    # per row and count: log l(n + 1) - log l(n) and its exp (the same operations as
+    # numpy's on the gathered entries)
+    step_log = np.empty((rows, n_counts - 1))
+    step_exp = np.empty((rows, n_counts - 1))
+    for r in range(rows):
+        for n in range(n_counts - 1):
+            step_log[r, n] = table[r, n + 1] - table[r, n]
+            step_exp[r, n] = np.exp(step_log[r, n])
+    w_max = max(wx, wy)
+    ix = np.empty((S, wx), np.int64)
+    iy = np.empty((S, wy), np.int64)
+    gx = np.empty((S, wx))
+    gy = np.empty((S, wy))
+    sx_ = np.empty((S, wx))
+    sy_ = np.empty((S, wy))
+    cdf = np.empty(w_max + 1)
+    zs = np.empty(w_max + 1)
+    gamma = np.empty((S, W))
+    wcell = np.empty((S, W), np.int64)
+    wrow = np.empty((S, W), np.int64)
+    dead = np.empty(S)
+    cell_nb = np.empty(W, np.int64)
+    weights = np.empty(W)
+    cum = np.empty(W + 1)
+    placed = np.empty(h_max, np.int64)
+    for p in range(N):
+        # windows of the active slots the particle holds (as an ancestor), numpy's
+        # axis_window per axis; a slot it does not hold draws nothing that is kept
+        for j in range(S):
+            t = slots[j]
+            if not valid[p, t]:
+                continue
+            mx, my = rhohat[p, t, 0], rhohat[p, t, 1]
+            in_x = _axis_window(mx, sd[p, t, 0], nx, cell_size, wx, not reflect, ix[j],
+                                gx[j], sx_[j], cdf, zs)
+            in_y = _axis_window(my, sd[p, t, 1], ny, cell_size, wy, not reflect, iy[j],
+                                gy[j], sy_[j], cdf, zs)
+            g = gamma[j]
+            for a in range(wy):
+                for b in range(wx):
+                    k = a * wx + b
+                    g[k] = gy[j, a] * gx[j, b]
+                    if iy[j, a] < 0 or ix[j, b] < 0:
+                        wcell[j, k] = n_cells
+                    else:
+                        wcell[j, k] = iy[j, a] * nx + ix[j, b]
+                    wrow[j, k] = _row(wcell[j, k], direct, row_table, keys)
+            total = np_sum(g, W)
+            if reflect:
+                if total <= 0.0:  # far outside the window's reach: the nearest cell
+                    near_x = min(max(np.floor(mx / cell_size), 0.0), nx - 1.0) - ix[j, 0]
+                    near_y = min(max(np.floor(my / cell_size), 0.0), ny - 1.0) - iy[j, 0]
+                    near = np.int64(min(max(near_y, 0.0), wy - 1.0) * wx
+                                    + min(max(near_x, 0.0), wx - 1.0))
+                    g[near] = 1.0
+                    total = 1.0
+                for k in range(W):
+                    g[k] /= total
+                m_out = 0.0
+            else:
+                inside = in_x * in_y
+                factor = inside / total if total > 0 else 0.0
+                for k in range(W):
+                    g[k] *= factor
+                m_out = 1.0 - inside
+            dead[j] = beta + one_beta * m_out
+        for c in range(C):
+            log_z[p, c] = 0.0
+            log_pi[p, c] = 0.0
+            for i in range(sizes[c]):
+                t = members[c, i]
+                j = col[t]
+                if not valid[p, t]:  # dies: log_z and log_pi gain 0
+                    placed[i] = -1
+                    new_cell[p, j] = 0
+                    new_valid[p, j] = False
+                    continue
+                g, cells, wr = gamma[j], wcell[j], wrow[j]
+                for k in range(W):
+                    nb = 0
+                    for q in range(i):
+                        nb += placed[q] == cells[k]
+                    nb = min(nb, n_counts - 2)
+                    cell_nb[k] = nb
+                    weights[k] = one_beta * g[k] * step_exp[wr[k], nb]
+                d = dead[j]
+                z = d + np_sum(weights, W)
+                cum[0] = d
+                acc = 0.0
+                for k in range(W):
+                    acc += weights[k]
+                    cum[k + 1] = d + acc
+                u = uniforms[i, p, c] * z
+                choice = 0
+                for k in range(W + 1):
+                    choice += cum[k] <= u
+                choice = min(choice, W)
+                alive = choice > 0
+                w_idx = max(choice - 1, 0)
+                cell = cells[w_idx]
+                log_z[p, c] += np.log(z)
+                log_pi[p, c] += step_log[wr[w_idx], cell_nb[w_idx]] if alive else 0.0
+                placed[i] = cell if alive else -1
+                new_cell[p, j] = cell
+                new_valid[p, j] = alive
+                a, b = w_idx // wx, w_idx % wx
+                if ix[j, b] >= 0 and iy[j, a] >= 0:
+                    cdf_start[p, j, 0], cdf_start[p, j, 1] = sx_[j, b], sy_[j, a]
+                    cdf_mass[p, j, 0], cdf_mass[p, j, 1] = gx[j, b], gy[j, a]
+                    cdf_upper[p, j, 0] = 1 if zs_side(ix[j, b], rhohat[p, t, 0],
+                                                      sd[p, t, 0], cell_size) else 0
+                    cdf_upper[p, j, 1] = 1 if zs_side(iy[j, a], rhohat[p, t, 1],
+                                                      sd[p, t, 1], cell_size) else 0
+                else:
+                    cdf_upper[p, j, 0] = cdf_upper[p, j, 1] = -1
+
+
+@njit(cache=True)
+def zs_side(i: int, mean: float, sd: float, cell_size: float) -> bool:
+    """Whether cell ``i``'s left edge is above the mean (``za > 0``, the upper tail)."""
+    return (i * cell_size - mean) / sd > 0.0
+
+
+@njit(cache=True)
+def _truncated_normal(mean: float, sd: float, lo: float, hi: float, u: float) -> float:
+    """:func:`.cell_proposal.truncated_normal` for one draw."""
+    za = (lo - mean) / sd
+    zb = (hi - mean) / sd
+    upper = za > 0.0
+    a = -zb if upper else za
+    b = -za if upper else zb
+    pa, pb = _ndtr(a, 0), _ndtr(b, 0)
+    z = _ndtri(pa + u * (pb - pa), 0)
+    if upper:
+        z = -z
+    x = mean + sd * z
+    if not (pb > pa) or not np.isfinite(x):
+        x = lo + u * (hi - lo)
+    top = np.nextafter(hi, lo)
+    if x < lo:
+        x = lo
+    if x > top:
+        x = top
+    return x
+
+
+@njit(cache=True)
+def _draw_in_cell(mean: float, sd: float, lo: float, hi: float, u: float, pa: float,
+                  mass: float, upper: bool) -> float:
+    """:func:`_truncated_normal` given its ``pa`` and ``pb - pa`` (from the window)."""
+    z = _ndtri(pa + u * mass, 0)
+    if upper:
+        z = -z
+    x = mean + sd * z
+    if not (mass > 0.0) or not np.isfinite(x):  # pb > pa
+        x = lo + u * (hi - lo)
+    top = np.nextafter(hi, lo)
+    if x < lo:
+        x = lo
+    if x > top:
+        x = top
+    return x
+
+
+@njit(cache=True)
+def place(anc: np.ndarray, cluster_of: np.ndarray, slots: np.ndarray,
+          new_cell: np.ndarray, new_valid: np.ndarray, cdf_start: np.ndarray,
+          cdf_mass: np.ndarray, cdf_upper: np.ndarray, rhohat: np.ndarray, sd: np.ndarray,
+          psi: np.ndarray, uniforms: np.ndarray, nx: int, cell_size: float, tau: float,
+          q12: np.ndarray, q22: np.ndarray, vel_src: np.ndarray, vvar_src: np.ndarray,
+          pos: np.ndarray, vel: np.ndarray, vvar: np.ndarray, valid: np.ndarray) -> None:
+    """The end of :meth:`.ap.JMPDAPTracker._move_persistent`: receiver ``p`` takes slot
+    ``slots[j]``'s cell from ancestor ``anc[p, cluster_of[j]]``, draws its position in
+    the cell from the ancestor's predictive truncated to it (``uniforms (N, S, 2)``;
+    the CDF values :func:`propose` kept for the drawn cell) and updates the velocity
+    posterior (read from ``vel_src``, ``vvar_src``, the states before the step; written
+    to ``vel``, ``vvar``, ``pos``, ``valid``). A slot left empty gets a uniform
+    position in cell 0 (the numpy form draws the ancestor's predictive truncated to
+    cell 0): no computation reads an empty slot's position or velocity mean (every one
+    masks them by ``valid``, or multiplies them by 0, which a finite value survives),
+    and every slot that becomes valid gets all of its values anew."""
+    N, S = new_cell.shape
+    for p in range(N):
+        for j in range(S):
+            a = anc[p, cluster_of[j]]
+            t = slots[j]
+            alive = new_valid[a, j]
+            c = new_cell[a, j] if alive else 0
+            for ax in range(2):
+                k = c % nx if ax == 0 else c // nx  # cell_bounds
+                lo, hi = k * cell_size, (k + 1) * cell_size
+                mu, s = rhohat[a, t, ax], sd[a, t, ax]
+                if not alive:  # an empty slot's values are never read
+                    x = lo + uniforms[p, j, ax] * (hi - lo)
+                elif cdf_upper[a, j, ax] >= 0:
+                    x = _draw_in_cell(mu, s, lo, hi, uniforms[p, j, ax], cdf_start[a, j, ax],
+                                      cdf_mass[a, j, ax], cdf_upper[a, j, ax] == 1)
+                else:
+                    x = _truncated_normal(mu, s, lo, hi, uniforms[p, j, ax])
+                vv = vvar_src[a, t, ax]
+                cross = tau * vv + q12[ax]
+                gain = cross / psi[a, t, ax]
+                pos[p, t, ax] = x
+                vel[p, t, ax] = vel_src[a, t, ax] + gain * (x - mu)
+                vvar[p, t, ax] = vv + q22[ax] - cross * gain
+            valid[p, t] = alive
+
+
+# ------------------------------------------------------------------ sorting
+@njit(cache=True)
+def sort_cluster(pos: np.ndarray, vel: np.ndarray, vvar: np.ndarray, valid: np.ndarray,
+                 slots: np.ndarray, perms: np.ndarray, means: np.ndarray,
+                 held: np.ndarray) -> int:
+    """One K-means sweep of :func:`.partitions.sort_slots` over one cluster ``slots
+    (h,)``: every particle takes the permutation ``perms (P, h)`` (row 0 the identity)
+    of least ``sum_j valid |pos[slots[perm_j]] - means_j|^2`` (terms of slots held
+    nowhere, ``held (h,)``, count 0; the first least, as ``argmin``), applied in place to
+    all four arrays. Returns the particles moved."""
+    N = pos.shape[0]
+    P, h = perms.shape
+    D = np.empty((h, h))
+    src = np.empty(h, np.int64)
+    tp = np.empty((h, 2))
+    tv = np.empty((h, 2))
+    tw = np.empty((h, 2))
+    tb = np.empty(h, np.bool_)
+    moved = 0
+    for p in range(N):
+        for j in range(h):
+            for k in range(h):
+                t = slots[k]
+                if held[j] > 0 and valid[p, t]:
+                    dx = pos[p, t, 0] - means[j, 0]
+                    dy = pos[p, t, 1] - means[j, 1]
+                    D[j, k] = dx * dx + dy * dy
+                else:
+                    D[j, k] = 0.0
+        best, best_cost = 0, np.inf
+        for q in range(P):
+            cost = 0.0
+            for j in range(h):
+                cost += D[j, perms[q, j]]
+            if cost < best_cost:
+                best, best_cost = q, cost
+        if best == 0:
+            continue
+        moved += 1
+        for j in range(h):
+            src[j] = slots[perms[best, j]]
+        for j in range(h):
+            s = src[j]
+            tp[j, 0], tp[j, 1] = pos[p, s, 0], pos[p, s, 1]
+            tv[j, 0], tv[j, 1] = vel[p, s, 0], vel[p, s, 1]
+            tw[j, 0], tw[j, 1] = vvar[p, s, 0], vvar[p, s, 1]
+            tb[j] = valid[p, s]
+        for j in range(h):
+            t = slots[j]
+            pos[p, t, 0], pos[p, t, 1] = tp[j, 0], tp[j, 1]
+            vel[p, t, 0], vel[p, t, 1] = tv[j, 0], tv[j, 1]
+            vvar[p, t, 0], vvar[p, t, 1] = tw[j, 0], tw[j, 1]
+            valid[p, t] = tb[j]
+    return moved
+
+
+def warm_up() -> None:
+    """Compile (or load from the disk cache) every kernel on tiny inputs, for the
+    argument types the tracker uses. Cheap after the first time in a process."""
+    if getattr(warm_up, "done", False):
+        return
+    N, T = 2, 2
+    pos = np.full((N, T, 2), 0.5)
+    valid = np.ones((N, T), dtype=bool)
+    rh, ps = np.empty_like(pos), np.empty_like(pos)
+    predict(pos, pos.copy(), np.ones_like(pos), 1.0, 1.0, np.full(2, 0.1), np.ones(2), True, rh, ps,
+            np.empty_like(pos))
+    gather(pos, np.zeros(N, np.int64), np.empty_like(pos))
+    gather(valid, np.zeros(N, np.int64), np.empty_like(valid))
+    held, sums, boxes = np.empty(T, np.int64), np.empty((T, 2)), np.empty((T, 4))
+    slot_sums(pos, pos, valid, True, held, sums, sums.copy(), boxes)
+    slots = np.arange(T, dtype=np.int64)
+    max_held_sd(ps, valid, slots)
+    members = slots[None, :].copy()
+    sizes = np.array([T], dtype=np.int64)
+    log_z, log_pi = np.empty((N, 1)), np.empty((N, 1))
+    cell, alive = np.empty((N, T), np.int64), np.empty((N, T), bool)
+    table = np.zeros((2, T + 1))
+    starts, masses = np.empty((N, T, 2)), np.empty((N, T, 2))
+    sides = np.empty((N, T, 2), np.int8)
+    for direct in (True, False):
+        for reflect in (True, False):
+            propose(rh, ps, valid, slots, members, sizes, slots, np.full((T, N, 1), 0.5),
+                    1, 1, 1.0, 1, 1, 1, reflect, 0.1, direct, np.zeros(2, np.int32),
+                    np.zeros(1, np.int64), table, log_z, log_pi, cell, alive, starts,
+                    masses, sides)
+    place(np.zeros((N, 1), np.int64), np.zeros(T, np.int64), slots, cell, alive, starts,
+          masses, sides, rh, ps, ps,
+          np.full((N, T, 2), 0.5), 1, 1.0, 1.0, np.zeros(2), np.zeros(2), pos.copy(),
+          pos.copy(), pos.copy(), pos.copy(), pos.copy(), valid.copy())
+    sort_cluster(pos.copy(), pos.copy(), pos.copy(), valid.copy(), slots,
+                 np.array([[0, 1], [1, 0]], np.int64), np.zeros((T, 2)), held)
+    for direct in (True, False):
+        slot_log_likelihood(pos, valid, 1, 1, 1.0, 1, direct, np.zeros(2, np.int32),
+                            np.zeros(1, np.int64), table, np.zeros(N))
+    occupied(pos, valid, np.zeros(1, np.int64), 1, 1, 1.0, np.empty((N, 1), bool))
+    warm_up.done = True
