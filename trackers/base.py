@@ -160,6 +160,10 @@ class Tracker(Configurable, ABC):
     #: ``observe_truth(states (n, 4), ids (n,))`` each step after ``predict`` (never for
     #: other trackers) and marks its rows ``tracker_uses_truth``
     uses_truth: ClassVar[bool] = False
+    #: a reference computed from the model alone, not a contestant (``grid-bayes``, the
+    #: exact single-target Bayes filter): it uses no truth, but rankings, "best tracker"
+    #: verdicts and the default tracker list of ``mttbench compare`` should leave it out
+    reference: ClassVar[bool] = False
 
     # ------------------------------------------------------------------ params
     # param_names, param_defaults, validate_params, resolved_params, param_conflict,
