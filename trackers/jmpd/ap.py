@@ -245,8 +245,7 @@ class JMPDAPTracker(Tracker):
     def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
         self.validate_params(self.get_params())
         self._model, self._rng = model, rng
-        self._kernels = compiled_ap_kernels()
-        self.uses_compiled_kernels = self._kernels is not None
+        self.uses_compiled_kernels = compiled_ap_kernels() is not None
         # compiled path: per-step arrays reuse these buffers (a fresh large array costs
         # its page faults every step), and the slot arrays' spares take gathers
         self._scratch_bufs: dict[str, np.ndarray] = {}
@@ -513,6 +512,12 @@ class JMPDAPTracker(Tracker):
                             slot_sums=(held, sums))
 
     # ------------------------------------------------------------- per-slot passes
+    @property
+    def _kernels(self):
+        """:mod:`.ap_kernels` when ``reset`` chose them (and the backend still offers
+        them), else None. Looked up, not stored: a module does not deep-copy."""
+        return compiled_ap_kernels() if self.uses_compiled_kernels else None
+
     def _scratch(self, name: str, shape: tuple[int, ...], dtype=np.float64) -> np.ndarray:
         """A C-contiguous array of ``shape`` on the persistent buffer ``name`` (contents
         undefined; valid until the next call with that name)."""

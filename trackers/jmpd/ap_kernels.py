@@ -33,7 +33,12 @@ from .kernels import _outside
 def _scipy_function(symbol: str, name: str) -> types.ExternalFunction:
     """scipy's C function ``name`` of ``cython_special`` (``double (double, int
     skip_dispatch)``) as an external symbol, so that the kernels calling it can be
-    cached on disk (a ctypes pointer cannot)."""
+    cached on disk (a ctypes pointer cannot). ImportError when scipy exports it with
+    another signature (the numpy forms then run)."""
+    from scipy.special import cython_special
+    capsule = cython_special.__pyx_capi__.get(name)
+    if capsule is None or '"double (double, int' not in repr(capsule):
+        raise ImportError(f"scipy.special.cython_special.{name} is not double (double, int)")
     llvmlite.binding.add_symbol(symbol, get_cython_function_address(
         "scipy.special.cython_special", name))
     return types.ExternalFunction(symbol, types.float64(types.float64, types.intc))

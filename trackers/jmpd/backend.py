@@ -69,5 +69,8 @@ def compiled_ap_kernels() -> ModuleType | None:
     :func:`compiled_kernels` is on, else None (the numpy forms run; same numbers)."""
     if compiled_kernels() is None:
         return None
-    from . import ap_kernels
+    try:
+        from . import ap_kernels
+    except ImportError:  # scipy without the expected C functions
+        return None
     return ap_kernels
