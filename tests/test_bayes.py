@@ -313,3 +313,13 @@ def test_mttbench_run_summarises_with_a_stored_reference(tmp_path, monkeypatch, 
     assert set(summ["tracker_label"]) == {"null", "bayes"}
     assert set(pd.read_parquet(tmp_path / "run" / "results.parquet")["tracker_label"]) == \
         {"null"}
+
+
+def test_grid_bayes_is_a_reference_not_a_contestant():
+    """A class flagged ``reference`` (grid-bayes) is neither ranked nor counted as the
+    contestant that beats the floor."""
+    df = frame({("s", "null"): [2.0] * 4, ("s", "truth-aided"): [0.5] * 4,
+                ("s", "grid-bayes"): [1.0, 1.1, 0.9, 1.0], ("s", "kfnn"): [2.0, 2.01, 1.99, 2.0]})
+    assert summary.reference_labels(summary.per_run(df)) == {"grid-bayes"}
+    gc = summary.gap_closed(df)
+    assert "no contestant" in gc.gaps.iloc[0]["reason"]

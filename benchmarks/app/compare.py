@@ -103,6 +103,8 @@ def default_tracker_texts() -> list[str]:
         missing = getattr(trackers.get_class(name), "missing_extra", None)
         if callable(missing) and missing():
             continue  # an optional extra that is not installed (the Stone Soup peers)
+        if getattr(trackers.get_class(name), "reference", False):
+            continue  # a reference without the truth (grid-bayes): on request only
         accepted = set(trackers.get_class(name).param_names())
         settings = [s for s in DEFAULT_PARAMS.get(name, []) if set(s) <= accepted] or [{}]
         for s in settings:

@@ -542,7 +542,7 @@ def baseline_notes(summ: pd.DataFrame) -> list[str]:
     # a tracker given the truth is a reference, not "the best tracker"
     # ... and so is the Bayes reference (no truth, but not a contestant)
     competing = ~summ["tracker_label"].astype(str).isin(truth_trackers
-                                                         | {summary.BAYES_TRACKER})
+                                                         | summary.reference_labels(summ))
     notes = []
     group = [k for k in ("scenario", "policy_label", "looks_per_step") if k in summ.columns]
     for key, g in summ.groupby(group, sort=True):

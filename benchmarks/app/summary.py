@@ -378,6 +378,29 @@ def truth_labels(table: pd.DataFrame) -> tuple[set[str], set[str]]:
             _flagged(table, "policy_label", "policy_uses_truth"))
 
 
+def reference_labels(table: pd.DataFrame) -> set[str]:
+    """Tracker labels of ``table`` that are references without the truth, not
+    contestants: the stored Bayes reference (:data:`BAYES_TRACKER`) and every tracker
+    whose class sets ``Tracker.reference`` (``grid-bayes``)."""
+    if "tracker_label" not in table.columns or not len(table):
+        return set()
+    from ... import trackers
+
+    names = (table["tracker"].astype(str) if "tracker" in table.columns
+             else table["tracker_label"].astype(str).map(tracker_name))
+    out = set()
+    for name, label in set(zip(names, table["tracker_label"].astype(str), strict=True)):
+        if name == BAYES_TRACKER:
+            out.add(label)
+            continue
+        try:
+            if getattr(trackers.get_class(name), "reference", False):
+                out.add(label)
+        except Exception:  # noqa: BLE001 - a tracker unknown here (outside:NAME) is none
+            pass
+    return out
+
+
 def mark_truth(label: object, users: set[str]) -> str:
     """``label`` with :data:`TRUTH_MARK` appended when it is one of ``users``."""
     return f"{label}{TRUTH_MARK}" if str(label) in users else str(label)
@@ -518,6 +541,8 @@ def gap_closed(results: pd.DataFrame, metric: str = "ospa", floor: str = FLOOR_T
 
     ok = runs[runs["status"] == "ok"]
     truth_users = set().union(*truth_labels(runs)) if len(runs) else set()
+    # references without the truth (bayes, grid-bayes) never count as contestants
+    truth_users |= reference_labels(runs)
     wide_all = ok.pivot_table(index=[*GAP_GROUP, "seed"], columns="tracker_label",
                               values=metric, aggfunc="first")
     gaps, shares = [], []
