@@ -264,3 +264,12 @@ def test_the_grid_of_a_curve_and_its_labels():
     assert [s.label for s in c.specs()] == [f"jmpd-ap(n_particles={n},t_max=8)"
                                             for n in (100, 1265, 16000)]
     assert c.name == "jmpd-ap(t_max=8)"
+
+
+def test_jobs_run_seed_by_seed_over_every_setting():
+    from mttbench.benchmarks.engine.specs import resolve_scenarios
+
+    curves = frontier.build_curves([TrackerSpec("gpf"), TrackerSpec("kfnn")], 2)
+    jobs = frontier.frontier_jobs(resolve_scenarios(["default"]), curves, None, None, [3, 1])
+    labels = ["gpf(max_components=1)", "gpf(max_components=8)", "kfnn"]
+    assert [(j.tracker.label, j.seed) for j in jobs] == [(x, s) for s in (3, 1) for x in labels]

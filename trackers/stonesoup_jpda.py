@@ -218,8 +218,8 @@ class StoneSoupJPDA(_StoneSoupPeer):
                                     "model's birth velocity sd"),
     }
     budget: ClassVar[dict[str, Budget]] = {
-        "max_tracks": Budget(5, 120, doc="tracks kept; 5 is about the presets' count, 120 "
-                                         "twice the default"),
+        "max_tracks": Budget(5, 120, doc="tracks kept; 5 is just above the small presets' "
+                                         "3-4 targets, 120 twice the default"),
     }
 
     def __init__(self, gate_probability: float = 0.99, false_track_probability: float = 0.1,

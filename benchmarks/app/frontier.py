@@ -184,11 +184,15 @@ def param_range(b: Any) -> str:
 def frontier_jobs(scenarios: Sequence[Scenario], curves: Sequence[Curve],
                   policy: PolicySpec | None, looks: int | None, seeds: Sequence[int]
                   ) -> list[Job]:
-    """Every scenario x curve x budget x seed, in that order (the engine's
-    :func:`~mttbench.benchmarks.engine.loop.build_jobs`)."""
+    """Every scenario x curve x budget x seed (the engine's
+    :func:`~mttbench.benchmarks.engine.loop.build_jobs`), ordered seed by seed: each
+    round runs every setting once, so a machine whose load drifts during the sweep
+    spreads the drift over all settings instead of timing one tracker in a busy hour."""
     specs = [s for c in curves for s in c.specs()]
-    return build_jobs(list(scenarios), specs, [policy] if policy else None,
+    jobs = build_jobs(list(scenarios), specs, [policy] if policy else None,
                       [looks] if looks is not None else None, list(seeds))
+    rank = {int(seed): i for i, seed in enumerate(seeds)}
+    return sorted(jobs, key=lambda job: rank[job.seed])  # stable: settings keep their order
 
 
 # ---------------------------------------------------------------------- the tables
