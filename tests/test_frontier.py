@@ -273,3 +273,10 @@ def test_jobs_run_seed_by_seed_over_every_setting():
     jobs = frontier.frontier_jobs(resolve_scenarios(["default"]), curves, None, None, [3, 1])
     labels = ["gpf(max_components=1)", "gpf(max_components=8)", "kfnn"]
     assert [(j.tracker.label, j.seed) for j in jobs] == [(x, s) for s in (3, 1) for x in labels]
+
+
+def test_help_names_the_options(capsys):
+    assert main(["frontier", "--help"]) == 0
+    out = capsys.readouterr().out
+    for option in ("--trackers", "--seeds", "--points", "--range", "--resume", "--executor"):
+        assert option in out

@@ -366,7 +366,13 @@ def to_markdown(table: pd.DataFrame, cheapest: pd.DataFrame, *, title: str,
                 figures: Mapping[str, str] | None = None) -> str:
     """``frontier.md``: the cheapest budgets first, then each scenario's frontier (with
     its figure), then the settings."""
-    lines = [f"# {title}", "", cheapest_caption(reference), "",
+    lines = [f"# {title}", ""]
+    for sc, g in table.groupby("scenario", sort=False):  # the verdict first: the front
+        front = g[g["pareto"].astype(bool)].sort_values("cpu_ms_mean")
+        steps = ", then ".join(f"{md_cell(r['tracker_label'])} (OSPA {r['ospa_mean']:.3f} at "
+                               f"{r['cpu_ms_mean']:.3g} ms)" for _, r in front.iterrows())
+        lines.append(f"- **{md_cell(sc)}**, the Pareto front from the cheapest: {steps or '-'}.")
+    lines += ["", cheapest_caption(reference), "",
              "| scenario | tracker | rule | target OSPA | cheapest budget | OSPA | CPU ms/step "
              "| best budget | best OSPA |", "|---|---|---|---|---|---|---|---|---|"]
     for _, r in cheapest.iterrows():
