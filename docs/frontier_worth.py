@@ -9,7 +9,9 @@ reaches that OSPA (mean OSPA interpolated linearly in log budget between the two
 that bracket it), the CPU ms per step there (interpolated the same way) and the ratio to
 the setting's CPU ms. A curve that never comes down to the OSPA is reported as "not
 reached" with its best; one already below it at its smallest budget as "<= smallest".
-Means only: the table's intervals (and ospa_minus_best) say how sure each point is.
+With ``--results`` (the frontier's results.parquet), also the paired difference of each
+budget of the ``--against`` trackers minus the setting, per run OSPA on the same seeds, with
+its 95% t interval: how sure the comparison is (the worlds are shared).
 """
 
 from __future__ import annotations
@@ -19,6 +21,9 @@ import math
 
 import numpy as np
 import pandas as pd
+
+from mttbench.benchmarks.app.frontier import per_run
+from mttbench.benchmarks.app.summary import mean_ci95
 
 
 def crossing(budget: np.ndarray, ospa: np.ndarray, cpu: np.ndarray, target: float
@@ -42,8 +47,11 @@ def main() -> None:
     ap.add_argument("csv", nargs="+")
     ap.add_argument("--setting", default="gpf")
     ap.add_argument("--against", nargs="+", default=["jmpd-ap", "jmpd"])
+    ap.add_argument("--results", nargs="+", default=[])
     args = ap.parse_args()
     table = pd.concat([pd.read_csv(p) for p in args.csv], ignore_index=True)
+    runs = (per_run(pd.concat([pd.read_parquet(p) for p in args.results]))
+            if args.results else None)
     name, _, fixed = args.setting.partition("=")
     for sc, g in table.groupby("scenario", sort=False):
         mine = g[g["tracker"] == name]
@@ -64,6 +72,16 @@ def main() -> None:
                     "not reached": f"does not reach it (best at {n} = {b:.0f}: OSPA "
                                    f"{o['ospa_mean'].min():.3f})"}[how]
             print(f"  {other} {what}: {c:.3g} ms/step, {c / cpu0:.1f}x the CPU")
+            if runs is None:
+                continue
+            ok = runs[runs["ok"] & (runs["scenario"] == sc)].set_index("seed")
+            ref = ok[ok["tracker_label"] == row["tracker_label"]]["ospa"]
+            for _, r in o.iterrows():
+                mine = ok[ok["tracker_label"] == r["tracker_label"]]["ospa"]
+                seeds = mine.index.intersection(ref.index)
+                m, h = mean_ci95((mine.loc[seeds] - ref.loc[seeds]).to_numpy(float))
+                print(f"    {r['tracker_label']} minus the setting: {m:+.3f} ± {h:.3f} "
+                      f"({len(seeds)} seeds)")
 
 
 if __name__ == "__main__":

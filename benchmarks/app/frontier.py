@@ -48,6 +48,7 @@ import numpy as np
 import pandas as pd
 
 from ...scenarios.spec import Scenario
+from ...trackers.params import budget_problem
 from ..engine.errors import ConfigError
 from ..engine.loop import Job, build_jobs
 from ..engine.specs import PolicySpec, TrackerSpec
@@ -130,7 +131,8 @@ def build_curves(specs: Sequence[TrackerSpec], points: int = DEFAULT_POINTS,
                  ranges: Mapping[str, tuple[str | None, float, float]] | None = None
                  ) -> list[Curve]:
     """The budget ladder of each tracker spec; :class:`ConfigError` (one line) for a
-    tracker without a budget declaration, a spec that fixes the parameter swept, a
+    tracker without a budget declaration (or a declaration its parameters refuse:
+    :func:`~mttbench.trackers.params.budget_problem`), a spec that fixes the parameter swept, a
     range for an unknown tracker or parameter or outside the declaration, or points
     outside ``1..MAX_POINTS``."""
     if not 1 <= points <= MAX_POINTS:
@@ -149,6 +151,9 @@ def build_curves(specs: Sequence[TrackerSpec], points: int = DEFAULT_POINTS,
         if budget is None:
             raise ConfigError(f"tracker {spec.label!r} declares no budget (Tracker.budget): "
                               "a frontier cannot sweep it")
+        problem = budget_problem(cls)
+        if problem:
+            raise ConfigError(problem)
         param, lo, hi = ranges.get(spec.name, (None, None, None))
         if not budget:
             if spec.name in ranges:
