@@ -344,7 +344,7 @@ def cheapest_within(table: pd.DataFrame, reference: Mapping[str, Reference] | No
 def _pm(mean: float, half: float, fmt: str) -> str:
     if not np.isfinite(mean):
         return "-"
-    return f"{mean:{fmt}}" + ("" if not np.isfinite(half) else f" ± {half:{fmt}}")
+    return f"{mean:{fmt}}" + ("" if not np.isfinite(half) else f" ± {half:{fmt.lstrip('+')}}")
 
 
 def _budget_text(param: str, value: Any) -> str:
