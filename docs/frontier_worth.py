@@ -64,6 +64,11 @@ def main() -> None:
             o = g[g["tracker"] == other].dropna(subset=["ospa_mean"])
             if o.empty:
                 continue
+            if o["budget"].isna().all():  # a tracker without a budget: one point
+                r = o.iloc[0]
+                print(f"  {other} (one setting): OSPA {r['ospa_mean']:.3f}, "
+                      f"{r['cpu_ms_mean']:.3g} ms/step, {r['cpu_ms_mean'] / cpu0:.1f}x the CPU")
+                continue
             how, b, c = crossing(o["budget"].to_numpy(float), o["ospa_mean"].to_numpy(float),
                                  o["cpu_ms_mean"].to_numpy(float), target)
             n = o["budget_param"].iloc[0]
