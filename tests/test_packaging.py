@@ -605,7 +605,8 @@ def test_the_public_names_load_no_application_module():
     code = ("import sys, mttbench, mttbench.testing\n"
             "for name in mttbench.__all__: getattr(mttbench, name)\n"
             "app = ('cli', 'compare', 'tune', 'tuned', 'reproduce', 'reproduce_kreucher', "
-            "'report', 'figures', 'figures_kreucher', 'resources', 'executor_options')\n"
+            "'report', 'figures', 'figures_kreucher', 'resources', 'executor_options', "
+            "'frontier', 'figures_frontier')\n"
             "print(sorted(m for m in sys.modules\n"
             "             if m.startswith('mttbench.') and m.rpartition('.')[2] in app))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

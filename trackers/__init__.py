@@ -16,7 +16,7 @@ from .base import (
     register,
     unregister,
 )
-from .params import Param, ParameterError, Search
+from .params import Budget, Param, ParameterError, Search
 
-__all__ = ["Estimate", "Param", "ParameterError", "Search", "Tracker", "available",
+__all__ = ["Budget", "Estimate", "Param", "ParameterError", "Search", "Tracker", "available",
            "broken_plugins", "get_class", "make", "register", "unregister"]

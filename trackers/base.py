@@ -27,7 +27,7 @@ import numpy as np
 
 from ..scenarios.model import Looks, TrackingModel
 from .cells import CellCounts
-from .params import Configurable
+from .params import Budget, Configurable
 from .registry import Registry
 
 
@@ -164,6 +164,10 @@ class Tracker(Configurable, ABC):
     #: exact single-target Bayes filter): it uses no truth, but rankings, "best tracker"
     #: verdicts and the default tracker list of ``mttbench compare`` should leave it out
     reference: ClassVar[bool] = False
+    #: the parameters that buy accuracy with time, each with the range ``mttbench
+    #: frontier`` sweeps (:class:`~mttbench.trackers.params.Budget`), the main one first;
+    #: ``{}``: no such knob (a frontier's single point); None: not declared
+    budget: ClassVar[Mapping[str, Budget] | None] = None
 
     # ------------------------------------------------------------------ params
     # param_names, param_defaults, validate_params, resolved_params, param_conflict,

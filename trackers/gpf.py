@@ -137,7 +137,7 @@ from .cells import (
 )
 from .gpf_grid import fold_into_workspace, grid_update, rect_state_moments
 from .gpf_linear import superposition_update
-from .params import Param, Search
+from .params import Budget, Param, Search
 
 #: merged weight rules of :func:`merge_groups` (module docstring, "Merge")
 _MERGE_RULES = ("bounded_sum", "capped_sum")
@@ -423,6 +423,12 @@ class GaussianParticleFilter(Tracker):
                                  "least this large becomes a component of its own (lower: "
                                  "more components, more cost)",
                              search=Search(0.02, 0.5, log=True)),
+    }
+    budget: ClassVar[dict[str, Budget]] = {
+        "max_components": Budget(1, 8, doc="Gaussians per track; split_share rarely "
+                                           "fills more than 4 (equal runs at 4 and 16)"),
+        "max_combinations": Budget(4, 512, doc="combinations per cluster; 512 is the "
+                                               "default and bounds the crowds we run"),
     }
     #: the prior and the births (module docstring); False in :class:`EmptyPriorGPF`, a
     #: test hook (reductions, particles set by hand), not a parameter

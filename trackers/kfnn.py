@@ -174,7 +174,7 @@ from .cells import (
     looked_in_boxes,
     untracked_probabilities,
 )
-from .params import Param, Search
+from .params import Budget, Param, Search
 from .pmb.ppp import recycle
 
 #: count columns of P_c: 0, 1, 2 and "3 or more"
@@ -481,6 +481,8 @@ class KFNNTracker(Tracker):
                                           "model's birth velocity sd",
                                       search=Search(0.5, 2.0, log=True)),
     }
+    #: no budget: one track per target, nothing to trade
+    budget: ClassVar[dict[str, Budget]] = {}
 
     def __init__(
         self,

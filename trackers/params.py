@@ -34,6 +34,18 @@ A class that declares nothing (``parameters = None``, trackers written elsewhere
 this existed) gets only its parameter *names* checked, and its values pass unchanged.
 A bad value raises :class:`ParameterError` (a ``ValueError``) with one line naming the
 tracker or policy, the parameter, the value and what is allowed.
+
+**Budgets.** A tracker also declares which of its parameters buy accuracy with time
+(particles, Gaussians per track, tracks, combinations) and over which range, next to
+``parameters`` (``Tracker.budget``, read by ``mttbench frontier``)::
+
+    budget = {"n_particles": Budget(100, 16000, doc="particles N: 6 us each per step")}
+
+The first entry is the main budget, the one a frontier sweeps (the others stay at their
+defaults unless given); ``budget = {}`` says the tracker has no such knob (a frontier
+shows it as a single point); ``None`` (the default) says nothing was declared.
+:meth:`Budget.grid` is the sweep's log grid and :func:`budget_problem` checks a
+declaration against the parameters.
 """
 
 from __future__ import annotations
@@ -85,6 +97,43 @@ class Search:
             raise TypeError(f"Search needs low < high, got [{self.low}, {self.high}]")
         if self.log and (not numeric or self.low <= 0 or self.step is not None):
             raise TypeError("Search(log=True) needs 0 < low < high and no step")
+
+
+@dataclass(frozen=True)
+class Budget:
+    """A budget parameter's range for ``mttbench frontier``: ``[low, high]``, swept on a
+    log grid (:meth:`grid`). Both ends must be values the parameter accepts
+    (:func:`budget_problem`) and should fit a small machine: ``doc`` says what the
+    parameter buys and why the range ends where it does."""
+
+    low: float
+    high: float
+    doc: str = ""
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.low) and math.isfinite(self.high)
+                and 0 < self.low < self.high):
+            raise TypeError(f"Budget needs 0 < low < high, got [{self.low}, {self.high}]")
+
+    def grid(self, points: int, low: float | None = None, high: float | None = None,
+             integer: bool = True) -> list[float]:
+        """``points`` values log-spaced over ``[low, high]`` (default: the declared
+        range), ends included: ``low * (high / low) ** (i / (points - 1))``. Integer
+        parameters are rounded to the nearest integer and repeats dropped, so a narrow
+        integer range gives fewer values; ``points = 1`` gives ``high``. Raises
+        ``ValueError`` (one line) for a range outside the declared one."""
+        lo = self.low if low is None else float(low)
+        hi = self.high if high is None else float(high)
+        if points < 1:
+            raise ValueError(f"points {points}: expected an integer >= 1")
+        if not (self.low <= lo <= hi <= self.high):
+            raise ValueError(f"range [{_num(lo)}, {_num(hi)}] is not within the declared "
+                             f"[{_num(self.low)}, {_num(self.high)}] with low <= high")
+        values = np.geomspace(lo, hi, points) if points > 1 else np.array([hi])
+        if integer:
+            values = np.unique(np.clip(np.rint(values), math.ceil(lo), math.floor(hi)))
+            return [int(v) for v in values]
+        return [float(v) for v in np.unique(values)]
 
 
 @dataclass(frozen=True)
@@ -389,6 +438,30 @@ def _canonical_value(v: Any) -> Any:
     return v
 
 
+def budget_problem(cls: type[Configurable]) -> str | None:
+    """None if ``cls.budget`` (a tracker's :class:`Budget` declarations; None: none
+    declared) names declared ``int`` or ``float`` parameters whose :class:`Param`
+    accepts both ends of each range, else what is wrong (one line)."""
+    budget = getattr(cls, "budget", None)
+    if budget is None:
+        return None
+    declared = cls.declared_parameters() or {}
+    for key, b in budget.items():
+        p = declared.get(key)
+        if p is None or p.kind not in (int, float):
+            return (f"{cls.kind} {cls.display_name()!r}: budget {key!r} is not a declared "
+                    "numeric parameter")
+        if not isinstance(b, Budget):
+            return f"{cls.kind} {cls.display_name()!r}: budget {key!r} is not a Budget"
+        for end in (b.low, b.high):
+            try:
+                p.parse(end)
+            except ValueError:
+                return (f"{cls.kind} {cls.display_name()!r}: budget {key}={_num(end)} "
+                        f"refused; allowed: {p.allowed()}")
+    return None
+
+
 def spec_text(value: Any) -> str:
     """A value as it is written in a spec (``true``, ``None``, ``auto``, ``0.0001``)."""
     if isinstance(value, bool):
@@ -401,11 +474,14 @@ def spec_text(value: Any) -> str:
 def describe(cls: type[Configurable]) -> list[tuple[str, str, str]]:
     """``(name, default as spec text, allowed)`` per parameter, for listings
     (``mttbench trackers``); ``allowed`` is ``"(values not declared)"`` for a class
-    without a declaration."""
+    without a declaration, and ends with the budget range of a budget parameter."""
     rows = []
+    budget = getattr(cls, "budget", None) or {}
     for n, d in cls.param_defaults().items():
         p = (cls.declared_parameters() or {}).get(n)
         allowed = "(values not declared)" if p is None else (
             p.allowed() + (f"; {p.doc}" if p.doc else ""))
+        if n in budget:
+            allowed += f"; budget {_num(budget[n].low)}-{_num(budget[n].high)} (frontier)"
         rows.append((n, spec_text(d), allowed))
     return rows

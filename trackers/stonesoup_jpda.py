@@ -133,7 +133,7 @@ from .cells import (
     untracked_probabilities,
 )
 from .kfnn import look_ratios
-from .params import Param, Search
+from .params import Budget, Param, Search
 from .pmb.ppp import add_intensity
 from .stonesoup_peers import (
     N_COUNTS,
@@ -216,6 +216,10 @@ class StoneSoupJPDA(_StoneSoupPeer):
         "velocity_scale": Param(float, 0, low_open=True, search=Search(0.5, 2.0, log=True),
                                 doc="velocity sd of a new track, in multiples of the "
                                     "model's birth velocity sd"),
+    }
+    budget: ClassVar[dict[str, Budget]] = {
+        "max_tracks": Budget(5, 120, doc="tracks kept; 5 is just above the small presets' "
+                                         "3-4 targets, 120 twice the default"),
     }
 
     def __init__(self, gate_probability: float = 0.99, false_track_probability: float = 0.1,

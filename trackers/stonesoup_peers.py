@@ -184,7 +184,7 @@ from .kfnn import (
     looked_log_ratios,
     target_prior_logodds,
 )
-from .params import Param, Search
+from .params import Budget, Param, Search
 from .pmb.ppp import recycle
 
 #: the one-line reason when Stone Soup is missing (run rows, ``mttbench trackers``)
@@ -481,6 +481,8 @@ class StoneSoupGNN(_StoneSoupPeer):
                                 doc="velocity sd of a new track, in multiples of the "
                                     "model's birth velocity sd"),
     }
+    #: no budget: one track per target, nothing to trade
+    budget: ClassVar[dict[str, Budget]] = {}
 
     def __init__(self, gate: float = 3.0, false_track_probability: float = 0.1,
                  lost_track_probability: float = 0.1, velocity_scale: float = 1.0) -> None:
@@ -703,6 +705,11 @@ class StoneSoupGMPHD(_StoneSoupPeer):
                                       doc="components heavier than this are reported"),
         "count": Param(choices=("sum", "round"), doc="the count: sum of the weights, or "
                                                      "its rounding"),
+    }
+    budget: ClassVar[dict[str, Budget]] = {
+        "max_components": Budget(3, 300, doc="components kept; Stone Soup costs about 2 ms "
+                                             "per component and step in clutter, so 300 "
+                                             "is 0.5-1 s per step"),
     }
 
     def __init__(self, birth_scale: float = 1.0, birth_velocity_scale: float = 1.0,

@@ -12,6 +12,7 @@
     mttbench export default --seeds 5 --policy random --out worlds   # open world files
     mttbench score worlds --estimates est.csv --name mine   # an outside tracker's estimates
     mttbench bayes default --seeds 10       # the converged Bayes reference, stored
+    mttbench frontier default --trackers gpf jmpd-ap --seeds 4   # accuracy against budget
 
 Exit status, always with at most one line on stderr saying why (never a traceback):
 
@@ -430,6 +431,51 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_frontier(args: argparse.Namespace) -> int:
+    """Budget frontiers (:mod:`benchmarks.app.frontier`): exit 0; 1 when a run failed; 2 for
+    bad input."""
+    from . import frontier
+
+    _check_common(args)
+    scs = resolve_scenarios(args.scenarios, args.steps)
+    curves = frontier.build_curves(resolve_trackers(args.trackers), args.points,
+                                   frontier.parse_ranges(args.range))
+    policy = resolve_policies(args.policy)
+    looks = _int_list(args.looks, "--looks value", 0)
+    if len(policy) != 1 or (looks and len(looks) > 1):
+        raise UsageError("--policy and --looks: give one policy and one look budget")
+    seeds = _seeds(args, default=frontier.DEFAULT_SEEDS)
+    workers = args.workers or os.cpu_count() or 1
+    jobs = frontier.frontier_jobs(scs, curves, policy[0], looks[0] if looks else None, seeds)
+    for line in resources.check_jobs(jobs, workers):
+        print(line, file=sys.stderr)
+    out_dir = _out_dir(args, "frontier-", frontier.is_finished)
+    args.out_dir = out_dir  # for the resume line after Ctrl-C
+    settings = [f"command: `{shlex.join(args.argv)}`",
+                f"seeds: {seeds[0]}..{seeds[-1]} ({len(seeds)})" if seeds == list(
+                    range(seeds[0], seeds[-1] + 1)) else f"seeds: {seeds}",
+                f"policy {policy[0].label}, looks per step: "
+                f"{looks[0] if looks else 'the scenario default'}, OSPA c = {args.c:g}, "
+                f"p = {args.p:g}", f"runs: {len(jobs)} on {describe_current(workers, len(jobs))}"]
+    with _folder_lock(out_dir):
+        check_sweep(out_dir, [job.key(args.c, args.p) for job in jobs], args.c, args.p,
+                    args.resume)
+        prepare_out_dir(out_dir)
+        print(f"{len(jobs)} runs on {describe_current(workers, len(jobs))} -> {out_dir}",
+              file=sys.stderr)
+        res = frontier.run_frontier(jobs, curves, out_dir, settings=settings,
+                                    workers=workers, progress=not args.no_progress,
+                                    resume=args.resume, c=args.c, p=args.p,
+                                    run_timeout=args.run_timeout)
+    print((out_dir / frontier.REPORT_FILE).read_text(encoding="utf-8"))
+    print(f"wrote {out_dir}/: {', '.join(res.files)}")
+    failed = frontier.failure_line(res.results, out_dir)
+    if failed:
+        print(failed, file=sys.stderr)
+        return 1
+    return 0
+
+
 def cmd_tune(args: argparse.Namespace) -> int:
     """Tune trackers' parameters under one budget (:mod:`benchmarks.app.tune`): exit 0; 1 when
     a tracker has no finished trial; 2 for bad input."""
@@ -823,6 +869,48 @@ def build_parser() -> argparse.ArgumentParser:
                         "stored references are shown where they exist")
     add_executor_arguments(p)
     p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser(
+        "frontier", help="accuracy against cost as each tracker's budget grows (particles, "
+                         "components, tracks)", formatter_class=fmt,
+        description="For each tracker, sweep its main budget parameter (its declared "
+                    "Tracker.budget: particles, Gaussians per track, tracks) on a log grid of "
+                    "--points values within the declared range, every setting on the same "
+                    "seeds (common random numbers), as one sweep (local pool or --executor "
+                    "dask, --resume, a progress bar). Writes results.parquet, frontier.csv "
+                    "(per scenario x tracker x budget: OSPA, CPU ms per step and count error, "
+                    "means over seeds with 95% intervals; the Pareto front), cheapest.csv, "
+                    "frontier.md and frontier-<scenario>.png into --out (default "
+                    "reports/frontier-<UTC timestamp>). A tracker with no budget knob (kfnn, "
+                    "ss-gnn) is one point.",
+        epilog=textwrap.dedent("""\
+            examples:
+              mttbench frontier default --trackers gpf jmpd-ap pmb --seeds 4 --workers 1
+              mttbench frontier default env-pf-0.1 --trackers jmpd-ap --range jmpd-ap=250:4000
+              mttbench frontier default --trackers gpf --range gpf.max_combinations=4:512
+              mttbench frontier default --trackers gpf --out reports/f --resume  # after Ctrl-C
+
+            Budget ranges (`mttbench trackers` lists the parameters): gpf max_components 1-8,
+            jmpd and jmpd-ap n_particles 100-16000, pmb max_components 1-8, ss-gmphd
+            max_components 3-300, ss-jpda max_tracks 5-120."""))
+    p.add_argument("scenarios", nargs="+", metavar="SCENARIO",
+                   help="preset names, envelope points (env-...) or paths to .toml files")
+    _add_sweep_options(p, seeds_default=5, trackers_required=True)
+    p.add_argument("--points", type=int, default=5, metavar="K",
+                   help="budgets per tracker, log-spaced over the range, ends included "
+                        "(default 5; integer budgets are rounded and repeats dropped)")
+    p.add_argument("--range", nargs="+", metavar="NAME[.PARAM]=LOW:HIGH",
+                   help="sweep within LOW..HIGH instead of the declared range (which it must "
+                        "lie within); .PARAM sweeps another declared budget parameter than "
+                        "the main one")
+    p.add_argument("--policy", nargs="+", default=["raster"], metavar="SPEC",
+                   help="the one cell-selection policy (default raster)")
+    p.add_argument("--looks", nargs="+", metavar="M",
+                   help="one look budget per step (default: each scenario's looks_per_step)")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="parallel worker processes (default: the number of CPUs)")
+    add_executor_arguments(p)
+    p.set_defaults(func=cmd_frontier)
 
     from . import tune as _tune  # its defaults (optuna is imported only when tuning)
 

@@ -109,7 +109,7 @@ from ..base import (
     register,
 )
 from ..cells import CellCounts
-from ..params import Param, Search
+from ..params import Budget, Param, Search
 from .backend import compiled_ap_kernels
 from .cell_proposal import axis_window, truncated_normal
 from .estimation import cell_count_distribution_from
@@ -209,6 +209,10 @@ class JMPDAPTracker(Tracker):
                                           "cells^2 (the model's q11 when larger); 0: the "
                                           "model's",
                                       search=Search(1e-4, 1e-2, log=True)),
+    }
+    budget: ClassVar[dict[str, Budget]] = {
+        "n_particles": Budget(100, 16000, doc="particles N, about 6 us each per step: "
+                                              "16000 is 0.1-0.3 s per step on one core"),
     }
 
     def __init__(self, n_particles: int = 500, t_max: int | None = None,

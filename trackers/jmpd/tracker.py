@@ -14,7 +14,7 @@ import numpy as np
 from ...scenarios.model import Looks, TrackingModel
 from ..base import Estimate, ResourceTerms, Tracker, param_number, register
 from ..cells import CellCounts
-from ..params import Param, Search
+from ..params import Budget, Param, Search
 from .backend import compiled_kernels
 from .estimation import cell_count_distribution_from, estimate_targets
 from .likelihood import GridLikelihood, SuperpositionLikelihood, step_likelihood
@@ -84,6 +84,10 @@ class JMPDTracker(Tracker):
         "proposal": Param(choices=("bootstrap", "ip")),
         "initial_count": Param(int, 0, allow_none=True, none="Poisson prior",
                                doc="targets in every particle at first"),
+    }
+    budget: ClassVar[dict[str, Budget]] = {
+        "n_particles": Budget(100, 16000, doc="particles N, about 6 us each per step: "
+                                              "16000 is about 0.1 s per step on one core"),
     }
     def __init__(self, n_particles: int = 2000, t_max: int = 5,
                  birth_rate: float | None = None, death_probability: float | None = None,

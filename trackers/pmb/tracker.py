@@ -93,7 +93,7 @@ from ..cells import (
 )
 from ..gpf import collapse, merge_groups, truncate_to_workspace
 from ..gpf_grid import fold_into_workspace
-from ..params import Param, Search
+from ..params import Budget, Param, Search
 from .ppp import add_intensity, predict_intensity, recycle
 from .update import cell_ratios, pmb_update
 
@@ -148,6 +148,12 @@ class PMBTracker(Tracker):
                                         "recycled): bounds time and memory"),
         "n_counts": Param(int, 2, doc="count columns of P_c(t), the last 'n_counts - 1 or "
                                       "more'"),
+    }
+    budget: ClassVar[dict[str, Budget]] = {
+        "max_components": Budget(1, 8, doc="Gaussians per track; beyond 8 the components "
+                                           "are merged or dropped anyway"),
+        "max_tracks": Budget(10, 200, doc="Bernoullis; 200 is the default, 10 is below "
+                                          "a crowd's count"),
     }
 
     def __init__(self, extraction: str = "round_sum", extraction_threshold: float = 0.5,
