@@ -323,3 +323,13 @@ def test_grid_bayes_is_a_reference_not_a_contestant():
     assert summary.reference_labels(summary.per_run(df)) == {"grid-bayes"}
     gc = summary.gap_closed(df)
     assert "no contestant" in gc.gaps.iloc[0]["reason"]
+
+
+def test_the_frontier_draws_the_stored_bayes_line(tmp_path, monkeypatch, capsys):
+    stored(tmp_path)
+    monkeypatch.setattr(bayes, "default_store", lambda: tmp_path / "store")
+    code = main(["frontier", "env-centre", "--trackers", "kfnn", "--steps", "3", "--seeds",
+                 "2", "--workers", "1", "--no-progress", "--out", str(tmp_path / "f")])
+    assert code == 0
+    text = (tmp_path / "f" / "frontier.md").read_text()
+    assert "bayes (converged, N = 400)" in text

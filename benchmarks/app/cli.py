@@ -463,10 +463,12 @@ def cmd_frontier(args: argparse.Namespace) -> int:
         prepare_out_dir(out_dir)
         print(f"{len(jobs)} runs on {describe_current(workers, len(jobs))} -> {out_dir}",
               file=sys.stderr)
+        reference = _bayes_lines(scs, policy[0], looks[0] if looks else None, seeds, args)
+        settings += [f"reference {sc}: {ref.label}" for sc, ref in reference.items()]
         res = frontier.run_frontier(jobs, curves, out_dir, settings=settings,
                                     workers=workers, progress=not args.no_progress,
                                     resume=args.resume, c=args.c, p=args.p,
-                                    run_timeout=args.run_timeout)
+                                    run_timeout=args.run_timeout, reference=reference)
     print((out_dir / frontier.REPORT_FILE).read_text(encoding="utf-8"))
     print(f"wrote {out_dir}/: {', '.join(res.files)}")
     failed = frontier.failure_line(res.results, out_dir)
@@ -474,6 +476,25 @@ def cmd_frontier(args: argparse.Namespace) -> int:
         print(failed, file=sys.stderr)
         return 1
     return 0
+
+
+def _bayes_lines(scs, policy, looks, seeds, args: argparse.Namespace) -> dict:
+    """The frontier's reference line per scenario: the stored Bayes reference's OSPA on
+    these seeds (:mod:`benchmarks.app.bayes`), where one is stored."""
+    from . import bayes, frontier
+    from .summary import mean_ci95
+
+    out = {}
+    for sc in scs:
+        ref = bayes.find(sc, policy, looks, seeds, args.c, args.p)
+        if ref is None:
+            continue
+        ok = ref.rows[ref.rows["status"] == "ok"]
+        mean, half = mean_ci95(ok.groupby("seed")["ospa"].mean().to_numpy(float))
+        state = "converged" if ref.converged else "not converged"
+        out[sc.name] = frontier.Reference(mean, half,
+                                          f"bayes ({state}, N = {ref.n_particles})")
+    return out
 
 
 def cmd_tune(args: argparse.Namespace) -> int:
