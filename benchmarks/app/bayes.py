@@ -434,13 +434,13 @@ def run_command(scenarios: Sequence[Scenario], seeds: Sequence[int], ladder: Lad
                 store: str | Path, *, workers: int = 1, progress: bool = True,
                 resume: bool = False, c: float = 2.0, p: float = 2.0,
                 run_timeout: float | None = None,
-                argv: Sequence[str] | None = None) -> dict[str, Reference]:
+                provenance: Mapping[str, Any] | None = None) -> dict[str, Reference]:
     """``mttbench bayes``: check every rung's runs fit (memory) before the first, run the
     ladder in ``out_dir`` (one resumable sweep folder that grows rung by rung), store each
     scenario's reference in ``store``, write ``ladder.csv`` and ``ladder.md`` into
-    ``out_dir`` and print the table."""
+    ``out_dir`` and print the table. ``provenance`` (commit, versions, the command) goes
+    into every stored reference."""
     from . import resources
-    from .compare import git_commit, package_versions
     from .progress import run_sweep
 
     out_dir = Path(out_dir)
@@ -459,10 +459,8 @@ def run_command(scenarios: Sequence[Scenario], seeds: Sequence[int], ladder: Lad
     if not resume and (out_dir / "parts").is_dir() and any((out_dir / "parts").iterdir()):
         raise UsageError(f"{out_dir} holds runs already: --resume to continue them, or "
                          "another --out")
-    prov = {"git": git_commit(), "versions": package_versions(),
-            "command": list(argv) if argv else None}
     refs = run_ladder(scenarios, seeds, sweep, out_dir, ladder=ladder, policy=policy,
-                      looks=looks, c=c, p=p, provenance=prov,
+                      looks=looks, c=c, p=p, provenance=provenance,
                       say=lambda line: print(line, file=sys.stderr))
     for sc in scenarios:
         ref = refs[sc.name]

@@ -687,6 +687,13 @@ def cmd_score(args: argparse.Namespace) -> int:
     return 0
 
 
+def _provenance(argv: Sequence[str]) -> dict:
+    """Commit, package versions and the command, for a stored result."""
+    from .compare import git_commit, package_versions
+
+    return {"git": git_commit(), "versions": package_versions(), "command": list(argv)}
+
+
 def cmd_bayes(args: argparse.Namespace) -> int:
     """The converged Bayes reference of each scenario (:mod:`benchmarks.app.bayes`),
     computed on a particle-count ladder and stored: exit 0 (converged or not: the table
@@ -717,7 +724,8 @@ def cmd_bayes(args: argparse.Namespace) -> int:
         refs = bayes.run_command(scs, seeds, ladder, policy, None if looks is None else looks[0],
                                  out_dir, store, workers=workers,
                                  progress=not args.no_progress, resume=args.resume, c=args.c,
-                                 p=args.p, run_timeout=args.run_timeout, argv=args.argv)
+                                 p=args.p, run_timeout=args.run_timeout,
+                                 provenance=_provenance(args.argv))
     failed = [name for name, ref in refs.items() if "failed" in ref.provenance.get("reason", "")]
     if failed:
         print(f"runs failed on {', '.join(failed)}; see {out_dir / 'ladder.md'}",

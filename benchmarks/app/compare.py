@@ -348,7 +348,8 @@ def _compute_missing_bayes(scs, seeds: list[int], out: Path, stores: list[Path],
           f"(docs/bayes.md)", file=sys.stderr)
     bayes.run_command(missing, seeds, ladder, PolicySpec("raster"), None,
                       out / "bayes" / "ladder", stores[-1], workers=workers,
-                      progress=progress, resume=True, c=c, p=p, run_timeout=run_timeout)
+                      progress=progress, resume=True, c=c, p=p, run_timeout=run_timeout,
+                      provenance={"git": git_commit(), "versions": package_versions()})
 
 
 def default_reference(specs: Sequence[TrackerSpec]) -> str | None:
