@@ -83,7 +83,9 @@ def _alive(pid: int) -> bool:
 def _kill_main_alone(proc: subprocess.Popen, sig: int, worker: int) -> bool:
     """Send ``sig`` to the main process only; whether its worker died with it."""
     proc.send_signal(sig)
-    proc.communicate(timeout=START_TIMEOUT_S)
+    proc.wait(timeout=START_TIMEOUT_S)  # not its pipes: a leftover worker holds them
+    for pipe in (proc.stdout, proc.stderr):
+        pipe.close()
     deadline = time.monotonic() + DIE_TIMEOUT_S
     while _alive(worker) and time.monotonic() < deadline:
         time.sleep(0.05)
