@@ -218,8 +218,15 @@ def _drain(started: Any) -> set[int]:
 _POLL_S = 0.2
 
 
+#: how long (seconds) a worker ended with SIGTERM may take to die before SIGKILL
+_TERM_GRACE_S = 5.0
+
+
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
-    """Drop the queued runs and end the running ones now (an interrupt or a write error)."""
+    """Drop the queued runs and end the running ones now (an interrupt or a write error),
+    and wait until every worker is gone: ``SIGTERM``, then ``SIGKILL`` for one that is
+    still alive after :data:`_TERM_GRACE_S` (a loaded machine). A worker outliving the
+    sweep could still write a part after it returned, beside a resumed sweep."""
     # the worker processes, read before shutdown() forgets them (a private attribute of
     # ProcessPoolExecutor; without it the running and already queued runs would finish)
     procs = list((getattr(pool, "_processes", None) or {}).values())
@@ -227,9 +234,15 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
     for proc in procs:
         with contextlib.suppress(Exception):
             proc.terminate()
+    deadline = time.monotonic() + _TERM_GRACE_S
     for proc in procs:
         with contextlib.suppress(Exception):
-            proc.join(timeout=5)
+            proc.join(timeout=max(0.0, deadline - time.monotonic()))
+    for proc in procs:
+        with contextlib.suppress(Exception):
+            if proc.is_alive():
+                proc.kill()
+                proc.join(timeout=_TERM_GRACE_S)
 
 
 class LocalExecutor(Executor):
