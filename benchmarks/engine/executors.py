@@ -272,9 +272,11 @@ class LocalExecutor(Executor):
             ctx = multiprocessing.get_context()
             started = ctx.SimpleQueue()
             in_main = threading.current_thread() is threading.main_thread()
+            # a forkserver's workers are its children, not this process's: no watch
+            parent = None if ctx.get_start_method() == "forkserver" else os.getpid()
             pool = ProcessPoolExecutor(max_workers=1 if alone else min(self.workers, len(batch)),
                                        mp_context=ctx, initializer=_init_worker,
-                                       initargs=(started, os.getpid(), in_main))
+                                       initargs=(started, parent, in_main))
             running: dict[int, tuple[int, float]] = {}  # run -> (worker pid, its start)
             timed_out: dict[int, str] = {}
             try:
