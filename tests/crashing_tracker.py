@@ -86,3 +86,31 @@ class FirstCells(Policy):
 
     def select(self, k, counts=None, truth_cells=None):
         return np.arange(min(self._n_looks, self._n_cells), dtype=np.int64)
+
+
+#: environment variable naming a log file: :class:`Counted` appends a line per run
+COUNT_LOG_ENV = "MTTBENCH_TEST_COUNT_LOG"
+#: environment variable: :class:`Counted` runs past this many lines in its log wait for
+#: the gate file of :data:`SLOW_GATE_ENV` (the sweep is then killed by the test)
+COUNT_LIMIT_ENV = "MTTBENCH_TEST_COUNT_LIMIT"
+
+
+class Counted(_Nothing):
+    """Reports nothing; logs each run it starts, and waits for the gate file once its
+    log holds more than ``MTTBENCH_TEST_COUNT_LIMIT`` lines (how a test counts the runs
+    a sweep really ran, and stops one at a known run)."""
+
+    name = "counted"
+    summary = "test tracker: logs its runs"
+
+    def reset(self, model, rng):
+        super().reset(model, rng)
+        log = Path(os.environ[COUNT_LOG_ENV])
+        with log.open("a") as f:
+            f.write(f"{os.getpid()}\n")
+        limit = int(os.environ.get(COUNT_LIMIT_ENV, "0") or 0)
+        gate = os.environ.get(SLOW_GATE_ENV)
+        if limit and gate and len(log.read_text().splitlines()) > limit:
+            deadline = time.monotonic() + SLOW_GATE_TIMEOUT_S
+            while not Path(gate).exists() and time.monotonic() < deadline:
+                time.sleep(0.01)

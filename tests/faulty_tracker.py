@@ -90,3 +90,58 @@ class NanState(_Nothing):
         if self._k == FAULT_STEP:
             return Estimate(1.0, np.full((1, 4), np.nan))
         return Estimate.empty()
+
+
+class Interrupt(_Nothing):
+    """Raises ``KeyboardInterrupt`` in ``update`` at step 1 (its own, not a Ctrl-C)."""
+
+    name = "interrupt"
+    summary = "test tracker: KeyboardInterrupt at step 1"
+
+    def fault(self):
+        raise KeyboardInterrupt
+
+
+class _BadCounts(_Nothing):
+    """Predicts malformed cell counts ``P_c(t)`` at step 1 (:meth:`bad`)."""
+
+    def cell_count_distribution(self):
+        P = super().cell_count_distribution()
+        return self.bad(P) if self._k == FAULT_STEP else P
+
+    def bad(self, P):
+        return P
+
+
+class CountsUnnormalised(_BadCounts):
+    name = "counts-unnormalised"
+    summary = "test tracker: P_c(t) rows summing to 2 at step 1"
+
+    def bad(self, P):
+        return 2.0 * P
+
+
+class CountsNan(_BadCounts):
+    name = "counts-nan"
+    summary = "test tracker: a NaN in P_c(t) at step 1"
+
+    def bad(self, P):
+        P[3, 0] = np.nan
+        return P
+
+
+class CountsNegative(_BadCounts):
+    name = "counts-negative"
+    summary = "test tracker: a negative P_c(t) entry at step 1"
+
+    def bad(self, P):
+        P[0] = [1.5, -0.5]
+        return P
+
+
+class CountsShape(_BadCounts):
+    name = "counts-shape"
+    summary = "test tracker: P_c(t) of one cell too few at step 1"
+
+    def bad(self, P):
+        return P[1:]

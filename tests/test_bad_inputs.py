@@ -138,6 +138,13 @@ def refused_cases(tmp: Path) -> list[tuple[str, list[str], str]]:
         ("unknown-tracker", _run(trackers=("nosuch",)), r"nosuch"),
         ("unknown-policy", _run("--policy", "wild"), r"wild"),
         ("unknown-scenario", _run(scenario="nowhere"), r"nowhere"),
+        # lenient spellings: what is typed must be what runs
+        ("policy-empty", _run("--policy", ""), r"policy: none given"),
+        ("tracker-trailing-comma", _run(trackers=("gpf:epsilon=1e-3,",)),
+         r"'gpf:epsilon=1e-3,': an empty item \(a trailing or doubled comma\)"),
+        ("tracker-full-width-digits", _run(trackers=("gpf:epsilon=\uff10.\uff15",)),
+         r"is not ASCII"),
+        ("tracker-spaces", _run(trackers=("gpf: epsilon = 0.1",)), r"spaces in 'gpf: epsilon"),
         # scenario files
         ("grid-1e6", _run("--policy", "all", scenario=str(huge)),  # every cell looked at
          r"scenario 'default' \(1000000x1000000 grid.*needs about [\d.]+ TiB of memory.*more than "

@@ -273,6 +273,9 @@ BAD_FILES = {
     "negative count": ("step,x,y,count\n0,1,2,-1\n", "negative count on line 2"),
     "counts disagree": ("step,x,y,count\n0,1,2,1\n0,3,4,2\n", "different counts"),
     "empty file": ("", "cannot read it"),
+    "huge position": ("step,x,y\n0,1e160,2\n", "x 1e+160 on line 2 is beyond +-1e+12"),
+    "huge count": ("step,x,y,count\n0,1,2,1e30\n", "count 1e+30 on line 2 is beyond"),
+    "huge label": ("step,x,y,label\n0,1,2,1e30\n", "label 1e+30 on line 2 is beyond"),
 }
 
 

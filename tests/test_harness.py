@@ -387,3 +387,76 @@ def test_to_markdown_shows_mean_plus_minus_half_width():
     a = summ[summ["tracker_label"] == "A"].iloc[0]
     assert f"{a['ospa_mean']:.3f} ± {a['ospa_ci95']:.3f}" in text
     assert "failed in 1 of 4 runs" in text
+
+
+class _Clock:
+    """A fake ``perf_counter``/``process_time``: time moves only when a test's method
+    says so, so the loop's accounting is checked exactly (no wall time asserted)."""
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+    def advance(self, dt: float) -> None:
+        self.t += dt
+
+
+def test_the_trackers_timed_share_excludes_the_selection_and_the_looks(monkeypatch):
+    """Per step the tracker's time is predict + update + estimate (1 + 10 + 100); its
+    ``P_c`` for the policy (1e3) and the policy's selection (1e4) are the selection's
+    time; making the looks (1e5) is neither."""
+    from types import SimpleNamespace
+
+    from mttbench.benchmarks.engine.policies import Policy
+
+    clock = _Clock()
+    monkeypatch.setattr(harness, "time", SimpleNamespace(perf_counter=clock,
+                                                         process_time=clock))
+
+    class Ticking(Tracker):
+        name = "ticking-test"
+
+        def reset(self, model, rng):
+            self._n = model.grid.n_cells
+
+        def predict(self):
+            clock.advance(1.0)
+
+        def cell_count_distribution(self):
+            clock.advance(1e3)
+            P = np.zeros((self._n, 2))
+            P[:, 0] = 1.0
+            return P
+
+        def update(self, looks):
+            clock.advance(10.0)
+
+        def estimate(self):
+            clock.advance(100.0)
+            return Estimate.empty()
+
+    class Asking(Policy):
+        name = "asking-test"
+        uses_prediction = True
+
+        def select(self, k, counts=None, truth_cells=None):
+            assert counts is not None
+            clock.advance(1e4)
+            return np.arange(min(self._n_looks, self._n_cells), dtype=np.int64)
+
+    sc = dataclasses.replace(scenarios.get("default"), n_steps=3)
+    pb = harness.play(sc, Ticking(), 0, policy=Asking())
+    look = pb.world.look
+
+    def timed_look(k, cells):
+        clock.advance(1e5)
+        return look(k, cells)
+
+    pb.world.look = timed_look
+    recs = list(pb)
+    assert len(recs) == 3
+    for rec in recs:
+        assert rec.tracker_wall_s == 111.0 and rec.tracker_cpu_s == 111.0
+        assert rec.select_wall_s == 11000.0 and rec.select_cpu_s == 11000.0

@@ -613,3 +613,20 @@ def test_reported_count_stays_in_the_envelope_band(point: str, low: float, high:
                   if rec.k >= sc.n_steps // 2]
         means.append(np.mean(counts))
     assert low <= np.mean(means) <= high
+
+
+def test_the_deletion_drop_is_raised_only_for_a_track_tested_more_than_the_even_spread():
+    """``drop_raise``: 0 for a track tested no more often than the look budget spread
+    evenly would test it (``tested <= f steps``: raster's case), ``log(rate / f)`` above
+    (written out here from the module docstring's rule)."""
+    from mttbench.trackers.kfnn import drop_raise
+
+    f = 24 / 144
+    steps = np.array([0.0, 5.0, 30.0, 30.0, 30.0])
+    tested = np.array([0.0, 0.2, 2.0, 5.0, 20.0])  # f * steps = 0, 0.83, 5, 5, 5
+    rate = (tested + 1.0) / (steps + 1.0 / f)
+    want = np.where(rate > f, np.log(rate / f), 0.0)
+    got = drop_raise(tested, steps, f)
+    assert np.array_equal(got[:4], np.zeros(4))  # never lowered below the plain drop
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=0)
+    assert got[4] == pytest.approx(np.log(21 / 6), rel=1e-12)

@@ -408,3 +408,25 @@ def test_superposition_sensor_is_refused_with_a_reason():
 
     model = dataclasses.replace(_model(), sensor=SuperpositionSensor())
     assert "cell" in PMBTracker().unsupported_reason(model)
+
+
+def test_recycling_a_mixture_track_returns_r_times_each_components_weight():
+    """A track whose density is a two-Gaussian mixture (weights 0.3 and 0.7, far apart) is
+    recycled: each component's cells gain ``r a_k`` (its 6-sd box holds all but ~1e-9 of
+    its mass), not ``r`` each nor ``a_k``; the track is gone and the mass is conserved."""
+    model = _model(n0=1.0)
+    tr = PMBTracker(recycle_threshold=0.05)
+    tr.reset(model, np.random.default_rng(0))
+    tr.set_intensity(0.0)
+    r, a = 0.04, np.array([0.3, 0.7])
+    tr.set_tracks([r], np.array([[1.5, 0.0, 1.5, 0.0]]), _cov(0.1, 0.1, 0.0, 0.0)[None])
+    tr._own, tr._a = np.array([0, 0]), a.copy()
+    tr._m = np.array([[1.5, 0.0, 1.5, 0.0], [6.5, 0.0, 6.5, 0.0]])
+    tr._P = np.stack([_cov(0.1, 0.1, 0.0, 0.0)] * 2)
+    tr._recycle()
+    assert len(tr.tracks[0]) == 0
+    for (cx, cy), weight in zip([(1, 1), (6, 6)], a, strict=True):
+        block = np.array([_cell(ix, iy) for ix in range(cx - 1, cx + 2)
+                          for iy in range(cy - 1, cy + 2)])
+        assert tr.intensity.at(block).sum() == pytest.approx(r * weight, rel=1e-8)
+    assert tr.intensity.total() == pytest.approx(r, rel=1e-8)

@@ -318,3 +318,24 @@ def test_the_command_line_writes_a_dataset_and_resumes_it(tmp_path, capsys):
     before = {f: f.stat().st_mtime_ns for f in files}
     assert main([*args, "--store", "dataset", "--resume", "--out", str(tmp_path / "d")]) == 0
     assert {f: f.stat().st_mtime_ns for f in files} == before
+
+
+def test_a_run_held_whole_by_two_batch_files_comes_back_once(tmp_path, reference, dataset):
+    """A run in two whole batch files (a checkpoint left beside its batch by a sweep killed
+    between the two writes): resume runs nothing again and the run's rows come back once."""
+    from mttbench.benchmarks.engine.store import batch_frame, batch_name
+
+    out = _copy(dataset[0], tmp_path / "out")
+    target = next(p for p in _batches(out) if len(read_batch_identity(p)["runs"]) == 2)
+    df = pd.read_parquet(target)
+    key = read_batch_identity(target)["runs"][0][0]
+    rows = df[df[RUN_KEY] == key].drop(columns=[RUN_KEY]).reset_index(drop=True)
+    name = batch_name([key])
+    batch_frame([(key, rows)], name).to_parquet(target.parent / f"batch-{name}.parquet",
+                                                index=False)
+    before = {p: p.stat().st_mtime_ns for p in _batches(out)}
+    runs = run_sweep(_jobs(), out, store="dataset", runs_per_batch=2, resume=True)
+    assert {p: p.stat().st_mtime_ns for p in _batches(out)} == before  # nothing ran
+    pd.testing.assert_frame_equal(_rows(load_results(out)), reference[0], check_exact=True)
+    pd.testing.assert_frame_equal(_runs(runs), _runs(reference[1]), check_exact=False,
+                                  rtol=1e-12)

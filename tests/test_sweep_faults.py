@@ -152,6 +152,7 @@ FAULTS = [
     ("faulty_tracker:NanCount", "count nan"),
     ("faulty_tracker:NegativeCount", "count -1.0"),
     ("faulty_tracker:NanState", "states are not all finite"),
+    ("faulty_tracker:Interrupt", "KeyboardInterrupt"),
 ]
 
 
@@ -173,3 +174,27 @@ def test_a_faulty_tracker_gets_an_error_row_and_the_sweep_goes_on(tmp_path, caps
     errors = bad[bad["status"] == "error"]
     assert sorted(errors["seed"]) == [0, 1]
     assert errors["error"].str.contains(says, regex=False).all(), list(errors["error"])
+
+
+BAD_COUNTS = [
+    ("faulty_tracker:CountsUnnormalised", "have a row summing to 2, not 1"),
+    ("faulty_tracker:CountsNan", "are not all finite"),
+    ("faulty_tracker:CountsNegative", "have a negative entry (-0.5)"),
+    ("faulty_tracker:CountsShape", "are (143, 2), not (n_cells = 144, n_counts >= 2)"),
+]
+
+
+@pytest.mark.parametrize("tracker, says", BAD_COUNTS, ids=[t.split(":")[1] for t, _ in BAD_COUNTS])
+def test_malformed_predicted_counts_under_renyi_are_an_error_row(tmp_path, capsys, tracker,
+                                                                 says):
+    out = tmp_path / "out"
+    rc = sweep(out, "null", tracker, extra=("--policy", "renyi"))
+    err = err_lines(capsys)
+    assert rc == 1, err
+    df = pd.read_parquet(out / "results.parquet")
+    assert (df[df["tracker_label"] == "null"]["status"] == "ok").all()
+    bad = df[df["tracker_label"] == tracker]
+    errors = bad[bad["status"] == "error"]
+    assert sorted(errors["seed"]) == [0, 1] and (errors["step"] == 1).all()
+    assert errors["error"].str.contains("predicted cell counts P_c(t) " + says,
+                                        regex=False).all(), list(errors["error"])

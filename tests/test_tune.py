@@ -462,3 +462,26 @@ def test_tuned_files_live_in_the_checkout_or_ship_with_the_package(
     assert {p.name for p in Path(read_dir).glob("*.toml")} == {
         p.name for p in (repo / "tuned").glob("*.toml")}
     assert (checkout, write_dir) == ("False", "tuned")
+
+
+def test_the_objective_averages_over_scenarios_and_seeds(tmp_path):
+    """Two scenarios of different lengths and seeds: the objective is the mean over
+    scenarios of the mean over seeds of each run's mean over steps (computed here from
+    the step rows with a groupby), not their sum nor a mean over pooled steps."""
+    from types import SimpleNamespace
+
+    from mttbench.benchmarks.engine.loop import build_jobs
+    from mttbench.benchmarks.engine.specs import TrackerSpec, resolve_scenarios
+    from mttbench.benchmarks.engine.sweep import run_sweep
+
+    scs = resolve_scenarios(["default"], 3) + resolve_scenarios(["births"], 5)
+    seeds = [0, 1, 2]
+    rows = run_sweep(build_jobs(scs, [TrackerSpec("kfnn")], None, None, seeds),
+                     tmp_path / "out")
+    want = (rows.groupby(["scenario", "seed"])["ospa"].mean()
+            .groupby(level="scenario").mean())
+    settings = SimpleNamespace(objective="ospa", scenarios=scs, seeds=seeds)
+    value, per_scenario, message = tune.objective_value(rows, "kfnn", settings)
+    assert message == "" and len(want) == 2 and want.nunique() == 2
+    assert per_scenario == pytest.approx(want.to_dict(), rel=1e-12)
+    assert value == pytest.approx(want.mean(), rel=1e-12)

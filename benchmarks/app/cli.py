@@ -60,7 +60,13 @@ from ..engine.specs import (
     resolve_trackers,
     split_specs,
 )
-from ..engine.store import LOCK_FILE, check_sweep, prepare_out_dir, sweep_lock
+from ..engine.store import (
+    LOCK_FILE,
+    SWEEP_MANIFEST,
+    check_sweep,
+    prepare_out_dir,
+    sweep_lock,
+)
 from . import resources
 from .compare import (
     COMPARE_REFERENCES,
@@ -71,6 +77,7 @@ from .compare import (
     is_finished,
 )
 from .executor_options import add_executor_arguments, executor_scope
+from .folders import EXPORT_MARK, SCORE_MARK, check_folder_kind
 from .progress import run_sweep
 from .summary import run_failures, write_summary
 from .usage import UsageError
@@ -271,13 +278,16 @@ def _failure_line(results: pd.DataFrame, out_dir: Path) -> str | None:
 
 # ---------------------------------------------------------------------- outputs
 @contextlib.contextmanager
-def _folder_lock(out_dir: Path):
+def _folder_lock(out_dir: Path, mark: str = SWEEP_MANIFEST):
     """The output folder's lock (:func:`~mttbench.benchmarks.engine.store.sweep_lock`) for
-    the whole command, so a second process is refused at once. A folder that does not
+    the whole command, so a second process is refused at once, and the folder checked to
+    hold no other command's output (:func:`~.folders.check_folder_kind`, ``mark`` this
+    command's). A folder that does not
     exist yet is created to hold the lock (no window in which two commands could both
     start in it); if the command then fails before writing anything into it (a refused
     setting), the folder is removed again."""
     folder = Path(out_dir)
+    check_folder_kind(folder, mark)
     created = False
     if not folder.exists():
         try:
@@ -288,6 +298,7 @@ def _folder_lock(out_dir: Path):
             return
     try:
         with sweep_lock(folder):
+            check_folder_kind(folder, mark)  # again: another command may have just ended
             yield
     except BaseException:
         if created and {p.name for p in folder.iterdir()} <= {LOCK_FILE}:
@@ -660,9 +671,12 @@ def cmd_export(args: argparse.Namespace) -> int:
         export.check_exportable(sc, policy_specs)
     looks = _int_list(args.looks, "--looks value", 0)
     seeds = _seeds(args, default=10)
+    export.check_size(scs, looks)
     out_dir = Path(args.out) if args.out else REPORTS / f"export-{_timestamp()}"
-    prepare_out_dir(out_dir, parts=False)
-    index = export.export_worlds(scs, policy_specs, seeds, out_dir, looks)
+    with _folder_lock(out_dir, EXPORT_MARK):
+        export.check_names(scs, policy_specs, seeds, out_dir, looks)
+        prepare_out_dir(out_dir, parts=False)
+        index = export.export_worlds(scs, policy_specs, seeds, out_dir, looks)
     print(f"wrote {len(index)} world(s) into {out_dir}/ ({export.WORLDS_INDEX}; per world "
           f"{', '.join(export.WORLD_FILES)}, {export.CARD}); schema: docs/world_format.md")
     return 0
@@ -677,11 +691,13 @@ def cmd_score(args: argparse.Namespace) -> int:
     _check_path("WORLD_DIR", args.world_dir, must_exist=True)
     _check_path("--beside", args.beside, must_exist=True)
     out_dir = Path(args.out) if args.out else REPORTS / f"score-{_timestamp()}"
-    if (out_dir / "results.parquet").exists() and not (out_dir / "score.json").exists():
+    check_folder_kind(out_dir, SCORE_MARK)
+    if (out_dir / "results.parquet").exists() and not (out_dir / SCORE_MARK).exists():
         raise UsageError(f"--out {out_dir} holds the results of another command; choose "
                          "another folder")
-    res = score.run_score(args.world_dir, args.estimates, args.name, out_dir, c=args.c,
-                          p=args.p, beside=args.beside)
+    with _folder_lock(out_dir, SCORE_MARK):
+        res = score.run_score(args.world_dir, args.estimates, args.name, out_dir, c=args.c,
+                              p=args.p, beside=args.beside)
     print((out_dir / "summary.md").read_text(encoding="utf-8"))
     print(f"wrote {out_dir}/: {', '.join(res.files)}")
     return 0

@@ -243,6 +243,65 @@ def write_world(world: World, folder: str | Path) -> dict[str, Any]:
     return card
 
 
+#: the most look rows one exported world may have (its tables are built in memory, and
+#: written as Parquet, CSV and Stone Soup CSV: about 100 bytes per row in all)
+MAX_WORLD_LOOKS = 10_000_000
+#: the most steps of an exported world (its truth is drawn step by step in memory)
+MAX_WORLD_STEPS = 1_000_000
+
+
+def check_size(scenarios: Sequence[Scenario], looks: Sequence[int] | None) -> None:
+    """:class:`ConfigError` (one line, before any work) for a world too large to export:
+    more than :data:`MAX_WORLD_STEPS` steps, or more than :data:`MAX_WORLD_LOOKS` looks
+    (steps x looks per step; every cell per step for the ``all`` policy is not counted
+    here: its grid is bounded by the scenario's checks)."""
+    for sc in scenarios:
+        if sc.n_steps > MAX_WORLD_STEPS:
+            raise ConfigError(f"scenario {sc.name!r}: {sc.n_steps} steps is too many to export "
+                              f"(at most {MAX_WORLD_STEPS}); give fewer --steps")
+        for m in list(looks or []) or [int(sc.model.sensor.looks_per_step)]:
+            rows = sc.n_steps * int(m)
+            if rows > MAX_WORLD_LOOKS:
+                raise ConfigError(f"scenario {sc.name!r}: {sc.n_steps} steps x {m} looks = "
+                                  f"{rows} look rows per world is too many to export (at most "
+                                  f"{MAX_WORLD_LOOKS}); give fewer --steps or --looks")
+
+
+def _names(scenarios: Sequence[Scenario], policies: Sequence[PolicySpec],
+           seeds: Sequence[int], looks: Sequence[int] | None) -> list[tuple]:
+    """``(scenario, policy, looks or None, seed, folder name)`` of every world."""
+    budgets: list[int | None] = list(looks) if looks else [None]
+    plan = [(sc, pol, m, int(seed)) for sc in scenarios for pol in policies
+            for m in budgets for seed in seeds]
+    names = [world_name(sc.name, seed, pol.label,
+                        int(sc.model.sensor.looks_per_step if m is None else m))
+             for sc, pol, m, seed in plan]
+    if len(set(names)) != len(names):
+        raise ConfigError("two worlds map to the same folder name (scenario names that differ "
+                          "only in characters other than letters, digits, '.', '_', '-')")
+    return [(*item, name) for item, name in zip(plan, names, strict=True)]
+
+
+def check_names(scenarios: Sequence[Scenario], policies: Sequence[PolicySpec],
+                seeds: Sequence[int], out_dir: str | Path,
+                looks: Sequence[int] | None = None) -> None:
+    """:class:`ConfigError` (one line, before any file is written) for two worlds of one
+    folder name, and for a world that ``out_dir`` holds already from an export with other
+    settings (another scenario text, e.g. other ``--steps``): replacing it would leave the
+    estimates made on the old world beside the new one."""
+    for sc, _, _, _, name in _names(scenarios, policies, seeds, looks):
+        card = Path(out_dir) / name / CARD
+        if not card.is_file():
+            continue
+        try:
+            old = json.loads(card.read_text(encoding="utf-8"))["scenario"]["toml"]
+        except (OSError, ValueError, KeyError, TypeError):
+            old = None
+        if old != dumps(sc):
+            raise ConfigError(f"{card.parent} holds a world exported with other settings "
+                              "(another scenario or --steps); export into another --out")
+
+
 def export_worlds(scenarios: Sequence[Scenario], policies: Sequence[PolicySpec],
                   seeds: Sequence[int], out_dir: str | Path,
                   looks: Sequence[int] | None = None) -> pd.DataFrame:
@@ -254,17 +313,8 @@ def export_worlds(scenarios: Sequence[Scenario], policies: Sequence[PolicySpec],
     out_dir = Path(out_dir)
     for sc in scenarios:
         check_exportable(sc, policies)
-    budgets: list[int | None] = list(looks) if looks else [None]
-    plan = [(sc, pol, m, int(seed)) for sc in scenarios for pol in policies
-            for m in budgets for seed in seeds]
-    names = [world_name(sc.name, seed, pol.label,
-                        int(sc.model.sensor.looks_per_step if m is None else m))
-             for sc, pol, m, seed in plan]
-    if len(set(names)) != len(names):
-        raise ConfigError("two worlds map to the same folder name (scenario names that differ "
-                          "only in characters other than letters, digits, '.', '_', '-')")
     rows = []
-    for (sc, pol, m, seed), name in zip(plan, names, strict=True):
+    for sc, pol, m, seed, name in _names(scenarios, policies, seeds, looks):
         world = draw_world(sc, pol, seed, m)
         write_world(world, out_dir / name)
         rows.append({"world": name, "scenario": sc.name, "seed": seed, "policy": pol.label,

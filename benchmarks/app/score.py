@@ -59,6 +59,7 @@ from .export import (
     FORMAT,
     FORMAT_VERSION,
     LOOKS_COLUMNS,
+    MAX_WORLD_STEPS,
     TRUTH_COLUMNS,
     WORLDS_INDEX,
     replace_file,
@@ -69,6 +70,11 @@ from .usage import UsageError
 #: columns of an estimates file: required, then optional
 REQUIRED = ("step", "x", "y")
 OPTIONAL = ("label", "count")
+#: the largest magnitude of a position or count: beyond it a squared distance loses
+#: every digit (1e160 squared overflows), so the metrics would be meaningless
+MAX_ABS = 1e12
+#: the largest magnitude of a label: every integer up to it is exact as a float
+MAX_LABEL = float(2**53)
 #: the tracker name of an outside tracker's rows: ``outside:NAME``
 OUTSIDE_PREFIX = "outside:"
 _NAME = re.compile(r"[A-Za-z0-9._+-]{1,64}")
@@ -119,13 +125,69 @@ def read_world(folder: str | Path) -> WorldFiles:
     if card.get("format_version") != FORMAT_VERSION:
         raise UsageError(f"{folder / CARD}: format version {card.get('format_version')!r}; "
                          f"this mttbench reads version {FORMAT_VERSION}")
-    for name, meta in sorted(card.get("files", {}).items()):
+    _check_card(folder, card)
+    for name, meta in sorted(card["files"].items()):
         path = folder / name
         if path.exists() and sha256_of(path) != meta.get("sha256"):
             raise UsageError(f"world {folder}: {name} does not match its sha256 in {CARD} "
                              "(changed since the export)")
-    return WorldFiles(folder, card, _read_table(folder, "truth", TRUTH_COLUMNS),
-                      _read_table(folder, "looks", LOOKS_COLUMNS))
+    world = WorldFiles(folder, card, _read_table(folder, "truth", TRUTH_COLUMNS),
+                       _read_table(folder, "looks", LOOKS_COLUMNS))
+    _check_steps(world)
+    return world
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _check_card(folder: Path, card: dict[str, Any]) -> None:
+    """Every field scoring reads, its type and range; the tables it reads listed with
+    their sha256 (so they are checked against it). :class:`UsageError` in one line."""
+    where = folder / CARD
+
+    def bad(text: str) -> UsageError:
+        return UsageError(f"{where}: {text}")
+
+    sc, pol, files = card.get("scenario"), card.get("policy"), card.get("files")
+    if not isinstance(sc, dict) or not isinstance(pol, dict) or not isinstance(files, dict):
+        missing = [k for k, v in (("scenario", sc), ("policy", pol), ("files", files))
+                   if not isinstance(v, dict)]
+        raise bad(f"no {missing[0]} table (not an exported world's card)")
+    checks = [("scenario.name", sc.get("name"), lambda v: isinstance(v, str) and v != ""),
+              ("scenario.n_steps", sc.get("n_steps"),
+               lambda v: _is_int(v) and 1 <= v <= MAX_WORLD_STEPS),
+              ("seed", card.get("seed"), lambda v: _is_int(v) and 0 <= v < 2**63),
+              ("policy.name", pol.get("name"), lambda v: isinstance(v, str) and v != ""),
+              ("policy.label", pol.get("label"), lambda v: isinstance(v, str) and v != ""),
+              ("policy.params", pol.get("params"), lambda v: isinstance(v, dict)),
+              ("policy.looks_per_step", pol.get("looks_per_step"),
+               lambda v: _is_int(v) and v >= 0)]
+    for field, value, ok in checks:
+        if not ok(value):
+            raise bad(f"{field} = {value!r} is not allowed" if value is not None
+                      else f"no {field}")
+    for stem in ("truth", "looks"):
+        name = f"{stem}.parquet" if (folder / f"{stem}.parquet").exists() else f"{stem}.csv"
+        if not isinstance(files.get(name), dict) or not isinstance(
+                files[name].get("sha256"), str):
+            raise bad(f"lists no sha256 of {name} (not the card of this world)")
+
+
+def _check_steps(world: WorldFiles) -> None:
+    """The card's ``n_steps`` against the tables (whose sha256 were checked): every step
+    of the truth and the looks within ``0..n_steps-1``, and with a look budget a look at
+    every step."""
+    n = world.n_steps
+    for stem, df in (("truth", world.truth), ("looks", world.looks)):
+        steps = pd.to_numeric(df["step"], errors="coerce")
+        if len(steps) and not (steps.notna().all() and steps.min() >= 0 and steps.max() < n):
+            raise UsageError(f"world {world.folder}: {stem} has steps outside 0..{n - 1} "
+                             f"(its {CARD} says n_steps = {n})")
+    if int(world.card["policy"]["looks_per_step"]) > 0 and (
+            world.looks["step"].nunique() != n):
+        raise UsageError(f"world {world.folder}: its looks cover "
+                         f"{world.looks['step'].nunique()} steps, its {CARD} says n_steps = {n}")
 
 
 def world_folders(path: str | Path) -> list[Path]:
@@ -139,9 +201,17 @@ def world_folders(path: str | Path) -> list[Path]:
         raise UsageError(f"{path} is neither an exported world ({CARD}) nor an export folder "
                          f"({WORLDS_INDEX})")
     try:
-        names = pd.read_csv(index)["world"].astype(str).tolist()
+        names = pd.read_csv(index, dtype=str, keep_default_na=False)["world"].tolist()
     except Exception as exc:  # noqa: BLE001
         raise UsageError(f"{index}: cannot read it ({type(exc).__name__})") from None
+    if not names:
+        raise UsageError(f"{index} lists no world")
+    for name in names:
+        if name in ("", ".", "..") or Path(name).name != name:
+            raise UsageError(f"{index}: {name!r} is not a world folder's name")
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise UsageError(f"{index} lists the world {twice[0]} twice")
     return [path / n for n in names]
 
 
@@ -187,7 +257,7 @@ def read_estimates(path: str | Path, n_steps: int) -> list[StepEstimate]:
     if suffix not in (".csv", ".parquet"):
         raise _bad(path, "expected a .csv or .parquet file")
     if not path.is_file():
-        raise _bad(path, "no such file")
+        raise _bad(path, f"no such file ({path.absolute()})")
     csv = suffix == ".csv"
     try:
         df = pd.read_csv(path, dtype=str, keep_default_na=False) if csv \
@@ -225,6 +295,11 @@ def read_estimates(path: str | Path, n_steps: int) -> list[StepEstimate]:
         values[col] = num.to_numpy(dtype=float)
         if np.isinf(values[col]).any():
             raise _bad(path, f"{col} is infinite on {_where(df, np.isinf(values[col]), csv)}")
+        limit = MAX_LABEL if col == "label" else MAX_ABS
+        huge = np.abs(np.nan_to_num(values[col])) > limit
+        if huge.any():
+            raise _bad(path, f"{col} {values[col][huge][0]:g} on {_where(df, huge, csv)} is "
+                             f"beyond +-{limit:g}")
     if empty["step"].any():
         raise _bad(path, f"step is empty or NaN on {_where(df, empty['step'], csv)}")
     step = values["step"]
@@ -384,6 +459,18 @@ def load_beside(folder: str | Path, rows: pd.DataFrame, c: float, p: float) -> p
         if key not in have:
             raise UsageError(f"--beside {path}: no run on the world scenario {key[0]}, policy "
                              f"{key[1]}, {key[2]} looks, seed {key[3]}")
+    # the steps of their finished rows on each world (a run that failed early is shorter)
+    mine = rows.astype({c: str for c in world}).groupby(world)["step"].max()
+    ok = other[other["status"] == "ok"].astype({c: str for c in world})
+    theirs = ok.groupby(world)["step"].max().reindex(mine.index)
+    differ = np.flatnonzero((theirs.notna() & (theirs != mine)).to_numpy())
+    if len(differ):
+        i = int(differ[0])
+        key = mine.index[i]
+        raise UsageError(f"--beside {path}: its runs on the world scenario {key[0]}, policy "
+                         f"{key[1]}, {key[2]} looks, seed {key[3]} have {int(theirs.iloc[i]) + 1} "
+                         f"steps, the world {int(mine.iloc[i]) + 1}; run them with the "
+                         "world's --steps")
     clash = set(other["tracker_label"].astype(str)) & set(rows["tracker_label"].astype(str))
     if clash:
         raise UsageError(f"--beside {path}: it already holds {sorted(clash)[0]!r}; choose "
@@ -413,6 +500,9 @@ def run_score(world_dir: str | Path, estimates: str, name: str | None, out_dir: 
     folders = world_folders(world_dir)
     single = len(folders) == 1 and (Path(world_dir) / CARD).is_file()
     name = check_name(name if name is not None else Path(estimates).stem)
+    if not single and Path(estimates).is_absolute():
+        raise UsageError(f"--estimates {estimates} is an absolute path: with an export folder "
+                         "it is each world's own file, relative to the world's folder")
     frames = []
     for folder in folders:
         world = read_world(folder)

@@ -54,11 +54,13 @@ makes it the current one (:func:`use_executor`): every ``run_sweep`` of the comm
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import hashlib
 import logging
 import multiprocessing
 import os
 import signal
+import sys
 import threading
 import time
 import uuid
@@ -149,12 +151,45 @@ class Executor:
 _STARTED: Any = None
 
 
-def _init_worker(started: Any) -> None:
+#: how often (seconds) a pool worker checks that its parent is alive (the watchdog)
+_WATCHDOG_S = 1.0
+
+
+def _die_with_parent(parent: int, signal_ok: bool) -> None:
+    """End this worker when its parent process ends (killed with ``SIGKILL`` or by the
+    out-of-memory killer, so it could not stop its pool): on Linux the kernel sends it
+    ``SIGKILL`` (``prctl(PR_SET_PDEATHSIG)``; only when the pool was made by the main
+    thread, since the signal follows the thread that forked), and everywhere a daemon
+    thread checks every :data:`_WATCHDOG_S` seconds that the parent pid is unchanged. A
+    worker left behind would hold its run's pipe and the folder for good."""
+    if signal_ok and sys.platform.startswith("linux"):
+        with contextlib.suppress(Exception):
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1: PR_SET_PDEATHSIG
+    if os.getppid() != parent:  # the parent died before the signal was asked for
+        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(_WATCHDOG_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="mttbench-parent-watchdog", daemon=True).start()
+
+
+def _init_worker(started: Any, parent: int | None = None, signal_ok: bool = False) -> None:
     """Pool worker initializer: Ctrl-C is the main process's to handle (it stops the
-    pool); runs report their start on ``started`` (which runs a dead worker held)."""
+    pool); runs report their start on ``started`` (which runs a dead worker held); the
+    worker ends with its parent (:func:`_die_with_parent`) and holds none of its folder
+    locks (:func:`~.store.release_inherited_locks`)."""
     global _STARTED
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _STARTED = started
+    from .store import release_inherited_locks
+
+    release_inherited_locks()
+    if parent is not None:
+        _die_with_parent(parent, signal_ok)
 
 
 def _pool_task(i: int, work: Work, job: Job, part: Path) -> int:
@@ -183,8 +218,15 @@ def _drain(started: Any) -> set[int]:
 _POLL_S = 0.2
 
 
+#: how long (seconds) a worker ended with SIGTERM may take to die before SIGKILL
+_TERM_GRACE_S = 5.0
+
+
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
-    """Drop the queued runs and end the running ones now (an interrupt or a write error)."""
+    """Drop the queued runs and end the running ones now (an interrupt or a write error),
+    and wait until every worker is gone: ``SIGTERM``, then ``SIGKILL`` for one that is
+    still alive after :data:`_TERM_GRACE_S` (a loaded machine). A worker outliving the
+    sweep could still write a part after it returned, beside a resumed sweep."""
     # the worker processes, read before shutdown() forgets them (a private attribute of
     # ProcessPoolExecutor; without it the running and already queued runs would finish)
     procs = list((getattr(pool, "_processes", None) or {}).values())
@@ -192,9 +234,15 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
     for proc in procs:
         with contextlib.suppress(Exception):
             proc.terminate()
+    deadline = time.monotonic() + _TERM_GRACE_S
     for proc in procs:
         with contextlib.suppress(Exception):
-            proc.join(timeout=5)
+            proc.join(timeout=max(0.0, deadline - time.monotonic()))
+    for proc in procs:
+        with contextlib.suppress(Exception):
+            if proc.is_alive():
+                proc.kill()
+                proc.join(timeout=_TERM_GRACE_S)
 
 
 class LocalExecutor(Executor):
@@ -223,9 +271,12 @@ class LocalExecutor(Executor):
             finished: set[int] = set()
             ctx = multiprocessing.get_context()
             started = ctx.SimpleQueue()
+            in_main = threading.current_thread() is threading.main_thread()
+            # a forkserver's workers are its children, not this process's: no watch
+            parent = None if ctx.get_start_method() == "forkserver" else os.getpid()
             pool = ProcessPoolExecutor(max_workers=1 if alone else min(self.workers, len(batch)),
                                        mp_context=ctx, initializer=_init_worker,
-                                       initargs=(started,))
+                                       initargs=(started, parent, in_main))
             running: dict[int, tuple[int, float]] = {}  # run -> (worker pid, its start)
             timed_out: dict[int, str] = {}
             try:

@@ -100,6 +100,7 @@ import hashlib
 import json
 import math
 import resource
+import signal
 import sys
 import time
 from collections.abc import Iterator
@@ -492,6 +493,13 @@ def _labels_of(est: Estimate, n: int) -> np.ndarray | None:
     return labels.astype(np.int64)
 
 
+def _sigint_ignored() -> bool:
+    try:
+        return signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    except (ValueError, TypeError):
+        return False
+
+
 def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
     """Play one job (:func:`play`); returns its rows (see the module docstring).
 
@@ -585,7 +593,10 @@ def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
             except Exception:  # noqa: BLE001 - a score that fails stays NaN; the run is ok
                 run_series.clear()
     except BaseException as exc:  # noqa: BLE001 - any failure of a tracker is a result
-        if isinstance(exc, KeyboardInterrupt):  # SystemExit too is the tracker's failure
+        # SystemExit too is the tracker's failure; so is a KeyboardInterrupt where Ctrl-C
+        # is ignored (a pool or Dask worker: Ctrl-C is the main process's), which only
+        # the tracker's own code can raise
+        if isinstance(exc, KeyboardInterrupt) and not _sigint_ignored():
             raise
         message = f"{type(exc).__name__}: {exc}".replace("\n", " ")
         k = playback.step if playback is not None else -1

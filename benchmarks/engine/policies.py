@@ -223,6 +223,40 @@ class Oracle(Policy):
                            state_bytes=_choice_bytes(model.grid.n_cells, looks_per_step))
 
 
+#: how far a row of ``P_c(t)`` may sum from 1 (round-off of a tracker's mixture), and
+#: how negative an entry may be
+COUNTS_SUM_TOL = 1e-6
+
+
+def count_distribution_problem(counts: Any, n_cells: int) -> str:
+    """Why a tracker's ``cell_count_distribution()`` is not a distribution over counts for
+    each of the ``n_cells`` cells ("" if it is): a :class:`CellCounts` of that grid or an
+    array ``(n_cells, n_counts >= 2)``, every entry finite and >= 0, every row summing to
+    1 (within :data:`COUNTS_SUM_TOL`). Checks the rows the tracker gave (its own rows and
+    the default one): ``O(rows x n_counts)``, what the gains cost anyway."""
+    if isinstance(counts, CellCounts):
+        if counts.n_cells != n_cells:
+            return f"cover {counts.n_cells} cells, the grid has {n_cells}"
+        rows = np.vstack([counts.rows, counts.default[None]])
+    else:
+        rows = np.asarray(counts) if isinstance(counts, np.ndarray) else None
+        if rows is None or rows.ndim != 2 or rows.shape[0] != n_cells or rows.shape[1] < 2:
+            shape = getattr(rows, "shape", type(counts).__name__)
+            return (f"are {shape}, not (n_cells = {n_cells}, n_counts >= 2) or a "
+                    "CellCounts")
+        if not np.issubdtype(rows.dtype, np.number) or np.iscomplexobj(rows):
+            return f"are of dtype {rows.dtype}, not real numbers"
+    if not np.isfinite(rows).all():
+        return "are not all finite"
+    if (rows < -COUNTS_SUM_TOL).any():
+        return f"have a negative entry ({rows.min():g})"
+    sums = rows.sum(axis=1)
+    worst = int(np.argmax(np.abs(sums - 1.0)))
+    if abs(sums[worst] - 1.0) > COUNTS_SUM_TOL:
+        return f"have a row summing to {sums[worst]:.6g}, not 1"
+    return ""
+
+
 @register_policy
 class RenyiGain(Policy):
     """Looks where the expected Renyi alpha-divergence gain of the count is largest.
@@ -276,6 +310,9 @@ class RenyiGain(Policy):
     def select(self, k, counts=None, truth_cells=None):
         if counts is None:
             raise ValueError("the renyi policy needs the tracker's predicted counts")
+        problem = count_distribution_problem(counts, self._n_cells)
+        if problem:
+            raise ValueError(f"the tracker's predicted cell counts P_c(t) {problem}")
         n_counts = counts.n_counts if isinstance(counts, CellCounts) else counts.shape[1]
         pd = self._pd_cache.get(n_counts)
         if pd is None:  # p_d(t) at the count columns t = 0..n_counts-1

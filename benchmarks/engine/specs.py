@@ -63,7 +63,16 @@ _CLASS_PATH = re.compile(r"^\s*([A-Za-z_][\w.]*:[A-Z]\w*)\s*(?::(.*))?$", re.S)
 
 
 def parse_spec(text: str, what: str) -> tuple[str, dict[str, Any]]:
-    """``name[:key=val,...]`` or ``pkg.mod:Class[:key=val,...]`` -> (name, params)."""
+    """``name[:key=val,...]`` or ``pkg.mod:Class[:key=val,...]`` -> (name, params).
+
+    ``ValueError`` (one line) for a character outside ASCII (``０.５`` would read as 0.5)
+    and for spaces within the spec (``gpf: epsilon = 0.1``): what is typed is what runs."""
+    odd = next((ch for ch in text if not ch.isascii()), None)
+    if odd is not None:
+        raise ValueError(f"the character {odd!r} in {text!r} is not ASCII: type names and "
+                         "numbers in ASCII")
+    if re.search(r"\s", text.strip()):
+        raise ValueError(f"spaces in {text!r}: write name:key=value,key=value without spaces")
     m = _CLASS_PATH.match(text)
     if m:
         name, sep, rest = m.group(1), m.group(2) is not None, m.group(2) or ""
@@ -229,6 +238,12 @@ def _resolve(texts: Sequence[str], spec_type: type[Spec]) -> list:
     """Specs checked against the declarations and by building each one once (unknown
     names, unknown parameters and refused values give one line)."""
     specs = []
+    for item in texts:
+        if not item.strip():
+            raise ConfigError(f"{spec_type.kind}: none given (an empty {spec_type.kind} spec)")
+        if any(not piece.strip() for piece in item.split(",")):
+            raise ConfigError(f"{spec_type.kind} {item!r}: an empty item (a trailing or "
+                              "doubled comma)")
     for text in split_specs(list(texts)):
         try:
             spec = spec_type.parse(text)

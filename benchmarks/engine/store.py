@@ -23,6 +23,7 @@ import io
 import json
 import os
 import re
+import sys
 import urllib.parse
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -153,11 +154,123 @@ SWEEP_MANIFEST = "sweep.json"
 _LOCKS: dict[str, list[int]] = {}
 
 
+def release_inherited_locks() -> None:
+    """In a forked child (a pool worker): close the lock files inherited from its parent,
+    without unlocking them (``flock`` belongs to the open file, which the parent still
+    holds), so that a worker left running after its parent died holds no folder."""
+    for ident, (fd, _, pid) in list(_LOCKS.items()):
+        if pid != os.getpid():
+            _LOCKS.pop(ident, None)
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
+def _process_start(pid: int) -> str | None:
+    """When process ``pid`` started (clock ticks since boot, ``/proc/<pid>/stat``), so a
+    reused pid is not taken for the holder; None where ``/proc`` cannot say. ``"Z"`` for a
+    zombie (dead, not yet reaped)."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    fields = text[text.rfind(")") + 2:].split()
+    return "Z" if fields[0] in ("Z", "X") else fields[19]
+
+
+def _owner_line() -> str:
+    pid = os.getpid()
+    return f"{pid} {os.uname().nodename} {_process_start(pid) or '-'}\n"
+
+
+def _owner_gone(fd: int) -> int | None:
+    """The pid recorded in the lock file ``fd`` (:func:`_owner_line`) if that process is
+    gone (this host, not running, or running with another start time: a reused pid), else
+    None (alive, another host's, or not recorded: the lock is respected)."""
+    try:
+        pid_text, host, start = os.pread(fd, 4096, 0).decode().split()
+        pid = int(pid_text)
+    except (OSError, ValueError, UnicodeDecodeError):
+        return None
+    if host != os.uname().nodename or pid <= 0:
+        return None
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return pid
+    except OSError:
+        return None
+    now = _process_start(pid)
+    return pid if now == "Z" or (start != "-" and now is not None and now != start) else None
+
+
+def _take_over(path: Path, stale_ino: int) -> bool:
+    """Unlink the stale lock file ``path`` (inode ``stale_ino``) under a guard lock, so
+    that of two processes taking it over at once one replaces it; False if another
+    process is at it or has replaced it already."""
+    guard = path.with_name(path.name + ".takeover")
+    gfd = os.open(guard, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(gfd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(gfd)
+        return False
+    try:
+        try:
+            if os.stat(path).st_ino != stale_ino:
+                return False
+        except FileNotFoundError:
+            return False
+        path.unlink()
+        return True
+    finally:
+        os.close(gfd)
+
+
+def _acquire(folder: Path) -> int:
+    """The file descriptor of the folder's lock file, locked (see :func:`sweep_lock`)."""
+    path = folder / LOCK_FILE
+    for _ in range(5):
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise ConfigError(f"cannot write into the output folder {folder}: "
+                              f"{exc.strerror or exc}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            gone, ino = _owner_gone(fd), os.fstat(fd).st_ino
+            os.close(fd)
+            if gone is None:
+                raise ConfigError(f"{folder} is in use by another mttbench process: wait "
+                                  "for it to end, or choose another --out") from None
+            if _take_over(path, ino):
+                print(f"{path}: its holder (pid {gone}) is gone; taking its lock over (a "
+                      "leftover worker of it may still be running)", file=sys.stderr)
+            continue
+        try:  # the path may have been replaced since it was opened (a take-over)
+            same = os.stat(path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if not same:
+            os.close(fd)
+            continue
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, _owner_line().encode(), 0)
+        return fd
+    raise ConfigError(f"{folder} is in use by another mttbench process: wait for it to "
+                      "end, or choose another --out")
+
+
 @contextlib.contextmanager
 def sweep_lock(out_dir: str | Path) -> Iterator[None]:
     """Hold the output folder's advisory lock (``fcntl.flock`` on ``.mttbench.lock``)
     meanwhile: one writer per folder. Another process holding it raises
-    :class:`ConfigError` (one line) at once; the same process may nest it."""
+    :class:`ConfigError` (one line) at once; the same process may nest it.
+
+    The file records its holder (pid, host, start time). A lock held though its holder
+    is gone (a worker process of a killed sweep that outlived it, with the lock file
+    inherited) is stale: the file is replaced by a new one, with a one-line notice on
+    stderr (the leftover keeps a lock on the old file, which no one reads)."""
     folder = Path(out_dir)
     ident = os.path.realpath(folder)
     held = _LOCKS.get(ident)
@@ -168,17 +281,7 @@ def sweep_lock(out_dir: str | Path) -> Iterator[None]:
         finally:
             held[1] -= 1
         return
-    try:
-        fd = os.open(folder / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
-    except OSError as exc:
-        raise ConfigError(f"cannot write into the output folder {folder}: "
-                          f"{exc.strerror or exc}") from None
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        os.close(fd)
-        raise ConfigError(f"{folder} is in use by another mttbench process: wait for it to "
-                          "end, or choose another --out") from None
+    fd = _acquire(folder)
     _LOCKS[ident] = [fd, 1, os.getpid()]
     try:
         yield
@@ -391,11 +494,14 @@ def batch_path(out_dir: str | Path, scenario: str, tracker: str, name: str) -> P
             / f"tracker={_path_value(tracker)}" / f"batch-{name}.parquet")
 
 
-def batch_frame(runs: Sequence[tuple[str, pd.DataFrame]], name: str) -> pd.DataFrame:
+def batch_frame(runs: Sequence[tuple[str, pd.DataFrame]], name: str,
+                replaces: Sequence[str] = ()) -> pd.DataFrame:
     """The rows of the runs ``(job key, rows)`` of batch ``name``, in order, with a
     ``run_key`` column; its ``attrs`` hold the batch's identity (written in the Parquet
     schema metadata): ``{"batch": name, "runs": [[key, rows, status], ...]}`` with each
-    run's :func:`part_identity`. A run's rows are contiguous, in the order listed."""
+    run's :func:`part_identity`, and ``replaces``: the names of the checkpoint batches of
+    these runs that :func:`write_batch` removes. A run's rows are contiguous, in the
+    order listed."""
     frames = []
     for key, df in runs:
         frame = df.copy(deep=False)
@@ -403,9 +509,40 @@ def batch_frame(runs: Sequence[tuple[str, pd.DataFrame]], name: str) -> pd.DataF
         frame[RUN_KEY] = key
         frames.append(frame)
     out = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=[RUN_KEY])
-    out.attrs = {BATCH_META_KEY: {"batch": name, "runs": [
-        [key, int(len(df)), _run_status(df)] for key, df in runs]}}
+    ident: dict = {"batch": name, "runs": [
+        [key, int(len(df)), _run_status(df)] for key, df in runs]}
+    if replaces:
+        ident["replaces"] = list(replaces)
+    out.attrs = {BATCH_META_KEY: ident}
     return out
+
+
+def _remove_replaced(path: Path) -> None:
+    """Remove the checkpoint batches that the batch file ``path`` lists as ``replaces``
+    (each holds some of its runs), from its folder."""
+    with contextlib.suppress(Exception):
+        attrs = json.loads((pq.read_metadata(path).metadata or {}).get(b"PANDAS_ATTRS",
+                                                                       b"{}"))
+        for name in attrs[BATCH_META_KEY].get("replaces", []):
+            if re.fullmatch(r"[0-9a-f]+", str(name)) and name != _batch_stem(path):
+                (path.parent / f"batch-{name}.parquet").unlink(missing_ok=True)
+
+
+def _batch_stem(path: Path) -> str | None:
+    match = _BATCH_FILE.match(Path(path).name)
+    return None if match is None else match.group(1)
+
+
+def write_batch(df: pd.DataFrame, path: Path) -> None:
+    """Write a batch like :func:`_write_parquet`, then remove its checkpoints."""
+    _write_parquet(df, path)
+    _remove_replaced(Path(path))
+
+
+def write_batch_bytes(path: Path, data: bytes) -> None:
+    """Write a batch's bytes (:func:`frame_bytes`), then remove its checkpoints."""
+    _write_bytes(Path(path), data)
+    _remove_replaced(Path(path))
 
 
 def frame_bytes(df: pd.DataFrame, key: str) -> bytes:

@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import sys
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,6 +53,8 @@ from .store import (
     remove_stale_temp_files,
     resolve_store,
     sweep_lock,
+    write_batch,
+    write_batch_bytes,
     write_dataset_manifest,
     write_sweep_manifest,
 )
@@ -63,15 +67,26 @@ BATCH_ROWS = 50_000
 MAX_BATCH_RUNS = 1_000
 
 
+#: the environment variable of :func:`run_batch`'s checkpoint interval (seconds)
+CHECKPOINT_ENV = "MTTBENCH_CHECKPOINT_S"
+#: a batch task writes the runs it finished as a small batch file at least this often
+#: (seconds), so a sweep killed mid-batch keeps them; 0: after every run
+CHECKPOINT_S = 10.0
+
+
 @dataclass(frozen=True)
 class Batch:
     """Runs of one scenario and tracker that one worker task runs in turn
     (:func:`run_batch`) and one file holds; ``name`` is :func:`~.store.batch_name` of
-    ``keys``. Stands for a job in the executors (:meth:`key` names its file)."""
+    ``keys``. Stands for a job in the executors (:meth:`key` names its file).
+    ``folder`` (the batch's partition) and ``checkpoint_s``: where and how often the task
+    writes its finished runs meanwhile (None: never)."""
 
     jobs: tuple[Job, ...]
     keys: tuple[str, ...]
     name: str
+    folder: str | None = None
+    checkpoint_s: float | None = None
 
     def key(self, c: float, p: float) -> str:
         return self.name
@@ -84,16 +99,43 @@ def run_batch(batch: Batch, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
     """:func:`~.loop.run_job` of each job of ``batch``, in turn, as one table
     (:func:`~.store.batch_frame`: a ``run_key`` column, the runs listed in its
     metadata). Each run's rows are those of ``run_job``: a failing run is its error
-    row, and the batch goes on."""
-    return batch_frame([(key, run_job(job, c, p)) for key, job in zip(
-        batch.keys, batch.jobs, strict=True)], batch.name)
+    row, and the batch goes on.
+
+    Checkpoints: every ``batch.checkpoint_s`` seconds the runs finished since the last
+    one are written into ``batch.folder`` as a batch of their own (a valid batch file,
+    named by their keys), which ``--resume`` of a killed sweep keeps. The table lists
+    them (``replaces``): its writer removes them once the whole batch is written
+    (:func:`~.store.write_batch`). A folder that cannot be written (a remote Dask worker)
+    means no checkpoints."""
+    runs: list[tuple[str, pd.DataFrame]] = []
+    chunk: list[tuple[str, pd.DataFrame]] = []
+    written: list[str] = []
+    folder = None if batch.checkpoint_s is None or batch.folder is None else Path(batch.folder)
+    last = time.monotonic()
+    for key, job in zip(batch.keys, batch.jobs, strict=True):
+        runs.append((key, run_job(job, c, p)))
+        chunk.append(runs[-1])
+        if folder is None or len(runs) == len(batch) or (
+                time.monotonic() - last < batch.checkpoint_s):
+            continue
+        name = batch_name([k for k, _ in chunk])
+        try:
+            _write_parquet(batch_frame(chunk, name), folder / f"batch-{name}.parquet")
+        except OSError:
+            folder = None
+            continue
+        written.append(name)
+        chunk, last = [], time.monotonic()
+    return batch_frame(runs, batch.name, replaces=written)
 
 
 def make_batches(jobs: Sequence[Job], keys: Sequence[str], out_dir: Path,
-                 runs_per_batch: int | None = None) -> list[tuple[Batch, Path]]:
+                 runs_per_batch: int | None = None,
+                 checkpoint_s: float | None = None) -> list[tuple[Batch, Path]]:
     """The jobs grouped by (scenario, tracker name), in order, cut into batches of
     ``runs_per_batch`` (default ``BATCH_ROWS // n_steps`` within ``[1,
-    MAX_BATCH_RUNS]``), each with its file (:func:`~.store.batch_path`)."""
+    MAX_BATCH_RUNS]``), each with its file (:func:`~.store.batch_path`) and checkpoint
+    interval (:func:`run_batch`)."""
     groups: dict[tuple[str, str], list[tuple[Job, str]]] = {}
     for job, key in zip(jobs, keys, strict=True):
         groups.setdefault((job.scenario.name, job.tracker.name), []).append((job, key))
@@ -105,8 +147,9 @@ def make_batches(jobs: Sequence[Job], keys: Sequence[str], out_dir: Path,
             chunk = members[start:start + size]
             ks = tuple(k for _, k in chunk)
             name = batch_name(ks)
-            out.append((Batch(tuple(j for j, _ in chunk), ks, name),
-                        batch_path(out_dir, scenario, tracker, name)))
+            path = batch_path(out_dir, scenario, tracker, name)
+            out.append((Batch(tuple(j for j, _ in chunk), ks, name, str(path.parent),
+                              checkpoint_s), path))
     return out
 
 
@@ -226,6 +269,21 @@ def _lost_job_frame(job: Job, message: str, c: float, p: float) -> pd.DataFrame:
     return _frame([{**row, "peak_rss_mb": math.nan}])
 
 
+def checkpoint_interval() -> float:
+    """:data:`CHECKPOINT_S`, or the environment's :data:`CHECKPOINT_ENV` (seconds, >= 0);
+    :class:`ConfigError` for another value."""
+    text = os.environ.get(CHECKPOINT_ENV, "").strip()
+    if not text:
+        return CHECKPOINT_S
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value) or value < 0:
+        raise ConfigError(f"{CHECKPOINT_ENV}={text!r} is not allowed: expected seconds >= 0")
+    return value
+
+
 def _dataset_folders(root: Path) -> list[Path]:
     return [root, *(d for d in root.rglob("*") if d.is_dir())] if root.is_dir() else []
 
@@ -266,8 +324,9 @@ def _run_dataset_sweep(jobs: list[Job], keys: list[str], out_dir: Path, workers:
         print(f"{len(damaged)} damaged batch file(s): their runs that are not whole will be "
               f"recomputed (first: {damaged[0]})", file=sys.stderr)
     todo = [(job, key) for job, key in zip(jobs, keys, strict=True) if key not in held]
+    checkpoint_s = checkpoint_interval()
     pending = make_batches([j for j, _ in todo], [k for _, k in todo], out_dir,
-                           runs_per_batch)
+                           runs_per_batch, checkpoint_s)
     lost: list[pd.DataFrame] = []
     if executor is None:
         executor = current_executor() or LocalExecutor(workers)
@@ -279,7 +338,7 @@ def _run_dataset_sweep(jobs: list[Job], keys: list[str], out_dir: Path, workers:
             for _, path in pending:
                 path.parent.mkdir(parents=True, exist_ok=True)
             longest = max(len(batch) for batch, _ in pending)
-            work = Work(run_batch, _write_parquet, frame_bytes, _write_bytes, c, p,
+            work = Work(run_batch, write_batch, frame_bytes, write_batch_bytes, c, p,
                         None if run_timeout is None else run_timeout * longest)
             again: list[tuple[Batch, Path]] = []
             with contextlib.closing(executor.run(pending, work)) as outcomes:
@@ -289,7 +348,8 @@ def _run_dataset_sweep(jobs: list[Job], keys: list[str], out_dir: Path, workers:
                         files[path] = (list(batch.keys), len(batch))
                         finished += len(batch)
                     elif len(batch) > 1:  # its runs again, one per task: whose fault?
-                        again.extend(make_batches(batch.jobs, batch.keys, out_dir, 1))
+                        again.extend(make_batches(batch.jobs, batch.keys, out_dir, 1,
+                                                  checkpoint_s))
                         continue
                     else:
                         lost.append(_lost_job_frame(batch.jobs[0], error, c, p).assign(
