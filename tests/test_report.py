@@ -256,7 +256,7 @@ def test_markdown_tables_escape_pipes_and_show_the_looks_made():
     assert "| a\\|b |" in text and "| 24 (144 made) |" in text
 
 
-# ------------------------------------------------------- track-level scores (issue 26)
+# ------------------------------------------------------- track-level scores
 def test_tiny_sweep_report_has_ospa2_figure_and_crossing_table(tmp_path):
     """A real sweep on `crossing` (kfnn labels its tracks; null gives no labels): the
     OSPA(2)-over-time figure, the table of switches around the crossings, and the

@@ -34,7 +34,7 @@ Detection probability and clutter (GM-PHD; the GNN's distance association uses n
     sensor's false-alarm probability; ``P = (p_d - p_f) / (1 - p_f)`` the detection of a
     target beside independent clutter, :func:`target_detection_probability`: a point
     detector with clutter sees a target's cell positive with ``1 - (1 - P)(1 - p_f) =
-    p_d``, as the cell sensor does; ``p_d`` itself counted the clutter's share twice).
+    p_d``, as the cell sensor does; ``p_d`` itself would count the clutter's share twice).
     What follows the looks **per look** is where the update applies: a component whose
     predicted mean lies in a cell not looked at has detection probability 0, so it does
     not enter Stone Soup's update and keeps its predicted weight (times ``p_s``). That
@@ -44,8 +44,8 @@ Detection probability and clutter (GM-PHD; the GNN's distance association uses n
 Determinism
     Stone Soup iterates sets of detections and tracks (ordered by object identity, so by
     memory address) and the GM-PHD reducer emits components in the order of a set of
-    random tags (string hashes, salted per process): the same run gave different numbers
-    in different processes. The adapter passes detections as lists in cell order, keeps
+    random tags (string hashes, salted per process), so the same run would give different
+    numbers in different processes. The adapter passes detections as lists in cell order, keeps
     tracks in a list ordered by the detection that started them (step, cell), runs the
     GNN through :class:`OrderedGNN` (sorts tracks and detections before Stone Soup's
     assignment, also inside the initiator), gives components deterministic tags and
@@ -67,17 +67,14 @@ Determinism
     ``m_c`` the predicted position Gaussian's mass in cell ``c``, over the negative looked
     cells and an update's detection cell, ``r_c`` the cell's ratio of one target against
     none: ``p_d / p_f`` per positive look, ``(1 - p_d) / (1 - p_f)`` per negative;
-    :func:`~mttbench.trackers.kfnn.cell_evidence`); deleted ``log((1 - alpha) / beta)``
+    :func:`~mttbench.trackers.cell_evidence.cell_evidence`); deleted ``log((1 - alpha) / beta)``
     below its highest score, a drop raised by ``log(rate / f)`` for a track tested more
     often than the model's look budget spread evenly would, as KF-NN's
-    (:mod:`~mttbench.trackers.kfnn`). Blackman's point score, ``log(p_d g(z) cell^2 /
-    p_f)`` per update (``g`` the innovation's Gaussian density at the cell centre), charged
-    an update from the next cell about -1.4 where a miss costs -0.59 (``p_d`` 0.5, ``p_f``
-    0.1): the quantisation treated as Gaussian noise has thin tails, so tracks of present
-    targets crossing a cell edge, or updated by clutter beside them, were deleted (3.0
-    reported for 9 in the clutter-and-density corner under renyi). Counting updates
-    alone kept tracks that live on clutter: 14-16 reported for 3 at ``p_f >= 0.06``
-    (docs/stonesoup.md). The counts come
+    (:mod:`~mttbench.trackers.kfnn`). Not Blackman's point score ``log(p_d g(z) cell^2 /
+    p_f)`` (``g`` the innovation's Gaussian density at the cell centre): it treats the
+    quantisation as Gaussian noise with thin tails and deletes tracks of present targets
+    that cross a cell edge; nor a count of updates, which keeps tracks that live on
+    clutter (docs/stonesoup.md). The counts come
     from the model as a careful user would set them, with KF-NN's error rates
     (:mod:`~mttbench.trackers.kfnn`): ``min_points`` is the fewest detections ``n`` whose
     likelihood ratio ``(p_d / p_f) ** n`` times the prior odds of the model's target
@@ -91,9 +88,9 @@ Determinism
     prior log-odds of the model's target density, the birth detection and the score
     deleter's ``L``, for confirmed and holding tracks alike.
     Estimate: the ``round(sum r)`` tracks of largest ``r``, confirmed or holding (count
-    ``sum r``), as KF-NN and pmb. Stone Soup's output, the confirmed tracks, reported
-    nothing where a detection is worth too little to confirm within the run (``p_f =
-    0.3``; 3.1 for 9 in the clutter-and-density corner); docs/stonesoup.md.
+    ``sum r``), as KF-NN and pmb (Stone Soup's own output, the confirmed tracks, reports
+    nothing where a detection is worth too little to confirm within the run;
+    docs/stonesoup.md).
     ``P_c(t)``: each track is a target in its predicted position Gaussian, present with
     probability ``r``, plus KF-NN's undetected Poisson intensity per cell for targets
     not yet tracked (a :class:`~mttbench.trackers.cells.CellField`), to which a deleted
@@ -170,19 +167,19 @@ from .base import (
     param_number,
     register,
 )
+from .cell_evidence import (
+    cell_evidence,
+    drop_raise,
+    look_ratios,
+    looked_log_ratios,
+    target_prior_logodds,
+)
 from .cells import (
     CellCounts,
     CellField,
     bernoulli_cell_counts,
     gaussian_cell_mass_sparse,
     untracked_probabilities,
-)
-from .kfnn import (
-    cell_evidence,
-    drop_raise,
-    look_ratios,
-    looked_log_ratios,
-    target_prior_logodds,
 )
 from .params import Param, Search
 from .pmb.ppp import recycle
@@ -265,7 +262,7 @@ def _import_stonesoup() -> SimpleNamespace:
         """A track-score deleter on Stone Soup's interface (Blackman and Popoli 1999, ch.
         6.2, with KF-NN's cell-exact ratio): each step a track's log-likelihood ratio of
         "target" against "false track" moves by ``log(1 + sum_c m_c (r_c - 1))``
-        (:func:`~mttbench.trackers.kfnn.cell_evidence` through :attr:`evidence`, set by the
+        (:func:`~mttbench.trackers.cell_evidence.cell_evidence` through :attr:`evidence`, set by the
         adapter each step): ``m_c`` its predicted position Gaussian's mass in cell ``c``,
         ``c`` over the negative looked cells and, for an update, its detection's cell,
         ``r_c`` the cell's ratio of one target against none. The track is deleted when its
@@ -553,7 +550,7 @@ class StoneSoupGNN(_StoneSoupPeer):
     def _evidence(self, mean_xy: np.ndarray, cov_xy: np.ndarray, hit_cell: int | None
                   ) -> tuple[float, float]:
         """One track's score gain from this step's looks and the mass they tested
-        (:func:`~mttbench.trackers.kfnn.cell_evidence`; ``hit_cell`` its detection's)."""
+        (:func:`~mttbench.trackers.cell_evidence.cell_evidence`; ``hit_cell`` its detection's)."""
         looked, _, det_cells, log_r = self._step_looks
         rows = np.zeros(0 if hit_cell is None else 1, dtype=np.int64)
         gain, tested = cell_evidence(self._grid, mean_xy[None], cov_xy[None], looked, log_r,

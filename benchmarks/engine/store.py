@@ -5,7 +5,7 @@ temp file ``.<name>.<pid>.tmp`` in the same folder and moved into place with
 ``os.replace``: a part is whole or absent, whatever stops the writer. The results table is
 the parts concatenated in a deterministic order (:func:`sort_results`).
 
-The batched **dataset** (issue 27, docs/result_store.md) is the layout of very large
+The batched **dataset** (docs/result_store.md) is the layout of very large
 sweeps: ``<out>/dataset/scenario=<s>/tracker=<t>/batch-<hash>.parquet``, each file the runs
 of one worker task with a ``run_key`` column and its runs listed in its metadata
 (:func:`batch_frame`), checked on resume run by run (:func:`check_batch`), indexed by
