@@ -657,7 +657,7 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
 def _draw_figures(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame, fig_dir: Path,
                   trace: Any, figs: dict[str, Path]) -> None:
     figs["ospa"] = figures.metric_over_time(results, "ospa", fig_dir / "ospa_over_time.png",
-                                            "OSPA (c = {:g}, p = {:g})".format(*_cp(results)))
+                                            f"OSPA ({summary.cutoff_text(results)})")
     figs["count_error"] = figures.metric_over_time(results, "count_error",
                                                    fig_dir / "count_error_over_time.png",
                                                    "count error |N_est - N|")
@@ -666,8 +666,8 @@ def _draw_figures(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame,
                        if m.name == "ospa2_window"), None)
         figs["ospa2"] = figures.metric_over_time(
             results, "ospa2_window", fig_dir / "ospa2_over_time.png", "OSPA(2)",
-            "OSPA(2) of the window ending at the step (c = {:g}, p = {:g}".format(
-                *_cp(results)) + (f", {window:g} steps)" if window else ")"))
+            f"OSPA(2) of the window ending at the step ({summary.cutoff_text(results)}"
+            + (f", {window:g} steps)" if window else ")"))
     figs["runtime"] = figures.runtime_per_step(runs, fig_dir / "runtime_per_step.png")
     figs["accuracy_runtime"] = figures.accuracy_vs_runtime(summ,
                                                            fig_dir / "accuracy_vs_runtime.png")
@@ -679,12 +679,6 @@ def _draw_figures(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame,
             trace.frames(), fig_dir / "snapshot.png", steps, g.nx, g.ny, g.cell_size,
             title=f"{trace.tracker_label} on {trace.scenario.name}, seed {trace.seed}, "
                   f"policy {trace.policy_label}")
-
-
-def _cp(results: pd.DataFrame) -> tuple[float, float]:
-    c = float(results["ospa_c"].dropna().iloc[0]) if results["ospa_c"].notna().any() else 2.0
-    p = float(results["ospa_p"].dropna().iloc[0]) if results["ospa_p"].notna().any() else 2.0
-    return c, p
 
 
 # -------------------------------------------------------------- browser check

@@ -240,12 +240,14 @@ def check_sweep(out_dir: str | Path, keys: list[str] | None, c: float, p: float,
                 dataset.is_dir() and any(dataset.rglob("batch-*.parquet")))):
             raise ConfigError(f"{out} already holds the runs of a sweep: finish it with "
                               "--resume, or choose another --out")
-        manifest = {"format": 1, "extend": extend, "c": float(c), "p": float(p),
+        manifest = {"format": 1, "extend": extend, "c": None if c is None else float(c),
+                    "p": float(p),
                     "jobs": mine}
         if store != STORE_PARTS:  # a parts sweep's manifest stays as it was
             manifest["store"] = store
         return manifest
-    same_kind = (bool(old.get("extend")) == extend and old.get("c") == float(c)
+    same_kind = (bool(old.get("extend")) == extend
+                 and old.get("c") == (None if c is None else float(c))
                  and old.get("p") == float(p) and old.get("store", STORE_PARTS) == store)
     if not same_kind or (not extend and keys is not None and sorted(old["jobs"]) != mine):
         raise ConfigError(f"{out} holds another sweep ({SWEEP_MANIFEST}): resume that one "
