@@ -51,6 +51,7 @@ from ..engine import policies
 from ..engine.errors import ConfigError
 from ..engine.executors import describe_current
 from ..engine.loop import build_jobs
+from ..engine.metrics import CUTOFF_CELLS
 from ..engine.specs import (
     resolve_policies,
     resolve_scenarios,
@@ -132,8 +133,10 @@ def _check_common(args: argparse.Namespace) -> None:
         raise UsageError(f"--p {args.p} is not allowed: the OSPA order must be a finite "
                          "number >= 1")
     # the metrics raise distances up to c to the power p: c ** p must stay a normal number
-    if args.c is not None and abs(args.p * math.log10(args.c)) > MAX_C_POWER_P_EXP:
-        raise UsageError(f"--c {args.c} with --p {args.p} is not allowed: c ** p must stay "
+    # (the default c, 2 cells, checked as 2: its cell size is the scenario's)
+    c = CUTOFF_CELLS if args.c is None else args.c
+    if abs(args.p * math.log10(c)) > MAX_C_POWER_P_EXP:
+        raise UsageError(f"--c {c} with --p {args.p} is not allowed: c ** p must stay "
                          f"within 1e-{MAX_C_POWER_P_EXP} .. 1e{MAX_C_POWER_P_EXP} (the metrics "
                          "raise distances to the power p)")
     timeout = getattr(args, "run_timeout", None)
