@@ -1,4 +1,4 @@
-"""Paired head-to-head of the tuned trackers (docs/tune.md, issue 15's goals).
+"""Paired head-to-head of the tuned trackers (docs/tune.md).
 
     .venv/bin/python docs/head_to_head.py OUT_DIR [OUT_DIR ...]
 

@@ -1,4 +1,4 @@
-"""Peak memory of a run against the grid's size (issue 16: a 1e5 x 1e5 grid should run
+"""Peak memory of a run against the grid's size (the goal: a 1e5 x 1e5 grid runs
 in the memory of a 50x50 one), and of the ``scale`` preset, each run in a fresh process.
 
 Every run plays ``--steps`` steps of a world through the harness

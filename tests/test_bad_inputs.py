@@ -1,4 +1,4 @@
-"""Bad input, as a new user would type it: every case of issue 12, in-process.
+"""Bad input, as a new user would type it: every case, in-process.
 
 Each refused case asserts the exit status, that stderr holds exactly one non-empty line
 naming the problem (no traceback), and that the results of an earlier sweep in the same
@@ -74,7 +74,7 @@ def _sub(pattern: str, repl: str):
 
 
 # --------------------------------------------------------------- refused: exit 2
-#: tracker and policy parameter values of issue 12 -> text the message must contain
+#: tracker and policy parameter values -> text the message must contain
 PARAMETER_CASES = [
     ("jmpd:n_particles=0", "n_particles"),
     ("jmpd:n_particles=-5", "n_particles"),
@@ -471,7 +471,7 @@ def test_stale_temp_files_are_removed_and_live_ones_kept(tmp_path, capsys):
     assert live.exists() and other.exists()
 
 
-# ------------------------------------------------ issue 24: refused before any run
+# ------------------------------------------------ refused before any run
 def _fifo(path: Path) -> Path:
     os.mkfifo(path)
     return path
@@ -489,7 +489,7 @@ def _bad_csv(path: Path) -> Path:
 
 def issue24_cases(tmp: Path) -> list[tuple[str, list[str], str]]:
     """``(id, argv, regex the one line must match)``: values that passed validation and
-    then overflowed, hung or failed after the work (issue 24); ``{out}`` is the output
+    then overflowed, hung or failed after the work; ``{out}`` is the output
     folder, which must not be created."""
     file = _bytes(tmp / "a-file", b"x")
     tune = ["tune", "kfnn", "--scenarios", "default", "--steps", "2", "--trials", "2",

@@ -1,4 +1,4 @@
-"""GPF mass accounting (issue 14): reflecting walls fold each Gaussian's mass back into the
+"""GPF mass accounting: reflecting walls fold each Gaussian's mass back into the
 workspace, absorbing walls truncate it (the mass outside is death), and targets the model
 expects but no particle holds return to the undetected field.
 

@@ -1,4 +1,4 @@
-"""The JMPD family without per-cell arrays (issue 16).
+"""The JMPD family without per-cell arrays.
 
 * :mod:`mttbench.trackers.jmpd.sparse` against brute force: :class:`CellIndex` (direct
   table and hash, crowded buckets included) against a dictionary, :func:`unique_cells`
@@ -103,7 +103,7 @@ def test_cell_table_equals_a_dense_mirror():
 # ================================================================= P_c against dense
 def _dense_pc_before(cells: np.ndarray, weights: np.ndarray, n_cells: int,
                      n_counts: int) -> np.ndarray:
-    """``P_c(t)`` as the JMPD computed it before issue 16, ``(n_cells, n_counts)``: a
+    """``P_c(t)`` as a dense computation, ``(n_cells, n_counts)``: a
     bincount over every cell of the grid."""
     c = cells.T
     t_max = c.shape[0]
@@ -125,7 +125,7 @@ def _dense_pc_before(cells: np.ndarray, weights: np.ndarray, n_cells: int,
 
 
 def _ap_dense_pc_before(t: JMPDAPTracker) -> np.ndarray:
-    """``jmpd-ap``'s ``P_c(t)`` as it was computed before issue 16, from the same draw
+    """``jmpd-ap``'s ``P_c(t)`` computed densely, from the same draw
     (cached by the tracker until the next predict) and the undetected values as dense
     arrays."""
     J = t._model.grid.n_cells

@@ -1,7 +1,7 @@
 """Declared parameters (trackers/params.py): every declaration matches its constructor,
 bad values are refused before any run in one line naming the tracker or policy, the
 parameter, the value and what is allowed; good values keep their types; and the random
-streams of a run follow the canonical configuration, not its spelling (issue 11)."""
+streams of a run follow the canonical configuration, not its spelling."""
 
 from __future__ import annotations
 

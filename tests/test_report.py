@@ -18,7 +18,7 @@ import pytest
 from scipy import stats
 
 from mttbench import scenarios
-from mttbench.benchmarks.app import figures, report
+from mttbench.benchmarks.app import figures, report, summary
 from mttbench.benchmarks.engine.loop import COLUMNS, Job, run_job
 from mttbench.benchmarks.engine.metrics import step_metrics
 from mttbench.benchmarks.engine.snapshot import trace_run
@@ -256,7 +256,7 @@ def test_markdown_tables_escape_pipes_and_show_the_looks_made():
     assert "| a\\|b |" in text and "| 24 (144 made) |" in text
 
 
-# ------------------------------------------------------- track-level scores (issue 26)
+# ------------------------------------------------------- track-level scores
 def test_tiny_sweep_report_has_ospa2_figure_and_crossing_table(tmp_path):
     """A real sweep on `crossing` (kfnn labels its tracks; null gives no labels): the
     OSPA(2)-over-time figure, the table of switches around the crossings, and the
@@ -287,3 +287,32 @@ def test_tiny_sweep_report_has_ospa2_figure_and_crossing_table(tmp_path):
     runs = summary.per_run(results)
     tg, tg_half = summary.mean_ci95(runs.loc[runs["tracker"] == "kfnn", "tgospa"].to_numpy())
     assert f"{tg:.3f} ± {tg_half:.3f}" in track and "| crossing | null" not in track
+
+
+def _runs(gaps: dict[str, np.ndarray], metric: str = "gospa") -> pd.DataFrame:
+    """Per-run rows of one scenario: the baseline's per-seed values swing widely, each
+    tracker's are the baseline's minus ``gaps[tracker]`` (per seed)."""
+    seeds = np.arange(10)
+    base = 2.0 + 0.5 * np.sin(seeds)
+    rows = [{"scenario": "paper", "policy_label": "raster", "looks_per_step": 24,
+             "tracker": t, "tracker_label": t, "seed": int(s), "status": "ok",
+             metric: float(v)}
+            for t, values in {"null": base, **{t: base - g for t, g in gaps.items()}}.items()
+            for s, v in zip(seeds, values, strict=True)]
+    return pd.DataFrame(rows)
+
+
+def test_baseline_notes_use_the_paired_rule():
+    """The seeds move every tracker together: ``gpf`` better than ``null`` by 0.05 on every
+    seed (+-0.005) is within ``null``'s unpaired interval but beats it in the paired test,
+    so the scenario ranks trackers on GOSPA; ``gpf`` equal to ``null`` up to noise does
+    not, and the note names the paired difference."""
+    seeds = np.arange(10)
+    beats = _runs({"gpf": 0.05 + 0.005 * np.cos(seeds), "kfnn": -0.3 + 0 * seeds})
+    summ = summary.summarize(beats, metrics=["gospa"])
+    assert report.baseline_notes(summ) != []  # the unpaired rule would flag it
+    assert report.baseline_notes(summ, beats) == []
+    level = _runs({"gpf": 0.02 * np.cos(3 * seeds), "kfnn": -0.3 + 0 * seeds})
+    notes = report.baseline_notes(summary.summarize(level, metrics=["gospa"]), level)
+    assert len(notes) == 1 and "no tracker beats the baseline `null` on GOSPA" in notes[0]
+    assert "`gpf`" in notes[0] and "paired test" in notes[0]

@@ -179,7 +179,7 @@ def world_job(world: str, tracker: str, policy: str | None, looks: int | None) -
 
 
 #: (world, tracker, policy, looks) -> (memory, seconds, parts) as ``estimate_job`` gave them
-#: before issue 22, when resources.py still knew every tracker and policy by name: computed
+#: when resources.py still knew every tracker and policy by name: computed
 #: by that function (commit c68a429, run from a copy while the classes took their costs
 #: over) and pasted here. The classes' terms must give the same numbers, bit for bit
 OLD_ESTIMATES: dict[tuple[str, str, str | None, int | None], tuple[float, float, dict]] = {

@@ -1,4 +1,4 @@
-"""The batched result store (issue 27): runs batched per worker task into a partitioned
+"""The batched result store: runs batched per worker task into a partitioned
 Parquet dataset with a manifest, resume at run granularity, and the per-run table computed
 file by file.
 
@@ -65,7 +65,7 @@ def _batches(out: Path) -> list[Path]:
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory):
-    """The same jobs with one part per run (the store of issue 24): rows and per-run."""
+    """The same jobs with one part per run (the parts store): rows and per-run."""
     out = tmp_path_factory.mktemp("parts") / "out"
     rows = run_sweep(_jobs(), out, workers=2, store="parts")
     return _rows(rows), per_run(rows)

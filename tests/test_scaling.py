@@ -475,7 +475,7 @@ def test_sparse_renyi_draws_default_cells_uniformly(repeats):
 
 
 def _old_oracle(rng, n_cells: int, m: int, truth_cells: np.ndarray) -> np.ndarray:
-    """The oracle before issue 16: the other cells listed with ``setdiff1d``."""
+    """A second oracle: the other cells listed with ``setdiff1d``."""
     m = min(m, n_cells)
     truth = np.unique(truth_cells)
     truth = truth[(truth >= 0) & (truth < n_cells)]

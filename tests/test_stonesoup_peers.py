@@ -370,6 +370,8 @@ def test_gnn_recycles_a_deleted_tracks_existence(stonesoup_installed):
     cell = int(grid.cell_of(6.5, 6.5))
     before = None
     L_before = None
+    # lambda at the birth cell before the birth step's looks (the track's prior)
+    lam_birth = (bd.survival_probability * bd.initial_count_mean + bd.birth_rate) / grid.n_cells
     for _, track, tracks in _one_track_then_missed(tracker, model, cell):
         if not tracks:
             looked = np.arange(grid.n_cells) != cell
@@ -379,7 +381,10 @@ def test_gnn_recycles_a_deleted_tracks_existence(stonesoup_installed):
             mass = _cell_masses(state, grid)
             miss = np.log1p((mass.sum() - mass[cell]) * ((1 - sensor.p_d) / (1 - sensor.p_f)
                                                          - 1))
-            r = expit(tracker._birth_logodds + L_before + miss)
+            # the track's prior: an untracked target in its birth cell, from lambda there
+            # at its birth (log(exp(lambda) - 1), scipy-free here: numpy)
+            prior = np.log(np.expm1(lam_birth))
+            r = expit(prior + np.log(sensor.p_d / sensor.p_f) + L_before + miss)
             got = tracker._undetected.dense()
             np.testing.assert_allclose(got, want + r * mass, rtol=0, atol=1e-8)
             assert r * mass.max() > 1e-3  # the recycled share is visible at that tolerance
@@ -418,8 +423,9 @@ def test_gnn_does_not_report_clutter_tracks(stonesoup_installed):
 def test_gnn_reports_the_round_sum_most_likely_tracks(stonesoup_installed):
     """On ``env-pf-0.1`` (p_d 0.5, p_f 0.1, raster a quarter of the grid): at every step
     the estimate holds the ``round(sum r)`` tracks of largest existence, confirmed or
-    holding, with ``r = sigmoid(L0 + log(p_d / p_f) + L)`` recomputed here from the
-    model's density and the score deleter's ``L``; its count is ``sum r``. Holding tracks
+    holding, with ``r = sigmoid(L0 + log(p_d / p_f) + L)`` recomputed here from each
+    track's prior log-odds (the untracked intensity at its birth, tests/
+    test_stonesoup_births.py) and the score deleter's ``L``; its count is ``sum r``. Holding tracks
     are reported on some steps (Stone Soup's confirmed tracks alone reported 0.5 for 3
     there)."""
     from scipy.special import expit
@@ -427,16 +433,16 @@ def test_gnn_reports_the_round_sum_most_likely_tracks(stonesoup_installed):
     from mttbench.benchmarks.engine.loop import play
 
     sc = get_point("env-pf-0.1")
-    model, bd = sc.model, sc.model.birth_death
-    q = 1 - np.exp(-(bd.initial_count_mean + bd.birth_rate) / model.grid.n_cells)
-    l0 = np.log(q / (1 - q)) + np.log(model.sensor.p_d / model.sensor.p_f)
+    model = sc.model
+    log_pos = np.log(model.sensor.p_d / model.sensor.p_f)
     tracker = trackers.make("ss-gnn")
     holding_reported = 0
     for rec in play(sc, tracker, 3):
         confirmed = list(tracker._tracks)
         tracks = confirmed + sorted(tracker._initiator.holding_tracks, key=sp.track_key)
         scores = tracker._score_deleter.scores  # a holding track born this step: L = 0
-        r = expit(l0 + np.array([scores[t.id][0] if t.id in scores else 0.0 for t in tracks]))
+        r = expit(log_pos + np.array([tracker._prior_logodds[t.id] for t in tracks])
+                  + np.array([scores[t.id][0] if t.id in scores else 0.0 for t in tracks]))
         top = np.sort(np.argsort(-r, kind="stable")[:int(np.round(r.sum()))])
         want = np.array([np.ravel(tracks[i].state.mean) for i in top]).reshape(-1, 4)
         np.testing.assert_array_equal(rec.estimate.states, want)
@@ -450,10 +456,11 @@ def test_gmphd_expected_count_follows_the_closed_form(stonesoup_installed):
     the birth component's weight ``w1 = p b q / (kappa + p b q)`` with ``q`` the Gaussian
     density of the detection under the predicted birth component, ``p = (p_d - p_f) / (1 -
     p_f)`` (the cell sensor as detections with independent clutter) and ``kappa = p_f /
-    cell area`` and ``b`` the birth scale times the model's target density (the initial
-    count over the cells); then a negative look at ``c`` multiplies the count by ``1 - p``,
-    two negative looks by ``(1 - p)^2``, and a step that does not look at ``c`` leaves it
-    unchanged. ``P_c(t)`` is Poisson with the predicted intensity mass."""
+    cell area`` and ``b`` the birth scale times the undetected intensity at the cell (the
+    initial count over the cells at the first step); then a negative look at ``c``
+    multiplies the count by ``1 - p``, two negative looks by ``(1 - p)^2``, and a step
+    that does not look at ``c`` leaves it unchanged. ``P_c(t)`` is Poisson with the
+    predicted intensity mass."""
     sc = get_scenario("default")
     model = sc.model
     grid, sensor = model.grid, model.sensor

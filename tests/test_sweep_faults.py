@@ -1,4 +1,4 @@
-"""A sweep that cannot be fooled or frozen (issue 24), in-process through the command line.
+"""A sweep that cannot be fooled or frozen, in-process through the command line.
 
 Resume checks every part's identity (its job key, row count and status in the Parquet
 metadata): a part swapped with another run's, or cut short, is reported in one line and

@@ -226,7 +226,7 @@ def test_run_level_columns_reach_rows_summary_and_report(tmp_path):
     assert "## Track-level scores" in text and "No track-level scores for `null`" in text
 
 
-# ------------------------------------------------------------ per-step series (issue 26)
+# ------------------------------------------------------------ per-step series
 def _brute_ospa2_window(tpos, tids, epos, elab, k, w, c, p):
     """OSPA(2) of the window of ``w`` steps ending at ``k``, from its definition: the
     tracks present in the window, the time-averaged base distance step by step, the

@@ -11,7 +11,7 @@ Two kernels build a tracker's predicted per-cell count distribution ``P_c(t)``:
 A tracker multiplies the cell masses by each target's existence probability and
 passes the product to :func:`poisson_binomial`.
 
-Their sparse forms cost nothing per cell of the grid (issue 16):
+Their sparse forms cost nothing per cell of the grid:
 :func:`gaussian_cell_mass_sparse` keeps each Gaussian's masses within 6 sd of its mean,
 :func:`bernoulli_cell_counts` turns such entries plus a per-cell field into
 :class:`CellCounts` (``P_c(t)`` as own rows plus one default row), and :class:`CellField`
@@ -217,7 +217,7 @@ def as_cell_counts(P: CellCounts | np.ndarray) -> CellCounts:
     return P if isinstance(P, CellCounts) else CellCounts.from_dense(P)
 
 
-# ------------------------------------------------------------- sparse P_c(t) (issue 16)
+# ------------------------------------------------------------- sparse P_c(t)
 #: half-width, in marginal standard deviations, of the box of cells around a Gaussian's
 #: mean inside which :func:`gaussian_cell_mass_sparse` keeps its cell masses: the mass
 #: left out is at most ``2 * Phi(-6) = 2e-9`` per axis

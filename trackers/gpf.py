@@ -50,9 +50,9 @@ Step (the harness calls predict, then update, then estimate):
   on the combinations' posterior (:mod:`.gpf_grid`, "missed cells"; a deviation: the
   paper cuts on the prior), and a track joins a detected cell's cluster when its
   probability of being in the cell, prior ``w m_c`` or updated alone ``w m_c l_c / (w L
-  + 1 - w)``, exceeds ``INTERACTION_THRESHOLD`` (the second: at ``p_f ~ 1e-5`` a track
-  updated apart moved 16% of itself into a neighbour's detected cell, where it had
-  ``3e-6`` of its mass; docs/gpf.md section 14).
+  + 1 - w)``, exceeds ``INTERACTION_THRESHOLD`` (the second: at very low ``p_f`` a track
+  updated apart can move much of itself into a neighbour's detected cell where it had
+  almost none of its mass; docs/gpf.md section 14).
 * **Count bound** (models without arrivals): such a model never has more targets than it
   started with, ``n0``, so after each update the existences are replaced by their
   marginals given ``count <= n0`` (:func:`condition_on_count_bound`, exact for

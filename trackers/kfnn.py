@@ -61,7 +61,8 @@ Track score (sequential probability ratio test; Blackman and Popoli 1999, ch. 6.
     prior odds of a target, ``L0 = log(q / (1 - q))`` with ``q = 1 - exp(-rho)`` and
     ``rho`` the model's target density per cell (initial count and one step's arrivals
     over the grid), so ``sigmoid(L0 + L)`` is the posterior probability that the track is
-    a target. With ``alpha = false_track_probability`` and ``beta =
+    a target (the ratios and the prior: :mod:`~mttbench.trackers.cell_evidence`). With
+    ``alpha = false_track_probability`` and ``beta =
     lost_track_probability``::
 
         confirm when L0 + L >= log((1 - alpha) / alpha)   (P(false track) <= alpha)
@@ -73,9 +74,8 @@ Track score (sequential probability ratio test; Blackman and Popoli 1999, ch. 6.
     lower threshold never runs. A confirmed track is deleted when its score drops ``log(1 /
     beta)`` below the highest it reached (Blackman's score-drop deletion): under "still
     there" the ratio of "gone" to "there" is a martingale, so it grows by ``1 / beta`` with
-    probability at most ``beta`` (Ville), whatever ``alpha``. (Wald's ``|T1|`` as the drop
-    tied it to ``alpha``: at ``alpha = 1/2`` two misses deleted a held track under the renyi
-    policy, which looks at tracks often; docs/kfnn.md.) That test starts again at every new
+    probability at most ``beta`` (Ville), whatever ``alpha`` (Wald's ``|T1|`` as the drop
+    would tie it to ``alpha``; docs/kfnn.md). That test starts again at every new
     peak (a CUSUM, with a false alarm about every ``1 / beta`` tests), so a track tested
     more often deletes a present target more often per step: the drop is raised by
     ``log(rate / f)``, ``f`` the model's looks per step over the grid's cells (how often
@@ -91,9 +91,8 @@ Track score (sequential probability ratio test; Blackman and Popoli 1999, ch. 6.
     ``r_c``, so of the tracks born from false alarms at most ``r_birth / exp(T2 - L0)`` are
     confirmed (Ville's inequality; a test checks it), ``T2 = log((1 - alpha) / alpha)``. The
     default ``alpha = 1/2`` confirms a track once it is more likely a target than not.
-    Confirmation no longer decides what is reported (Estimate, below), so ``alpha`` only
-    moves a track from Wald's test to the drop from its peak (0.1 to 0.5 measured alike,
-    docs/kfnn.md).
+    Confirmation does not decide what is reported (Estimate, below): ``alpha`` only moves
+    a track from Wald's test to the drop from its peak.
     A track whose box holds no looked cell coasts (``L`` unchanged).
 
 Estimate
@@ -101,10 +100,9 @@ Estimate
     not (count ``sum r``, the mean of their Poisson-binomial count): the count estimate of
     a Bayesian filter (pmb and the GPF report the same way), which keeps the cardinality
     OSPA charges ``c`` for. Confirmation (``alpha``) decides which deletion test a track
-    is under. The confirmed tracks alone were the output until this change: they reported
-    nothing where a detection is worth too little to confirm within the run (``p_f =
-    0.3``, few looks at low SNR) and 7.7 for 3 at ``p_f = 0.01``, where false alarms
-    confirmed at birth wait for the raster to refute them (docs/kfnn.md).
+    is under. (The confirmed tracks alone report nothing where a detection is worth too
+    little to confirm within the run, and every false alarm confirmed at birth until the
+    raster refutes it; docs/kfnn.md.)
 
 Predicted count distribution ``P_c(t)`` (for sensor management)
     Each track is a Bernoulli target, present with the posterior probability of its
@@ -118,12 +116,13 @@ Predicted count distribution ``P_c(t)`` (for sensor management)
     ``lambda_c <- lambda_c (1 - p_d) / (1 - p_f)`` for each look at ``c``, positive or not
     (the ratio of a look that misses a target, pmb's ``l(0)``: a negative look is ``(1 -
     p_d) / (1 - p_f)`` times as likely with the target as without, and a positive one's
-    target becomes a track; ``(1 - p_d)``, used until issue 23's last stop, counted the
-    clutter's share of a negative look as evidence against targets). A deleted
+    target becomes a track; ``(1 - p_d)`` alone would count the clutter's share of a
+    negative look as evidence against targets). A deleted
     track's existence ``sigmoid(L0 + L)`` returns to it over its Gaussian's cells,
     ``lambda_c += r m_c`` (recycling, Williams 2012, as pmb: without it a target whose
-    track was deleted left no trace, so a policy that looks where it expects targets did
-    not look there again; a track leaving the workspace under ``die`` is not recycled). The
+    track was deleted leaves no trace, and a policy that looks where it expects targets
+    would not look there again; a track leaving the workspace under ``die`` is not
+    recycled). The
     intensity enters as one more Bernoulli per cell with probability ``1 -
     exp(-lambda_c)`` (at least one untracked target). Per cell, the count of these
     independent Bernoullis is Poisson-binomial (:func:`trackers.cells.
@@ -141,18 +140,17 @@ a track's 6-sd box and the looked-at cells, the untracked-only row for all other
 from __future__ import annotations
 
 import math
-import sys
-from typing import ClassVar, NamedTuple
+from typing import ClassVar
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
-from scipy.special import expit, ndtr
+from scipy.special import expit
 from scipy.stats import chi2
 
-from ..scenarios.model import Grid, Looks, RayleighGridSensor, TrackingModel
+from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
 from . import kalman
 from .base import (
     BOX_CELLS,
@@ -165,13 +163,18 @@ from .base import (
     gaussian_boxes,
     register,
 )
+from .cell_evidence import (
+    cell_evidence,
+    drop_raise,
+    look_ratios,
+    looked_log_ratios,
+    target_prior_logodds,
+)
 from .cells import (
-    BOX_SD,
     CellCounts,
     CellField,
     bernoulli_cell_counts,
     gaussian_cell_mass_sparse,
-    looked_in_boxes,
     untracked_probabilities,
 )
 from .params import Budget, Param, Search
@@ -184,95 +187,8 @@ N_COUNTS = 4
 DENSE_PAIRS = 10_000
 #: seconds per step beyond the per-target terms (:meth:`KFNNTracker.resource_terms`)
 KFNN_STEP_S = 5e-4
-#: log r_c is clipped here: r_c - 1 stays finite (many positive looks at one cell)
-_MAX_LOG_RATIO = 700.0
 #: H picks (px, py) out of [px, vx, py, vy]
 _H = np.eye(4)[kalman.POSITION]
-
-
-def target_prior_logodds(model: TrackingModel) -> float:
-    """Blackman's prior log-odds that a detection's track is a target, ``L0 = log(q / (1 -
-    q))``, ``q = 1 - exp(-rho)``, ``rho`` the model's target density per cell (initial count
-    and one step's arrivals over the grid); ``-inf`` for a model without targets."""
-    bd = model.birth_death
-    q = -math.expm1(-(bd.initial_count_mean + bd.birth_rate) / model.grid.n_cells)
-    if q <= 0.0:
-        return -math.inf
-    return math.log(q) - math.log1p(-q) if q < 1.0 else math.inf
-
-
-class LookRatios(NamedTuple):
-    """A look at a cell, one target in it against none (the Rayleigh sensor's ``p_d`` and
-    ``p_f``): ``log_pos = log(p_d / p_f)`` for a positive look, ``log_neg = log((1 - p_d)
-    / (1 - p_f))`` for a negative one, and ``miss = (1 - p_d) / (1 - p_f)``, the ratio of
-    a look that misses a target (pmb's ``l(0)``), by which an untracked target's
-    intensity falls at every look, positive or not."""
-
-    log_pos: float
-    log_neg: float
-    miss: float
-
-
-def look_ratios(sensor: RayleighGridSensor) -> LookRatios:
-    """:class:`LookRatios` of ``sensor`` (``p_f`` floored at the smallest float)."""
-    p_d, p_f = sensor.p_d, sensor.p_f
-    return LookRatios(math.log(p_d) - math.log(max(p_f, sys.float_info.min)),
-                      math.log1p(-p_d) - math.log1p(-p_f), (1.0 - p_d) / (1.0 - p_f))
-
-
-def drop_raise(tested: np.ndarray | float, steps: np.ndarray | float,
-               budget_share: float) -> np.ndarray:
-    """``max(0, log(rate / f))``, ``rate = (tested + 1) / (steps + 1 / f)``: what a
-    confirmed track's deletion drop rises by when its ``steps`` tested it (``tested`` the
-    sum of its predicted mass in the tested cells) more often than the model's look budget,
-    a share ``f`` of the grid a step spread evenly, would (module docstring)."""
-    return np.log(np.maximum((tested + 1.0) / (budget_share * steps + 1.0), 1.0))
-
-
-def looked_log_ratios(cells: np.ndarray, returns: np.ndarray, log_pos: float,
-                      log_neg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The looked cells (sorted), the looks at each, the positive cells (one detection
-    each) and ``log r_c`` per looked cell, one target in it against none: ``k_c log_pos +
-    (n_c - k_c) log_neg`` (clipped at :data:`_MAX_LOG_RATIO`)."""
-    cells = np.asarray(cells, dtype=np.int64)
-    returns = np.asarray(returns, dtype=bool)
-    looked, n_looks = np.unique(cells, return_counts=True)
-    det_cells = np.unique(cells[returns])
-    positive = np.bincount(np.searchsorted(looked, cells[returns]), minlength=len(looked))
-    log_r = np.minimum(positive * log_pos + (n_looks - positive) * log_neg, _MAX_LOG_RATIO)
-    return looked, n_looks, det_cells, log_r
-
-
-def cell_evidence(grid: Grid, mean_xy: np.ndarray, cov_xy: np.ndarray, looked: np.ndarray,
-                  log_r: np.ndarray, det_cells: np.ndarray, rows: np.ndarray,
-                  hit_cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``log(1 + sum_c m_kc (r_c - 1))`` per track ``(K,)``: ``c`` over the negative
-    looked cells in the track's 6-sd box and, for the tracks ``rows``, their associated
-    detection's cell ``hit_cells``; ``m_kc`` the predicted position Gaussian's mass.
-    Also ``min(1, sum_c m_kc)`` per track, the share of it those looks tested."""
-    s = grid.cell_size
-    sx = np.maximum(np.sqrt(np.maximum(cov_xy[:, 0, 0], 0.0)), 1e-12 * s)
-    sy = np.maximum(np.sqrt(np.maximum(cov_xy[:, 1, 1], 0.0)), 1e-12 * s)
-    mx, my = mean_xy[:, 0], mean_xy[:, 1]
-    negative = looked[~_member(looked, det_cells)]
-    with np.errstate(invalid="ignore", over="ignore"):
-        box, i = looked_in_boxes(
-            np.floor((mx - BOX_SD * sx) / s), np.floor((mx + BOX_SD * sx) / s),
-            np.floor((my - BOX_SD * sy) / s), np.floor((my + BOX_SD * sy) / s),
-            negative, grid.nx, grid.ny)
-    box = np.concatenate([box, np.asarray(rows, dtype=np.int64)])
-    cell = np.concatenate([negative[i], np.asarray(hit_cells, dtype=np.int64)])
-    if not len(box):
-        return np.zeros(len(mean_xy)), np.zeros(len(mean_xy))
-    ix, iy = cell % grid.nx, cell // grid.nx
-    mass = ((ndtr(((ix + 1) * s - mx[box]) / sx[box]) - ndtr((ix * s - mx[box]) / sx[box]))
-            * (ndtr(((iy + 1) * s - my[box]) / sy[box])
-               - ndtr((iy * s - my[box]) / sy[box])))
-    ratio_minus_1 = np.expm1(log_r[np.searchsorted(looked, cell)])
-    total = np.bincount(box, weights=mass * ratio_minus_1, minlength=len(mean_xy))
-    looked_mass = np.minimum(np.bincount(box, weights=mass, minlength=len(mean_xy)), 1.0)
-    # r_c - 1 >= -1, so the sum stays above -1 (mass <= 1): log1p is finite
-    return np.log1p(np.maximum(total, -1.0 + 1e-300)), looked_mass
 
 
 def associate(cost: np.ndarray, gate: float, method: str = "global"
@@ -320,14 +236,6 @@ def associate(cost: np.ndarray, gate: float, method: str = "global"
         raise ValueError(f"association must be 'global' or 'greedy', got {method!r}")
     by_row = np.argsort(rows, kind="stable")
     return rows[by_row].astype(np.int64), cols[by_row].astype(np.int64)
-
-
-def _member(x: np.ndarray, sorted_set: np.ndarray) -> np.ndarray:
-    """``np.isin(x, sorted_set)`` for a sorted ``sorted_set``, by binary search."""
-    if not len(sorted_set):
-        return np.zeros(len(x), dtype=bool)
-    i = np.minimum(np.searchsorted(sorted_set, x), len(sorted_set) - 1)
-    return sorted_set[i] == x
 
 
 def gated_pairs(pred_z: np.ndarray, S: np.ndarray, z: np.ndarray, gate: float

@@ -43,9 +43,8 @@ Confirmed tracks jointly, tentative tracks one by one
     confirmed tracks leave of each detection: detection ``z``'s weight in a tentative
     track's ``PDAHypothesiser`` output is multiplied by ``1 - s_z``, ``s_z`` the confirmed
     tracks' marginal probability of ``z``. Deviation from JIPDA, for the cost: in clutter
-    every positive cell starts a tentative track, and EHM over all of them (tried: up to
-    28 s for one step at ``p_f = 0.3`` with 20 tracks, whose gates share most of the
-    detections) is exponential in the detections a cluster shares.
+    every positive cell starts a tentative track, and EHM over all of them (whose gates
+    share most of the detections) is exponential in the detections a cluster shares.
 
 Existence and the state (JIPDA on Stone Soup's marginals)
     From the marginals ``b_0`` (missed) and ``b_i`` (detection ``i``) of a track with
@@ -72,9 +71,8 @@ Initiation (births from the model)
     positive cell holds a newly detected target rather than only clutter. (For one look
     and a small ``lambda_c`` this is ``lambda p_d / (p_f + lambda p_d (1 - p_f))``, near the
     exact ``lambda p_d / (p_f + lambda (p_d - p_f))``: a present target leaves the cell
-    positive with ``p_d`` whatever the clutter. ``P_D = (p_d - p_f) / (1 - p_f)`` in place
-    of ``p_d`` counts only the target's own detections and was worse at ``p_f = 0.3``,
-    +0.054 ± 0.052 under raster, 8 seeds.) (The
+    positive with ``p_d`` whatever the clutter; ``P_D = (p_d - p_f) / (1 - p_f)`` in place
+    of ``p_d`` would count only the target's own detections, docs/stonesoup.md.) (The
     track-oriented PMB puts the new target into the joint association; using the tracks'
     marginal ``s`` is the usual approximation of JIPDA trackers.) At ``p_f = 5e-4`` on the
     presets a first detection gives ``r0`` near 0.95; at ``p_f = 0.3``, 0.034.
@@ -92,16 +90,14 @@ Deletion, recycling and the cap (error rates and bounds, as ``ss-gnn``)
 
 Estimate (the count and the reported states)
     The expected number of targets among the tracks, ``sum r``, rounded; the states of
-    that many tracks of highest existence (ties by age). Count = the number reported. (The
-    "existence above a threshold" estimate collapses in clutter: at ``p_f = 0.1`` and
-    ``0.3`` with ``p_d = 0.5`` no track reaches 0.5 within the envelope's 40 steps, while
-    the tracks' existences sum to 1-2.5 of the 3 targets.)
+    that many tracks of highest existence (ties by age). Count = the number reported. (An
+    "existence above a threshold" estimate collapses in clutter, where no track may reach
+    the threshold while the existences sum to most of the targets; docs/stonesoup.md.)
 
 Cost per step (bounded in clutter)
     JPDA (EHM) only over the confirmed tracks, whose number the estimate keeps near the
     count; each tentative track costs its gated detections; the cap bounds the tracks;
-    the covariance deleter bounds a gate. Measured at ``p_f = 0.3`` (env-pf-0.3, 6 worlds,
-    docs/stonesoup.md): median 28 ms, maximum 117 ms CPU per step. Nothing per cell of the
+    the covariance deleter bounds a gate (measured: docs/stonesoup.md). Nothing per cell of the
     grid (``P_c(t)``: the tracks' Gaussian masses within 6 sd times their existence, and
     the undetected intensity of the cells looked at so far).
 
@@ -125,6 +121,7 @@ from scipy.stats import chi2
 from ..scenarios.model import Looks, TrackingModel
 from . import kalman
 from .base import LOOKED_CELL_BYTES, LOOKED_CELL_S, Estimate, ResourceTerms, register
+from .cell_evidence import look_ratios
 from .cells import (
     CellCounts,
     CellField,
@@ -132,7 +129,6 @@ from .cells import (
     gaussian_cell_mass_sparse,
     untracked_probabilities,
 )
-from .kfnn import look_ratios
 from .params import Budget, Param, Search
 from .pmb.ppp import add_intensity
 from .stonesoup_peers import (

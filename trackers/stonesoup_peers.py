@@ -34,7 +34,7 @@ Detection probability and clutter (GM-PHD; the GNN's distance association uses n
     sensor's false-alarm probability; ``P = (p_d - p_f) / (1 - p_f)`` the detection of a
     target beside independent clutter, :func:`target_detection_probability`: a point
     detector with clutter sees a target's cell positive with ``1 - (1 - P)(1 - p_f) =
-    p_d``, as the cell sensor does; ``p_d`` itself counted the clutter's share twice).
+    p_d``, as the cell sensor does; ``p_d`` itself would count the clutter's share twice).
     What follows the looks **per look** is where the update applies: a component whose
     predicted mean lies in a cell not looked at has detection probability 0, so it does
     not enter Stone Soup's update and keeps its predicted weight (times ``p_s``). That
@@ -44,8 +44,8 @@ Detection probability and clutter (GM-PHD; the GNN's distance association uses n
 Determinism
     Stone Soup iterates sets of detections and tracks (ordered by object identity, so by
     memory address) and the GM-PHD reducer emits components in the order of a set of
-    random tags (string hashes, salted per process): the same run gave different numbers
-    in different processes. The adapter passes detections as lists in cell order, keeps
+    random tags (string hashes, salted per process), so the same run would give different
+    numbers in different processes. The adapter passes detections as lists in cell order, keeps
     tracks in a list ordered by the detection that started them (step, cell), runs the
     GNN through :class:`OrderedGNN` (sorts tracks and detections before Stone Soup's
     assignment, also inside the initiator), gives components deterministic tags and
@@ -67,17 +67,14 @@ Determinism
     ``m_c`` the predicted position Gaussian's mass in cell ``c``, over the negative looked
     cells and an update's detection cell, ``r_c`` the cell's ratio of one target against
     none: ``p_d / p_f`` per positive look, ``(1 - p_d) / (1 - p_f)`` per negative;
-    :func:`~mttbench.trackers.kfnn.cell_evidence`); deleted ``log((1 - alpha) / beta)``
+    :func:`~mttbench.trackers.cell_evidence.cell_evidence`); deleted ``log((1 - alpha) / beta)``
     below its highest score, a drop raised by ``log(rate / f)`` for a track tested more
     often than the model's look budget spread evenly would, as KF-NN's
-    (:mod:`~mttbench.trackers.kfnn`). Blackman's point score, ``log(p_d g(z) cell^2 /
-    p_f)`` per update (``g`` the innovation's Gaussian density at the cell centre), charged
-    an update from the next cell about -1.4 where a miss costs -0.59 (``p_d`` 0.5, ``p_f``
-    0.1): the quantisation treated as Gaussian noise has thin tails, so tracks of present
-    targets crossing a cell edge, or updated by clutter beside them, were deleted (3.0
-    reported for 9 in the clutter-and-density corner under renyi). Counting updates
-    alone kept tracks that live on clutter: 14-16 reported for 3 at ``p_f >= 0.06``
-    (docs/stonesoup.md). The counts come
+    (:mod:`~mttbench.trackers.kfnn`). Not Blackman's point score ``log(p_d g(z) cell^2 /
+    p_f)`` (``g`` the innovation's Gaussian density at the cell centre): it treats the
+    quantisation as Gaussian noise with thin tails and deletes tracks of present targets
+    that cross a cell edge; nor a count of updates, which keeps tracks that live on
+    clutter (docs/stonesoup.md). The counts come
     from the model as a careful user would set them, with KF-NN's error rates
     (:mod:`~mttbench.trackers.kfnn`): ``min_points`` is the fewest detections ``n`` whose
     likelihood ratio ``(p_d / p_f) ** n`` times the prior odds of the model's target
@@ -87,13 +84,19 @@ Determinism
     mean over the steps so far; the model's look budget before the first). At ``p_f =
     5e-4`` and raster 24 of 144 cells: one point and 27 steps; every cell looked at: 4
     steps; ``p_d = 0.9, p_f = 0.31`` and 20% of the cells: 7 points and 12 steps.
-    Existence (the adapter's, as KF-NN's): ``r = sigmoid(L0 + log(p_d / p_f) + L)``, the
-    prior log-odds of the model's target density, the birth detection and the score
-    deleter's ``L``, for confirmed and holding tracks alike.
+    Existence: ``r = sigmoid(L0 + log(p_d / p_f) + L)``, the birth detection, the score
+    deleter's ``L`` and ``L0 = log(exp(lambda_c) - 1)``, the prior log-odds of an untracked
+    target in the birth cell ``c`` (``lambda_c`` the undetected intensity below, before the
+    step's looks, plus on a model without arrivals the share of its expected count that
+    neither the tracks' ``sum r`` nor ``lambda`` holds, as ``ss-gmphd``'s births), for
+    confirmed and holding tracks alike. A detection where the looks
+    have already found nothing, or beside a held target, is most likely clutter: with the
+    model's whole density as the prior every clutter detection would start near ``r = 1/2``
+    at ``p_f = 0.01`` (docs/stonesoup.md).
     Estimate: the ``round(sum r)`` tracks of largest ``r``, confirmed or holding (count
-    ``sum r``), as KF-NN and pmb. Stone Soup's output, the confirmed tracks, reported
-    nothing where a detection is worth too little to confirm within the run (``p_f =
-    0.3``; 3.1 for 9 in the clutter-and-density corner); docs/stonesoup.md.
+    ``sum r``), as KF-NN and pmb (Stone Soup's own output, the confirmed tracks, reports
+    nothing where a detection is worth too little to confirm within the run;
+    docs/stonesoup.md).
     ``P_c(t)``: each track is a target in its predicted position Gaussian, present with
     probability ``r``, plus KF-NN's undetected Poisson intensity per cell for targets
     not yet tracked (a :class:`~mttbench.trackers.cells.CellField`), to which a deleted
@@ -113,11 +116,20 @@ Determinism
     uniform over the grid (its mass at a corner is 5% of the centre's), so the adapter
     adds a birth component (tag ``birth``) at the centre of every cell with a detection
     (measurement-driven births, Ristic, Clark, Vo and Vo 2012), its weight ``birth_scale``
-    times the model's target density per cell, ``(initial count + birth_rate) / n``
-    (the undetected intensity itself would be right for a filter that never loses a
-    target; once the looks have driven it to 0 on a model without arrivals, a lost target
-    is never found again), position variance ``cell_size^2 / 12``, velocity 0 with sd
-    ``birth_velocity_scale`` times the model's birth velocity sd. A birth
+    times the untracked targets expected in that cell before its looks: ``lambda_c + max(0,
+    E[N_k] - p_s sum w - sum lambda) / n``, ``lambda_c`` the undetected intensity below and
+    ``E[N_k] = p_s^k n0`` the expected count of a model without arrivals (the second term is
+    0 on a model with arrivals, :meth:`_StoneSoupPeer._spare`). The first term is the PHD's
+    own: where looks have found nothing, or a component already holds the target, a
+    detection is most likely clutter (with the model's whole density ``(initial count +
+    birth_rate) / n`` a clutter detection at ``p_f = 0.055`` would keep 0.36, above the
+    extraction threshold). The second returns the part of the model's count that neither the
+    mixture nor ``lambda`` holds: the Gaussian likelihood of a cell detection has thin
+    tails, so a component loses its weight when its target crosses into the next cell, and
+    on a model without arrivals ``lambda`` alone would never give it back
+    (docs/stonesoup.md; with arrivals, births feed ``lambda``). Position variance
+    ``cell_size^2 / 12``, velocity 0
+    with sd ``birth_velocity_scale`` times the model's birth velocity sd. A birth
     component far from every detection would only be missed and dropped, so leaving it
     out changes nothing but the denominators of detections in a neighbouring cell
     (``q`` of a Gaussian a cell away). Estimate: the components with weight above
@@ -170,19 +182,19 @@ from .base import (
     param_number,
     register,
 )
+from .cell_evidence import (
+    cell_evidence,
+    drop_raise,
+    look_ratios,
+    looked_log_ratios,
+    target_prior_logodds,
+)
 from .cells import (
     CellCounts,
     CellField,
     bernoulli_cell_counts,
     gaussian_cell_mass_sparse,
     untracked_probabilities,
-)
-from .kfnn import (
-    cell_evidence,
-    drop_raise,
-    look_ratios,
-    looked_log_ratios,
-    target_prior_logodds,
 )
 from .params import Budget, Param, Search
 from .pmb.ppp import recycle
@@ -265,7 +277,7 @@ def _import_stonesoup() -> SimpleNamespace:
         """A track-score deleter on Stone Soup's interface (Blackman and Popoli 1999, ch.
         6.2, with KF-NN's cell-exact ratio): each step a track's log-likelihood ratio of
         "target" against "false track" moves by ``log(1 + sum_c m_c (r_c - 1))``
-        (:func:`~mttbench.trackers.kfnn.cell_evidence` through :attr:`evidence`, set by the
+        (:func:`~mttbench.trackers.cell_evidence.cell_evidence` through :attr:`evidence`, set by the
         adapter each step): ``m_c`` its predicted position Gaussian's mass in cell ``c``,
         ``c`` over the negative looked cells and, for an update, its detection's cell,
         ``r_c`` the cell's ratio of one target against none. The track is deleted when its
@@ -429,6 +441,17 @@ class _StoneSoupPeer(Tracker):
                 for c, (x, y) in zip(det_cells, self._grid.cell_centers(det_cells), strict=True)]
         return dets, looked, n_looks
 
+    def _spare(self, held: float) -> float:
+        """Per cell, the model's expected count that neither the tracker's own targets
+        (``held``) nor the undetected intensity holds, ``max(0, E[N_k] - held - sum
+        lambda) / n``, on a model without arrivals (its count is the initial one, thinned
+        by ``p_s``); 0 on a model with arrivals, whose ``E[N_k]`` from ``p_s`` alone would
+        ignore the targets that leave under ``die``, and whose ``lambda`` is fed by births."""
+        if self._birth_per_cell > 0.0:
+            return 0.0
+        held += self._undetected.total()
+        return max(0.0, self._expected - held) / self._grid.n_cells
+
     def _inside(self, m: np.ndarray) -> np.ndarray:
         """``(K,)`` True where the means ``m (K, 4)`` lie in the workspace (``die``:
         outside is dead), all True under ``reflect``."""
@@ -527,8 +550,10 @@ class StoneSoupGNN(_StoneSoupPeer):
         n = model.grid.n_cells
         self._p_s, self._birth_per_cell = bd.survival_probability, bd.birth_rate / n
         self._undetected = CellField(n, bd.initial_count_mean / n)
-        # a track's existence: sigmoid(prior log-odds + its birth detection + its score)
-        self._birth_logodds = target_prior_logodds(model) + self._log_pos
+        self._expected = bd.initial_count_mean  # the model's expected count, E[N_k]
+        # a track's existence: sigmoid(prior log-odds + its birth detection + its score),
+        # the prior that of an untracked target in its birth cell (by Stone Soup track id)
+        self._prior_logodds: dict[str, float] = {}
 
     def min_points(self, per_hit: float) -> int:
         """The fewest detections ``n`` with ``L0 + n per_hit >= log((1 - alpha) / alpha)``,
@@ -555,7 +580,7 @@ class StoneSoupGNN(_StoneSoupPeer):
     def _evidence(self, mean_xy: np.ndarray, cov_xy: np.ndarray, hit_cell: int | None
                   ) -> tuple[float, float]:
         """One track's score gain from this step's looks and the mass they tested
-        (:func:`~mttbench.trackers.kfnn.cell_evidence`; ``hit_cell`` its detection's)."""
+        (:func:`~mttbench.trackers.cell_evidence.cell_evidence`; ``hit_cell`` its detection's)."""
         looked, _, det_cells, log_r = self._step_looks
         rows = np.zeros(0 if hit_cell is None else 1, dtype=np.int64)
         gain, tested = cell_evidence(self._grid, mean_xy[None], cov_xy[None], looked, log_r,
@@ -567,6 +592,7 @@ class StoneSoupGNN(_StoneSoupPeer):
         intensity ``p_s lambda + b / n``."""
         self._k += 1
         self._undetected.affine(self._p_s, self._birth_per_cell)
+        self._expected = self._p_s * self._expected + self._birth_per_cell * self._grid.n_cells
 
     def _predicted(self, tracks: list[Any]) -> tuple[np.ndarray, np.ndarray]:
         """Predicted means ``(K, 4)`` and covariances of ``tracks`` (``F``, ``Q``)."""
@@ -615,12 +641,29 @@ class StoneSoupGNN(_StoneSoupPeer):
             inside = self._inside(m)
             dropped += [tr for tr, ok in zip(self._tracks, inside, strict=True)
                         if ok and tr in dead]
+            for tr, ok in zip(self._tracks, inside, strict=True):
+                if not ok:  # left the workspace under die: gone, not recycled
+                    self._score_deleter.scores.pop(tr.id, None)
+                    self._prior_logodds.pop(tr.id, None)
             self._tracks = [tr for tr, ok in zip(self._tracks, inside, strict=True)
                             if ok and tr not in dead]
         holding = set(self._initiator.holding_tracks)
         new = self._initiator.initiate({d for d in dets if d not in used}, t)
         for track in new:  # promoted by the initiator before its deleter scored this step
             self._score_deleter.check_for_deletion(track)
+        born = [tr for tr in [*self._initiator.holding_tracks, *new]
+                if tr.id not in self._prior_logodds]
+        if born:  # the untracked targets in the birth cell, before this step's looks:
+            # lambda_c and the model's expected count the tracks and lambda do not hold
+            kept = [tr for tr in [*self._tracks, *self._initiator.holding_tracks, *new]
+                    if tr.id in self._prior_logodds]
+            spare = self._spare(float(self._existence(kept).sum()))
+            lam = spare + self._undetected.at(
+                [tr.states[0].hypothesis.measurement.metadata["cell"] for tr in born])
+            with np.errstate(divide="ignore"):
+                prior = np.log(np.expm1(lam))  # log-odds of 1 - exp(-lambda)
+            self._prior_logodds.update(zip((tr.id for tr in born), prior.tolist(),
+                                           strict=True))
         self._tracks += sorted(new, key=track_key)
         dropped += sorted(holding - self._initiator.holding_tracks - set(new), key=track_key)
         self._undetected.multiply(looked, self._miss ** n_looks)
@@ -638,15 +681,19 @@ class StoneSoupGNN(_StoneSoupPeer):
         r = self._existence(tracks)
         for track in tracks:
             del self._score_deleter.scores[track.id]
+            self._prior_logodds.pop(track.id, None)
         m, P = zip(*(_mean_cov(tr.state) for tr in tracks), strict=True)
         recycle(self._undetected, self._grid, r, np.array(m), np.array(P))
 
     def _existence(self, tracks: list[Any]) -> np.ndarray:
-        """``sigmoid(L0 + log(p_d / p_f) + L)`` per track: the model's prior log-odds, its
-        birth detection and the score deleter's ``L`` (current for every track after
-        :meth:`update`; 0 for a holding track born this step)."""
+        """``sigmoid(L0 + log(p_d / p_f) + L)`` per track: ``L0 = log(exp(lambda_c) -
+        1)``, the prior log-odds of an untracked target in its birth cell ``c`` (the
+        undetected intensity there at its birth), its birth detection and the score
+        deleter's ``L`` (current for every track after :meth:`update`; 0 for a holding
+        track born this step)."""
         scores = self._score_deleter.scores
-        return expit(self._birth_logodds
+        prior = np.array([self._prior_logodds[tr.id] for tr in tracks])
+        return expit(prior + self._log_pos
                      + np.array([scores.get(tr.id, _UNSCORED)[0] for tr in tracks]))
 
     def estimate(self) -> Estimate:
@@ -684,8 +731,8 @@ class StoneSoupGMPHD(_StoneSoupPeer):
                "components at detected cells) on cell detections; optional extra")
     parameters: ClassVar[dict[str, Param]] = {
         "birth_scale": Param(float, 0, low_open=True, search=Search(0.1, 10.0, log=True),
-                             doc="a birth component's weight, in multiples of the model's "
-                                 "target density per cell"),
+                             doc="a birth component's weight, in multiples of the "
+                                 "undetected intensity at its detection's cell"),
         "birth_velocity_scale": Param(float, 0, low_open=True,
                                       search=Search(0.5, 2.0, log=True),
                                       doc="velocity sd of a birth component, in multiples "
@@ -747,8 +794,8 @@ class StoneSoupGMPHD(_StoneSoupPeer):
         self._miss = look_ratios(sensor).miss
         n = model.grid.n_cells
         self._birth_per_cell = bd.birth_rate / n
-        self._birth_weight = self.birth_scale * (bd.initial_count_mean + bd.birth_rate) / n
         self._undetected = CellField(n, bd.initial_count_mean / n)  # lambda_c
+        self._expected = bd.initial_count_mean  # the model's expected count, E[N_k]
         self._w = np.zeros(0)
         self._m = np.zeros((0, 4))
         self._P = np.zeros((0, 4, 4))
@@ -774,6 +821,7 @@ class StoneSoupGMPHD(_StoneSoupPeer):
         ``p_s lambda + b / n``."""
         self._k += 1
         self._undetected.affine(self._p_s, self._birth_per_cell)
+        self._expected = self._p_s * self._expected + self._birth_per_cell * self._grid.n_cells
 
     def cell_count_distribution(self) -> CellCounts:
         """Poisson with the predicted intensity mass per cell: rows of their own within 6
@@ -814,9 +862,16 @@ class StoneSoupGMPHD(_StoneSoupPeer):
             p = float(np.mean(-np.expm1(n_looked * np.log1p(-self._p_target))))
             kappa = float(np.mean(-np.expm1(n_looked * np.log1p(-self._p_f)))
                           / self._grid.cell_size ** 2)
-            births = [self._state(self._birth_weight,
+            # a birth's weight: the untracked targets expected in its cell before its looks,
+            # lambda_c plus the model's expected count the mixture and lambda do not hold
+            # (spread evenly): E[N_k] - p_s sum w - sum lambda, when positive
+            spare = self._spare(self._p_s * float(self._w.sum()))
+            lam = self.birth_scale * (
+                self._undetected.at([d.metadata["cell"] for d in dets]) + spare)
+            births = [self._state(float(b),
                                   np.array([d.state_vector[0, 0], 0.0, d.state_vector[1, 0], 0.0]),
-                                  self._birth_P, "birth", k - 1) for d in dets]
+                                  self._birth_P, "birth", k - 1)
+                      for b, d in zip(lam, dets, strict=True)]
             active = [c for c, on in zip(comps, looked, strict=True) if on] + births
             updater = self._ss.PHDUpdater(self._updater, clutter_spatial_density=kappa,
                                           prob_detection=p, prob_survival=self._p_s)

@@ -44,10 +44,9 @@ looked cell's share of every target's mass. ``attribution = "overlap"`` applies 
 return as it is to every target whose Gaussian overlaps the cell (no attribution, the
 literal "as if it were the only target"): then another target's detections, with
 ``Lambda = p_d / p_f`` ~ 1000 on the default sensor, pull a nearby filter onto that
-target and it can follow it for good (measured on ``default`` with every cell looked,
-seed 2: a filter lost from step 26 on). The target is also known to be inside the
-workspace ``W`` (it exists, and the truth never leaves ``W``), so the posterior of the
-prior ``N(m, P)`` is::
+target and it can follow it for good (docs/truth_aided.md). The target is also known
+to be inside the workspace ``W`` (it exists, and the truth never leaves ``W``), so the
+posterior of the prior ``N(m, P)`` is::
 
     p(x | z) = N(x; m, P) 1_W(x) g(x) / Z
 
@@ -76,11 +75,8 @@ and ``2nL - p`` with the velocity negated on a mirror, ``n`` in ``{-1, 0, 1}``; 
 images with mass above 1e-9 inside ``W``, so a target far from the walls has just
 itself). The update above then runs on every image (the same ``Lambda``; the mixture has
 one more level, images times cells) and moment-matches the whole posterior once: the
-fold is exact for a Gaussian prior, and nothing is truncated twice. Measured with
-every cell looked, 20 seeds of 100 steps, mean OSPA on ``paper`` / ``default``: this
-fold 1.304 / 0.324; a fold moment-matched in the prediction and truncated again in the
-update 1.366 / 0.326; truncation alone, no fold, 1.318 / 0.824 (a filter runs into the
-wall after its target bounced).
+fold is exact for a Gaussian prior, and nothing is truncated twice (truncation alone
+runs a filter into the wall after its target bounced; docs/truth_aided.md).
 
 Predicted per-cell count distribution ``P_c(t)``: each tracked target is present with
 probability 1, in cell ``c`` with its predicted Gaussian's mass there (summed over its

@@ -58,6 +58,7 @@ import pandas as pd
 from ...scenarios.simulator import Scenario
 from ...scenarios.spec import dumps as scenario_text
 from ..engine.loop import Job, build_jobs
+from ..engine.metrics import cutoff
 from ..engine.specs import PolicySpec, TrackerSpec
 from ..engine.store import write_text_atomic
 from .summary import mean_ci95
@@ -113,9 +114,11 @@ class Ladder:
 
 
 def reference_key(scenario: Scenario, policy: PolicySpec, looks: int | None,
-                  c: float, p: float) -> str:
+                  c: float | None, p: float) -> str:
     """What determines a reference's numbers, hashed (the seeds are stored inside); a
-    look budget equal to the scenario's own is the same as None."""
+    look budget equal to the scenario's own is the same as None, and ``c`` None is the
+    default cut-off in the scenario's units (:func:`~.metrics.cutoff`)."""
+    c = cutoff(c, scenario.grid.cell_size)
     own = getattr(scenario.model.sensor, "looks_per_step", None)
     if looks is not None and own is not None and int(looks) == int(own):
         looks = None
@@ -258,7 +261,7 @@ def load(store: str | Path, scenario: Scenario, key: str) -> Reference | None:
 
 
 def find(scenario: Scenario, policy: PolicySpec, looks: int | None, seeds: Sequence[int],
-         c: float = 2.0, p: float = 2.0, stores: Sequence[str | Path] | None = None
+         c: float | None = None, p: float = 2.0, stores: Sequence[str | Path] | None = None
          ) -> Reference | None:
     """The first stored reference (``stores``, default :func:`default_store`) for this
     scenario, policy, looks, ``c`` and ``p`` whose seeds include ``seeds``, its rows cut to
@@ -287,7 +290,8 @@ def _reference_rows(rows: pd.DataFrame) -> pd.DataFrame:
 def run_ladder(scenarios: Sequence[Scenario], seeds: Sequence[int], sweep: Sweep,
                work_dir: str | Path, *, ladder: Ladder = Ladder(),
                policy: PolicySpec = PolicySpec("raster"), looks: int | None = None,
-               c: float = 2.0, p: float = 2.0, provenance: Mapping[str, Any] | None = None,
+               c: float | None = None, p: float = 2.0,
+               provenance: Mapping[str, Any] | None = None,
                say: Callable[[str], None] = print) -> dict[str, Reference]:
     """Run the ladder for every scenario at once (rung by rung, each rung one sweep of the
     scenarios still open, so workers stay busy) and return each scenario's
@@ -350,7 +354,7 @@ def run_ladder(scenarios: Sequence[Scenario], seeds: Sequence[int], sweep: Sweep
             "scenario": name, "scenario_sha256": hashlib.sha256(
                 scenario_text(sc).encode()).hexdigest(),
             "n_steps": int(sc.n_steps), "policy": policy.label, "looks": looks,
-            "ospa_c": float(c), "ospa_p": float(p), "seeds": seeds,
+            "ospa_c": cutoff(c, sc.grid.cell_size), "ospa_p": float(p), "seeds": seeds,
             "tracker": LADDER_TRACKER, "ladder": asdict(ladder),
             "tolerance": ladder.tolerance, "rungs": [r.summary() for r in rs],
             "steps": steps[name], "converged": converged, "reason": reason,
@@ -368,7 +372,7 @@ def run_ladder(scenarios: Sequence[Scenario], seeds: Sequence[int], sweep: Sweep
 # ---------------------------------------------------------------- reports and tables
 def attach(results: pd.DataFrame, scenarios: Sequence[Scenario], seeds: Sequence[int],
            policy: PolicySpec = PolicySpec("raster"), looks: int | None = None,
-           c: float = 2.0, p: float = 2.0, stores: Sequence[str | Path] | None = None
+           c: float | None = None, p: float = 2.0, stores: Sequence[str | Path] | None = None
            ) -> tuple[pd.DataFrame, list[str]]:
     """``results`` with the stored reference's rows of every scenario that has one for
     these seeds (:func:`find`), and one line per scenario saying what was attached
@@ -432,7 +436,7 @@ def default_write_store() -> Path:
 def run_command(scenarios: Sequence[Scenario], seeds: Sequence[int], ladder: Ladder,
                 policy: PolicySpec, looks: int | None, out_dir: str | Path,
                 store: str | Path, *, workers: int = 1, progress: bool = True,
-                resume: bool = False, c: float = 2.0, p: float = 2.0,
+                resume: bool = False, c: float | None = None, p: float = 2.0,
                 run_timeout: float | None = None,
                 provenance: Mapping[str, Any] | None = None) -> dict[str, Reference]:
     """``mttbench bayes``: check every rung's runs fit (memory) before the first, run the
@@ -473,7 +477,8 @@ def run_command(scenarios: Sequence[Scenario], seeds: Sequence[int], ladder: Lad
 
     lines = [f"# The `bayes` reference: particle-count ladder of `{LADDER_TRACKER}`", "",
              f"Seeds {list(seeds)[0]}..{list(seeds)[-1]} ({len(seeds)}), policy "
-             f"{policy.label}, OSPA c = {c:g}, p = {p:g}; converged when the paired "
+             f"{policy.label}, OSPA c = {'2 cells' if c is None else format(c, 'g')}, "
+             f"p = {p:g}; converged when the paired "
              f"difference's 95% interval lies within ±{ladder.tolerance:g}. "
              f"Wall time {time.perf_counter() - started:.0f} s.", "",
              "| " + " | ".join(table.columns) + " |",

@@ -53,6 +53,7 @@ from ..engine import policies
 from ..engine.errors import ConfigError
 from ..engine.executors import describe_current
 from ..engine.loop import build_jobs
+from ..engine.metrics import CUTOFF_CELLS
 from ..engine.specs import (
     resolve_policies,
     resolve_scenarios,
@@ -134,15 +135,17 @@ def _check_common(args: argparse.Namespace) -> None:
         raise UsageError(f"--steps {args.steps} is not allowed: expected an integer >= 1")
     if args.workers is not None and args.workers < 1:
         raise UsageError(f"--workers {args.workers} is not allowed: expected an integer >= 1")
-    if not (math.isfinite(args.c) and args.c > 0):
+    if args.c is not None and not (math.isfinite(args.c) and args.c > 0):
         raise UsageError(f"--c {args.c} is not allowed: the OSPA cut-off must be a finite "
                          "number > 0")
     if not (math.isfinite(args.p) and args.p >= 1):
         raise UsageError(f"--p {args.p} is not allowed: the OSPA order must be a finite "
                          "number >= 1")
     # the metrics raise distances up to c to the power p: c ** p must stay a normal number
-    if abs(args.p * math.log10(args.c)) > MAX_C_POWER_P_EXP:
-        raise UsageError(f"--c {args.c} with --p {args.p} is not allowed: c ** p must stay "
+    # (the default c, 2 cells, checked as 2: its cell size is the scenario's)
+    c = CUTOFF_CELLS if args.c is None else args.c
+    if abs(args.p * math.log10(c)) > MAX_C_POWER_P_EXP:
+        raise UsageError(f"--c {c} with --p {args.p} is not allowed: c ** p must stay "
                          f"within 1e-{MAX_C_POWER_P_EXP} .. 1e{MAX_C_POWER_P_EXP} (the metrics "
                          "raise distances to the power p)")
     timeout = getattr(args, "run_timeout", None)
@@ -800,7 +803,9 @@ def _add_sweep_options(p: argparse.ArgumentParser, *, seeds_default: int,
 
 def _add_metric_options(p: argparse.ArgumentParser) -> None:
     """``--c`` and ``--p``: the OSPA/GOSPA cut-off and order."""
-    p.add_argument("--c", type=float, default=2.0, help="OSPA/GOSPA cut-off c (default 2)")
+    p.add_argument("--c", type=float, default=None,
+                   help="OSPA/GOSPA cut-off c in world units (default 2 cells: 2 x each "
+                        "scenario's cell_size)")
     p.add_argument("--p", type=float, default=2.0, help="OSPA/GOSPA order p (default 2)")
 
 

@@ -60,7 +60,7 @@ import pandas as pd
 from ... import trackers
 from ..engine.executors import describe_current
 from ..engine.loop import build_jobs, spec_uses_truth
-from ..engine.metrics import run_metric_params
+from ..engine.metrics import cutoff, describe_cutoff, run_metric_params
 from ..engine.specs import PolicySpec, TrackerSpec, resolve_scenarios, resolve_trackers
 from ..engine.store import check_sweep, prepare_out_dir, write_text_atomic
 from . import bayes, resources, summary, tuned
@@ -165,7 +165,7 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
                 tracker_texts: Sequence[str] | None = None, seeds: Sequence[int] | None = None,
                 steps: int | None = None, workers: int | None = None,
                 out_dir: str | Path | None = None, reference: str | None = None,
-                progress: bool = True, resume: bool = False, c: float = 2.0, p: float = 2.0,
+                progress: bool = True, resume: bool = False, c: float | None = None, p: float = 2.0,
                 snapshot: bool = True, argv: Sequence[str] | None = None,
                 tuned_dir: str | Path | None = None, untuned: bool = False,
                 tuning_effect: bool = False,
@@ -252,7 +252,7 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
                        for label, src in plan.sources.items()},
         "seeds": seeds,
         "reference": reference,
-        "ospa_c": c,
+        "ospa_c": {sc.name: cutoff(c, sc.grid.cell_size) for sc in scs},
         "ospa_p": p,
         # the run-level (track) metrics and their parameters (c and p: the run's)
         "track_metrics": run_metric_params(),
@@ -302,7 +302,8 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
             "seeds": _seed_text(seeds),
             "policy": "raster sweep at each scenario's looks_per_step (the same cells for "
                       "every tracker, so differences are the trackers')",
-            "metrics": f"OSPA/GOSPA cut-off c = {c:g}, order p = {p:g}; positions only",
+            "metrics": f"OSPA/GOSPA cut-off c = {_cutoff_text(c, scs)}, order p = {p:g}; "
+                       "positions only",
             "reference for paired differences": reference or "none (every tracker uses "
                                                              "the truth)",
             "floor and ceiling": f"{summary.FLOOR_TRACKER} and {summary.CEILING_TRACKER} "
@@ -372,6 +373,15 @@ def _resolve_reference(reference: str, specs: Sequence[TrackerSpec]) -> str:
         return reference
     named = [s.label for s in specs if s.name == reference]
     return named[0] if named else reference
+
+
+def _cutoff_text(c: float | None, scs: Sequence[Any]) -> str:
+    """The cut-off of each scenario with its units (one text when they agree)."""
+    texts = {describe_cutoff(cutoff(c, sc.grid.cell_size), sc.grid.cell_size) for sc in scs}
+    if len(texts) == 1:
+        return texts.pop()
+    return "; ".join(f"{sc.name} {describe_cutoff(cutoff(c, sc.grid.cell_size), sc.grid.cell_size)}"
+                     for sc in scs)
 
 
 def _seed_text(seeds: list[int]) -> str:

@@ -33,10 +33,24 @@ ELLIPSE_CHI2 = float(stats.chi2.ppf(0.95, 2))
 DPI = 110
 
 
+#: tab20's strong colours first, then their light partners: 20 colours
+_COLOR_ORDER = (*range(0, 20, 2), *range(1, 20, 2))
+#: 12 markers (coprime with nothing above 60 trackers: colour and marker together repeat
+#: only after lcm(20, 12) = 60 labels)
+MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">", "h", "*", "p")
+
+
+def tracker_styles(labels: list[str]) -> dict[str, tuple[tuple, str]]:
+    """A fixed ``(colour, marker)`` per tracker label, in sorted order: up to 12 labels
+    each has a colour and a marker of its own; up to 60, no two share both."""
+    cmap = mpl.colormaps["tab20"]
+    return {lab: (cmap(_COLOR_ORDER[i % 20]), MARKERS[i % len(MARKERS)])
+            for i, lab in enumerate(sorted(set(labels)))}
+
+
 def tracker_colors(labels: list[str]) -> dict[str, tuple]:
-    """A fixed colour per tracker label (sorted order, tab10 cycle)."""
-    cmap = mpl.colormaps["tab10"]
-    return {lab: cmap(i % 10) for i, lab in enumerate(sorted(labels))}
+    """The colour of :func:`tracker_styles` per tracker label."""
+    return {lab: style[0] for lab, style in tracker_styles(labels).items()}
 
 
 def step_stats(results: pd.DataFrame, metric: str,
@@ -95,14 +109,15 @@ def metric_over_time(results: pd.DataFrame, metric: str, path: str | Path,
     labels) draw no line."""
     st = step_stats(results, metric)
     scen = sorted(st["scenario"].unique())
-    colors = tracker_colors(list(results["tracker_label"].unique()))
+    styles = tracker_styles(list(results["tracker_label"].unique()))
     truth, _ = _summary.truth_labels(results)
     fig, axes = _grid_of_axes(max(len(scen), 1))
     for ax, sc in zip(axes, scen, strict=False):
         for lab, g in st[st["scenario"] == sc].groupby("tracker_label", sort=True):
-            c = colors[lab]
+            c, marker = styles[lab]
             ax.plot(g["step"], g["mean"], color=c, lw=1.4, label=_summary.mark_truth(lab, truth),
-                    ls=_line_style(lab))
+                    ls=_line_style(lab), marker=marker, ms=4,
+                    markevery=max(1, len(g) // 8))
             lo, hi = g["mean"] - g["ci95"].fillna(0), g["mean"] + g["ci95"].fillna(0)
             ax.fill_between(g["step"], lo, hi, color=c, alpha=0.2, lw=0)
         ax.set_title(sc)
@@ -127,7 +142,7 @@ def runtime_per_step(runs: pd.DataFrame, path: str | Path) -> Path:
     ok = runs[runs["status"] == "ok"]
     scen = sorted(ok["scenario"].unique())
     labels = sorted(runs["tracker_label"].unique())
-    colors = tracker_colors(labels)
+    styles = tracker_styles(labels)
     fig, axes = _grid_of_axes(max(len(scen), 1))
     for ax, sc in zip(axes, scen, strict=False):
         g = ok[ok["scenario"] == sc]
@@ -136,7 +151,8 @@ def runtime_per_step(runs: pd.DataFrame, path: str | Path) -> Path:
             if ms.size == 0:
                 continue
             jitter = np.linspace(-0.15, 0.15, ms.size) if ms.size > 1 else np.zeros(1)
-            ax.scatter(i + jitter, ms, s=10, color=colors[lab], alpha=0.7)
+            ax.scatter(i + jitter, ms, s=12, color=styles[lab][0], marker=styles[lab][1],
+                       alpha=0.7)
             ax.hlines(ms.mean(), i - 0.3, i + 0.3, color="k", lw=1.5)
         ax.set_xticks(range(len(labels)), labels, rotation=30, ha="right", fontsize=7)
         ax.set_yscale("log")
@@ -156,7 +172,8 @@ def accuracy_vs_runtime(summary: pd.DataFrame, path: str | Path,
     and look budget of a panel when there are several)."""
     ok = summary[summary["n_seeds"] > 0]
     scen = sorted(ok["scenario"].unique())
-    colors = tracker_colors(list(summary["tracker_label"].unique()))
+    styles = tracker_styles(list(summary["tracker_label"].unique()))
+    colors = {lab: style[0] for lab, style in styles.items()}
     truth, _ = _summary.truth_labels(summary)
     fig, axes = _grid_of_axes(max(len(scen), 1))
     for ax, sc in zip(axes, scen, strict=False):
@@ -167,7 +184,7 @@ def accuracy_vs_runtime(summary: pd.DataFrame, path: str | Path,
             y, ye = r[f"{metric}_mean"], r[f"{metric}_ci95"]
             lab = r["tracker_label"]
             ax.errorbar(x, y, xerr=None if np.isnan(xe) else xe,
-                        yerr=None if np.isnan(ye) else ye, fmt="o", ms=5, capsize=2,
+                        yerr=None if np.isnan(ye) else ye, fmt=styles[lab][1], ms=6, capsize=2,
                         color=colors[lab], label=_summary.mark_truth(lab, truth))
             ls = _line_style(lab)
             if ls != "-" and np.isfinite(y) and lab not in levels:
@@ -260,14 +277,15 @@ def paper_error_curves(curves: pd.DataFrame, path: str | Path, highlight: str = 
     fig, axes = _subplots(1, 2, figsize=(9.5, 4.0), layout="constrained")
     axes = axes[0]
     labels = sorted(curves["tracker_label"].unique())
-    colors = tracker_colors(labels)
+    styles = tracker_styles(labels)
     for ax, col, main in ((axes[0], "state_error", "black"), (axes[1], "count_error", "red")):
         for lab in labels:
             g = curves[curves["tracker_label"] == lab].sort_values("step")
             hl = lab == highlight or lab.startswith(highlight + "(")
-            c = main if hl else colors[lab]
+            c = main if hl else styles[lab][0]
             ax.plot(g["step"], g[col], color=c, lw=2.2 if hl else 1.0,
-                    alpha=1.0 if hl else 0.8, label=lab)
+                    alpha=1.0 if hl else 0.8, label=lab, marker=None if hl else styles[lab][1],
+                    ms=3, markevery=max(1, len(g) // 8))
             if f"{col}_ci95" in g:
                 half = g[f"{col}_ci95"].fillna(0)
                 ax.fill_between(g["step"], g[col] - half, g[col] + half, color=c,

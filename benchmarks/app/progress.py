@@ -4,9 +4,9 @@ default wall-time limit of a run for every command that sweeps."""
 from __future__ import annotations
 
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import pandas as pd
 
@@ -26,6 +26,8 @@ def run_sweep(jobs: Sequence[Job], out_dir: str | Path, *, progress: bool = True
         options["run_timeout"] = default_run_timeout(jobs)
     if not progress:
         return sweep.run_sweep(list(jobs), out_dir, **options)
+    if not sys.stderr.isatty():  # a log file: a line per tenth, not a redraw per run
+        return sweep.run_sweep(list(jobs), out_dir, progress=tenths(sys.stderr), **options)
     from tqdm.auto import tqdm
 
     # no monitor thread: worker processes are forked after the bar exists
@@ -40,3 +42,19 @@ def run_sweep(jobs: Sequence[Job], out_dir: str | Path, *, progress: bool = True
         return sweep.run_sweep(list(jobs), out_dir, progress=show, **options)
     finally:
         bar.close()
+
+
+def tenths(stream: TextIO, step: float = 0.1) -> Callable[[int, int], None]:
+    """A progress callback for output that is not a terminal: one line ``runs: 40% (8/20)``
+    each time the finished share passes another ``step`` (10%), and at the end; nothing
+    for the runs in between."""
+    shown = [-1]
+
+    def show(finished: int, total: int) -> None:
+        level = total and int(finished / total / step + 1e-9)
+        if total and level > shown[0] and (level > 0 or finished == total):
+            shown[0] = level
+            stream.write(f"runs: {100 * finished // total}% ({finished}/{total})\n")
+            stream.flush()
+
+    return show

@@ -526,15 +526,22 @@ def _is_baseline(name: str) -> bool:
         return False
 
 
-def baseline_notes(summ: pd.DataFrame) -> list[str]:
+def baseline_notes(summ: pd.DataFrame, runs: pd.DataFrame | None = None) -> list[str]:
     """Sentences for every scenario (x policy x looks) and metric of
-    :func:`ranked_metrics` on which a baseline tracker (``Tracker.baseline``, the
-    ``null`` tracker that reports nothing) is best, or within the 95% interval of the
-    best: such a scenario cannot rank the trackers on that metric (e.g. on ``paper``,
-    whose targets jump ~4.5 cells per step, reporting nothing scores as well as tracking
-    on GOSPA)."""
+    :func:`ranked_metrics` that cannot rank the trackers because a baseline tracker
+    (``Tracker.baseline``, the ``null`` tracker that reports nothing) is not beaten there
+    (e.g. on ``paper``, whose targets jump ~4.5 cells per step, reporting nothing scores
+    as well as tracking on GOSPA).
+
+    With the per-run table ``runs`` (what the report passes) the rule is the paired one
+    of :func:`~.summary.gap_closed`: a contestant beats the baseline when its per-seed
+    difference from it has a 95% interval wholly on the better side; a scenario where
+    none does cannot rank trackers on that metric. Without ``runs`` (a summary alone):
+    the baseline is best, or within the best's 95% interval."""
     if summ.empty or "tracker" not in summ.columns:
         return []
+    if runs is not None and len(runs):
+        return _paired_baseline_notes(summ, runs)
     baseline = summ["tracker"].astype(str).map(_is_baseline)
     if not baseline.any():
         return []
@@ -573,6 +580,55 @@ def baseline_notes(summ: pd.DataFrame) -> list[str]:
                     f"{text} {fmt_pm(b[col], b[f'{metric}_ci95'])}, within the 95% interval "
                     f"of the best, `{best.tracker_label}` ({fmt_pm(best[col], half)}): this "
                     f"scenario cannot rank trackers on {text}.")
+    return notes
+
+
+def _paired_baseline_notes(summ: pd.DataFrame, runs: pd.DataFrame) -> list[str]:
+    """:func:`baseline_notes` by the paired rule (per-seed differences from the baseline)."""
+    ok = runs[runs["status"] == "ok"] if "status" in runs.columns else runs
+    names = ok["tracker"].astype(str)
+    is_base = names.map(_is_baseline)
+    if not is_base.any():
+        return []
+    truth_trackers, _ = summary.truth_labels(summ)
+    group = [k for k in ("scenario", "policy_label", "looks_per_step") if k in ok.columns]
+    notes = []
+    for key, g in ok.groupby(group, sort=True):
+        key = key if isinstance(key, tuple) else (key,)
+        where = f"`{key[0]}`" + (f" ({', '.join(map(str, key[1:]))} looks)"
+                                 if len(key) == 3 else "")
+        base_labels = sorted(set(g.loc[is_base.loc[g.index], "tracker_label"].astype(str)))
+        contestants = sorted(set(g.loc[~is_base.loc[g.index], "tracker_label"].astype(str))
+                             - set(truth_trackers))
+        if not base_labels or not contestants:
+            continue
+        b_label = base_labels[0]
+        for m in ranked_metrics():
+            if m.name not in g.columns:
+                continue
+            sign = 1.0 if m.lower_is_better else -1.0
+            wide = g.pivot_table(index="seed", columns="tracker_label", values=m.name,
+                                 aggfunc="first")
+            if b_label not in wide.columns:
+                continue
+            best = None  # (lower bound of the improvement, mean, half, label)
+            for lab in contestants:
+                if lab not in wide.columns:
+                    continue
+                pair = wide[[b_label, lab]].dropna()
+                if len(pair) < 2:
+                    continue
+                gain = sign * (pair[b_label].to_numpy(float) - pair[lab].to_numpy(float))
+                mean, half = summary.mean_ci95(gain)
+                if best is None or mean - half > best[0]:
+                    best = (mean - half, mean, half, lab)
+            if best is None or best[0] > 0:
+                continue
+            notes.append(
+                f"On {where} no tracker beats the baseline `{b_label}` on {m.label} in the "
+                f"paired test (per-seed differences, 95% interval): the closest, "
+                f"`{best[3]}`, is better by {fmt_pm(best[1], best[2])}. This scenario "
+                f"cannot rank trackers on {m.label}.")
     return notes
 
 
@@ -631,13 +687,15 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
     for block in sections or []:
         doc.add(*block)
     _floor_ceiling_section(doc, gc, truth, tuned_on)
-    unranked = baseline_notes(summ)
+    unranked = baseline_notes(summ, runs)
     if unranked:
         doc.add("h2", "Where the baseline is not beaten")
         doc.add("p", "A tracker that reports nothing is the floor every tracker must beat. "
-                     "Where it is best, or inside the best tracker's 95% interval, the "
-                     "scenario does not separate the trackers on that metric, and the ranking "
-                     "below says nothing about them there:")
+                     "Where no tracker beats it in the paired test (the per-seed "
+                     "differences' 95% interval wholly on the better side, the rule of "
+                     "\"ranks trackers\" above), the scenario does not separate the "
+                     "trackers on that metric, and the ranking below says nothing about "
+                     "them there:")
         doc.add("list", unranked)
     doc.add("h2", "Accuracy")
     doc.add("p", "Mean over seeds of each run's mean over steps, ± half-width of the 95% "
@@ -703,7 +761,7 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
 def _draw_figures(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame, fig_dir: Path,
                   trace: Any, figs: dict[str, Path]) -> None:
     figs["ospa"] = figures.metric_over_time(results, "ospa", fig_dir / "ospa_over_time.png",
-                                            "OSPA (c = {:g}, p = {:g})".format(*_cp(results)))
+                                            f"OSPA ({summary.cutoff_text(results)})")
     figs["count_error"] = figures.metric_over_time(results, "count_error",
                                                    fig_dir / "count_error_over_time.png",
                                                    "count error |N_est - N|")
@@ -712,8 +770,8 @@ def _draw_figures(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame,
                        if m.name == "ospa2_window"), None)
         figs["ospa2"] = figures.metric_over_time(
             results, "ospa2_window", fig_dir / "ospa2_over_time.png", "OSPA(2)",
-            "OSPA(2) of the window ending at the step (c = {:g}, p = {:g}".format(
-                *_cp(results)) + (f", {window:g} steps)" if window else ")"))
+            f"OSPA(2) of the window ending at the step ({summary.cutoff_text(results)}"
+            + (f", {window:g} steps)" if window else ")"))
     figs["runtime"] = figures.runtime_per_step(runs, fig_dir / "runtime_per_step.png")
     figs["accuracy_runtime"] = figures.accuracy_vs_runtime(summ,
                                                            fig_dir / "accuracy_vs_runtime.png")
@@ -725,12 +783,6 @@ def _draw_figures(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame,
             trace.frames(), fig_dir / "snapshot.png", steps, g.nx, g.ny, g.cell_size,
             title=f"{trace.tracker_label} on {trace.scenario.name}, seed {trace.seed}, "
                   f"policy {trace.policy_label}")
-
-
-def _cp(results: pd.DataFrame) -> tuple[float, float]:
-    c = float(results["ospa_c"].dropna().iloc[0]) if results["ospa_c"].notna().any() else 2.0
-    p = float(results["ospa_p"].dropna().iloc[0]) if results["ospa_p"].notna().any() else 2.0
-    return c, p
 
 
 # -------------------------------------------------------------- browser check

@@ -72,7 +72,7 @@ the same *distribution* within its Monte Carlo error:
 * **Floor** (:func:`band_floor`): :data:`STATE_FLOOR` = 0.05 cells (2.5% of the cut-off
   c) for the state error; ``1 / n_seeds`` for the counts (one seed's count moving by one
   target), so a single seed's count moving by one at one step never fails by itself.
-* **Measured** (calibration runs of issue 11, numpy 2.4.6, code and references of
+* **Measured** (calibration runs, numpy 2.4.6, code and references of
   commit 8ee53cb unless said). Restricted dispatch as above: largest curve mean of
   ``r_k`` 0.01 (reduced) and 0.04 (full; 0.01 with the seeds of f9ad50f), largest
   single step 0.09 and 0.13 (0.11). Worst case, every seed diverged from step 0 in the

@@ -46,7 +46,7 @@ runs that comparison on the ``kreucher`` preset:
   looks, as ``< 24``. Done separately for the median and for the mean.
 * **Crossings** (:data:`KREUCHER_CROSSINGS` = steps 30 and 70): for the raster scan of
   every cell once per step (144 looks), the mean OSPA over the 20 steps before and the 20
-  steps from each crossing (issue 13's crossing goal), when both windows fit in the run.
+  steps from each crossing (the goal: after at most 1.5x before), when both windows fit in the run.
   Noise drifts the targets: the preset's description gives how often they really share
   a cell (tests/test_kreucher_presets.py).
 
@@ -568,7 +568,7 @@ def _write_report(out: Path, setting: KreucherSetting, specs: list[TrackerSpec],
                 f"raster scan of {n_cells} looks ran.")
     else:
         doc.add("p", f"Mean OSPA over the {CROSSING_WINDOW} steps before and from each "
-                "crossing of the nominal paths (issue 13's goal: after at most 1.5x before). "
+                "crossing of the nominal paths (the goal: after at most 1.5x before). "
                 "The targets drift: see the preset's description for how often they really "
                 "share a cell.")
         doc.add("table", pd.DataFrame({

@@ -22,7 +22,7 @@ elsewhere gets the base class's terms) and :meth:`Policy.resource_terms
 parameters with their defaults filled in; their measured constants sit next to the
 classes they describe.
 
-Since issue 16 a run's step costs ``O(looks + targets + particles)`` unless its policy
+A run's step costs ``O(looks + targets + particles)`` unless its policy
 asks for every cell, so the estimate is in steps ``S``, looks per step ``M`` (the
 policy's ``policy.looks``: the budget, or ``C`` for a policy that looks at every cell),
 targets ``T`` and particles; the grid's ``C`` cells enter only as a cap (``min(C, .)``:

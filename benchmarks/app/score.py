@@ -47,6 +47,7 @@ import pandas as pd
 from ..engine.loop import COLUMNS, TIMING_COLUMNS, _frame
 from ..engine.metrics import (
     RunData,
+    cutoff,
     metric_columns,
     run_level_metrics,
     run_metric_columns,
@@ -373,11 +374,12 @@ def check_name(name: str) -> str:
 
 
 def score_world(world: WorldFiles, estimates: Sequence[StepEstimate], name: str,
-                c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
+                c: float | None = None, p: float = 2.0) -> pd.DataFrame:
     """The results rows of an outside tracker ``outside:NAME`` on ``world``: one per step,
     with the columns and metric values :func:`~mttbench.benchmarks.engine.loop.run_job`
     writes (timings and memory NaN), and the run-level scores when labelled."""
     card = world.card
+    c = cutoff(c, float(card["grid"]["cell_size"]))  # None: 2 cells
     pol = card["policy"]
     label = OUTSIDE_PREFIX + name
     base = {"scenario": card["scenario"]["name"], "tracker": label, "tracker_label": label,
@@ -433,7 +435,8 @@ class ScoreOutput:
     files: list[str]
 
 
-def load_beside(folder: str | Path, rows: pd.DataFrame, c: float, p: float) -> pd.DataFrame:
+def load_beside(folder: str | Path, rows: pd.DataFrame, c: float | None, p: float
+                ) -> pd.DataFrame:
     """The ``results.parquet`` of a ``run``/``compare`` folder, checked against the outside
     ``rows``: the same ``c`` and ``p``, and at least one run on each of their worlds
     ``(scenario, policy_label, looks_per_step, seed)``."""
@@ -449,7 +452,8 @@ def load_beside(folder: str | Path, rows: pd.DataFrame, c: float, p: float) -> p
     if missing:
         raise UsageError(f"--beside {path}: not a results table (no column {missing[0]!r})")
     cp = other[["ospa_c", "ospa_p"]].dropna().drop_duplicates()
-    if len(cp) and not ((cp["ospa_c"] == c) & (cp["ospa_p"] == p)).all():
+    mine = set(map(tuple, rows[["ospa_c", "ospa_p"]].dropna().to_numpy().tolist()))
+    if len(cp) and not all(tuple(x) in mine for x in cp.to_numpy().tolist()):
         raise UsageError(f"--beside {path}: its runs were scored with c = "
                          f"{cp['ospa_c'].iloc[0]:g}, p = {cp['ospa_p'].iloc[0]:g}; give the "
                          "same --c and --p")
@@ -487,7 +491,7 @@ def _reference(table: pd.DataFrame) -> str | None:
 
 
 def run_score(world_dir: str | Path, estimates: str, name: str | None, out_dir: str | Path,
-              c: float = 2.0, p: float = 2.0, beside: str | Path | None = None,
+              c: float | None = None, p: float = 2.0, beside: str | Path | None = None,
               draw: bool = True) -> ScoreOutput:
     """Score ``estimates`` on the worlds of ``world_dir`` (one world, or an export folder:
     then ``estimates`` is a path relative to each world's folder) and write ``out_dir``:

@@ -63,6 +63,7 @@ from scipy import stats
 
 from ..engine.metrics import (
     column_label,
+    describe_cutoff,
     display_metrics,
     metric_columns,
     registered_run_metrics,
@@ -795,6 +796,29 @@ def track_markdown(runs: pd.DataFrame, summ: pd.DataFrame,
     return text
 
 
+def cutoff_text(results: pd.DataFrame) -> str:
+    """The OSPA/GOSPA cut-off ``c`` of the rows with its units, per scenario when they
+    differ: ``"c = 2 (2 cells of 1), p = 2"``; the cells where the scenario is a preset
+    or a readable file (its cell size), else world units."""
+    from ...scenarios import spec
+
+    cp = (results[["scenario", "ospa_c", "ospa_p"]].dropna().drop_duplicates("scenario")
+          if {"ospa_c", "ospa_p"} <= set(results.columns) else pd.DataFrame())
+    if not len(cp):
+        return "c and p not recorded"
+    texts = {}
+    for sc, c, p in cp.itertuples(index=False):
+        try:
+            size = spec.get(str(sc)).grid.cell_size
+            text = describe_cutoff(float(c), size)
+        except Exception:  # noqa: BLE001  (an outside scenario: its cell size is unknown)
+            text = f"{float(c):g} world units"
+        texts[sc] = f"c = {text}, p = {float(p):g}"
+    if len(set(texts.values())) == 1:
+        return next(iter(texts.values()))
+    return "; ".join(f"{sc}: {t}" for sc, t in texts.items())
+
+
 def write_summary(results: pd.DataFrame, out_dir: str | Path, title: str,
                   notes: Sequence[str] = ()) -> str:
     """Write ``summary.csv`` and ``summary.md`` (headed ``title``) of ``results`` into
@@ -809,7 +833,8 @@ def write_summary(results: pd.DataFrame, out_dir: str | Path, title: str,
     table = with_gap_closed(summarize(runs), gc := gap_closed(runs))
     write_text_atomic(out_dir / "summary.csv", table.to_csv(index=False))
     text = f"# {title}\n\n" + to_markdown(table)
-    extra = [*gap_notes(gc), *notes]
+    extra = [f"OSPA/GOSPA cut-off and order: {cutoff_text(results)} (the default c is "
+             "2 cells)", *gap_notes(gc), *notes]
     if extra:
         text += "\n" + "\n".join(f"- {line}" for line in extra) + "\n"
     text += track_markdown(runs, table, crossing_summary(results))

@@ -157,7 +157,7 @@ class TuneSettings:
     objective: str = "ospa"
     policy: PolicySpec = field(default_factory=lambda: PolicySpec("raster"))
     looks: int | None = None
-    c: float = 2.0
+    c: float | None = None  # None: 2 cells of each scenario's grid
     p: float = 2.0
     seed: int = 0
     batch_size: int = 1

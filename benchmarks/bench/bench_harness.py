@@ -13,7 +13,7 @@ so that what is timed is the harness's own overhead, and KF-NN's step beside it.
 * ``test_kfnn_step``: KF-NN's own step (``predict``, ``update``, ``estimate``) on
   ``default`` after 50 raster steps of world 0, timed on 24 raster looks, as
   ``bench_trackers.py::test_tracker_step`` times it (the conftest's ``Warm``): the
-  yardstick of issue 27's goal, harness per step below KF-NN's step.
+  yardstick of the goal: harness per step below KF-NN's step.
 
 Run: ``pytest benchmarks/bench/bench_harness.py --benchmark-only``; docs/result_store.md
 has the figures.

@@ -35,7 +35,7 @@ The step runs the numba kernels (``mttbench.trackers.jmpd.kernels``) when numba 
 installed (``extra_info["compiled_kernels"]``); ``MTTBENCH_NO_NUMBA=1`` times the
 numpy forms, which give the same numbers.
 
-**Grid scaling** (issue 16, ``test_jmpd_grid_scaling``): ``jmpd`` and ``jmpd-ip`` (``N
+**Grid scaling** (``test_jmpd_grid_scaling``): ``jmpd`` and ``jmpd-ip`` (``N
 = 2000``, ``t_max = 30``) on ``large``'s world (25 targets placed at random, ~0.1 cell
 per step) drawn on a 50x50 and on a 2000x2000 grid, 250 looks per step (the targets'
 cells, then distinct random cells; returns drawn from ``p_d`` of the true counts by
@@ -143,7 +143,7 @@ def test_draw_process_noise_only(benchmark, n):
     benchmark.pedantic(lambda: rng.standard_normal(out=out), rounds=15, warmup_rounds=2)
 
 
-# ------------------------------------------------------------ grid scaling (issue 16)
+# ------------------------------------------------------------ grid scaling
 #: grid sides of the scaling pair (cells per axis)
 GRID_SIDES = [50, 2000]
 GRID_LOOKS = 250  # looks per step

@@ -15,7 +15,7 @@ Measured on this 2-core machine, quiet, ``--benchmark-timer=time.process_time``,
 median of 20 rounds: kreucher-50 N = 250 8.1 ms (the goal: <= 10 ms); kreucher
 N = 250 2.8 ms, N = 1000 6.0 ms.
 
-**Grid scaling** (issue 16, ``test_jmpd_ap_grid_scaling``): ``jmpd-ap`` at ``N = 500``
+**Grid scaling** (``test_jmpd_ap_grid_scaling``): ``jmpd-ap`` at ``N = 500``
 (its default; 54 slots for the 25 targets) on the worlds of ``bench_jmpd.py``'s
 ``test_jmpd_grid_scaling`` (``large`` on 50x50 and 2000x2000, 250 looks per step), every
 particle started on the truth (:func:`start_ap_on_truth`), the same managed step
@@ -66,7 +66,7 @@ def test_jmpd_ap_step(benchmark, warm_up, accuracy, name, n):
         accuracy(warm.world.states[k1], est1, None, prefix="last_")
 
 
-# ------------------------------------------------------------ grid scaling (issue 16)
+# ------------------------------------------------------------ grid scaling
 def start_ap_on_truth(tracker: JMPDAPTracker, sc: Scenario, truth: np.ndarray,
                       rng: np.random.Generator) -> None:
     """Every particle holds the targets ``truth (n, 4)`` in slots ``0..n-1``, one step

@@ -1,4 +1,4 @@
-"""Scaling series (issue 16): step time against the number of targets at a fixed
+"""Scaling series: step time against the number of targets at a fixed
 density, and against the grid's side at fixed targets and looks, for the simulator and
 every registered tracker (defaults; plus ``jmpd`` and ``jmpd-ip`` with ``t_max = 30`` on
 the grid series, whose 25 targets exceed the default ``t_max = 5``).

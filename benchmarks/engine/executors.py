@@ -103,7 +103,7 @@ class Work:
     write: Callable[[Any, Path], None]
     encode: Callable[[Any, str], bytes]
     write_bytes: Callable[[Path, bytes], None]
-    c: float = 2.0
+    c: float | None = None  # None: 2 cells of each job's grid
     p: float = 2.0
     #: the wall-time limit of one run in seconds (None: none); the local pool kills a
     #: run that exceeds it, which gets its error row (not retried)

@@ -115,7 +115,7 @@ def gain_of_looks(counts: np.ndarray, p_detect: np.ndarray, n_looks: int,
 
 #: looks per cell whose gains :func:`greedy_looks` computes for all cells at once
 _PRECOMPUTED_LOOKS = 3
-#: grids of at most this many cells (the largest shipped preset before issue 16, 50x50):
+#: grids of at most this many cells (the 50x50 presets and smaller):
 #: :func:`greedy_looks` turns a :class:`CellCounts` into the dense array and chooses
 #: exactly as it does from that array, so those presets keep their looks
 DENSE_CELLS = 2500

@@ -118,6 +118,7 @@ from ...trackers.cells import CellCounts
 from .metrics import (
     BUILTIN_METRICS,
     RunData,
+    cutoff,
     metric_columns,
     metric_names,
     run_level_metrics,
@@ -183,8 +184,11 @@ class Job:
     def policy_label(self) -> str:
         return self.policy.label if self.policy is not None else NO_POLICY
 
-    def key(self, c: float, p: float) -> str:
-        """A stable hash of everything that determines the job's results."""
+    def key(self, c: float | None, p: float) -> str:
+        """A stable hash of everything that determines the job's results (``c`` None:
+        :data:`~mttbench.benchmarks.engine.metrics.CUTOFF_CELLS` cells of the scenario's
+        grid, hashed as the number it resolves to)."""
+        c = cutoff(c, self.scenario.grid.cell_size)
         ident = {
             "scenario": dumps(self.scenario),
             "tracker": [self.tracker.name, self.tracker.params],
@@ -438,9 +442,10 @@ def spec_uses_truth(spec: TrackerSpec | PolicySpec) -> bool:
         return False
 
 
-def _base_row(job: Job, c: float, p: float) -> dict[str, Any]:
+def _base_row(job: Job, c: float | None, p: float) -> dict[str, Any]:
     """The columns that identify a job's rows (tracker and policy parameters as given;
     :func:`run_job` replaces them with the resolved ones once the objects are built)."""
+    c = cutoff(c, job.scenario.grid.cell_size)
     return {
         "scenario": job.scenario.name,
         "tracker": job.tracker.name,
@@ -500,13 +505,16 @@ def _sigint_ignored() -> bool:
         return False
 
 
-def run_job(job: Job, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
-    """Play one job (:func:`play`); returns its rows (see the module docstring).
+def run_job(job: Job, c: float | None = None, p: float = 2.0) -> pd.DataFrame:
+    """Play one job (:func:`play`); returns its rows (see the module docstring). ``c``
+    None: the cut-off is :data:`~mttbench.benchmarks.engine.metrics.CUTOFF_CELLS` cells of
+    the scenario's grid (``ospa_c`` records it in world units).
 
     Never raises for a failing tracker or policy: the failure becomes a row with
     ``status = "error"``. An unsupported scenario gives one row with ``step = -1``.
     """
     sc, model = job.scenario, job.scenario.model
+    c = cutoff(c, sc.grid.cell_size)
     base = _base_row(job, c, p)
     rows: list[dict[str, Any]] = []
 

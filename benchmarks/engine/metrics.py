@@ -128,6 +128,22 @@ def _as_positions(points: np.ndarray, name: str) -> np.ndarray:
     return arr
 
 
+#: the default OSPA/GOSPA cut-off, in cells: ``c = CUTOFF_CELLS * cell_size`` world units
+#: (a miss costs as much as an estimate two cells off, on any grid)
+CUTOFF_CELLS = 2.0
+
+
+def cutoff(c: float | None, cell_size: float) -> float:
+    """The cut-off in world units: ``c`` as given, or :data:`CUTOFF_CELLS` cells of
+    ``cell_size`` when ``c`` is None."""
+    return CUTOFF_CELLS * float(cell_size) if c is None else float(c)
+
+
+def describe_cutoff(c: float, cell_size: float) -> str:
+    """``c`` with its units: ``"2 (2 cells of 1)"``, ``"100 (2 cells of 50)"``."""
+    return f"{c:g} ({c / cell_size:g} cells of {cell_size:g})"
+
+
 def _check_order_cutoff(c: float, p: float) -> None:
     if not (np.isfinite(c) and c > 0):
         raise ValueError(f"cut-off c must be positive and finite, got {c}")

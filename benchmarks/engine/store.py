@@ -5,7 +5,7 @@ temp file ``.<name>.<pid>.tmp`` in the same folder and moved into place with
 ``os.replace``: a part is whole or absent, whatever stops the writer. The results table is
 the parts concatenated in a deterministic order (:func:`sort_results`).
 
-The batched **dataset** (issue 27, docs/result_store.md) is the layout of very large
+The batched **dataset** (docs/result_store.md) is the layout of very large
 sweeps: ``<out>/dataset/scenario=<s>/tracker=<t>/batch-<hash>.parquet``, each file the runs
 of one worker task with a ``run_key`` column and its runs listed in its metadata
 (:func:`batch_frame`), checked on resume run by run (:func:`check_batch`), indexed by
@@ -343,12 +343,14 @@ def check_sweep(out_dir: str | Path, keys: list[str] | None, c: float, p: float,
                 dataset.is_dir() and any(dataset.rglob("batch-*.parquet")))):
             raise ConfigError(f"{out} already holds the runs of a sweep: finish it with "
                               "--resume, or choose another --out")
-        manifest = {"format": 1, "extend": extend, "c": float(c), "p": float(p),
+        manifest = {"format": 1, "extend": extend, "c": None if c is None else float(c),
+                    "p": float(p),
                     "jobs": mine}
         if store != STORE_PARTS:  # a parts sweep's manifest stays as it was
             manifest["store"] = store
         return manifest
-    same_kind = (bool(old.get("extend")) == extend and old.get("c") == float(c)
+    same_kind = (bool(old.get("extend")) == extend
+                 and old.get("c") == (None if c is None else float(c))
                  and old.get("p") == float(p) and old.get("store", STORE_PARTS) == store)
     if not same_kind or (not extend and keys is not None and sorted(old["jobs"]) != mine):
         raise ConfigError(f"{out} holds another sweep ({SWEEP_MANIFEST}): resume that one "

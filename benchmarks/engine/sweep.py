@@ -88,14 +88,14 @@ class Batch:
     folder: str | None = None
     checkpoint_s: float | None = None
 
-    def key(self, c: float, p: float) -> str:
+    def key(self, c: float | None, p: float) -> str:
         return self.name
 
     def __len__(self) -> int:
         return len(self.jobs)
 
 
-def run_batch(batch: Batch, c: float = 2.0, p: float = 2.0) -> pd.DataFrame:
+def run_batch(batch: Batch, c: float | None = None, p: float = 2.0) -> pd.DataFrame:
     """:func:`~.loop.run_job` of each job of ``batch``, in turn, as one table
     (:func:`~.store.batch_frame`: a ``run_key`` column, the runs listed in its
     metadata). Each run's rows are those of ``run_job``: a failing run is its error
@@ -154,7 +154,7 @@ def make_batches(jobs: Sequence[Job], keys: Sequence[str], out_dir: Path,
 
 
 def run_sweep(jobs: list[Job], out_dir: str | Path, workers: int = 1,
-              progress: Progress | None = None, resume: bool = False, c: float = 2.0,
+              progress: Progress | None = None, resume: bool = False, c: float | None = None,
               p: float = 2.0, executor: Executor | None = None,
               extend: bool = False, run_timeout: float | None = None,
               store: str | None = None, runs_per_batch: int | None = None) -> pd.DataFrame:

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from run_mutants import DEFAULT_SAMPLE, REPO, SampleError, check_applicable, load_sample
 
-#: every mutant issue 11 names, by its name in the sample
+#: every mutant the sample must hold, by its name in the sample
 NAMED_IN_ISSUE = {"reflect-no-velocity-flip", "births-doubled", "look-ranks-reversed",
                   "survival-squared", "ip-alignment-cost-negated", "ip-alignment-cells-stale",
                   "jmpd-fold-no-velocity-flip", "quadrature-12-nodes", "pc-bernoullis-merged",

@@ -2,7 +2,8 @@
 
 Measurements and ratios. The looks of a step are summarised per looked cell ``c`` (sorted
 unique ``U``): ``n_c`` looks, of which ``k_c`` positive. Only ratios to an empty cell
-matter (DESIGN.md: cells without targets contribute the same factor to every hypothesis);
+matter (cells without targets contribute the same factor to every hypothesis: Kreucher,
+Kastella and Hero, IEEE TAES 2005, the likelihood ratio of the JMPD; docs/pmb.md);
 with ``l(z) = p(z | 1) / p(z | 0)`` of one look (``p_d = p_d(1)``, ``p_f``)::
 
     L_c = prod_{looks at c} l(z)        a target in c, alone (exact for T_c <= 1)
