@@ -302,8 +302,10 @@ def test_cache_key_follows_the_configuration_and_the_environment(monkeypatch):
     assert k == reproduce.cache_key(s, specs, pol, env)
     for part, key, value in (("versions", "numpy", "0.0"), ("platform", "machine", "other"),
                              ("platform", "implementation", "PyPy"),
-                             ("numpy_cpu", "dispatch", ["X86_V3"]),
-                             ("numpy_cpu", "features", []), ("env", "OMP_NUM_THREADS", "3")):
+                             # values no machine reports (X86_V3 is this machine's own)
+                             ("numpy_cpu", "dispatch", ["NOT_A_DISPATCH_TARGET"]),
+                             ("numpy_cpu", "features", ["NOT_A_FEATURE"]),
+                             ("env", "OMP_NUM_THREADS", "3")):
         other = json.loads(json.dumps(env))
         other[part][key] = value
         assert k != reproduce.cache_key(s, specs, pol, other), (part, key)
