@@ -152,6 +152,10 @@ def test_installed_files_hold_only_the_mttbench_package(installed_site):
                 "[tool.setuptools] packages in pyproject.toml)")
     assert list((pkg / "scenarios" / "presets").glob("*.toml"))
     assert list((pkg / "reference").glob("*.csv"))
+    # the stored Bayes references (rows and provenance) ship, in pairs
+    stored = sorted(p.name for p in (pkg / "reference" / "bayes").iterdir())
+    assert stored and stored == sorted(p.name for p in (
+        REPO / "reports" / "reference" / "bayes").iterdir())
     top_level = next(installed_site.glob("mttbench-*.dist-info")) / "top_level.txt"
     if top_level.exists():
         assert top_level.read_text().split() == ["mttbench"]
