@@ -469,7 +469,8 @@ def cmd_frontier(args: argparse.Namespace) -> int:
                 f"seeds: {seeds[0]}..{seeds[-1]} ({len(seeds)})" if seeds == list(
                     range(seeds[0], seeds[-1] + 1)) else f"seeds: {seeds}",
                 f"policy {policy[0].label}, looks per step: "
-                f"{looks[0] if looks else 'the scenario default'}, OSPA c = {args.c:g}, "
+                f"{looks[0] if looks else 'the scenario default'}, OSPA c = "
+                f"{'2 cells' if args.c is None else format(args.c, 'g')}, "
                 f"p = {args.p:g}", f"runs: {len(jobs)} on {describe_current(workers, len(jobs))}"]
     with _folder_lock(out_dir):
         check_sweep(out_dir, [job.key(args.c, args.p) for job in jobs], args.c, args.p,

@@ -467,7 +467,7 @@ def _file_part(scenario: str, i: int) -> str:
 
 def run_frontier(jobs: list[Job], curves: Sequence[Curve], out_dir: Path, *,
                  settings: Sequence[str], workers: int = 1, progress: bool = True,
-                 resume: bool = False, c: float = 2.0, p: float = 2.0,
+                 resume: bool = False, c: float | None = None, p: float = 2.0,
                  run_timeout: float | None = None,
                  reference: Mapping[str, Reference] | None = None) -> FrontierResult:
     """Run the frontier's ``jobs`` (:func:`frontier_jobs`) as a sweep into ``out_dir``
