@@ -490,18 +490,8 @@ def _truncated_normal(mean: float, sd: float, lo: float, hi: float, u: float) ->
     a = -zb if upper else za
     b = -za if upper else zb
     pa, pb = _ndtr(a, 0), _ndtr(b, 0)
-    z = _ndtri(pa + u * (pb - pa), 0)
-    if upper:
-        z = -z
-    x = mean + sd * z
-    if not (pb > pa) or not np.isfinite(x):
-        x = lo + u * (hi - lo)
-    top = np.nextafter(hi, lo)
-    if x < lo:
-        x = lo
-    if x > top:
-        x = top
-    return x
+    # pb - pa > 0 exactly when pb > pa (float subtraction of unequal numbers is not 0)
+    return _draw_in_cell(mean, sd, lo, hi, u, pa, pb - pa, upper)
 
 
 @njit(cache=True)
