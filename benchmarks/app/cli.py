@@ -776,11 +776,15 @@ SUITE_HELP = ("the scenarios of a suite instead of --scenarios: `envelope` (the 
 
 
 def _add_sweep_options(p: argparse.ArgumentParser, *, seeds_default: int,
-                       trackers_required: bool) -> None:
-    p.add_argument("--trackers", nargs="+", metavar="SPEC", required=trackers_required,
-                   help="trackers as NAME or NAME:key=value,key=value (values parsed as "
-                        "true/false, int, float, else string; see `mttbench trackers`)"
-                        + ("" if trackers_required else "; default: every registered tracker"))
+                       trackers_required: bool | None) -> None:
+    """The options of every command that sweeps; ``trackers_required`` None: the command
+    takes no ``--trackers`` (``bayes`` runs its own ladder)."""
+    if trackers_required is not None:
+        p.add_argument("--trackers", nargs="+", metavar="SPEC", required=trackers_required,
+                       help="trackers as NAME or NAME:key=value,key=value (values parsed as "
+                            "true/false, int, float, else string; see `mttbench trackers`)"
+                            + ("" if trackers_required
+                               else "; default: every registered tracker"))
     g = p.add_mutually_exclusive_group()
     g.add_argument("--seeds", type=int, metavar="N",
                    help=f"run seeds 0..N-1 (default {seeds_default}; N <= {MAX_SEEDS})")
@@ -1192,13 +1196,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scenarios", nargs="*", metavar="SCENARIO", default=[],
                    help="preset names, envelope points (env-...) or paths to .toml files")
     p.add_argument("--suite", metavar="SUITE", help=SUITE_HELP)
-    g = p.add_mutually_exclusive_group()
-    g.add_argument("--seeds", type=int, metavar="N",
-                   help=f"seeds 0..N-1 (default 10; N <= {MAX_SEEDS})")
-    g.add_argument("--seed-list", nargs="+", metavar="SEED",
-                   help="explicit seeds, space or comma separated")
-    p.add_argument("--steps", type=int, metavar="K",
-                   help="override every scenario's n_steps (default: the scenario's)")
+    _add_sweep_options(p, seeds_default=10, trackers_required=None)
     p.add_argument("--policy", nargs="+", default=["raster"], metavar="SPEC",
                    help="the cell-selection policy (default raster: the same looks as every "
                         "tracker's)")
@@ -1219,18 +1217,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--store", metavar="DIR",
                    help="where the references go (default: the checkout's "
                         "reports/reference/bayes/; from an installed package ./bayes)")
-    p.add_argument("--out", metavar="DIR",
-                   help="the ladder's runs (default reports/bayes-<UTC timestamp>)")
-    p.add_argument("--resume", action="store_true",
-                   help="continue an interrupted ladder in --out (runs already saved are "
-                        "read back)")
-    _add_metric_options(p)
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel worker processes (default: the number of CPUs)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--run-timeout", type=float, default=None, metavar="SECONDS",
-                   help="wall-time limit of one run (default: 10x the slowest run's "
-                        "estimate, at least 60 s)")
     add_executor_arguments(p)
     p.set_defaults(func=cmd_bayes)
 
