@@ -15,13 +15,12 @@ import numpy as np
 import pandas as pd
 import pytest
 from scipy import stats
+from test_gap_closed import frame
 
 from mttbench.benchmarks.app import bayes, report, summary
 from mttbench.benchmarks.app.cli import main
 from mttbench.benchmarks.app.usage import UsageError
 from mttbench.benchmarks.engine.specs import PolicySpec, resolve_scenarios
-
-from test_gap_closed import frame
 
 TINY = resolve_scenarios(["env-centre"], steps=3)[0]
 

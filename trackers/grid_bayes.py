@@ -222,7 +222,7 @@ def _velocity_scales(model: TrackingModel, spacing: float, velocity_sds: float,
     s0 = float(bd.birth_velocity_std) if bd.n_random_initial else 0.0
     declared = np.asarray(bd.initial_states, dtype=float).reshape(-1, 4)
     out = []
-    for a, vi in enumerate((1, 3)):
+    for vi in (1, 3):
         v0 = float(np.abs(declared[:, vi]).max()) if len(declared) else 0.0
         spread = math.sqrt(s0 ** 2 + horizon * max(float(Q[vi, vi]), 0.0))
         V = v0 + velocity_sds * spread
@@ -390,7 +390,8 @@ class GridBayesTracker(Tracker):
 
     def _cells_xy(self) -> tuple[np.ndarray, np.ndarray]:
         """Sensor-cell column (x) of each support row and row (y) of each support column."""
-        return (self._rows // self._ax.n_v) // self._ax.ppc, (self._cols // self._ay.n_v) // self._ay.ppc
+        return ((self._rows // self._ax.n_v) // self._ax.ppc,
+                (self._cols // self._ay.n_v) // self._ay.ppc)
 
     def _cell_mass(self) -> np.ndarray:
         """``(nx, ny)`` mass of the target in each sensor cell ``(cx, cy)``."""

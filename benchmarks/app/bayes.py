@@ -71,6 +71,8 @@ LADDER_TRACKER = "jmpd-ap"
 #: format of the stored files
 FORMAT = 1
 _PACKAGE_ROOT = Path(__file__).resolve().parents[2]
+#: the policy of a reference by default: the raster every tracker of a report shares
+RASTER = PolicySpec("raster")
 
 
 def default_store() -> Path:
@@ -289,7 +291,7 @@ def _reference_rows(rows: pd.DataFrame) -> pd.DataFrame:
 
 def run_ladder(scenarios: Sequence[Scenario], seeds: Sequence[int], sweep: Sweep,
                work_dir: str | Path, *, ladder: Ladder = Ladder(),
-               policy: PolicySpec = PolicySpec("raster"), looks: int | None = None,
+               policy: PolicySpec = RASTER, looks: int | None = None,
                c: float | None = None, p: float = 2.0,
                provenance: Mapping[str, Any] | None = None,
                say: Callable[[str], None] = print) -> dict[str, Reference]:
@@ -371,7 +373,7 @@ def run_ladder(scenarios: Sequence[Scenario], seeds: Sequence[int], sweep: Sweep
 
 # ---------------------------------------------------------------- reports and tables
 def attach(results: pd.DataFrame, scenarios: Sequence[Scenario], seeds: Sequence[int],
-           policy: PolicySpec = PolicySpec("raster"), looks: int | None = None,
+           policy: PolicySpec = RASTER, looks: int | None = None,
            c: float | None = None, p: float = 2.0, stores: Sequence[str | Path] | None = None
            ) -> tuple[pd.DataFrame, list[str]]:
     """``results`` with the stored reference's rows of every scenario that has one for

@@ -344,8 +344,8 @@ def _with_bayes(results: pd.DataFrame, scs, policy_specs, looks, seeds,
                 args: argparse.Namespace) -> pd.DataFrame:
     """The summary's table: ``results`` with the stored Bayes reference of every raster
     scenario and look budget whose seeds it covers (a line on stderr for each attached)."""
-    from . import bayes
     from ..engine.specs import PolicySpec
+    from . import bayes
 
     if not any(p.name == "raster" and not p.params for p in policy_specs or []) or \
             "step" not in results.columns:
