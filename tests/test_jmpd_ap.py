@@ -435,7 +435,9 @@ def test_one_target_removal_move_and_birth_are_exact(looks_id):
     after one update (module docstring steps 2, 4, 5; the fixed-count model returns a
     removed target to the undetected initial targets, so a removed target may be born
     again at a detected cell ``d``): moved to cell ``c`` ``∝ (1 - beta) gamma_c
-    Lambda_c(1)``, removed and not born ``∝ beta (1 - pi)``, removed and born in ``d``
+    Lambda_c(1)``, removed and not born ``∝ beta sum_{c != d} Lambda_c(1) / J`` (the
+    removed target is somewhere else, unseen: ``(1 - pi) f`` with ``f`` the mean of
+    ``Lambda_c(1)`` over the cells not detected), removed and born in ``d``
     ``∝ beta pi Lambda_d(1)``, ``pi = 1/J``. Born targets are told apart by their
     velocity variance (the birth law's). Then: positions inside a cell follow the
     truncated predictive (KS), velocity means and variances the RB update exactly
@@ -445,6 +447,7 @@ def test_one_target_removal_move_and_birth_are_exact(looks_id):
     model = _model(nx, initial_states=((1.5, 0.5, 0.5, 0.0),), birth_velocity_std=BIRTH_STD)
     t = _tracker(model, 11, n_particles=N_MC, removal_probability=beta)
     t.pos[:, 0], t.vel[:, 0], t.vvar[:, 0], t.valid[:, 0] = RHO, M, S, True
+    t._k = 0  # the update of step 1 (step 0 is the prior, where nobody is removed)
     t.predict()
     looks = _looks(cells, returns)
     t.update(looks)
@@ -456,16 +459,17 @@ def test_one_target_removal_move_and_birth_are_exact(looks_id):
     lam = _lam(SENSOR, looks, nx, 1)[:, 1]
     det = np.flatnonzero(lam > 1.0)
     pi = 1.0 / nx
+    f = lam[lam <= 1.0].mean()  # the removed target unseen in the cells not detected
     # fine categories: 0 removed (not born), 1 born in d, 2 + c moved to c
     q_move = np.concatenate([[beta], (1 - beta) * gamma * lam])
     if det.size:
         (d,) = det
         b = pi * lam[d] / (1 - pi + pi * lam[d])
         q = np.concatenate([[q_move[0] * (1 - b), q_move[0] * b], q_move[1:]])
-        w = np.concatenate([[(1 - pi) / (1 - b), pi * lam[d] / b], np.ones(nx)])
+        w = np.concatenate([[(1 - pi) / (1 - b) * f, pi * lam[d] / b], np.ones(nx)])
     else:
         q = np.concatenate([[q_move[0], 0.0], q_move[1:]])
-        w = np.ones(nx + 2)
+        w = np.concatenate([[f, 1.0], np.ones(nx)])
 
     n_held = t.valid.sum(axis=1)
     assert n_held.max() <= 1
@@ -543,9 +547,12 @@ def test_leaving_the_workspace_under_die():
     (docstring step 2), ``m_out = 1 - sum_c gamma_c``; equal weights."""
     nx, beta = 3, 0.1
     model = _model(nx, initial_states=((2.0, 0.6, 0.5, 0.0),), boundary="die")
-    t = _tracker(model, 28, n_particles=N_MC, removal_probability=beta)
+    # the particles hold the one target (init_fraction 1: none left undetected); one
+    # that leaves or is removed is dead (walls that kill), so the weights stay equal
+    t = _tracker(model, 28, n_particles=N_MC, removal_probability=beta, init_fraction=1.0)
     t.pos[:, 0], t.vel[:, 0], t.vvar[:, 0], t.valid[:, 0] = (2.0, 0.5), (0.6, 0.0), \
         (0.1, 0.05), True
+    t._k = 0  # step 1 (step 0 is the prior, where nobody is removed)
     t.predict()
     looks = _looks([2, 0], [False, False])
     t.update(looks)
@@ -642,16 +649,23 @@ def test_births_of_arrivals(p_s):
     fraction born in cell ``c`` is ``pi Lambda / (1 - pi + pi Lambda)``, ``pi = 1 -
     exp(-u_c)``, binomial (the weights are equal).
 
-    One update with a hit at cell 0 and a miss at cell 1: ``u_0 = alpha``; births in
-    cell 0 only, uniform in it, with the birth law's velocity, all in one slot. Two
-    updates, a miss at cell 0 then hits at both cells: by docstring step 6 (``u <- p_s u
-    + alpha`` per step, ``u <- u (1 - p_d)`` per look) ``u_0 = p_s alpha (1 - p_d) +
-    alpha`` and ``u_1 = p_s alpha + alpha``."""
+    Arrivals start at step 1 (step 0 holds the initial targets only): at step 0 nobody
+    is born at a hit. At step 1, a hit at cell 0 and a miss at cell 1: ``u_0 = alpha``;
+    births in cell 0 only, uniform in it, with the birth law's velocity, all in one slot.
+    Steps 1 and 2, a miss at cell 0 then hits at both cells: by docstring step 6 (``u <-
+    p_s u + alpha`` per step, ``u <- u l(0)`` per look, ``l(0) = (1 - p_d) / (1 - p_f)``)
+    ``u_0 = p_s alpha l(0) + alpha`` and ``u_1 = p_s alpha + alpha``."""
     mu, nx = 0.6, 2
     model = _model(nx, birth_rate=mu, survival_probability=p_s, birth_velocity_std=BIRTH_STD)
     alpha = mu / nx
-    # one step: hit at 0, miss at 1
+    l0 = (1 - SENSOR.p_d) / (1 - SENSOR.p_f)
+    t = _tracker(model, 13, n_particles=N_MC)
+    t.predict()
+    t.update(_looks([0, 1], [True, True]))
+    assert not t.valid.any()  # step 0: no arrivals yet
+    # step 1: hit at 0, miss at 1
     t = _tracker(model, 14, n_particles=N_MC)
+    t._k = 0
     t.predict()
     looks = _looks([0, 1], [True, False])
     t.update(looks)
@@ -666,8 +680,9 @@ def test_births_of_arrivals(p_s):
     assert (t.vel[t.valid] == 0).all() and (t.vvar[t.valid] == BIRTH_STD**2).all()
     assert (t.valid.any(axis=0)).sum() == 1  # all born in a cell this step share a slot
 
-    # two steps: the lazy intensity
+    # steps 1 and 2: the lazy intensity
     t = _tracker(model, 15, n_particles=N_MC)
+    t._k = 0
     t.predict()
     t.update(_looks([0], [False]))
     assert not t.valid.any()
@@ -675,7 +690,7 @@ def test_births_of_arrivals(p_s):
     looks = _looks([0, 1], [True, True])
     t.update(looks)
     lam = _lam(SENSOR, looks, nx, 1)[:, 1]
-    u = np.array([p_s * alpha * (1 - SENSOR.p_d) + alpha, p_s * alpha + alpha])
+    u = np.array([p_s * alpha * l0 + alpha, p_s * alpha + alpha])
     pi = -np.expm1(-u)
     b = pi * lam / (1 - pi + pi * lam)
     for cell in (0, 1):
@@ -688,9 +703,11 @@ def test_births_of_undetected_initial_targets(first_looks):
     """One random initial target (``n_random_initial = 1``), ``p_s = 1``, no arrivals, a
     3 x 1 grid, particles start empty: a hit at cell 0 and a miss at cell 1 give births
     in cell 0 with ``b = pi Lambda / (1 - pi + pi Lambda)``, ``pi = 1 - (1 - v_0 / sum
-    v)^1``: ``1/J`` at the first update, ``(1 - p_d)^2 / ((1 - p_d)^2 + 2)`` after a
-    first step with two misses at cell 0 (``v <- v (1 - p_d)`` per look); no births
-    elsewhere."""
+    v)^1``: ``1/J`` at the first update, ``l(0)^2 / (l(0)^2 + 2)`` after a first step
+    with two misses at cell 0 (``v <- v l(0)`` per look, ``l(0) = (1 - p_d) / (1 -
+    p_f)``); no births elsewhere. The particles not born keep the target undetected
+    elsewhere, unseen by this step's looks: weight ``f = sum_{c != 0} v_c Lambda_c(1) /
+    sum_{c != 0} v_c`` against 1 for those born."""
     nx = 3
     model = _model(nx, n_random_initial=1)
     t = _tracker(model, 16, n_particles=N_MC, arrival_rate=0.0)
@@ -699,24 +716,26 @@ def test_births_of_undetected_initial_targets(first_looks):
         t.predict()
         t.update(_looks(*first_looks))
         assert not t.valid.any()
-        v[0] *= (1 - SENSOR.p_d) ** 2
+        v[0] *= ((1 - SENSOR.p_d) / (1 - SENSOR.p_f)) ** 2
     t.predict()
     looks = _looks([0, 1], [True, False])
     t.update(looks)
     lam = _lam(SENSOR, looks, nx, 1)[:, 1]
     pi = v[0] / v.sum()
     b = pi * lam[0] / (1 - pi + pi * lam[0])
+    f = (v[1:] * lam[1:]).sum() / v[1:].sum()
     born, c = _born_fraction(t, 0)
     assert ((c == 1) | (c == 2)).sum() == 0 and (t.valid.sum(axis=1) <= 1).all()
-    _check_frequencies(born.astype(int), [1 - b, b], [1, 1])
+    _check_frequencies(born.astype(int), [1 - b, b], [f, 1])
 
 
 def test_no_birth_in_an_occupied_cell():
     """Two initial targets (fixed count 2), particles holding one, predicted inside cell 1
     (sd 0.07): one initial target remains undetected, ``pi = 1 - (1 - 1/J)^1``. Hits at
     cells 1 and 3: cell 1 is occupied, so nobody is born there (docstring step 4); in
-    cell 3 the births have the posterior fraction ``pi Lambda / (1 - pi + pi Lambda)``
-    (equal weights, binomial)."""
+    cell 3 the births have the proposal fraction ``pi Lambda / (1 - pi + pi Lambda)``,
+    weighted 1 against ``f`` for the particles whose target stays undetected (the mean
+    of ``Lambda_c(1)`` over the cells not detected: 0, 2, 4)."""
     nx = 5
     model = _model(nx, q=(0.005, 0.0, 0.01),
                    initial_states=((1.5, 0.0, 0.5, 0.0), (3.5, 0.0, 0.5, 0.0)))
@@ -731,15 +750,16 @@ def test_no_birth_in_an_occupied_cell():
     lam = _lam(SENSOR, looks, nx, 1)[:, 1]
     pi = 1.0 / nx
     b = pi * lam[3] / (1 - pi + pi * lam[3])
-    _check_frequencies((c == 3).any(axis=1).astype(int), [1 - b, b], [1, 1])
+    f = lam[[0, 2, 4]].mean()
+    _check_frequencies((c == 3).any(axis=1).astype(int), [1 - b, b], [f, 1])
 
 
 def test_fixed_count_rule(monkeypatch):
     """A fixed count of 1 (one initial target, ``p_s = 1``, no arrivals), half the
     particles holding it in slot 0 at cell 1, half in slot 1 at cell 8 of a 10 x 1 grid
-    (two clusters): recombination by clusters gives some particles both, births at the
-    hit in cell 5 give empty ones a target. Before the final resampling some particles
-    hold two (the rule is exercised); after it none holds more than one."""
+    (two clusters, with the coupling of exclusive slots switched off): recombination by
+    clusters gives some particles both. Before the final resampling some particles hold
+    two (the rule is exercised); after it none holds more than one."""
     model = _model(10, initial_states=((5.0, 0.0, 0.5, 0.0),))
     t = _tracker(model, 17, n_particles=4000, removal_probability=0.0)
     half = t.pos.shape[0] // 2
@@ -755,6 +775,7 @@ def test_fixed_count_rule(monkeypatch):
         return real(w, u)
 
     monkeypatch.setattr(ap_module, "systematic_resample", spy)
+    monkeypatch.setattr(ap_module, "coupled_slots", lambda valid: None)
     t.predict()
     t.update(_looks([1, 8, 5], [True, True, True]))
     assert t.n_clusters == 2
@@ -767,20 +788,24 @@ def test_fixed_count_rule(monkeypatch):
 # ============================================================================ estimate
 def test_estimate_is_the_mean_count_and_holder_averages():
     """Two targets in separate clusters, removal 0.35, a hit near one and misses at the
-    other: ``count`` is the mean number of valid slots after the update, the states are
-    the ``round(count)`` most-held slots, each averaged over the particles holding it."""
+    other (fixed count 2): ``count`` is the mean number of valid slots after the update
+    plus the undetected targets (a removed target returns to them: ``2 - T_i`` per
+    particle), so exactly 2; the states are the ``round(mean valid slots)`` most-held
+    slots, each averaged over the particles holding it."""
     model = _model(12, initial_states=((2.0, 0.3, 0.5, 0.0), (9.0, -0.2, 0.5, 0.0)))
     t = _tracker(model, 18, n_particles=3000, removal_probability=0.35)
     t.pos[:, 0], t.vel[:, 0], t.vvar[:, 0] = (2.0, 0.5), (0.3, 0.0), (0.2, 0.05)
     t.pos[:, 1], t.vel[:, 1], t.vvar[:, 1] = (9.0, 0.5), (-0.2, 0.0), (0.2, 0.05)
     t.valid[:, :2] = True
+    t._k = 0  # step 1 (nobody is removed at step 0)
     t.predict()
     t.update(_looks([2, 9, 9, 10], [True, False, False, False]))
     est = t.estimate()
     N = t.valid.shape[0]
     held = t.valid.sum(axis=0)
     count = held.sum() / N
-    assert est.count == pytest.approx(count, rel=1e-12)
+    assert est.count == pytest.approx(2.0, rel=1e-12)
+    assert est.count == pytest.approx(count + t.undetected_mass, rel=1e-12)
     assert t.count_mean == est.count
     assert 1.0 < count < 2.0 and count != round(count)  # a genuine mean
     n_hat = int(round(count))
@@ -824,3 +849,79 @@ def test_position_noise_floor_sets_the_least_predictive_variance(floor):
     _, psi = t._pred
     np.testing.assert_allclose(psi[:, 0, 0], 0.01 + max(1e-6, floor), rtol=1e-12)
     np.testing.assert_allclose(psi[:, 0, 1], 0.02 + max(0.04, floor), rtol=1e-12)
+
+
+# ============================================================ the model's existence law
+def test_nobody_dies_at_step_0_and_the_count_decays_by_p_s():
+    """Step 0 is the prior (the simulator's first step holds the initial targets): a
+    declared target held by every particle (``init_fraction = 1``), ``p_s = 0.6``, survives
+    step 0 in every particle; one random initial target that is never looked at counts
+    ``p_s^k`` at step ``k`` (``count = E[T]`` counts the undetected targets), exactly."""
+    model = _model(6, initial_states=((2.5, 0.0, 0.5, 0.0),), survival_probability=0.6)
+    t = _tracker(model, 30, n_particles=2000, init_fraction=1.0)
+    t.predict()
+    t.update(_looks([5], [False]))
+    assert t.valid[:, 0].all()
+    model = _model(6, n_random_initial=1, survival_probability=0.6)
+    t = _tracker(model, 31, n_particles=500)
+    for k in range(4):
+        t.predict()
+        t.update(_looks([], []))
+        assert t.estimate().count == pytest.approx(0.6 ** k, rel=1e-12)
+
+
+def test_a_target_let_die_stays_dead():
+    """One declared target, ``p_s = 0.5``, no arrivals: a particle that lets it die at
+    step 1 keeps no undetected initial target (``r_i = 0``), so a hit far from the track
+    at step 2 gives no birth in it; the particles holding the target keep ``r_i = 0`` too
+    (they found their one target), so no particle ever holds two."""
+    model = _model(12, q=(0.005, 0.0, 0.001), initial_states=((1.5, 0.0, 0.5, 0.0),),
+                   survival_probability=0.5)
+    t = _tracker(model, 32, n_particles=4000, init_fraction=1.0)
+    for looks in (([1], [True]), ([1], [True]), ([9, 9], [True, True])):
+        t.predict()
+        t.update(_looks(*looks))
+        assert (t._remaining() == 0).all()
+        assert t.valid.sum(axis=1).max() <= 1
+    cells = np.where(t.valid, np.floor(t.pos[..., 0]).astype(int), -1)
+    assert not (cells == 9).any()
+
+
+def test_coupled_slots_are_exclusive_or_dependent_holdings():
+    """``coupled_slots``: two slots held by disjoint halves of the particles (one target
+    in two labels) are coupled; two held independently (90% each, drawn so) are not; a
+    slot held nowhere couples with nothing; a slot held by 3 particles that never hold
+    slot 2 with it is coupled to slot 2 (too few for the statistical rule)."""
+    from mttbench.trackers.jmpd.partitions import coupled_slots
+
+    rng = np.random.default_rng(40)
+    N = 4000
+    valid = np.zeros((N, 6), dtype=bool)
+    valid[: N // 2, 0] = True
+    valid[N // 2:, 1] = True
+    valid[:, 2] = rng.random(N) < 0.9
+    valid[:, 3] = rng.random(N) < 0.9
+    c = coupled_slots(valid)
+    assert c[0, 1] and c[1, 0]
+    assert not c[2, 3] and not c[3, 2]
+    assert not c[4].any() and not c[:, 4].any()
+    assert not c.diagonal().any()
+    rare = np.flatnonzero(~valid[:, 2])[:3]
+    valid[rare, 5] = True
+    c = coupled_slots(valid)
+    assert c[5, 2] and c[2, 5]
+
+
+def test_one_random_target_in_clutter_is_never_held_twice():
+    """One random initial target, no arrivals, ``p_s = 0.98``, false alarms in about one
+    look in ten (``single-clutter``): the model never holds two targets, and neither
+    may any particle after any step, whatever its births and recombinations."""
+    from mttbench.benchmarks.engine.loop import play
+    from mttbench.scenarios import get
+
+    sc = get("single-clutter")
+    t = JMPDAPTracker(n_particles=1500)
+    for rec in play(sc, t, 1, n_steps=15):
+        held = t.valid.sum(axis=1)
+        assert held.max() <= 1, rec.k
+        assert 0.0 <= rec.estimate.count <= 1.0 + 1e-9

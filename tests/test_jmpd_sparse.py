@@ -236,7 +236,8 @@ def test_ap_undetected_values_follow_the_dense_recurrences(p_s, births):
     tr = JMPDAPTracker(n_particles=60)
     tr.reset(model, np.random.default_rng(4))
     J, p_d, alpha = grid.n_cells, model.sensor.p_d, births / grid.n_cells
-    u, u_step, v, v_total = np.zeros(J), np.full(J, -1), np.full(J, 1.0 / J), 1.0
+    # arrivals from step 1 on: the intensity's clock starts at step 0
+    u, u_step, v, v_total = np.zeros(J), np.full(J, 0), np.full(J, 1.0 / J), 1.0
     rng = np.random.default_rng(5)
     rescaled = 0
     for _ in range(45):
@@ -244,7 +245,7 @@ def test_ap_undetected_values_follow_the_dense_recurrences(p_s, births):
         cells = np.concatenate([np.arange(J), rng.integers(0, J, 4)])
         tr.update(Looks(cells, rng.random(len(cells)) < 0.01))
         lc, n_looks = np.unique(cells, return_counts=True)
-        miss = (1.0 - p_d) ** n_looks
+        miss = ((1.0 - p_d) / (1.0 - model.sensor.p_f)) ** n_looks  # l(0) per look
         gap = tr._k - u_step[lc]
         if p_s == 1.0:
             u[lc] = (u[lc] + alpha * gap) * miss

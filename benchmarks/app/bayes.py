@@ -68,8 +68,13 @@ from .usage import UsageError
 REFERENCE = "bayes"
 #: the tracker whose particle-count ladder approximates the Bayes filter
 LADDER_TRACKER = "jmpd-ap"
-#: format of the stored files
-FORMAT = 1
+#: its settings besides the particle count: the model's prior, every particle starting on
+#: the declared initial states (a prior every tracker may use; ``jmpd-ap``'s default
+#: starts from nothing, as the contestants do)
+LADDER_PARAMS: dict[str, float] = {"init_fraction": 1.0}
+#: format of the stored files (2: the ladder's tracker counts undetected targets, lets a
+#: dead target stay dead and starts on the declared states)
+FORMAT = 2
 _PACKAGE_ROOT = Path(__file__).resolve().parents[2]
 #: the policy of a reference by default: the raster every tracker of a report shares
 RASTER = PolicySpec("raster")
@@ -115,6 +120,11 @@ class Ladder:
         return out
 
 
+def ladder_spec(n: int) -> TrackerSpec:
+    """The ladder's tracker at ``n`` particles."""
+    return TrackerSpec(LADDER_TRACKER, {**LADDER_PARAMS, "n_particles": int(n)})
+
+
 def reference_key(scenario: Scenario, policy: PolicySpec, looks: int | None,
                   c: float | None, p: float) -> str:
     """What determines a reference's numbers, hashed (the seeds are stored inside); a
@@ -126,7 +136,7 @@ def reference_key(scenario: Scenario, policy: PolicySpec, looks: int | None,
         looks = None
     ident = {"scenario": scenario_text(scenario), "policy": [policy.name, policy.params],
              "looks": looks, "c": float(c), "p": float(p), "tracker": LADDER_TRACKER,
-             "format": FORMAT}
+             "tracker_params": LADDER_PARAMS, "format": FORMAT}
     text = json.dumps(ident, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
@@ -316,8 +326,8 @@ def run_ladder(scenarios: Sequence[Scenario], seeds: Sequence[int], sweep: Sweep
         if not open_:
             break
         todo = list(open_.values())
-        jobs = build_jobs(todo, [TrackerSpec(LADDER_TRACKER, {"n_particles": n})], [policy],
-                          None if looks is None else [looks], seeds)
+        jobs = build_jobs(todo, [ladder_spec(n)], [policy], None if looks is None else [looks],
+                          seeds)
         say(f"bayes: N = {n} on {', '.join(open_)} ({len(jobs)} runs)")
         results = sweep(jobs, work_dir)
         here = results[(results["tracker"] == LADDER_TRACKER)
@@ -450,7 +460,7 @@ def run_command(scenarios: Sequence[Scenario], seeds: Sequence[int], ladder: Lad
     from .progress import run_sweep
 
     out_dir = Path(out_dir)
-    top = [build_jobs(list(scenarios), [TrackerSpec(LADDER_TRACKER, {"n_particles": n})],
+    top = [build_jobs(list(scenarios), [ladder_spec(n)],
                       [policy], None if looks is None else [looks], list(seeds)[:1])
            for n in ladder.rungs()]
     for line in resources.check_jobs([j for jobs in top for j in jobs], workers):

@@ -18,7 +18,9 @@ One update (every step; ``Lambda_c(n)`` is the product over this step's looks at
 
 1. **Partitions** (AP, TAES Table V with Morelande's closure): slot centres are the
    predicted positions averaged over the particles holding the slot; slots closer than
-   ``cluster_distance`` cells, or whose particles' positions overlap, are one cluster
+   ``cluster_distance`` cells, or whose particles' positions overlap, or whose holdings
+   depend on each other (two slots holding one target in different particles:
+   :func:`.partitions.coupled_slots`), are one cluster
    (:func:`.partitions.cluster_slots`). A cluster of one slot is sampled alone (IP), a
    larger one jointly.
 2. **Persistent targets**: every particle draws its clusters' targets one after another
@@ -34,28 +36,36 @@ One update (every step; ``Lambda_c(n)`` is the product over this step's looks at
    for a single target).
 3. **Recombination** (IP, TAES Table III; Morelande's per-cluster first stage): receiver
    ``i`` takes cluster ``l``'s draw from particle ``a`` picked ``∝ prod_{t in l} Z_t(a)``
-   (systematic, shuffled), independently per cluster.
+   (systematic, shuffled), independently per cluster; the particle's undetected initial
+   targets (6) come with its largest cluster's ancestor.
 4. **Births** at detected cells (``Lambda_c(1) > 1``) not occupied by the particle:
    with ``pi_c`` the probability of an undetected target in ``c`` (below), born with
    ``b_c = pi_c Lambda_c(1) / (1 - pi_c + pi_c Lambda_c(1))``, uniform in the cell,
-   velocity from the model's birth law. All particles born in ``c`` this step share a
-   slot (TSP p. 1600): the slot whose centre is in ``c`` where the particle has it
-   empty, else a fresh slot.
+   velocity from the model's birth law, cell after cell, each birth from the undetected
+   initial targets lowering ``r_i`` for the next cells. All particles born in ``c`` this
+   step share a slot (TSP p. 1600): the slot whose centre is in ``c`` where the particle
+   has it empty, else a fresh slot.
 5. **Weights** (TSP eq. 58, whose correction multiplies; the Aerospace and dissertation
    tables divide by it)::
 
        log w_i = log p(z | X_i) - sum_l log pi_l(z | X_il)     (clusters sharing a cell)
                  + sum_{c born} log(pi_c / b_c) + sum_{c not born} log((1-pi_c)/(1-b_c))
+                 + n log(1 - q (1 - s))      (undetected initial targets missed: 6)
 
    (a particle with more targets than a fixed-count model allows gets weight 0), then
    systematic resampling every step, K-means sorting of the slots within clusters
    (:func:`.partitions.sort_slots`) and merging of slots that hold one target
    (:func:`.partitions.merge_slots`).
 6. **Undetected targets** (the existence grid of Aerospace 2005 eqs. 22-23, in a
-   Poisson-binomial form): the initial ones, ``r_i = max(n0 p_s^(k+1) - T_i, 0)`` not held
-   by particle ``i``, each in cell ``c`` with probability ``v_c / sum v`` (``v <- v
-   (1 - p_d)`` per look); and arrivals with intensity ``u_c`` (``u <- p_s u + alpha_c`` per step,
-   ``u <- u (1 - p_d)`` per look), kept lazily (value and step of each cell's last
+   Poisson-binomial form): the initial ones, ``r_i`` per particle (``n0`` less the
+   declared targets it starts with, ``r_i <- p_s r_i`` per step from step 1, less
+   ``pi_init / pi`` at each of its births, and lowered by the looks that missed them
+   (:meth:`JMPDAPTracker._undetected_misses`, which also weights the particle): a target
+   it let die stays dead; where targets cannot die (``p_s = 1``, reflecting walls),
+   ``max(n0 - T_i, 0)``), each in cell ``c`` with probability ``v_c / sum v`` (``v <- v
+   l(0)`` per look, ``l(0) = (1 - p_d) / (1 - p_f)``); and arrivals from step 1 with
+   intensity ``u_c`` (``u <- p_s u + alpha_c`` per step,
+   ``u <- u l(0)`` per look), kept lazily (value and step of each cell's last
    look), so a step costs the looks, not the cells. ``pi_c = 1 - (1 - v_c / sum v)^r_i
    exp(-u_c)``. The cells never looked at share one value of ``v`` and ``u``
    (:class:`.sparse.CellTable`); ``P_c(t)`` (:meth:`JMPDAPTracker.cell_count_distribution`)
@@ -66,7 +76,8 @@ Cost per step: ``O(N T W + looks)`` (``W`` the proposal window's cells) and noth
 cell of the grid: the look tables are keyed by the looked cells (:mod:`.sparse`), the
 undetected values by the cells looked at so far (docs/jmpd-ap.md, "Grid size").
 
-Estimate: count ``E[T]``; states: the ``round(E[T])`` slots of largest existence mass,
+Estimate: count ``E[T]``, the held slots' mean count plus the undetected targets'
+expected number; states: the ``round(mean held slots)`` slots of largest existence mass,
 each averaged over the particles holding it (positions, velocity means).
 
 Rates: the model's (``alpha_c`` = birth rate / cells, ``beta = 1 - p_s``), no floors.
@@ -114,7 +125,14 @@ from .backend import compiled_ap_kernels
 from .cell_proposal import axis_window, truncated_normal
 from .estimation import cell_count_distribution_from
 from .likelihood import grid_log_likelihood, grid_log_likelihood_tables
-from .partitions import SORT_MAX, cluster_slots, merge_slots, permutations, sort_slots
+from .partitions import (
+    SORT_MAX,
+    cluster_slots,
+    coupled_slots,
+    merge_slots,
+    permutations,
+    sort_slots,
+)
 from .resampling import effective_sample_size, systematic_resample
 from .sparse import CellTable
 from .state import fold
@@ -277,7 +295,9 @@ class JMPDAPTracker(Tracker):
         self._beta = float(1.0 - bd.survival_probability if self.removal_probability is None
                            else self.removal_probability)
         self._p_s = float(bd.survival_probability)
-        fixed = self._p_s == 1.0 and self._arrivals == 0.0
+        # deaths: by survival, or by leaving the workspace under ``die``
+        self._can_die = self._p_s < 1.0 or not self._reflect
+        fixed = not self._can_die and self._arrivals == 0.0
         self._fixed_count = int(round(bd.initial_count_mean)) if fixed else None
         self._birth_var = float(bd.birth_velocity_std) ** 2
         # slots: positions, velocity means and variances per axis, validity
@@ -302,7 +322,12 @@ class JMPDAPTracker(Tracker):
         # each cell's last look and its step; all three in a CellTable (one default value
         # per column, and the values of the cells looked at so far)
         self._n0 = float(bd.initial_count_mean)
-        self._undetected = CellTable(J, u=(0.0, np.float64), u_step=(-1, np.int64),
+        # per particle, the expected initial targets alive and not yet found (module
+        # docstring, 6): the declared start's particles hold theirs already
+        self._r = np.full(N, self._n0)
+        self._r[:n_start] -= len(declared)
+        # (arrivals start at step 1: the simulator's step 0 holds the initial targets only)
+        self._undetected = CellTable(J, u=(0.0, np.float64), u_step=(0, np.int64),
                                      v=(1.0 / J, np.float64))
         self._v_total = 1.0
         self._k = -1
@@ -334,11 +359,15 @@ class JMPDAPTracker(Tracker):
         return u * keep + a * (1.0 - keep) / (1.0 - p_s)
 
     def _remaining(self) -> np.ndarray:
-        """Initial targets not held, per particle: ``max(n0 p_s^(k+1) - T_i, 0)``
-        (exact when the count is fixed; a particle that dropped a lost track may find
-        it again)."""
-        alive = self._n0 * self._p_s ** (self._k + 1)
-        return np.maximum(alive - self.valid.sum(axis=1), 0.0)
+        """Initial targets alive and not found, per particle. Targets that cannot die
+        (``p_s = 1``, reflecting walls): ``max(n0 - T_i, 0)``, so a track removed by
+        ``removal_probability`` returns its target to the undetected ones. Else the
+        particle's own count ``r_i`` (``r_i <- p_s r_i`` per step, less the chance that
+        each of its births was an initial target): a target the particle let die stays
+        dead, as in the model."""
+        if not self._can_die:
+            return np.maximum(self._n0 - self.valid.sum(axis=1), 0.0)
+        return np.maximum(self._r, 0.0)
 
     def _undetected_probability(self, cells: np.ndarray | None, remaining: np.ndarray
                                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -350,6 +379,42 @@ class JMPDAPTracker(Tracker):
         pi_init = -np.expm1(remaining[..., None] * np.log1p(-np.minimum(share, 1.0 - 1e-12)))
         pi_arr = -np.expm1(-self._arrival_intensity(u, u_step))
         return pi_init, np.broadcast_to(pi_arr, pi_init.shape)
+
+    def _miss_factor(self, n_looks: np.ndarray) -> np.ndarray:
+        """``l(0)^n = ((1 - p_d) / (1 - p_f))^n``: a target in a cell missed by each of its
+        ``n`` looks, relative to an empty cell."""
+        sensor = self._model.sensor
+        return ((1.0 - sensor.p_d) / (1.0 - sensor.p_f)) ** n_looks
+
+    def _undetected_misses(self, cells: np.ndarray, n_looks: np.ndarray,
+                           detected: np.ndarray) -> np.ndarray:
+        """The undetected initial targets' part of each particle's weight, for this
+        step's looks at ``cells`` (sorted unique) ``n_looks`` times each, ``detected`` the
+        cells with ``Lambda_c(1) > 1`` (where births were proposed); in place, their
+        posterior count. Each of the particle's ``r_i`` left after the births (as ``n =
+        ceil(r_i)`` targets that exist with ``q = r_i / n`` each, exact for one) is in a
+        cell ``c`` outside the detected ones with probability ``v_c / sum' v`` and missed
+        there with ``l(0)^n_c``: the looks leave the share ``s = sum'_c v_c l(0)^n_c /
+        sum' v`` unseen (``sum'`` over the cells not detected), the weight is ``(1 - q (1
+        - s))^n``, and ``q <- q s / (1 - q (1 - s))`` when targets can die (else the
+        count is known and only the weight applies). For one target this with the birth
+        step's prior ``1 - pi_d`` is the exact ``sum_{c not detected} v_c Lambda_c(1) /
+        sum v``. Log weights ``(N,)``."""
+        v = self._undetected.get("v", cells)
+        rest = self._v_total - float(v[detected].sum())
+        if rest <= 0.0:
+            return np.zeros(self._N)
+        missed = ~detected
+        seen = float((v[missed] * (1.0 - self._miss_factor(n_looks[missed]))).sum()) / rest
+        remaining = self._remaining()
+        n = np.ceil(remaining)
+        q = np.where(n > 0, remaining / np.maximum(n, 1.0), 0.0)
+        keep = 1.0 - q * min(max(seen, 0.0), 1.0)
+        if self._can_die:
+            self._r = n * np.where(keep > 0.0, (q - q * seen) / np.where(keep > 0.0, keep, 1.0),
+                                   0.0)
+        with np.errstate(divide="ignore"):
+            return n * np.log(keep)
 
     @property
     def undetected_mass(self) -> float:
@@ -364,6 +429,8 @@ class JMPDAPTracker(Tracker):
 
     def predict(self) -> None:
         self._k += 1
+        if self._k > 0:  # step 0 is the prior itself: no deaths before it
+            self._r *= self._p_s
         if self._kernels is not None:  # the same in one compiled pass, with sqrt(psi)
             shape = self.pos.shape
             rhohat, psi = self._scratch("rhohat", shape), self._scratch("psi", shape)
@@ -438,20 +505,29 @@ class JMPDAPTracker(Tracker):
         index, table = grid_log_likelihood_tables(
             model.sensor, np.asarray(looks.cells, dtype=np.int64),
             np.asarray(looks.returns, dtype=bool), J, T)
-        beta = self._beta
+        beta = self._beta if self._k > 0 else 0.0  # step 0 is the prior: nobody dies
 
         # 1. partitions from the predicted centres
         held, centres, boxes = self._slot_means(rhohat)
         active = held > 0
         clusters = cluster_slots(centres, active, self.cluster_distance * grid.cell_size,
-                                 boxes)
+                                 boxes, coupled_slots(self.valid))
         self.n_clusters = len(clusters)
         self.largest_cluster = max((len(c) for c in clusters), default=0)
 
         log_w = np.zeros(N)
         if clusters:
             log_w += self._move_persistent(clusters, rhohat, psi, sd, index, table, beta)
+            # the undetected initial targets go with the largest cluster's ancestor (all
+            # of them when one cluster holds every target, as for a single target)
+            largest = int(np.argmax([len(c) for c in clusters]))
+            self._r = self._r[self._last_anc[:, largest]]
         log_w += self._births(centres, active, index, table)
+        if len(looks):
+            lc, n_looks = np.unique(np.asarray(looks.cells, dtype=np.int64),
+                                    return_counts=True)
+            detected = np.isin(lc, index.keys[table[:-1, 1] > 0.0])
+            log_w += self._undetected_misses(lc, n_looks, detected)
 
         # full likelihood (all targets, newborns included)
         if self._kernels is None:
@@ -477,6 +553,7 @@ class JMPDAPTracker(Tracker):
         w /= w.sum()
         self.ess = float(effective_sample_size(w))
         idx = systematic_resample(w, rng.random())
+        self._r = self._r[idx]
         for name in ("pos", "vel", "vvar", "valid"):
             if self._kernels is None:
                 setattr(self, name, getattr(self, name)[idx])
@@ -485,11 +562,9 @@ class JMPDAPTracker(Tracker):
                 self._kernels.gather(getattr(self, name), idx, spare)
                 self._install(name, spare)
 
-        # undetected targets after this step's looks: u, v <- (u, v) (1 - p_d)^(looks)
+        # undetected targets after this step's looks: u, v <- (u, v) l(0)^(looks)
         if len(looks):
-            lc, n_looks = np.unique(np.asarray(looks.cells, dtype=np.int64),
-                                    return_counts=True)
-            miss = (1.0 - model.sensor.p_d) ** n_looks
+            miss = self._miss_factor(n_looks)
             u, u_step, v = self._undetected_values(lc)
             v_new = v * miss
             self._v_total += float((v_new - v).sum())
@@ -713,6 +788,7 @@ class JMPDAPTracker(Tracker):
         self.vvar[:, slots] = vvar + q22 - cross * gain
         self.valid[:, slots] = alive
         # the weight keeps p(z | X) / prod_l pi_l: nonzero only where clusters share a cell
+        self._last_anc = anc
         return -log_pi[anc, np.arange(len(clusters))[None, :]].sum(axis=1)
 
     def _move_persistent_compiled(self, clusters, rhohat, psi, sd, index, table, beta):
@@ -768,6 +844,7 @@ class JMPDAPTracker(Tracker):
                 self.vel, self.vvar, self.pos, vel, vvar, self.valid)
         self._install("vel", vel)
         self._install("vvar", vvar)
+        self._last_anc = anc
         return -log_pi[anc, np.arange(C)[None, :]].sum(axis=1)
 
     def _births(self, centres, active, index, table) -> np.ndarray:
@@ -783,9 +860,6 @@ class JMPDAPTracker(Tracker):
         if det.size == 0:
             return np.zeros(N)
         lam = np.exp(lam[lam > 0.0])
-        remaining = self._remaining()
-        pi_init, pi_arr = self._undetected_probability(det, remaining)  # (N, D)
-        pi = 1.0 - (1.0 - pi_init) * (1.0 - pi_arr)
         if self._kernels is None:
             cells = grid.cell_of(self.pos[..., 0], self.pos[..., 1])
             cells = np.where(self.valid, cells, -1)
@@ -806,15 +880,31 @@ class JMPDAPTracker(Tracker):
             need = slot[:, k] < 0
             if need.any() and free:
                 slot[need, k] = free.pop()
-        z = 1.0 - pi + pi * lam  # the cell's normaliser
         has_slot = slot >= 0
-        b = np.where(has_slot, pi * lam / z, 0.0)
-        born = (rng.random((N, det.size)) < b) & ~occupied
-        # prior / proposal: pi / b = z / lam if born, (1 - pi) / (1 - b) = z if not (the
-        # newborn's lam is in the full likelihood); without a free slot b = 0: 1 - pi
-        log_ratio = np.where(has_slot, np.log(z) - np.where(born, np.log(lam), 0.0),
-                             np.log1p(-pi))
-        log_ratio = np.where(occupied, 0.0, log_ratio).sum(axis=1)
+        uniforms = rng.random((N, det.size))
+        born = np.zeros((N, det.size), dtype=bool)
+        log_ratio = np.zeros(N)
+        # cell after cell, each birth from the particle's undetected initial targets
+        # lowers those left for the next cells (one undetected target is born once): a
+        # newborn is an initial target with probability pi_init / pi, else an arrival
+        remaining = self._remaining()
+        for k in range(det.size):
+            pi_init, pi_arr = self._undetected_probability(det[k:k + 1], remaining)
+            pi_init, pi = pi_init[:, 0], 1.0 - (1.0 - pi_init[:, 0]) * (1.0 - pi_arr[:, 0])
+            z = 1.0 - pi + pi * lam[k]  # the cell's normaliser
+            b = np.where(has_slot[:, k], pi * lam[k] / z, 0.0)
+            born[:, k] = (uniforms[:, k] < b) & ~occupied[:, k]
+            # prior / proposal: pi / b = z / lam if born, (1 - pi) / (1 - b) = z if not
+            # (the newborn's lam is in the full likelihood); without a free slot b = 0:
+            # 1 - pi
+            ratio = np.where(has_slot[:, k], np.log(z) - np.where(born[:, k], np.log(lam[k]),
+                                                                    0.0), np.log1p(-pi))
+            log_ratio += np.where(occupied[:, k], 0.0, ratio)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                initial = np.where(pi > 0.0, pi_init / pi, 0.0)
+            remaining = np.maximum(remaining - np.where(born[:, k], initial, 0.0), 0.0)
+        if self._can_die:
+            self._r = remaining
         p_idx, k_idx = np.nonzero(born)
         if p_idx.size:
             s_idx = slot[p_idx, k_idx]
@@ -829,7 +919,8 @@ class JMPDAPTracker(Tracker):
 
     # ------------------------------------------------------------- estimate
     def estimate(self) -> Estimate:
-        """The ``round(mean count)`` most-held slots' weighted means; labels: the slot
+        """Count: ``E[T]``, the mean number of held slots plus :attr:`undetected_mass`.
+        States: the ``round(mean held slots)`` most-held slots' weighted means; labels: the slot
         (partition) index. The partition sorting keeps a target in the same slot across
         particles and steps, so a label follows its target while the target keeps its
         slot; a slot freed by a death (or emptied in every particle) may later be reused
@@ -838,8 +929,10 @@ class JMPDAPTracker(Tracker):
             held, pos_sums, vel_sums, _ = self._slot_sums(self.pos, with_vel=True)
         else:
             held = self.valid.sum(axis=0)
-        self.count_mean = float(held.sum() / self._N)
-        n_hat = int(round(self.count_mean))
+        held_mean = float(held.sum() / self._N)
+        # E[T] counts the undetected targets too; states come from the slots only
+        self.count_mean = held_mean + self.undetected_mass
+        n_hat = int(round(held_mean))
         if n_hat == 0:
             return Estimate(self.count_mean, np.zeros((0, 4)), labels=np.zeros(0, np.int64))
         top = np.argsort(-held, kind="stable")[:n_hat]

@@ -25,8 +25,37 @@ import numpy as np
 SORT_MAX = 5
 
 
+#: slots are coupled when their joint holding departs from independence by more than
+#: this share of the rarer slot's holding and by more than COUPLING_Z standard errors
+COUPLING_SHARE = 0.05
+COUPLING_Z = 3.0
+
+
+def coupled_slots(valid: np.ndarray) -> np.ndarray:
+    """``(T, T)`` bool: slots ``a, b`` whose holding in the particles ``valid (N, T)`` is
+    dependent: ``|P(a b) - P(a) P(b)|`` above ``COUPLING_SHARE min(P(a), P(b))`` and above
+    ``COUPLING_Z`` binomial standard errors ``sqrt(P(a) P(b) (1 - P(a) P(b)) / N)``, or
+    held but never together (``P(a b) = 0``, however rare): above all two slots that hold
+    one target in different particles. Recombining such slots from different ancestors would give receivers both
+    or neither, a count the posterior does not have, so they are sampled as one cluster
+    (joint sampling is valid for any clusters; a needless link costs time only)."""
+    N = valid.shape[0]
+    v = valid.astype(np.float32)
+    joint = (v.T @ v).astype(np.float64) / N
+    p = np.diag(joint)
+    prod = p[:, None] * p[None, :]
+    dev = np.abs(joint - prod)
+    se = np.sqrt(prod * (1.0 - prod) / N)
+    out = (dev > COUPLING_SHARE * np.minimum(p[:, None], p[None, :])) & (dev > COUPLING_Z * se)
+    # never held together: alternatives, however few particles hold them
+    out |= (joint == 0.0) & (prod > 0.0)
+    np.fill_diagonal(out, False)
+    return out
+
+
 def cluster_slots(centres: np.ndarray, active: np.ndarray, gamma: float,
-                  boxes: np.ndarray | None = None) -> list[np.ndarray]:
+                  boxes: np.ndarray | None = None,
+                  coupled: np.ndarray | None = None) -> list[np.ndarray]:
     """Clusters of the active slots: ``centres (T, 2)``, ``active (T,)`` bool; slots
     ``i, j`` are linked when ``|centre_i - centre_j| < gamma`` (Euclidean, positions
     only), or when their ``boxes (T, 4)`` (``x0, x1, y0, y1``: the extent of the
@@ -34,8 +63,9 @@ def cluster_slots(centres: np.ndarray, active: np.ndarray, gamma: float,
     of the links. The boxes catch a slot whose particles disagree (half of them on a
     target, half on a track that wandered off): its mean may be far from both, but it
     must be sampled with the slot that holds the same target elsewhere, or
-    recombination would give particles both. Returns the clusters as arrays of slot
-    indices, each sorted, ordered by their first slot."""
+    recombination would give particles both; ``coupled (T, T)`` (:func:`coupled_slots`)
+    links slots whose holdings depend on each other wherever they are. Returns the
+    clusters as arrays of slot indices, each sorted, ordered by their first slot."""
     slots = np.flatnonzero(active)
     parent = {int(s): int(s) for s in slots}
 
@@ -52,6 +82,8 @@ def cluster_slots(centres: np.ndarray, active: np.ndarray, gamma: float,
             b = boxes[slots]
             link |= ((b[:, None, 0] <= b[None, :, 1]) & (b[None, :, 0] <= b[:, None, 1])
                      & (b[:, None, 2] <= b[None, :, 3]) & (b[None, :, 2] <= b[:, None, 3]))
+        if coupled is not None:
+            link |= coupled[np.ix_(slots, slots)]
         for i, j in zip(*np.nonzero(np.triu(link, k=1)), strict=True):
             ri, rj = root(int(slots[i])), root(int(slots[j]))
             if ri != rj:
