@@ -3,7 +3,9 @@
 :func:`build_report` turns a results table (one row per scenario x tracker x policy x
 looks x seed x step, see :mod:`benchmarks.engine.loop`) into a report folder::
 
-    report.md       tables and links to figures/*.png
+    report.md       the verdict (:mod:`.verdict`: who leads where, the gaps, what cannot
+                    be ranked, the costs, the share of the gap closed as a figure), then
+                    tables and links to figures/*.png, the settings last
     report.html     the same, self-contained (figures embedded as base64 PNG)
     figures/*.png   OSPA and count error over time, OSPA(2) over time (when the
                     results have track labels), runtime per step, accuracy against
