@@ -143,8 +143,8 @@ class UnseededKFNN(KFNNTracker):
         return Estimate(est.count, est.states + jitter, est.covariances)
 
 
-_TRACK_ARRAYS = ("_m", "_P", "_id", "_score", "_peak", "_tested", "_confirmed", "_age",
-                 "_next_id")
+_TRACK_ARRAYS = ("_m", "_P", "_id", "_score", "_prior_logodds", "_peak", "_tested",
+                 "_confirmed", "_age", "_next_id")
 
 
 class LeakyKFNN(KFNNTracker):

@@ -169,6 +169,28 @@ def test_stonesoup_readers_read_the_converted_files(tmp_path):
     assert got == want
 
 
+def test_steps_file_lists_every_step_with_its_time(tmp_path):
+    """``steps.csv``: one row per step ``0 .. n_steps - 1`` with ``time = step * tau`` and
+    the looks and positive looks of the looks table counted here, the steps without a
+    positive look (no row in the detections file, no scan for a Stone Soup reader)
+    included."""
+    out = _export(tmp_path, "births", "2", "raster", "--steps", "40")
+    folder = _world(out, "births", 2, "raster", 24)
+    steps = pd.read_csv(folder / "steps.csv")
+    looks = pd.read_csv(folder / "looks.csv")
+    card = json.loads((folder / ex.CARD).read_text())
+    tau = card["dynamics"]["tau"]
+    assert list(steps.columns) == card["columns"]["steps"] == ex.STEPS_COLUMNS
+    assert steps["step"].tolist() == list(range(card["scenario"]["n_steps"])) == list(range(40))
+    assert np.array_equal(steps["time"].to_numpy(), np.arange(40) * tau)
+    made = looks.groupby("step").size().reindex(range(40), fill_value=0)
+    fired = looks.groupby("step")["return"].sum().reindex(range(40), fill_value=0)
+    assert np.array_equal(steps["n_looks"], made) and np.array_equal(steps["n_positive"], fired)
+    detected = set(pd.read_csv(folder / "stonesoup_detections.csv")["step"])
+    silent = set(steps.loc[steps["n_positive"] == 0, "step"])
+    assert silent and not silent & detected and silent | detected == set(range(40))
+
+
 # ------------------------------------------------------------------------- score
 def _truth_estimates(folder: Path) -> Path:
     t = pd.read_csv(folder / "truth.csv")
@@ -366,3 +388,30 @@ def test_export_is_byte_for_byte_repeatable_and_keeps_earlier_worlds_listed(tmp_
                  "--out", str(again)]) == 0
     assert pd.read_csv(again / ex.WORLDS_INDEX)["world"].tolist() == [
         ex.world_name("default", 1, "random", 24), ex.world_name("births", 2, "raster", 24)]
+
+
+GMPHD_EXAMPLE = EXAMPLE.with_name("stonesoup_gmphd.py")
+
+
+def test_the_stonesoup_example_runs_every_step_and_is_scored(tmp_path):
+    """docs/examples/stonesoup_gmphd.py on a tiny export: it writes one step or more per
+    step ``0 .. n_steps - 1`` (the steps without a detection included: a loop over Stone
+    Soup's scans would skip them), and ``mttbench score`` scores it into a folder of
+    ``n_steps`` rows per world."""
+    pytest.importorskip("stonesoup")
+    out = _export(tmp_path, "births", "2", "raster", "--steps", "25")
+    world = _world(out, "births", 2, "raster", 24)
+    steps = pd.read_csv(world / "steps.csv")
+    assert (steps["n_positive"] == 0).any()  # some steps have no scan in Stone Soup's reader
+    subprocess.run([sys.executable, str(GMPHD_EXAMPLE), str(world)], check=True,
+                   capture_output=True)
+    est = pd.read_csv(world / "stonesoup_gmphd.csv")
+    assert sorted(est["step"].unique()) == list(range(25))
+    res = tmp_path / "scored"
+    # one world: the estimates' path is the working folder's (an export folder: the world's)
+    assert main(["score", str(world), "--estimates", str(world / "stonesoup_gmphd.csv"),
+                 "--name", "gmphd", "--out", str(res)]) == 0
+    rows = pd.read_parquet(res / "results.parquet")
+    assert (res / "summary.md").is_file() and (res / "score.json").is_file()
+    assert sorted(rows["step"]) == list(range(25)) and set(rows["status"]) == {"ok"}
+    assert rows["ospa"].between(0, 2).all() and rows["ospa"].mean() < 2.0  # it tracks

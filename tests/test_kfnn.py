@@ -283,6 +283,65 @@ def test_birth_score_is_its_cells_log_ratio_and_one_detection_confirms_in_low_cl
     assert table["score"][0] == pytest.approx(np.log(0.9 / 0.31), rel=1e-9)
 
 
+@pytest.mark.parametrize("p_s", [1.0, 0.97])
+def test_birth_prior_is_the_untracked_intensity_without_arrivals(p_s: float) -> None:
+    """No arrivals (3 targets expected, survival ``p_s``), every cell looked at per step.
+    Step 0: a detection at ``c`` starts a track at ``L0 = log(exp(lambda) - 1)``, ``lambda
+    = p_s n0 / n`` (Blackman's prior of the model's density). Step 1: a detection at a far
+    cell ``c2``, after a negative look there: ``lambda = p_s^2 n0 / n l0`` (``l0 = (1 - p_d)
+    / (1 - p_f)``) plus the share of ``E[N_1] = p_s^2 n0`` that neither the first track
+    (existence ``r``) nor the intensity (``p_s^2 n0 l0``) holds, spread over the ``n``
+    cells. Closed forms to 1e-12; the second track starts less likely."""
+    model = _model(p_d=0.7, snr=2.0, looks=GRID.n_cells, survival_probability=p_s)
+    n, n0 = GRID.n_cells, 3.0
+    l0 = (1 - model.sensor.p_d) / (1 - model.sensor.p_f)
+    tracker = KFNNTracker(false_track_probability=1e-6, lost_track_probability=1e-6)
+    tracker.reset(model, np.random.default_rng(0))
+    c, c2 = _cell(2.5, 2.5), _cell(9.5, 9.5)
+    tracker.predict()
+    tracker.update(_looks([c]))
+    (first,) = tracker.track_table()["prior"]
+    assert first == pytest.approx(np.log(np.expm1(p_s * n0 / n)), rel=1e-12)
+    tracker.predict()
+    tracker.update(_looks([c, c2]))
+    table = tracker.track_table()
+    assert len(table["id"]) == 2
+    r = special.expit(table["prior"][0] + table["score"][0])
+    lam = p_s**2 * n0 / n * l0 + (p_s**2 * n0 - r - p_s**2 * n0 * l0) / n
+    assert table["prior"][1] == pytest.approx(np.log(np.expm1(lam)), rel=1e-12)
+    assert table["prior"][1] < first - 0.01  # the first track holds part of the count
+    # existence and confirmation read the track's own prior
+    want = special.expit(table["prior"] + table["score"])
+    assert tracker.estimate().count == pytest.approx(want.sum(), rel=1e-12)
+
+
+def test_birth_prior_with_arrivals_is_the_untracked_intensity_alone() -> None:
+    """Arrivals ``b`` per step over the grid, survival ``p_s``, a quarter of the grid
+    looked at per step: ``lambda`` follows ``p_s lambda + b / n`` per step and ``l0`` per
+    look (nothing added from the expected count). A detection in a cell looked at (and
+    empty) the step before starts below one in a cell never looked at, each at ``log(exp(
+    lambda) - 1)`` of its own intensity (to 1e-12)."""
+    p_s, b, n0 = 0.95, 0.4, 2.0
+    model = _model(p_d=0.7, snr=2.0, n_random_initial=2, survival_probability=p_s,
+                   birth_rate=b)
+    n = GRID.n_cells
+    l0 = (1 - model.sensor.p_d) / (1 - model.sensor.p_f)
+    tracker = KFNNTracker(false_track_probability=1e-6, lost_track_probability=1e-6)
+    tracker.reset(model, np.random.default_rng(0))
+    quarter = np.arange(n // 4)
+    tracker.predict()
+    tracker.update(_looks([], looked=quarter))
+    seen, unseen = int(quarter[5]), _cell(9.5, 9.5)
+    tracker.predict()
+    tracker.update(_looks([seen, unseen], looked=np.array([seen, unseen])))
+    table = tracker.track_table()
+    lam1 = p_s * n0 / n + b / n
+    lam_seen, lam_unseen = p_s * lam1 * l0 + b / n, p_s * lam1 + b / n
+    np.testing.assert_allclose(table["prior"], np.log(np.expm1([lam_seen, lam_unseen])),
+                               rtol=1e-12)
+    assert table["prior"][0] < table["prior"][1]
+
+
 @pytest.mark.parametrize("alpha", [0.1, 1e-3])
 def test_high_clutter_needs_as_many_hits_as_walds_threshold(alpha: float) -> None:
     """p_d = 0.9, p_f = 0.31: a hit adds at most log(p_d / p_f) = 1.07, so the track is
@@ -567,8 +626,9 @@ def test_default_preset_ospa_far_below_report_nothing() -> None:
 def test_estimate_is_the_round_sum_most_likely_tracks() -> None:
     """Heavy clutter (p_d 0.5, p_f 0.3), a quarter of the grid looked at per step, three
     targets: at every step the estimate holds the ``round(sum r)`` tracks of largest
-    existence ``r = sigmoid(L0 + L)`` (recomputed here from the track table and the
-    model's density with scipy), in track order, and its count is ``sum r``. Tracks that
+    existence ``r = sigmoid(L0 + L)`` (recomputed here from the track table's prior and
+    score with scipy; the prior's closed form: test_birth_prior_is_the_untracked_intensity_*),
+    in track order, and its count is ``sum r``. Tracks that
     are not confirmed are reported too: where a detection is worth little, evidence
     spread over many tentative tracks still says targets are there."""
     model = _model(p_d=0.5, snr=np.log(0.3) / np.log(0.5) - 1)
@@ -576,13 +636,12 @@ def test_estimate_is_the_round_sum_most_likely_tracks() -> None:
     run = simulate(sc, 2)
     tracker = KFNNTracker()
     tracker.reset(model, np.random.default_rng(0))
-    q = 1 - np.exp(-3 / GRID.n_cells)
     tentative_reported = 0
     for k in range(sc.n_steps):
         tracker.predict()
         tracker.update(run.look(k, (np.arange(36) + 36 * k) % GRID.n_cells))
         table, est = tracker.track_table(), tracker.estimate()
-        r = special.expit(np.log(q / (1 - q)) + table["score"])
+        r = special.expit(table["prior"] + table["score"])
         n = int(np.round(r.sum()))
         top = np.sort(np.argsort(-r, kind="stable")[:n])
         np.testing.assert_array_equal(est.labels, table["id"][top])

@@ -58,10 +58,17 @@ Track score (sequential probability ratio test; Blackman and Popoli 1999, ch. 6.
     ``L <- L + log(1 + sum_c m_kc (r_c - 1))`` over the track's negative cells and the
     cell of its associated detection (a positive cell given to another track tells this
     one nothing). A birth starts at its cell's ``log r_c``. Blackman's score adds the
-    prior odds of a target, ``L0 = log(q / (1 - q))`` with ``q = 1 - exp(-rho)`` and
-    ``rho`` the model's target density per cell (initial count and one step's arrivals
-    over the grid), so ``sigmoid(L0 + L)`` is the posterior probability that the track is
-    a target (the ratios and the prior: :mod:`~mttbench.trackers.cell_evidence`). With
+    prior odds that the detection is a new target, one per track from its birth cell
+    ``c``: ``L0 = log(exp(lambda) - 1)``, the log-odds of ``1 - exp(-lambda)`` (at least
+    one untracked target in ``c``), ``lambda = lambda_c`` the untracked intensity there
+    before the step's looks (below) plus, on a model without arrivals, the share of its
+    expected count ``E[N_k] = p_s^k n0`` that neither the tracks (``sum r``) nor the
+    intensity holds, ``max(0, E[N_k] - sum r - sum lambda) / n`` (the rule of the Stone
+    Soup peers, :mod:`~mttbench.trackers.stonesoup_peers`). At the first step this is
+    Blackman's prior of the model's density per cell; where the looks have since found
+    nothing, or a track holds the target, a detection is most likely clutter and starts
+    less likely (docs/kfnn.md). ``sigmoid(L0 + L)`` is the posterior probability that the
+    track is a target (the ratios: :mod:`~mttbench.trackers.cell_evidence`). With
     ``alpha = false_track_probability`` and ``beta =
     lost_track_probability``::
 
@@ -85,12 +92,13 @@ Track score (sequential probability ratio test; Blackman and Popoli 1999, ch. 6.
     looks at held tracks every step, the false deletions per step return to ``beta``'s
     (docs/kfnn.md). The score is not capped, so
     ``sigmoid(L0 + L)`` of a long-held track tends to 1. The thresholds keep their meaning
-    at any clutter and density: at ``p_f = 5e-4`` with 3 targets on 144 cells one detection
-    confirms (``6.93 - 3.86 >= 0``), at ``p_d = 0.9, p_f = 0.31`` (``log r = 1.07`` per hit,
-    ``-1.93`` per miss) several. Under H0 the ratio is a martingale from the birth's
-    ``r_c``, so of the tracks born from false alarms at most ``r_birth / exp(T2 - L0)`` are
-    confirmed (Ville's inequality; a test checks it), ``T2 = log((1 - alpha) / alpha)``. The
-    default ``alpha = 1/2`` confirms a track once it is more likely a target than not.
+    at any clutter and density: at ``p_f = 5e-4`` with 3 targets on 144 cells one
+    first-step detection confirms (``6.93 - 3.86 >= 0``), at ``p_d = 0.9, p_f = 0.31``
+    (``log r = 1.07`` per hit, ``-1.93`` per miss) several. Under H0 the ratio is a
+    martingale from the birth's ``r_c``, so of the tracks born from false alarms at most
+    ``r_birth / exp(T2 - L0)`` are confirmed (Ville's inequality; a test checks it), ``T2 =
+    log((1 - alpha) / alpha)``. The default ``alpha = 1/2`` confirms a track once it is
+    more likely a target than not.
     Confirmation does not decide what is reported (Estimate, below): ``alpha`` only moves
     a track from Wald's test to the drop from its peak.
     A track whose box holds no looked cell coasts (``L`` unchanged).
@@ -168,7 +176,6 @@ from .cell_evidence import (
     drop_raise,
     look_ratios,
     looked_log_ratios,
-    target_prior_logodds,
 )
 from .cells import (
     CellCounts,
@@ -437,9 +444,8 @@ class KFNNTracker(Tracker):
         sensor = model.sensor
         self._log_pos, self._log_neg, self._miss = look_ratios(sensor)
         alpha, beta = self.false_track_probability, self.lost_track_probability
-        self._prior_logodds = target_prior_logodds(model)
-        # confirmed when P(false track | looks) <= alpha: L >= log((1 - alpha) / alpha) - L0
-        self._confirm_at = math.log1p(-alpha) - math.log(alpha) - self._prior_logodds
+        # confirmed when P(false track | looks) <= alpha: L0 + L >= log((1 - alpha) / alpha)
+        self._confirm_at = math.log1p(-alpha) - math.log(alpha)
         self._delete_at = math.log(beta) - math.log1p(-alpha)  # T1
         # a confirmed track is deleted when its score drops log(1 / beta) below its peak:
         # under "still there" the ratio of "gone" to "there" is a martingale, so it rises
@@ -447,11 +453,13 @@ class KFNNTracker(Tracker):
         self._drop = -math.log(beta)
         self._budget_share = min(1.0, model.sensor.looks_per_step / n)
         self._undetected = CellField(n, bd.initial_count_mean / n)  # lambda_c
+        self._expected = bd.initial_count_mean  # the model's expected count, E[N_k]
         # the tracks: leading axis K
         self._m = np.zeros((0, 4))
         self._P = np.zeros((0, 4, 4))
         self._id = np.zeros(0, dtype=np.int64)
         self._score = np.zeros(0)  # L: the SPRT log-likelihood ratio since birth
+        self._prior_logodds = np.zeros(0)  # L0: a new target's prior log-odds at birth
         self._peak = np.zeros(0)  # a confirmed track's highest L (its deletion reference)
         self._tested = np.zeros(0)  # sum over steps of its predicted mass in tested cells
         self._confirmed = np.zeros(0, dtype=bool)
@@ -462,6 +470,7 @@ class KFNNTracker(Tracker):
         """Drop the tracks where ``keep (K,)`` is False."""
         self._m, self._P, self._id = self._m[keep], self._P[keep], self._id[keep]
         self._score, self._peak = self._score[keep], self._peak[keep]
+        self._prior_logodds = self._prior_logodds[keep]
         self._tested = self._tested[keep]
         self._confirmed = self._confirmed[keep]
         self._age = self._age[keep]
@@ -476,6 +485,7 @@ class KFNNTracker(Tracker):
             px, py = self._m[:, 0], self._m[:, 2]
             self._keep((px >= 0) & (px < width) & (py >= 0) & (py < height))
         self._undetected.affine(self._p_s, self._birth_per_cell)
+        self._expected = self._p_s * self._expected + self._birth_per_cell * self._grid.n_cells
 
     def cell_count_distribution(self) -> CellCounts:
         """Poisson-binomial of track Bernoullis and untracked targets: rows of their own
@@ -529,13 +539,15 @@ class KFNNTracker(Tracker):
         keep = np.where(self._confirmed, self._score > self._peak - drop,
                         self._score > self._delete_at)
         gone = ~keep
-        dropped = (expit(self._prior_logodds + self._score[gone]), self._m[gone],
+        dropped = (expit(self._prior_logodds[gone] + self._score[gone]), self._m[gone],
                    self._P[gone])
         self._keep(keep)
 
+        # a new track's prior: the untracked targets in its cell before this step's looks
+        new_cells = det_cells[~det_used]
+        prior_new = self._birth_prior_logodds(new_cells)
         # untracked targets (for P_c): each look scales them by the miss ratio, positive or
         # not; a deleted track's existence returns to them (recycling, as pmb)
-        new_cells = det_cells[~det_used]
         self._undetected.multiply(looked, self._miss ** n_looks)
         recycle(self._undetected, grid, *dropped)
 
@@ -548,17 +560,32 @@ class KFNNTracker(Tracker):
             self._id = np.concatenate([self._id, self._next_id + np.arange(n_new)])
             self._next_id += n_new
             self._score = np.concatenate([self._score, score_new])
+            self._prior_logodds = np.concatenate([self._prior_logodds, prior_new])
             self._peak = np.concatenate([self._peak, score_new])
             self._confirmed = np.concatenate([self._confirmed, np.zeros(n_new, dtype=bool)])
             self._age = np.concatenate([self._age, 0 * ones])
             self._tested = np.concatenate([self._tested, np.zeros(n_new)])
             self._confirm()
 
+    def _birth_prior_logodds(self, cells: np.ndarray) -> np.ndarray:
+        """``L0 = log(exp(lambda) - 1)`` of a new track in each of ``cells``: ``lambda``
+        the untracked intensity there (before the step's looks) plus, on a model without
+        arrivals, ``max(0, E[N_k] - sum r - sum lambda) / n`` (``sum r`` the held tracks'
+        existence); ``-inf`` where ``lambda = 0``."""
+        lam = self._undetected.at(cells)
+        if self._birth_per_cell == 0.0 and len(cells):
+            held = float(expit(self._prior_logodds + self._score).sum())
+            held += self._undetected.total()
+            lam = lam + max(0.0, self._expected - held) / self._grid.n_cells
+        with np.errstate(divide="ignore"):
+            return np.log(np.expm1(lam))
+
     def _confirm(self) -> None:
         """Confirm the tracks whose score reaches the level; a confirmed track's peak
         follows its highest score (``L`` itself is not capped: ``sigmoid(L0 + L)`` is the
         track's existence in ``P_c(t)``, near 1 for a track long held)."""
-        self._confirmed = self._confirmed | (self._score >= self._confirm_at)
+        level = self._prior_logodds + self._score  # posterior log-odds of a target
+        self._confirmed = self._confirmed | (level >= self._confirm_at)
         self._peak = np.where(self._confirmed, np.maximum(self._peak, self._score), self._score)
 
     def estimate(self) -> Estimate:
@@ -577,9 +604,11 @@ class KFNNTracker(Tracker):
         return self._undetected
 
     def track_table(self) -> dict[str, np.ndarray]:
-        """Copies of the track arrays (ids, means, covariances, flags, counters)."""
+        """Copies of the track arrays (ids, means, covariances, flags, counters, the prior
+        log-odds ``L0`` of each track's birth)."""
         return {"id": self._id.copy(), "mean": self._m.copy(), "cov": self._P.copy(),
                 "confirmed": self._confirmed.copy(), "score": self._score.copy(),
+                "prior": self._prior_logodds.copy(),
                 "peak": self._peak.copy(),
                 "age": self._age.copy()}
 

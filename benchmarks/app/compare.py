@@ -315,7 +315,7 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
         intro = [
             "Every tracker on the same simulated worlds (common random numbers: truth and "
             "sensor returns depend only on scenario and seed); the settings of this report "
-            "are listed below. Without options `mttbench compare` runs a budget chosen to "
+            "are listed at the end. Without options `mttbench compare` runs a budget chosen to "
             "take well under a minute on two cores: 10 seeds, each scenario's own "
             "length, JMPD at 1000 particles (plus a 250-particle setting). Narrow the "
             "intervals with `--seeds`, lengthen runs with `--steps`, choose trackers and "

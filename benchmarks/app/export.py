@@ -10,6 +10,7 @@ fields, the format version) is ``docs/world_format.md``; one folder per world::
     OUT/worlds.csv                        one line per world folder written
     OUT/<world>/truth.parquet, truth.csv  step, target_id, px, vx, py, vy
     OUT/<world>/looks.parquet, looks.csv  step, look, cell, ix, iy, return (every look)
+    OUT/<world>/steps.csv                 step, time, n_looks, n_positive (every step)
     OUT/<world>/stonesoup_truth.csv       Stone Soup's CSVGroundTruthReader reads it
     OUT/<world>/stonesoup_detections.csv  positive looks at the cell centre (CSVDetectionReader)
     OUT/<world>/stonesoup_misses.csv      negative looks, same layout (their own file)
@@ -24,8 +25,10 @@ The superposition sensor (no cells) is not exported.
 
 Stone Soup's readers want a time: ``time = step * tau`` seconds after the Unix epoch
 (read them with ``timestamp=True``). A step without a positive look has no row in the
-detections file, so a Stone Soup reader yields no scan for it; the negative looks, which
-no Stone Soup detection type can carry, are kept in ``stonesoup_misses.csv``.
+detections file, so a Stone Soup reader yields no scan for it: ``steps.csv`` lists every
+step ``0 .. n_steps - 1`` with its time, so a tracker's loop runs over the steps, not over
+the scans. The negative looks, which no Stone Soup detection type can carry, are kept in
+``stonesoup_misses.csv``.
 """
 
 from __future__ import annotations
@@ -59,10 +62,11 @@ TRUTH_COLUMNS = ["step", "target_id", "px", "vx", "py", "vy"]
 LOOKS_COLUMNS = ["step", "look", "cell", "ix", "iy", "return"]
 STONESOUP_TRUTH_COLUMNS = ["time", "step", "target_id", "px", "vx", "py", "vy"]
 STONESOUP_LOOK_COLUMNS = ["time", "step", "look", "cell", "x", "y"]
+STEPS_COLUMNS = ["step", "time", "n_looks", "n_positive"]
 #: the counts ``T`` of the model card's ``p_d(T)`` table
 PD_TABLE_COUNTS = 5
 #: the files of one world, in the order the model card lists them
-WORLD_FILES = ("truth.parquet", "truth.csv", "looks.parquet", "looks.csv",
+WORLD_FILES = ("truth.parquet", "truth.csv", "looks.parquet", "looks.csv", "steps.csv",
                "stonesoup_truth.csv", "stonesoup_detections.csv", "stonesoup_misses.csv")
 
 
@@ -160,6 +164,20 @@ def stonesoup_tables(world: World) -> dict[str, pd.DataFrame]:
             "stonesoup_misses.csv": looks.loc[~positive, STONESOUP_LOOK_COLUMNS]}
 
 
+def steps_table(world: World) -> pd.DataFrame:
+    """One row per step ``0 .. n_steps - 1``, those without looks or without a positive
+    look included: ``time = step * tau`` (the Stone Soup files' time), the looks made and
+    the positive ones."""
+    n = int(world.scenario.n_steps)
+    step = np.arange(n, dtype=np.int64)
+    looks = world.looks
+    return pd.DataFrame({
+        "step": step, "time": step * float(world.scenario.model.dynamics.tau),
+        "n_looks": np.bincount(looks["step"], minlength=n).astype(np.int64),
+        "n_positive": np.bincount(looks["step"], weights=looks["return"],
+                                  minlength=n).astype(np.int64)})[STEPS_COLUMNS]
+
+
 def sha256_of(path: Path) -> str:
     """Hex SHA-256 of a file's bytes."""
     h = hashlib.sha256()
@@ -210,7 +228,7 @@ def model_card(world: World, files: dict[str, dict[str, Any]]) -> dict[str, Any]
                     "boundary": bd.boundary, "n_random_initial": bd.n_random_initial,
                     "initial_states": [list(s) for s in bd.initial_states]},
         "columns": {"truth": TRUTH_COLUMNS, "looks": LOOKS_COLUMNS,
-                    "stonesoup_truth": STONESOUP_TRUTH_COLUMNS,
+                    "steps": STEPS_COLUMNS, "stonesoup_truth": STONESOUP_TRUTH_COLUMNS,
                     "stonesoup_looks": STONESOUP_LOOK_COLUMNS},
         "files": files,
     }
@@ -222,7 +240,7 @@ def write_world(world: World, folder: str | Path) -> dict[str, Any]:
     CSV and Parquet hold the same float64 numbers."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    tables = {"truth": world.truth, "looks": world.looks}
+    tables = {"truth": world.truth, "looks": world.looks, "steps": steps_table(world)}
     files: dict[str, dict[str, Any]] = {}
     for name in WORLD_FILES:
         stem, suffix = name.rsplit(".", 1)

@@ -200,6 +200,52 @@ def accuracy_vs_runtime(summary: pd.DataFrame, path: str | Path,
     return _save(fig, path)
 
 
+def gap_closed_shares(shares: pd.DataFrame, path: str | Path, column: str = "share",
+                      style_labels: list[str] | None = None) -> Path:
+    """Each contestant's (and the Bayes reference's) share of the gap closed, ``<column>_mean``
+    with its 95% interval ``<column>_ci95``, one column of markers per scenario x policy x
+    looks (a :class:`~.summary.GapClosed`'s ``shares``; floor and ceiling, 0 and 1 by
+    definition, are the dashed lines). ``style_labels``: the labels the report's other
+    figures style (so a tracker keeps its colour and marker), default those drawn."""
+    sh = shares[~shares["role"].isin(("floor", "ceiling"))]
+    keys = sh[_summary.GAP_GROUP].drop_duplicates().sort_values(_summary.GAP_GROUP)
+    groups = [tuple(k) for k in keys.itertuples(index=False)]
+    labels = sorted(sh["tracker_label"].astype(str).unique())
+    styles = tracker_styles(sorted(set(labels) | set(style_labels or [])))
+    fig, axes = _subplots(1, 1, figsize=(max(5.0, 1.1 * len(groups) + 2.5), 4.2),
+                          layout="constrained")
+    ax = axes[0, 0]
+    width = 0.8 / max(len(labels), 1)
+    for j, lab in enumerate(labels):
+        mine = sh[sh["tracker_label"].astype(str) == lab]
+        xs, ys, es = [], [], []
+        for i, g in enumerate(groups):
+            r = mine[np.logical_and.reduce([mine[k] == v for k, v in
+                                            zip(_summary.GAP_GROUP, g, strict=True)])]
+            if len(r) and np.isfinite(r[f"{column}_mean"].iloc[0]):
+                xs.append(i - 0.4 + width * (j + 0.5))
+                ys.append(r[f"{column}_mean"].iloc[0])
+                es.append(r[f"{column}_ci95"].iloc[0])
+        if xs:
+            color, marker = styles[lab]
+            ax.errorbar(xs, ys, yerr=np.nan_to_num(np.array(es, float)), fmt=marker, ms=6,
+                        capsize=2, color=color, label=lab)
+    ax.axhline(0.0, color="0.4", ls="--", lw=1.0)
+    ax.axhline(1.0, color="0.4", ls=":", lw=1.0)
+    ax.set_xticks(range(len(groups)))
+    ax.set_xticklabels([str(g[0]) if len(keys["policy_label"].unique()) == 1
+                        and len(keys["looks_per_step"].unique()) == 1
+                        else f"{g[0]}\n{g[1]}, {g[2]}" for g in groups],
+                       rotation=30, ha="right", fontsize=8)
+    ax.set_ylabel("share of the gap closed" if column == "share"
+                  else "share of the achievable gap")
+    ax.grid(alpha=0.3, axis="y")
+    _legend_below(fig, [ax])
+    fig.suptitle("share of the gap closed: 0 = the floor (null), 1 = the ceiling "
+                 "(truth-aided); 95% intervals", fontsize=10)
+    return _save(fig, path)
+
+
 def _cov_ellipse(px: float, py: float, cxx: float, cxy: float, cyy: float, **kw) -> Ellipse:
     """The 95% ellipse of N([px, py], [[cxx, cxy], [cxy, cyy]])."""
     vals, vecs = np.linalg.eigh(np.array([[cxx, cxy], [cxy, cyy]]))

@@ -3,7 +3,9 @@
 :func:`build_report` turns a results table (one row per scenario x tracker x policy x
 looks x seed x step, see :mod:`benchmarks.engine.loop`) into a report folder::
 
-    report.md       tables and links to figures/*.png
+    report.md       the verdict (:mod:`.verdict`: who leads where, the gaps, what cannot
+                    be ranked, the costs, the share of the gap closed as a figure), then
+                    tables and links to figures/*.png, the settings last
     report.html     the same, self-contained (figures embedded as base64 PNG)
     figures/*.png   OSPA and count error over time, OSPA(2) over time (when the
                     results have track labels), runtime per step, accuracy against
@@ -54,7 +56,7 @@ from ..engine.metrics import (
     registered_run_metrics,
 )
 from ..engine.store import write_text_atomic
-from . import figures, summary
+from . import figures, summary, verdict
 
 #: metrics shown in a table of their own (GOSPA: its parts are p-th-power costs)
 _OWN_TABLE = ("gospa",)
@@ -667,10 +669,11 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
 
     figs: dict[str, Path] = {}
     if draw:
-        _draw_figures(results, runs, summ, fig_dir, trace, figs)
+        _draw_figures(results, runs, summ, fig_dir, trace, figs, gc)
 
     doc = Document()
     doc.add("h1", title)
+    _verdict_section(doc, results, runs, summ, gc, figs)
     for para in intro or []:
         doc.add("p", para)
     out_of_sample = sorted({sc for sc in summ["scenario"].astype(str)
@@ -681,11 +684,6 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
                      "file tuned on other scenarios than this row's ("
                      + "; ".join(f"`{lab}`: {', '.join(sorted(on))}"
                                  for lab, on in sorted((tuned_on or {}).items())) + ").")
-    if settings:
-        doc.add("h2", "Settings")
-        doc.add("list", [f"{k}: {v}" for k, v in settings.items()])
-    for block in sections or []:
-        doc.add(*block)
     _floor_ceiling_section(doc, gc, truth, tuned_on)
     unranked = baseline_notes(summ, runs)
     if unranked:
@@ -743,11 +741,17 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
                     "true targets (blue), estimates (black) with 95% covariance ellipses.",
     }
     for key, path in figs.items():
-        doc.add("figure", path, captions[key])
+        if key != "gap_closed":  # shown with the verdict
+            doc.add("figure", path, captions[key])
     bad = summ[summ["note"].astype(str) != ""]
     if len(bad):
         doc.add("h2", "Failed or unsupported runs")
         doc.add("list", [f"{r.scenario} / {r.tracker_label}: {r.note}" for r in bad.itertuples()])
+    if settings:
+        doc.add("h2", "Settings")
+        doc.add("list", [f"{k}: {v}" for k, v in settings.items()])
+    for block in sections or []:
+        doc.add(*block)
     for para in notes or []:
         doc.add("p", para)
 
@@ -758,8 +762,39 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
     return ReportFiles(md_path, html_path, figs)
 
 
+def _verdict_section(doc: Document, results: pd.DataFrame, runs: pd.DataFrame,
+                     summ: pd.DataFrame, gc: summary.GapClosed, figs: dict[str, Path]) -> None:
+    """The report's opening: per scenario who leads and by how much (paired, 95%
+    intervals), the gaps and what cannot be ranked (:mod:`.verdict`), each tracker's cost,
+    and the figure of the share of the gap closed."""
+    doc.add("h2", "Verdict")
+    name = column_label(gc.metric)
+    doc.add("p", f"{name} with {summary.cutoff_text(results)}. "
+                 f"Per scenario, the contestant of least mean {name} leads (trackers given "
+                 "the truth, the Bayes reference and the floor do not compete); the others "
+                 f"are compared with it seed by seed (their {name} minus the leader's, mean ± "
+                 "95% t half-width): an interval reaching 0 is level within noise. The gap is "
+                 f"the floor's {name} minus the ceiling's, the achievable gap the floor's minus "
+                 "the Bayes reference's; the tables below give every number.")
+    doc.add("list", verdict.group_lines(runs, gc, gc.metric, baseline_notes(summ, runs)))
+    if not gc.available:
+        doc.add("p", gc.absent)
+    cost = verdict.cost_line(summ)
+    if cost:
+        doc.add("p", cost)
+    bad = summ[summ["note"].astype(str) != ""]
+    if len(bad):
+        doc.add("p", f"{len(bad)} scenario x tracker rows have failed or unsupported runs "
+                     "(listed under \"Failed or unsupported runs\").")
+    if "gap_closed" in figs:
+        doc.add("figure", figs["gap_closed"],
+                "Share of the gap closed per tracker and scenario, 0 = the floor (reports "
+                "nothing), 1 = the ceiling (told the truth), 95% delta-method intervals.")
+
+
 def _draw_figures(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame, fig_dir: Path,
-                  trace: Any, figs: dict[str, Path]) -> None:
+                  trace: Any, figs: dict[str, Path],
+                  gc: summary.GapClosed | None = None) -> None:
     figs["ospa"] = figures.metric_over_time(results, "ospa", fig_dir / "ospa_over_time.png",
                                             f"OSPA ({summary.cutoff_text(results)})")
     figs["count_error"] = figures.metric_over_time(results, "count_error",
@@ -775,6 +810,11 @@ def _draw_figures(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame,
     figs["runtime"] = figures.runtime_per_step(runs, fig_dir / "runtime_per_step.png")
     figs["accuracy_runtime"] = figures.accuracy_vs_runtime(summ,
                                                            fig_dir / "accuracy_vs_runtime.png")
+    if gc is not None and not gc.shares.empty and (~gc.shares["role"].isin(
+            ("floor", "ceiling"))).any():
+        figs["gap_closed"] = figures.gap_closed_shares(
+            gc.shares, fig_dir / "gap_closed.png",
+            style_labels=list(summ["tracker_label"].astype(str).unique()))
     if trace is not None:
         n = len(trace.steps)
         steps = sorted({max(0, n // 4 - 1), max(0, n // 2 - 1), n - 1})
