@@ -31,6 +31,7 @@ from scipy.special import ndtr
 
 from ..scenarios.model import Grid, RayleighGridSensor, TrackingModel
 from .cells import BOX_SD, looked_in_boxes
+from .grid_backend import compiled_grid_kernels
 
 #: log r_c is clipped here: r_c - 1 stays finite (many positive looks at one cell)
 _MAX_LOG_RATIO = 700.0
@@ -103,6 +104,14 @@ def cell_evidence(grid: Grid, mean_xy: np.ndarray, cov_xy: np.ndarray, looked: n
     sy = np.maximum(np.sqrt(np.maximum(cov_xy[:, 1, 1], 0.0)), 1e-12 * s)
     mx, my = mean_xy[:, 0], mean_xy[:, 1]
     negative = looked[~_member(looked, det_cells)]
+    kernels = compiled_grid_kernels()
+    if kernels is not None:  # the same arithmetic in one pass (bit for bit)
+        c = np.ascontiguousarray
+        return kernels.cell_evidence(
+            float(s), grid.nx, grid.ny, c(mx, dtype=float), c(my, dtype=float), sx, sy,
+            float(BOX_SD), c(looked, dtype=np.int64), c(log_r, dtype=float),
+            c(negative, dtype=np.int64), c(rows, dtype=np.int64),
+            c(hit_cells, dtype=np.int64))
     with np.errstate(invalid="ignore", over="ignore"):
         box, i = looked_in_boxes(
             np.floor((mx - BOX_SD * sx) / s), np.floor((mx + BOX_SD * sx) / s),
