@@ -20,8 +20,9 @@ _KERNELS: ModuleType | None = None
 
 
 def compiled_grid_kernels() -> ModuleType | None:
-    """:mod:`.grid_kernels` (imports numba on first use) when the compiled backend is
-    on, else None."""
+    """:mod:`.grid_kernels` (imports numba on first use and compiles or loads every
+    kernel: :func:`.grid_kernels.warm_up`) when the compiled backend is on, else None.
+    The trackers that use them call it in ``reset``, so that no timed step pays."""
     global _KERNELS
     if compiled_kernels() is None:
         return None
@@ -30,6 +31,7 @@ def compiled_grid_kernels() -> ModuleType | None:
             from . import grid_kernels
         except ImportError:  # scipy without the expected C function
             return None
+        grid_kernels.warm_up()
         _KERNELS = grid_kernels
     return _KERNELS
 

@@ -186,6 +186,19 @@ def rect_position_moments(mean_xy: np.ndarray, cov_xy: np.ndarray, x0: np.ndarra
 
 
 @njit(cache=True)
+def _search(a: np.ndarray, v: int) -> int:
+    """``np.searchsorted(a, v)`` (side left) on a sorted int array."""
+    lo, hi = 0, len(a)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if a[mid] < v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True)
 def looked_in_boxes(ix_lo: np.ndarray, ix_hi: np.ndarray, iy_lo: np.ndarray,
                     iy_hi: np.ndarray, looked: np.ndarray, nx: int, ny: int
                     ) -> tuple[np.ndarray, np.ndarray]:
@@ -217,7 +230,7 @@ def looked_in_boxes(ix_lo: np.ndarray, ix_hi: np.ndarray, iy_lo: np.ndarray,
             for y in range(y0, y1 + 1):
                 for x in range(x0, x1 + 1):
                     c = y * nx + x
-                    pos = np.searchsorted(looked, c)
+                    pos = _search(looked, c)
                     if pos < n_u and looked[pos] == c:
                         box[n] = b
                         idx[n] = pos
@@ -261,7 +274,7 @@ def cell_evidence(s: float, nx: int, ny: int, mx: np.ndarray, my: np.ndarray,
         mass = ((_ndtr(((ix + 1) * s - mx[k]) / sx[k], 0) - _ndtr((ix * s - mx[k]) / sx[k], 0))
                 * (_ndtr(((iy + 1) * s - my[k]) / sy[k], 0)
                    - _ndtr((iy * s - my[k]) / sy[k], 0)))
-        total[k] += mass * np.expm1(log_r[np.searchsorted(looked, c)])
+        total[k] += mass * np.expm1(log_r[_search(looked, c)])
         tested[k] += mass
     for k in range(K):
         total[k] = np.log1p(_nan_max(total[k], -1.0 + 1e-300))
@@ -270,67 +283,69 @@ def cell_evidence(s: float, nx: int, ny: int, mx: np.ndarray, my: np.ndarray,
 
 
 @njit(cache=True)
-def _axis_masses(mean: float, sd: float, n: int, s: float, n_sd: float,
-                 out: np.ndarray) -> tuple[int, int]:
+def _axis_box(mean: float, sd: float, n: int, s: float, n_sd: float) -> tuple[int, int]:
     """One Gaussian's box on one axis as :func:`.cells._axis_boxes` computes it: its
-    first cell and width (0 when it misses the grid), the cells' masses in ``out``."""
+    first cell and its width (0 when it misses the grid)."""
     lo = np.floor((mean - n_sd * sd) / s)
     hi = np.floor((mean + n_sd * sd) / s)
     if not (hi >= 0 and lo <= n - 1):
         return 0, 0
     i0 = int(min(max(lo, 0.0), n - 1))
-    i1 = int(min(max(hi, 0.0), n - 1))
-    width = i1 - i0 + 1
-    prev = _ndtr((i0 * s - mean) / sd, 0)
-    for j in range(width):
-        cdf = _ndtr(((i0 + j + 1) * s - mean) / sd, 0)
-        out[j] = cdf - prev
-        prev = cdf
-    return i0, width
+    return i0, int(min(max(hi, 0.0), n - 1)) - i0 + 1
 
 
 @njit(cache=True)
 def recycled_intensity(s: float, nx: int, ny: int, mean_xy: np.ndarray, cov_xy: np.ndarray,
                        sd_floor: float, n_sd: float, r: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray]:
-    """``r_k m_kc`` summed per cell over the Gaussians' boxes, as
-    :func:`.cells.gaussian_cell_mass_sparse` and :func:`.pmb.ppp.add_intensity` compute
-    them: the sorted cells and their sums (each added from 0 in the Gaussians' order)."""
+    """``r_k m_kc`` over the Gaussians' boxes as :func:`.pmb.ppp.recycle` computes them
+    from :func:`.cells.gaussian_cell_mass_sparse` (each cell's mass the product of its
+    axes' normal CDF differences): the cells and amounts, Gaussian by Gaussian, each box
+    by rows."""
     K = mean_xy.shape[0]
-    sx = np.empty(K)
-    sy = np.empty(K)
+    boxes = np.zeros((K, 4), np.int64)  # ix0, wx, iy0, wy
+    sds = np.empty((K, 2))
     total = 0
     for k in range(K):
-        sx[k] = _nan_max(np.sqrt(_nan_max(cov_xy[k, 0, 0], 0.0)), sd_floor)
-        sy[k] = _nan_max(np.sqrt(_nan_max(cov_xy[k, 1, 1], 0.0)), sd_floor)
+        for a in range(2):
+            sds[k, a] = _nan_max(np.sqrt(_nan_max(cov_xy[k, a, a], 0.0)), sd_floor)
+        boxes[k, 0], boxes[k, 1] = _axis_box(mean_xy[k, 0], sds[k, 0], nx, s, n_sd)
+        boxes[k, 2], boxes[k, 3] = _axis_box(mean_xy[k, 1], sds[k, 1], ny, s, n_sd)
+        total += boxes[k, 1] * boxes[k, 3]
+    cells = np.empty(total, np.int64)
+    amounts = np.empty(total)
     mass_x = np.empty(nx)
     mass_y = np.empty(ny)
-    cells = np.empty(0, np.int64)
-    amounts = np.empty(0)
+    e = 0
     for k in range(K):
-        ix0, wx = _axis_masses(mean_xy[k, 0], sx[k], nx, s, n_sd, mass_x)
-        iy0, wy = _axis_masses(mean_xy[k, 1], sy[k], ny, s, n_sd, mass_y)
-        if wx * wy == 0:
-            continue
-        if total + wx * wy > len(cells):
-            grown = max(2 * len(cells), total + wx * wy)
-            c2, a2 = np.empty(grown, np.int64), np.empty(grown)
-            c2[:total], a2[:total] = cells[:total], amounts[:total]
-            cells, amounts = c2, a2
-        for ly in range(wy):
-            for lx in range(wx):
-                cells[total] = (iy0 + ly) * nx + ix0 + lx
-                amounts[total] = r[k] * (mass_y[ly] * mass_x[lx])
-                total += 1
-    order = np.argsort(cells[:total], kind="mergesort")
-    u = np.empty(total, np.int64)
-    sums = np.empty(total)
-    n_u = 0
-    for j in range(total):
-        c = cells[order[j]]
-        if n_u == 0 or u[n_u - 1] != c:
-            u[n_u] = c
-            sums[n_u] = 0.0
-            n_u += 1
-        sums[n_u - 1] += amounts[order[j]]
-    return u[:n_u], sums[:n_u]
+        for a in range(2):  # the box's cell masses on each axis: differences of the CDF
+            i0, w = boxes[k, 2 * a], boxes[k, 2 * a + 1]
+            out = mass_x if a == 0 else mass_y
+            m, sd = mean_xy[k, a], sds[k, a]
+            prev = _ndtr((i0 * s - m) / sd, 0)
+            for j in range(w):
+                cdf = _ndtr(((i0 + j + 1) * s - m) / sd, 0)
+                out[j] = cdf - prev
+                prev = cdf
+        for ly in range(boxes[k, 3]):
+            for lx in range(boxes[k, 1]):
+                cells[e] = (boxes[k, 2] + ly) * nx + boxes[k, 0] + lx
+                amounts[e] = r[k] * (mass_y[ly] * mass_x[lx])
+                e += 1
+    return cells, amounts
+
+
+def warm_up() -> None:
+    """Compile (or load from the disk cache) every kernel on tiny inputs, for the argument
+    types the callers pass, so that a tracker's ``reset`` pays for it and no timed step
+    does. Cheap after the first time in a process."""
+    if getattr(warm_up, "done", False):
+        return
+    f, i = np.zeros(1), np.zeros(1, np.int64)
+    cov = np.ones((1, 2, 2))
+    rect_position_moments(np.zeros((1, 2)), cov, f, f + 1.0, f, f + 1.0, np.array([np.inf]),
+                          np.array([2], np.int64), i, np.zeros(2), np.ones(2))
+    looked_in_boxes(f, f, f, f, i, 1, 1)
+    cell_evidence(1.0, 1, 1, f, f, f + 1.0, f + 1.0, 6.0, i, f, i, i, i)
+    recycled_intensity(1.0, 1, 1, np.zeros((1, 2)), cov, 1e-12, 6.0, f)
+    warm_up.done = True

@@ -52,11 +52,11 @@ def recycle(field: CellField, grid: Grid, r: np.ndarray, m: np.ndarray, P: np.nd
     kernels = compiled_grid_kernels()
     if kernels is not None:  # the same sums in one pass (bit for bit)
         mean_xy, cov_xy = kalman.position_marginal(m, P)
-        u, sums = kernels.recycled_intensity(
+        cells, amounts = kernels.recycled_intensity(
             float(grid.cell_size), grid.nx, grid.ny, np.ascontiguousarray(mean_xy, float),
             np.ascontiguousarray(cov_xy, float), _MIN_STD_CELLS * grid.cell_size,
             float(BOX_SD), np.ascontiguousarray(r, float))
-        field.add(u, sums)
+        add_intensity(field, cells, amounts)
         return
     comp, cells, mass = gaussian_cell_mass_sparse(grid, *kalman.position_marginal(m, P))
     add_intensity(field, cells, r[comp] * mass)
