@@ -613,7 +613,8 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     sizes = np.bincount(plabel)
     in_cluster = sizes[plabel] >= 2
     t_max = int(sizes[plabel].max()) if K else 1
-    _, LL = look_log_ratios(sensor, cells, returns, max(t_max, 1))
+    # the same table as LL1 when no cluster holds two tracks (the same call)
+    LL = LL1 if t_max <= 1 else look_log_ratios(sensor, cells, returns, t_max)[1]
 
     # ---- per pair: g (posterior/prior density ratio given existence); per particle g_out
     g_pair = np.zeros(len(pi))
