@@ -98,7 +98,9 @@ def cell_evidence(grid: Grid, mean_xy: np.ndarray, cov_xy: np.ndarray, looked: n
     """``log(1 + sum_c m_kc (r_c - 1))`` per track ``(K,)``: ``c`` over the negative
     looked cells in the track's 6-sd box and, for the tracks ``rows``, their associated
     detection's cell ``hit_cells``; ``m_kc`` the predicted position Gaussian's mass.
-    Also ``min(1, sum_c m_kc)`` per track, the share of it those looks tested."""
+    Also ``min(1, sum_c m_kc)`` per track, the share of it those looks tested. With the
+    compiled backend (:mod:`.grid_backend`) :func:`.grid_kernels.cell_evidence` computes
+    the same numbers, bit for bit."""
     s = grid.cell_size
     sx = np.maximum(np.sqrt(np.maximum(cov_xy[:, 0, 0], 0.0)), 1e-12 * s)
     sy = np.maximum(np.sqrt(np.maximum(cov_xy[:, 1, 1], 0.0)), 1e-12 * s)

@@ -138,7 +138,9 @@ def rect_position_moments(mean_xy: np.ndarray, cov_xy: np.ndarray, x0: np.ndarra
     difficulty ``D = max(L / sigma_x, |k| L / s)``, ``L = hi - lo`` (the range in the outer
     Gaussian's sds and the inner bounds' travel in ``t``): 8 nodes for ``D < 1``, 12, 16, 20
     below 2, 4, 6, else 24 (each within ~1e-13 of a 96-node rule on its range; docs/gpf.md
-    section 10). A broad Gaussian on a cell, the common case, takes 8.
+    section 10). A broad Gaussian on a cell, the common case, takes 8. With the compiled
+    backend (:mod:`.grid_backend`) :func:`.grid_kernels.rect_position_moments` computes
+    the same numbers, bit for bit.
     """
     kernels = compiled_grid_kernels()
     if kernels is not None:

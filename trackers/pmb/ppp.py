@@ -46,7 +46,8 @@ def add_intensity(field: CellField, cells: np.ndarray, amounts: np.ndarray) -> N
 def recycle(field: CellField, grid: Grid, r: np.ndarray, m: np.ndarray, P: np.ndarray
             ) -> None:
     """Bernoullis ``r (K,)``, ``m (K, 4)``, ``P (K, 4, 4)`` into the PPP: ``lambda_c +=
-    r m_c`` over each Gaussian's 6-sd box (in place)."""
+    r m_c`` over each Gaussian's 6-sd box (in place; the masses by
+    :func:`..grid_kernels.recycled_intensity` with the compiled backend, bit for bit)."""
     if not len(r):
         return
     kernels = compiled_grid_kernels()
