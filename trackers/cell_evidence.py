@@ -31,6 +31,7 @@ from scipy.special import ndtr
 
 from ..scenarios.model import Grid, RayleighGridSensor, TrackingModel
 from .cells import BOX_SD, looked_in_boxes
+from .grid_backend import compiled_grid_kernels
 
 #: log r_c is clipped here: r_c - 1 stays finite (many positive looks at one cell)
 _MAX_LOG_RATIO = 700.0
@@ -97,12 +98,22 @@ def cell_evidence(grid: Grid, mean_xy: np.ndarray, cov_xy: np.ndarray, looked: n
     """``log(1 + sum_c m_kc (r_c - 1))`` per track ``(K,)``: ``c`` over the negative
     looked cells in the track's 6-sd box and, for the tracks ``rows``, their associated
     detection's cell ``hit_cells``; ``m_kc`` the predicted position Gaussian's mass.
-    Also ``min(1, sum_c m_kc)`` per track, the share of it those looks tested."""
+    Also ``min(1, sum_c m_kc)`` per track, the share of it those looks tested. With the
+    compiled backend (:mod:`.grid_backend`) :func:`.grid_kernels.cell_evidence` computes
+    the same numbers, bit for bit."""
     s = grid.cell_size
     sx = np.maximum(np.sqrt(np.maximum(cov_xy[:, 0, 0], 0.0)), 1e-12 * s)
     sy = np.maximum(np.sqrt(np.maximum(cov_xy[:, 1, 1], 0.0)), 1e-12 * s)
     mx, my = mean_xy[:, 0], mean_xy[:, 1]
     negative = looked[~_member(looked, det_cells)]
+    kernels = compiled_grid_kernels()
+    if kernels is not None:  # the same arithmetic in one pass (bit for bit)
+        c = np.ascontiguousarray
+        return kernels.cell_evidence(
+            float(s), grid.nx, grid.ny, c(mx, dtype=float), c(my, dtype=float), sx, sy,
+            float(BOX_SD), c(looked, dtype=np.int64), c(log_r, dtype=float),
+            c(negative, dtype=np.int64), c(rows, dtype=np.int64),
+            c(hit_cells, dtype=np.int64))
     with np.errstate(invalid="ignore", over="ignore"):
         box, i = looked_in_boxes(
             np.floor((mx - BOX_SD * sx) / s), np.floor((mx + BOX_SD * sx) / s),

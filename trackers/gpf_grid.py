@@ -88,8 +88,9 @@ from scipy.special import ndtr
 
 from ..scenarios.model import Grid, RayleighGridSensor
 from . import kalman
-from .cells import look_log_ratios, looked_in_boxes
+from .cells import look_log_ratios
 from .gpf_linear import enumerate_combinations
+from .grid_backend import compiled_grid_kernels, looked_in_boxes
 
 _RANGE_SIGMAS = 7.0
 _INV_SQRT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
@@ -97,6 +98,24 @@ _INV_SQRT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
 #: first order whose bound exceeds ``D``; the last (24) for everything harder
 _GL_ORDERS = ((1.0, 8), (2.0, 12), (4.0, 16), (6.0, 20), (math.inf, 24))
 _GL_RULES = {q: np.polynomial.legendre.leggauss(q) for _, q in _GL_ORDERS}
+
+
+_GL_TABLE: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+
+
+def _gl_table() -> tuple[np.ndarray, ...]:
+    """``_GL_ORDERS`` and ``_GL_RULES`` as the kernel's arrays: difficulty bounds, nodes
+    per rule, each rule's first node, then all nodes and all weights."""
+    key = (id(_GL_ORDERS), id(_GL_RULES))
+    if key not in _GL_TABLE:
+        rules = [_GL_RULES[q] for _, q in _GL_ORDERS]
+        counts = np.array([len(r[0]) for r in rules], dtype=np.int64)
+        _GL_TABLE.clear()
+        _GL_TABLE[key] = (np.array([b for b, _ in _GL_ORDERS], dtype=float), counts,
+                          np.cumsum(counts) - counts,
+                          np.concatenate([r[0] for r in rules]),
+                          np.concatenate([r[1] for r in rules]))
+    return _GL_TABLE[key]
 
 
 def _phi(t: np.ndarray) -> np.ndarray:
@@ -119,8 +138,15 @@ def rect_position_moments(mean_xy: np.ndarray, cov_xy: np.ndarray, x0: np.ndarra
     difficulty ``D = max(L / sigma_x, |k| L / s)``, ``L = hi - lo`` (the range in the outer
     Gaussian's sds and the inner bounds' travel in ``t``): 8 nodes for ``D < 1``, 12, 16, 20
     below 2, 4, 6, else 24 (each within ~1e-13 of a 96-node rule on its range; docs/gpf.md
-    section 10). A broad Gaussian on a cell, the common case, takes 8.
+    section 10). A broad Gaussian on a cell, the common case, takes 8. With the compiled
+    backend (:mod:`.grid_backend`) :func:`.grid_kernels.rect_position_moments` computes
+    the same numbers, bit for bit.
     """
+    kernels = compiled_grid_kernels()
+    if kernels is not None:
+        return kernels.rect_position_moments(
+            np.ascontiguousarray(mean_xy, dtype=float), np.ascontiguousarray(cov_xy, dtype=float),
+            *(np.ascontiguousarray(e, dtype=float) for e in (x0, x1, y0, y1)), *_gl_table())
     mx, my = mean_xy[:, 0], mean_xy[:, 1]
     a = np.maximum(cov_xy[:, 0, 0], 1e-300)
     c = cov_xy[:, 0, 1]
@@ -589,7 +615,8 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     sizes = np.bincount(plabel)
     in_cluster = sizes[plabel] >= 2
     t_max = int(sizes[plabel].max()) if K else 1
-    _, LL = look_log_ratios(sensor, cells, returns, max(t_max, 1))
+    # the same table as LL1 when no cluster holds two tracks (the same call)
+    LL = LL1 if t_max <= 1 else look_log_ratios(sensor, cells, returns, t_max)[1]
 
     # ---- per pair: g (posterior/prior density ratio given existence); per particle g_out
     g_pair = np.zeros(len(pi))

@@ -184,6 +184,7 @@ from .cells import (
     gaussian_cell_mass_sparse,
     untracked_probabilities,
 )
+from .grid_backend import compiled_grid_kernels
 from .params import Budget, Param, Search
 from .pmb.ppp import recycle
 
@@ -429,6 +430,7 @@ class KFNNTracker(Tracker):
         self.validate_params(self.get_params())  # the declaration above (built directly)
         self._model = model
         self._rng = rng  # unused: the tracker is deterministic
+        compiled_grid_kernels()  # compile or load the cell kernels now, not in a timed step
         self._grid = model.grid
         self._F, self._Q = model.dynamics.F, model.dynamics.Q
         s = model.grid.cell_size

@@ -314,6 +314,19 @@ def record_ratio(request):
     return record
 
 
+# ------------------------------------------------------------------ speed goals
+_GOALS: list[tuple[str, str, float, str, bool]] = []  # (benchmark, what, ratio, goal, met)
+
+
+@pytest.fixture
+def goal_ratio(request):
+    """``goal_ratio(what, ratio, goal, met)``: list a paired speed-goal ratio in the
+    terminal summary (``bench_goals.py``; the goal as text, e.g. ``">= 10"``)."""
+    def record(what: str, ratio: float, goal: str, met: bool) -> None:
+        _GOALS.append((request.node.name, what, ratio, goal, met))
+    return record
+
+
 # ------------------------------------------------------------------ regression gate
 #: the benchmarks of ``make bench-check`` (marker ``quick``): (node id pattern, why). Every
 #: benchmark of these files but :data:`NOT_QUICK`; the rest (the scaling series: 222
@@ -328,6 +341,7 @@ QUICK: list[tuple[str, str]] = [
                          "scaling"),
     ("bench_jmpd_ap.py::*", "jmpd-ap's speed goal and grid scaling"),
     ("bench_stonesoup.py::*", "the Stone Soup peers, next to kfnn and gpf"),
+    ("bench_goals.py::*", "the speed goals between trackers (paired ratios)"),
 ]
 #: benchmarks of those files left out of the quick set, and why
 NOT_QUICK: dict[str, str] = {
@@ -558,6 +572,11 @@ def pytest_terminal_summary(terminalreporter):
         tr.section("JMPD step (predict + update + estimate) / its noise draw (paired median)")
         for name, ratio, noise_s in _PAIRED:
             tr.write_line(f"{name:52s} {ratio:6.2f}x   (draw {noise_s * 1e3:7.1f} ms)")
+    if _GOALS:
+        tr.section("speed goals: paired ratios of the fastest steps (CPU time, one run)")
+        for name, what, ratio, goal, met in _GOALS:
+            tr.write_line(f"{name:40s} {what:36s} {ratio:8.2f}  goal {goal:7s} "
+                          f"{'met' if met else 'NOT met'}")
     if not _ROWS:
         return
     recording = tr.config.getoption("--record-ratios")

@@ -93,6 +93,7 @@ from ..cells import (
 )
 from ..gpf import collapse, merge_groups, truncate_to_workspace
 from ..gpf_grid import fold_into_workspace
+from ..grid_backend import compiled_grid_kernels
 from ..params import Budget, Param, Search
 from .ppp import add_intensity, predict_intensity, recycle
 from .update import cell_ratios, pmb_update
@@ -179,6 +180,7 @@ class PMBTracker(Tracker):
     # --------------------------------------------------------------- life cycle
     def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
         self.validate_params(self.get_params())
+        compiled_grid_kernels()  # compile or load the grid kernels now, not in a timed step
         self._model = model
         self._grid = model.grid
         self._F, self._Q = model.dynamics.F, model.dynamics.Q

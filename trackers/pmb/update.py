@@ -68,8 +68,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...scenarios.model import Grid, RayleighGridSensor
-from ..cells import look_log_ratios, looked_in_boxes
+from ..cells import look_log_ratios
 from ..gpf_grid import rect_state_moments
+from ..grid_backend import looked_in_boxes
 from .lbp import Marginals, association_marginals
 
 #: looked cells farther than this many marginal sds from a track's mean are ignored

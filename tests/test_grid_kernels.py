@@ -1,0 +1,190 @@
+"""The grid arithmetic's numba kernels (``trackers/grid_kernels.py``) against the numpy
+forms they replace, bit for bit: each kernel on random inputs (NaN and infinite box
+edges, degenerate and very narrow Gaussians, boxes larger than the looks), and whole
+runs of the trackers that use them (GPF, pmb, KF-NN), per step a digest of every array
+of the tracker's state and of the estimate. Each comparison picks the backend with
+``use_backend``, so ``MTTBENCH_NO_NUMBA`` does not matter here.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+
+from mttbench import scenarios
+from mttbench.benchmarks.engine.loop import play
+from mttbench.benchmarks.engine.policies import AllCells
+from mttbench.benchmarks.engine.specs import TrackerSpec
+from mttbench.scenarios.model import Grid
+from mttbench.trackers import cell_evidence, cells, gpf_grid, grid_backend
+from mttbench.trackers.cells import CellField
+from mttbench.trackers.jmpd import use_backend
+from mttbench.trackers.pmb import ppp
+
+pytest.importorskip("mttbench.trackers.grid_kernels", reason="numba is not installed")
+
+
+def _both(f):
+    """``f()`` with the numpy forms, then with the kernels."""
+    out = []
+    for backend in ("numpy", "compiled"):
+        with use_backend(backend):
+            out.append(f())
+    return out
+
+
+def _equal(a, b) -> bool:
+    if isinstance(a, tuple | list):
+        return len(a) == len(b) and all(_equal(x, y) for x, y in zip(a, b, strict=True))
+    a, b = np.asarray(a), np.asarray(b)
+    return a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b, equal_nan=True)
+
+
+def _gaussians(rng, n: int, sd_range: tuple[float, float], spread: float):
+    sd = np.exp(rng.uniform(np.log(sd_range[0]), np.log(sd_range[1]), (n, 2)))
+    rho = rng.uniform(-0.99, 0.99, n)
+    cov = np.empty((n, 2, 2))
+    cov[:, 0, 0], cov[:, 1, 1] = sd[:, 0] ** 2, sd[:, 1] ** 2
+    cov[:, 0, 1] = cov[:, 1, 0] = rho * sd[:, 0] * sd[:, 1]
+    mean = rng.uniform(-3.0, spread, (n, 2))
+    return mean, cov
+
+
+def test_rect_position_moments_equal_the_numpy_form():
+    """Every Gauss-Legendre order (8 to 24 nodes, by difficulty), from Gaussians a
+    hundredth of a cell wide to 8 cells, correlations up to 0.99."""
+    rng = np.random.default_rng(0)
+    mean, cov = _gaussians(rng, 3000, (0.01, 8.0), 6.0)
+    x0, y0 = np.floor(rng.uniform(-3, 5, (2, 3000)))
+    got = _both(lambda: gpf_grid.rect_position_moments(mean, cov, x0, x0 + 1, y0, y0 + 1))
+    assert _equal(*got)
+    # every rule was used: the difficulty of each pair, as the docstring defines it
+    sx, k = np.sqrt(cov[:, 0, 0]), cov[:, 0, 1] / cov[:, 0, 0]
+    s = np.sqrt(np.maximum(cov[:, 1, 1] - cov[:, 0, 1] * k, 1e-24))
+    length = np.maximum(np.minimum(x0 + 1 - mean[:, 0], 7 * sx)
+                        - np.maximum(x0 - mean[:, 0], -7 * sx), 0.0)
+    difficulty = length * np.maximum(1.0 / sx, np.abs(k) / s)
+    bounds = [b for b, _ in gpf_grid._GL_ORDERS]
+    assert len(np.unique(np.searchsorted(bounds, difficulty, side="right"))) == len(bounds)
+
+
+def test_rect_position_moments_follow_patched_rules(monkeypatch):
+    """The kernel reads the module's rules when called (a test may patch them)."""
+    monkeypatch.setattr(gpf_grid, "_GL_ORDERS", ((np.inf, 96),))
+    monkeypatch.setattr(gpf_grid, "_GL_RULES", {96: np.polynomial.legendre.leggauss(96)})
+    rng = np.random.default_rng(1)
+    mean, cov = _gaussians(rng, 200, (0.1, 4.0), 3.0)
+    zero, one = np.zeros(200), np.ones(200)
+    assert _equal(*_both(lambda: gpf_grid.rect_position_moments(mean, cov, zero, one,
+                                                                 zero, one)))
+
+
+def _random_boxes(rng, nx: int, ny: int, k: int) -> list[np.ndarray]:
+    lo = rng.uniform(-10, 50, (2, k))
+    width = rng.uniform(-3, 30, (2, k))
+    edges = [np.floor(lo[0]), np.floor(lo[0] + width[0]), np.floor(lo[1]),
+             np.floor(lo[1] + width[1])]
+    for e in edges:  # NaN and infinite bounds
+        e[rng.random(k) < 0.05] = np.nan
+        e[rng.random(k) < 0.03] = np.inf
+        e[rng.random(k) < 0.03] = -np.inf
+    return edges
+
+
+def test_looked_in_boxes_equals_the_numpy_form():
+    rng = np.random.default_rng(2)
+    for _ in range(300):
+        nx, ny = (int(v) for v in rng.integers(1, 40, 2))
+        looked = np.unique(rng.integers(0, nx * ny, rng.integers(0, 60)))
+        edges = _random_boxes(rng, nx, ny, int(rng.integers(0, 30)))
+        want = cells.looked_in_boxes(*edges, looked, nx, ny)
+        with use_backend("compiled"):
+            got = grid_backend.looked_in_boxes(*edges, looked, nx, ny)
+        assert _equal(want, got)
+
+
+def test_cell_evidence_equals_the_numpy_form():
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        nx, ny = (int(v) for v in rng.integers(2, 30, 2))
+        grid = Grid(nx, ny, float(rng.choice([1.0, 0.5, 2.0])))
+        k = int(rng.integers(0, 15))
+        mean, cov = _gaussians(rng, k, (0.02, 7.0), max(nx, ny) * grid.cell_size + 2)
+        if k:
+            cov[0] = 0.0  # degenerate: the sd floor
+        looks = rng.integers(0, nx * ny, rng.integers(0, 80))
+        looked, _, det, log_r = cell_evidence.looked_log_ratios(
+            looks, rng.random(len(looks)) < 0.2, 6.9, -0.6)
+        n_rows = min(k, len(det))
+        rows = rng.choice(k, n_rows, replace=False) if n_rows else np.zeros(0, np.int64)
+        args = (grid, mean, cov, looked, log_r, det, rows, det[:n_rows])
+        assert _equal(*_both(lambda args=args: cell_evidence.cell_evidence(*args)))
+
+
+def test_recycling_equals_the_numpy_form():
+    """Overlapping boxes (sums per cell in the Gaussians' order), boxes beyond the
+    grid, a zero variance."""
+    rng = np.random.default_rng(4)
+    for _ in range(300):
+        nx, ny = (int(v) for v in rng.integers(1, 40, 2))
+        grid = Grid(nx, ny, float(rng.choice([1.0, 0.5, 3.0])))
+        k = int(rng.integers(0, 6))
+        m = np.zeros((k, 4))
+        m[:, [0, 2]] = rng.uniform(-5, max(nx, ny) * grid.cell_size + 5, (k, 2))
+        sd = np.exp(rng.uniform(-5, 2.5, (k, 2))) * grid.cell_size
+        P = np.tile(np.eye(4), (k, 1, 1))
+        P[:, 0, 0], P[:, 2, 2] = sd[:, 0] ** 2, sd[:, 1] ** 2
+        P[:, 0, 2] = P[:, 2, 0] = 0.3 * sd[:, 0] * sd[:, 1]
+        if k:
+            P[0, 0, 0] = 0.0
+        r = rng.random(k)
+
+        def field(m=m, P=P, r=r, grid=grid):
+            f = CellField(grid.n_cells, 0.01)
+            f.set(np.array([0]), np.array([0.2]))
+            ppp.recycle(f, grid, r, m, P)
+            return f.default, f.cells, f.values
+
+        assert _equal(*_both(field))
+
+
+def _observed(tracker) -> list[np.ndarray]:
+    """The arrays a tracker's next step reads (its private state, by name)."""
+    out = []
+    for name in sorted(vars(tracker)):
+        value = getattr(tracker, name)
+        if isinstance(value, np.ndarray):
+            out.append(value)
+        elif isinstance(value, CellField):
+            out += [np.array([value.default]), value.cells, value.values]
+    return out
+
+
+def _digests(scenario: str, spec: str, steps: int, policy=None) -> list[str]:
+    out = []
+    tracker = TrackerSpec.parse(spec).make()
+    for rec in play(scenarios.get(scenario), tracker, 0, policy=policy, n_steps=steps):
+        digest = hashlib.sha256()
+        for a in _observed(tracker) + [rec.estimate.states, np.array([rec.estimate.count])]:
+            digest.update(np.ascontiguousarray(a).tobytes())
+        out.append(digest.hexdigest())
+    return out
+
+
+#: (scenario, tracker, steps, every cell looked at): walls that reflect (``default``,
+#: ``crossing``: clusters) and kill (``births``), the larger grid (``large``)
+RUNS = [("default", "gpf", 25, False), ("crossing", "gpf", 50, True),
+        ("births", "gpf", 25, False), ("large", "gpf", 12, False),
+        ("default", "pmb", 25, False), ("large", "pmb", 12, False),
+        ("default", "kfnn", 30, True), ("large", "kfnn", 25, False),
+        ("default", "gpf:max_components=1", 20, False)]
+
+
+@pytest.mark.parametrize(("scenario", "spec", "steps", "all_cells"), RUNS,
+                         ids=[f"{s}-{t}" for s, t, _, _ in RUNS])
+def test_runs_are_identical_with_and_without_kernels(scenario, spec, steps, all_cells):
+    policy = AllCells() if all_cells else None
+    numpy_run, compiled_run = _both(lambda: _digests(scenario, spec, steps, policy))
+    assert numpy_run == compiled_run

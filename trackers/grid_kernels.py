@@ -1,0 +1,351 @@
+"""Compiled (numba) kernels of the grid arithmetic (GPF, pmb, the cell-evidence trackers),
+each equal bit for bit to the numpy form it replaces (:mod:`.gpf_grid`, :mod:`.cells`,
+:mod:`.cell_evidence`).
+
+Why: a GPF step on a small grid is a few hundred numpy calls on arrays of a few dozen
+pairs, so its time is the interpreter's, not the arithmetic's (docs/speed.md has the
+profiles). Each kernel here is one loop over the pairs.
+
+Exactness: every kernel performs the numpy form's IEEE operations in the same order.
+numpy's ``sum`` over a last axis is its pairwise summation from 0 (:func:`_row_sum`);
+``einsum("nq,nq->n")`` is numpy's baseline (SSE2) sum of products, two lanes, blocks of
+four vectors added from the last (:func:`_einsum_row`); the normal CDF is scipy's own C
+function (``cython_special``), ``exp`` the C library's, as numpy's is for doubles
+without AVX-512. ``tests/test_gpf_kernels.py`` compares both forms on random inputs and
+whole runs.
+
+Importing this module imports numba; :func:`.grid_backend.compiled_grid_kernels` imports
+it on first use only, and not at all when the numpy forms are chosen
+(``MTTBENCH_NO_NUMBA``, or :func:`.jmpd.backend.use_backend`). Kernels are cached on disk
+(``cache=True``).
+"""
+
+from __future__ import annotations
+
+import llvmlite.binding
+import numpy as np
+from numba import njit, types
+from numba.extending import get_cython_function_address
+
+
+def _scipy_ndtr() -> types.ExternalFunction:
+    """scipy's C ``ndtr`` for doubles (``double (double, int skip_dispatch)``) as an
+    external symbol, so that the kernels calling it cache on disk. ImportError when scipy
+    exports it with another signature (the numpy forms then run)."""
+    from scipy.special import cython_special
+    name = "__pyx_fuse_1ndtr"
+    capsule = cython_special.__pyx_capi__.get(name)
+    if capsule is None or '"double (double, int' not in repr(capsule):
+        raise ImportError(f"scipy.special.cython_special.{name} is not double (double, int)")
+    llvmlite.binding.add_symbol("mttbench_gpf_ndtr", get_cython_function_address(
+        "scipy.special.cython_special", name))
+    return types.ExternalFunction("mttbench_gpf_ndtr",
+                                  types.float64(types.float64, types.intc))
+
+
+_ndtr = _scipy_ndtr()
+_INV_SQRT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
+
+
+@njit(cache=True, inline="always")
+def _nan_max(a: float, b: float) -> float:
+    """``np.maximum`` of two doubles (a NaN wins)."""
+    if a != a:
+        return a
+    if b != b:
+        return b
+    return a if a >= b else b
+
+
+@njit(cache=True, inline="always")
+def _nan_min(a: float, b: float) -> float:
+    """``np.minimum`` of two doubles (a NaN wins)."""
+    if a != a:
+        return a
+    if b != b:
+        return b
+    return a if a <= b else b
+
+
+@njit(cache=True)
+def _row_sum(a: np.ndarray, n: int) -> float:
+    """``a[:n].sum()`` as numpy computes a row of at most 128: 0 plus the pairwise sum
+    (a sequential one below 8 entries, else 8 accumulators)."""
+    if n < 8:
+        res = -0.0
+        for i in range(n):
+            res += a[i]
+        return 0.0 + res
+    r0, r1, r2, r3 = a[0], a[1], a[2], a[3]
+    r4, r5, r6, r7 = a[4], a[5], a[6], a[7]
+    m = n - n % 8
+    for i in range(8, m, 8):
+        r0 += a[i]
+        r1 += a[i + 1]
+        r2 += a[i + 2]
+        r3 += a[i + 3]
+        r4 += a[i + 4]
+        r5 += a[i + 5]
+        r6 += a[i + 6]
+        r7 += a[i + 7]
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    for i in range(m, n):
+        res += a[i]
+    return 0.0 + res
+
+
+@njit(cache=True)
+def _einsum_row(a: np.ndarray, b: np.ndarray, n: int) -> float:
+    """``np.einsum("q,q->", a[:n], b[:n])`` as numpy's baseline build computes it: two
+    lanes; blocks of 8 as four 2-vectors multiplied and added from the last; then the
+    rest 2 at a time (the missing lane adds ``0 * 0``); the lanes' sum added to 0."""
+    acc0 = 0.0
+    acc1 = 0.0
+    j = 0
+    while n - j >= 8:
+        for v in (6, 4, 2, 0):
+            acc0 = a[j + v] * b[j + v] + acc0
+            acc1 = a[j + v + 1] * b[j + v + 1] + acc1
+        j += 8
+    while j < n:
+        acc0 = a[j] * b[j] + acc0
+        acc1 = (a[j + 1] * b[j + 1] if j + 1 < n else 0.0 * 0.0) + acc1
+        j += 2
+    return 0.0 + (acc0 + acc1)
+
+
+@njit(cache=True)
+def rect_position_moments(mean_xy: np.ndarray, cov_xy: np.ndarray, x0: np.ndarray,
+                          x1: np.ndarray, y0: np.ndarray, y1: np.ndarray,
+                          bounds: np.ndarray, n_nodes: np.ndarray, first: np.ndarray,
+                          nodes: np.ndarray, weights: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`.gpf_grid.rect_position_moments` (and its ``_gl_moments``), one pass per
+    pair. The Gauss-Legendre rules: ``bounds (G,)`` difficulty bounds, rule ``g`` with
+    ``n_nodes[g]`` nodes at ``nodes[first[g]:]``, ``weights`` alike."""
+    n = mean_xy.shape[0]
+    mass = np.empty(n)
+    m1 = np.empty((n, 2))
+    m2 = np.empty((n, 2, 2))
+    q_max = n_nodes.max()
+    u = np.empty(q_max)
+    wq = np.empty(q_max)
+    i0 = np.empty(q_max)
+    ey = np.empty(q_max)
+    eyy = np.empty(q_max)
+    wi = np.empty(q_max)
+    wu = np.empty(q_max)
+    wuu = np.empty(q_max)
+    G = len(bounds)
+    for p in range(n):
+        mx, my = mean_xy[p, 0], mean_xy[p, 1]
+        a = _nan_max(cov_xy[p, 0, 0], 1e-300)
+        c = cov_xy[p, 0, 1]
+        sx = np.sqrt(a)
+        k = c / a
+        s = np.sqrt(_nan_max(cov_xy[p, 1, 1] - c * k, 1e-24))
+        lo = _nan_max(x0[p] - mx, -7.0 * sx)
+        hi = _nan_min(x1[p] - mx, 7.0 * sx)
+        half = 0.5 * _nan_max(hi - lo, 0.0)
+        difficulty = 2.0 * half * _nan_max(1.0 / sx, np.abs(k) / s)
+        g = 0  # np.searchsorted(bounds, difficulty, side="right")
+        while g < G and bounds[g] <= difficulty:
+            g += 1
+        if g == G:
+            g = G - 1
+        Q, f = n_nodes[g], first[g]
+        mid = lo + half
+        hs = half / sx
+        dy0 = y0[p] - my
+        dy1 = y1[p] - my
+        for q in range(Q):
+            uq = mid + half * nodes[f + q]
+            t = uq / sx
+            wqq = weights[f + q] * hs * (_INV_SQRT_2PI * np.exp(-0.5 * t * t))
+            ku = k * uq
+            al = (dy0 - ku) / s
+            be = (dy1 - ku) / s
+            i0q = _ndtr(be, 0) - _ndtr(al, 0)
+            pa = _INV_SQRT_2PI * np.exp(-0.5 * al * al)
+            pb = _INV_SQRT_2PI * np.exp(-0.5 * be * be)
+            j1 = pa - pb
+            j2 = i0q + al * pa - be * pb
+            eyq = ku * i0q + s * j1
+            u[q], wq[q], i0[q], ey[q] = uq, wqq, i0q, eyq
+            eyy[q] = ku * eyq + s * (ku * j1 + s * j2)
+            wi[q] = wqq * i0q
+            wu[q] = wqq * uq
+            wuu[q] = wu[q] * uq
+        m2[p, 0, 0] = _einsum_row(wuu, i0, Q)
+        m2[p, 0, 1] = m2[p, 1, 0] = _einsum_row(wu, ey, Q)
+        m2[p, 1, 1] = _einsum_row(wq, eyy, Q)
+        m1[p, 0] = _einsum_row(wu, i0, Q)
+        m1[p, 1] = _einsum_row(wq, ey, Q)
+        mass[p] = _row_sum(wi, Q)
+    return mass, m1, m2
+
+
+@njit(cache=True)
+def _search(a: np.ndarray, v: int) -> int:
+    """``np.searchsorted(a, v)`` (side left) on a sorted int array."""
+    lo, hi = 0, len(a)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if a[mid] < v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True)
+def looked_in_boxes(ix_lo: np.ndarray, ix_hi: np.ndarray, iy_lo: np.ndarray,
+                    iy_hi: np.ndarray, looked: np.ndarray, nx: int, ny: int
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`.cells.looked_in_boxes`: per box in order, the looked cells inside it in
+    ascending order (a box of at most ``len(looked)`` cells enumerates its cells by rows
+    and finds each by binary search; a larger one tests every look)."""
+    n_u, K = len(looked), len(ix_lo)
+    # the clipped box of each box that meets the grid (x0 = -1: none)
+    edges = np.full((K, 4), -1, np.int64)
+    bound = 0  # at most min(box cells, looks) pairs per box
+    for b in range(K):
+        lo_x, hi_x, lo_y, hi_y = ix_lo[b], ix_hi[b], iy_lo[b], iy_hi[b]
+        if not (hi_x >= 0 and lo_x <= nx - 1 and hi_y >= 0 and lo_y <= ny - 1
+                and hi_x >= lo_x and hi_y >= lo_y):
+            continue
+        edges[b, 0] = int(min(max(lo_x, 0.0), nx - 1))
+        edges[b, 1] = int(min(max(hi_x, 0.0), nx - 1))
+        edges[b, 2] = int(min(max(lo_y, 0.0), ny - 1))
+        edges[b, 3] = int(min(max(hi_y, 0.0), ny - 1))
+        bound += min((edges[b, 1] - edges[b, 0] + 1) * (edges[b, 3] - edges[b, 2] + 1), n_u)
+    box = np.empty(bound, np.int64)
+    idx = np.empty(bound, np.int64)
+    n = 0
+    for b in range(K):
+        x0, x1, y0, y1 = edges[b, 0], edges[b, 1], edges[b, 2], edges[b, 3]
+        if x0 < 0 or n_u == 0:
+            continue
+        if (x1 - x0 + 1) * (y1 - y0 + 1) <= n_u:
+            for y in range(y0, y1 + 1):
+                for x in range(x0, x1 + 1):
+                    c = y * nx + x
+                    pos = _search(looked, c)
+                    if pos < n_u and looked[pos] == c:
+                        box[n] = b
+                        idx[n] = pos
+                        n += 1
+        else:
+            for i in range(n_u):
+                ux, uy = looked[i] % nx, looked[i] // nx
+                if x0 <= ux <= x1 and y0 <= uy <= y1:
+                    box[n] = b
+                    idx[n] = i
+                    n += 1
+    return box[:n], idx[:n]
+
+
+@njit(cache=True)
+def cell_evidence(s: float, nx: int, ny: int, mx: np.ndarray, my: np.ndarray,
+                  sx: np.ndarray, sy: np.ndarray, box_sd: float, looked: np.ndarray,
+                  log_r: np.ndarray, negative: np.ndarray, rows: np.ndarray,
+                  hit_cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`.cell_evidence.cell_evidence` after its standard deviations and negative
+    cells: per track, ``log1p(sum_c m_kc expm1(log r_c))`` and ``min(1, sum_c m_kc)``
+    over the negative looked cells in its box, then its associated detection's cell,
+    each sum sequential in that order (``bincount``'s)."""
+    K = len(mx)
+    lo_x = np.floor((mx - box_sd * sx) / s)
+    hi_x = np.floor((mx + box_sd * sx) / s)
+    lo_y = np.floor((my - box_sd * sy) / s)
+    hi_y = np.floor((my + box_sd * sy) / s)
+    box, i = looked_in_boxes(lo_x, hi_x, lo_y, hi_y, negative, nx, ny)
+    total = np.zeros(K)
+    tested = np.zeros(K)
+    n_pairs = len(box) + len(rows)
+    if n_pairs == 0:
+        return total, tested
+    for p in range(n_pairs):
+        if p < len(box):
+            k, c = box[p], negative[i[p]]
+        else:
+            k, c = rows[p - len(box)], hit_cells[p - len(box)]
+        ix, iy = c % nx, c // nx
+        mass = ((_ndtr(((ix + 1) * s - mx[k]) / sx[k], 0) - _ndtr((ix * s - mx[k]) / sx[k], 0))
+                * (_ndtr(((iy + 1) * s - my[k]) / sy[k], 0)
+                   - _ndtr((iy * s - my[k]) / sy[k], 0)))
+        total[k] += mass * np.expm1(log_r[_search(looked, c)])
+        tested[k] += mass
+    for k in range(K):
+        total[k] = np.log1p(_nan_max(total[k], -1.0 + 1e-300))
+        tested[k] = _nan_min(tested[k], 1.0)
+    return total, tested
+
+
+@njit(cache=True)
+def _axis_box(mean: float, sd: float, n: int, s: float, n_sd: float) -> tuple[int, int]:
+    """One Gaussian's box on one axis as :func:`.cells._axis_boxes` computes it: its
+    first cell and its width (0 when it misses the grid)."""
+    lo = np.floor((mean - n_sd * sd) / s)
+    hi = np.floor((mean + n_sd * sd) / s)
+    if not (hi >= 0 and lo <= n - 1):
+        return 0, 0
+    i0 = int(min(max(lo, 0.0), n - 1))
+    return i0, int(min(max(hi, 0.0), n - 1)) - i0 + 1
+
+
+@njit(cache=True)
+def recycled_intensity(s: float, nx: int, ny: int, mean_xy: np.ndarray, cov_xy: np.ndarray,
+                       sd_floor: float, n_sd: float, r: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """``r_k m_kc`` over the Gaussians' boxes as :func:`.pmb.ppp.recycle` computes them
+    from :func:`.cells.gaussian_cell_mass_sparse` (each cell's mass the product of its
+    axes' normal CDF differences): the cells and amounts, Gaussian by Gaussian, each box
+    by rows."""
+    K = mean_xy.shape[0]
+    boxes = np.zeros((K, 4), np.int64)  # ix0, wx, iy0, wy
+    sds = np.empty((K, 2))
+    total = 0
+    for k in range(K):
+        for a in range(2):
+            sds[k, a] = _nan_max(np.sqrt(_nan_max(cov_xy[k, a, a], 0.0)), sd_floor)
+        boxes[k, 0], boxes[k, 1] = _axis_box(mean_xy[k, 0], sds[k, 0], nx, s, n_sd)
+        boxes[k, 2], boxes[k, 3] = _axis_box(mean_xy[k, 1], sds[k, 1], ny, s, n_sd)
+        total += boxes[k, 1] * boxes[k, 3]
+    cells = np.empty(total, np.int64)
+    amounts = np.empty(total)
+    mass_x = np.empty(nx)
+    mass_y = np.empty(ny)
+    e = 0
+    for k in range(K):
+        for a in range(2):  # the box's cell masses on each axis: differences of the CDF
+            i0, w = boxes[k, 2 * a], boxes[k, 2 * a + 1]
+            out = mass_x if a == 0 else mass_y
+            m, sd = mean_xy[k, a], sds[k, a]
+            prev = _ndtr((i0 * s - m) / sd, 0)
+            for j in range(w):
+                cdf = _ndtr(((i0 + j + 1) * s - m) / sd, 0)
+                out[j] = cdf - prev
+                prev = cdf
+        for ly in range(boxes[k, 3]):
+            for lx in range(boxes[k, 1]):
+                cells[e] = (boxes[k, 2] + ly) * nx + boxes[k, 0] + lx
+                amounts[e] = r[k] * (mass_y[ly] * mass_x[lx])
+                e += 1
+    return cells, amounts
+
+
+def warm_up() -> None:
+    """Compile (or load from the disk cache) every kernel on tiny inputs, for the argument
+    types the callers pass, so that a tracker's ``reset`` pays for it and no timed step
+    does. Cheap after the first time in a process."""
+    if getattr(warm_up, "done", False):
+        return
+    f, i = np.zeros(1), np.zeros(1, np.int64)
+    cov = np.ones((1, 2, 2))
+    rect_position_moments(np.zeros((1, 2)), cov, f, f + 1.0, f, f + 1.0, np.array([np.inf]),
+                          np.array([2], np.int64), i, np.zeros(2), np.ones(2))
+    looked_in_boxes(f, f, f, f, i, 1, 1)
+    cell_evidence(1.0, 1, 1, f, f, f + 1.0, f + 1.0, 6.0, i, f, i, i, i)
+    recycled_intensity(1.0, 1, 1, np.zeros((1, 2)), cov, 1e-12, 6.0, f)
+    warm_up.done = True
