@@ -524,6 +524,9 @@ def cmd_tune(args: argparse.Namespace) -> int:
     if args.batch_size is not None and not 1 <= args.batch_size <= MAX_TRIALS:
         raise UsageError(f"--batch-size {args.batch_size} is not allowed: expected an "
                          f"integer from 1 to {MAX_TRIALS}")
+    if not 0 <= args.startup_trials <= MAX_TRIALS:
+        raise UsageError(f"--startup-trials {args.startup_trials} is not allowed: expected an "
+                         f"integer from 0 to {MAX_TRIALS}")
     if not 0 <= args.seed <= MAX_SAMPLER_SEED:
         raise UsageError(f"--seed {args.seed} is not allowed: expected an integer from 0 to "
                          f"{MAX_SAMPLER_SEED} (2**32 - 1)")
@@ -553,7 +556,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
                                     if args.resume else None) or workers
         s = tune.TuneSettings(spec, scs, seeds, trials=args.trials, objective=args.objective,
                               policy=policy[0], looks=looks[0] if looks else None, c=args.c,
-                              p=args.p, seed=args.seed, batch_size=batch)
+                              p=args.p, seed=args.seed, batch_size=batch,
+                              startup_trials=args.startup_trials)
         problem = s.problem()
         if problem:
             raise UsageError(problem)
@@ -1027,6 +1031,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="looks per step (default: each scenario's looks_per_step)")
     p.add_argument("--seed", type=int, default=0,
                    help="seed of the TPE sampler (default 0)")
+    p.add_argument("--startup-trials", type=int, default=_tune.STARTUP_TRIALS, metavar="N",
+                   help="random trials before TPE models the results (default "
+                        f"{_tune.STARTUP_TRIALS})")
     p.add_argument("--batch-size", type=int, default=None, metavar="B",
                    help="trials asked together and run in parallel (default: the workers; a "
                         "resumed study keeps its own)")
