@@ -649,10 +649,12 @@ def run_tune(settings: Sequence[TuneSettings], out_dir: str | Path, *,
              tuned_dir: str | Path | None = None, workers: int | None = None,
              resume: bool = False, progress: bool = True,
              executor_options: Mapping[str, Any] | None = None,
-             argv: Sequence[str] | None = None) -> TuneOutput:
+             argv: Sequence[str] | None = None,
+             run_timeout: float | None = None) -> TuneOutput:
     """Tune each tracker in turn (:func:`tune_tracker`) into ``out_dir``, with a
     ``manifest.json`` (status ``running``, then ``finished``/``interrupted``/``failed``)
-    and, at the end, ``results.parquet`` holding every run of every study."""
+    and, at the end, ``results.parquet`` holding every run of every study. A run past
+    ``run_timeout`` seconds (None: the app's default) is ended: its trial fails."""
     t0 = time.perf_counter()
     started = datetime.now(UTC)
     workers = workers or os.cpu_count() or 1
@@ -690,9 +692,10 @@ def run_tune(settings: Sequence[TuneSettings], out_dir: str | Path, *,
     done: list[TuneResult] = []
     try:
         for s in settings:
+            options = {**(executor_options or {}),
+                       **({"run_timeout": run_timeout} if run_timeout is not None else {})}
             res = tune_tracker(s, out, tuned_dir=tuned_dir, workers=workers, resume=resume,
-                               progress=progress, executor_options=executor_options,
-                               argv=command)
+                               progress=progress, executor_options=options, argv=command)
             done.append(res)
             manifest["trackers"][s.name]["tuned_file"] = (str(res.tuned_file)
                                                           if res.tuned_file else None)
