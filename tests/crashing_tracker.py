@@ -14,6 +14,7 @@ from typing import ClassVar
 import numpy as np
 
 from mttbench import Estimate, Policy, Tracker
+from mttbench.trackers.params import Param, Search
 
 #: the step at which :class:`Crash` raises (0-based, counted by ``predict``)
 CRASH_STEP = 3
@@ -114,3 +115,29 @@ class Counted(_Nothing):
             deadline = time.monotonic() + SLOW_GATE_TIMEOUT_S
             while not Path(gate).exists() and time.monotonic() < deadline:
                 time.sleep(0.01)
+
+
+class Guess(_Nothing):
+    """Reports ``count`` targets standing at ``(x, x)`` cells, ``x = 10 level`` (+ 1 with
+    ``shift="far"``): a run costs nothing and its OSPA moves with each of its searched
+    parameters (a float, an int and a choice), so a tuner's trials tell apart."""
+
+    name = "guess"
+    summary = "test tracker: a fixed guess set by its parameters"
+    parameters: ClassVar[dict[str, Param]] = {
+        "level": Param(float, 0, 1, search=Search(0.0, 1.0)),
+        "count": Param(int, 0, search=Search(0, 3)),
+        "shift": Param(choices=("near", "far"), search=Search(choices=("near", "far"))),
+    }
+
+    def __init__(self, level: float = 0.5, count: int = 1, shift: str = "near") -> None:
+        self.level, self.count, self.shift = level, count, shift
+
+    def reset(self, model, rng):
+        super().reset(model, rng)
+        self._cell = model.grid.cell_size if model.is_grid else 1.0
+
+    def estimate(self):
+        x = (10.0 * self.level + (1.0 if self.shift == "far" else 0.0)) * self._cell
+        states = np.tile([x, 0.0, x, 0.0], (self.count, 1)).astype(float)
+        return Estimate(float(self.count), states)

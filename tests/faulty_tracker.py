@@ -8,11 +8,13 @@ from __future__ import annotations
 import os
 import signal
 import time
+from typing import ClassVar
 
 import crashing_tracker
 import numpy as np
 
 from mttbench import Estimate
+from mttbench.trackers.params import Param, Search
 
 #: the step at which each tracker misbehaves (0-based, counted by ``predict``)
 FAULT_STEP = 1
@@ -145,3 +147,22 @@ class CountsShape(_BadCounts):
 
     def bad(self, P):
         return P[1:]
+
+
+class HangWhenTold(_Nothing):
+    """Hangs at step 1 (as :class:`Hang`) when its searched choice ``mode`` is ``"hang"``,
+    else reports nothing: a tune draws trials of both kinds."""
+
+    name = "hang-when-told"
+    summary = "test tracker: hangs at step 1 when told to"
+    parameters: ClassVar[dict[str, Param]] = {
+        "mode": Param(choices=("ok", "hang"), search=Search(choices=("ok", "hang"))),
+        "level": Param(float, 0, 1, search=Search(0.0, 1.0)),
+    }
+
+    def __init__(self, mode: str = "ok", level: float = 0.5) -> None:
+        self.mode, self.level = mode, level
+
+    def fault(self):
+        if self.mode == "hang":
+            Hang.fault(self)

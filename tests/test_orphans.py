@@ -34,10 +34,10 @@ DIE_TIMEOUT_S = 10
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals and flock")
 
 
-def _args(out: Path, seeds: int, store: str = "parts") -> list[str]:
+def _args(out: Path, seeds: int, store: str = "parts", executor: str = "local") -> list[str]:
     return ["run", "--scenarios", "default", "--trackers", "null", "crashing_tracker:Counted",
             "--seeds", str(seeds), "--steps", "3", "--workers", "1", "--no-progress",
-            "--retries", "0", "--store", store, "--out", str(out)]
+            "--retries", "0", "--store", store, "--executor", executor, "--out", str(out)]
 
 
 def _env(tmp: Path, limit: int) -> dict[str, str]:
@@ -53,8 +53,24 @@ def _log(tmp: Path) -> list[int]:
 
 
 def _start(args: list[str], env: dict[str, str]) -> subprocess.Popen:
+    """The command in a new session: its process group (the main process's pid) holds
+    every process it starts, however they are started (forked, spawned)."""
     return subprocess.Popen([sys.executable, "-m", "mttbench", *args], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+
+
+def _group(pgid: int) -> list[int]:
+    """The live processes of process group ``pgid`` (zombies left out)."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[2]) == pgid and fields[0] not in ("Z", "X"):
+            out.append(int(stat.parent.name))
+    return out
 
 
 def _wait_for_runs(tmp: Path, n: int, proc: subprocess.Popen) -> int:
@@ -131,6 +147,48 @@ def test_killing_the_main_process_alone_ends_its_worker_and_resume_finishes(
     pd.testing.assert_frame_equal(_table(out), _table(whole))
     if store == "dataset":  # the checkpoints of a finished batch are gone
         assert len(list((out / "dataset").rglob("batch-*.parquet"))) <= 2 + len(kills)
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc")
+def test_killing_the_main_process_of_a_dask_sweep_leaves_no_process_and_resume_finishes(
+        tmp_path, monkeypatch, capsys):
+    """``--executor dask`` (a LocalCluster of one worker process): the main process is
+    killed while its worker waits in a run; every process it started (the worker, the
+    resource tracker) ends within seconds, the folder is free, and ``--resume`` finishes
+    the table of an uninterrupted sweep. (The resume and the uninterrupted sweep run on
+    the local pool, which gives the same numbers, without a second cluster's start-up;
+    test_executors resumes on Dask.)"""
+    pytest.importorskip("distributed", reason="distributed is not installed (mttbench[dask])")
+    out = tmp_path / "out"
+    proc = _start(_args(out, 2, executor="dask"), _env(tmp_path, limit=1))
+    worker = _wait_for_runs(tmp_path, 2, proc)
+    assert worker != proc.pid  # the run is in a worker process of the cluster
+    # the main process writes the parts of the runs the cluster finished: wait for the
+    # three before the gated run (null's two, Counted's first)
+    deadline = time.monotonic() + START_TIMEOUT_S
+    while len(list((out / "parts").glob("*.parquet"))) < 3:
+        assert proc.poll() is None and time.monotonic() < deadline, "no third part"
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=START_TIMEOUT_S)
+    for pipe in (proc.stdout, proc.stderr):
+        pipe.close()
+    deadline = time.monotonic() + DIE_TIMEOUT_S
+    while _group(proc.pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    left = _group(proc.pid)
+    for pid in left:  # a leftover of the test's own sweep: end it, then fail
+        os.kill(pid, signal.SIGKILL)
+    assert not left, f"processes outlived the killed main process: {left}"
+    (tmp_path / "gate").touch()
+    for name, value in _env(tmp_path, 0).items():
+        monkeypatch.setenv(name, value)
+    assert main([*_args(out, 2), "--resume"]) == 0, capsys.readouterr().err
+    assert "in use" not in capsys.readouterr().err
+    assert len(_log(tmp_path)) == 3  # the killed run again, the finished one kept
+    whole = tmp_path / "whole"
+    assert main(_args(whole, 2)) == 0
+    pd.testing.assert_frame_equal(_table(out), _table(whole))
 
 
 def test_a_folder_in_use_by_a_real_second_process_is_refused(tmp_path):

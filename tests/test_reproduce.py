@@ -5,7 +5,10 @@ everything that can change a number and ``--no-cache`` neither reads nor writes 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import fcntl
+import io
 import json
 import os
 import subprocess
@@ -30,7 +33,23 @@ TINY = reproduce.Setting("tiny", ("default",), 2, (0,), ("null",), "raster", "nu
 
 @pytest.fixture(scope="module")
 def cache(tmp_path_factory):
-    return tmp_path_factory.mktemp("reproduce-cache")
+    """The run cache of the reduced setting, filled once per session: the xdist workers'
+    temporary folders share a parent, where the first worker computes the setting under
+    a lock while the others wait, then read it."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent
+    shared = root / "reproduce-cache"
+    shared.mkdir(exist_ok=True)
+    with open(root / "reproduce-cache.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            if not any(shared.glob("*/done.json")):
+                with contextlib.redirect_stdout(io.StringIO()):
+                    assert _run(shared, tmp_path_factory.mktemp("fill")) == 0
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+    return shared
 
 
 def _run(cache, out, *extra):
@@ -81,9 +100,6 @@ def test_check_fails_naming_a_number_altered_well_outside_its_band(cache, tmp_pa
     altered.to_csv(path, index=False, float_format="%.17g")
     # a reference made with another numpy: the failure message says so
     path.with_suffix(".versions.json").write_text('{"numpy": "0.0"}')
-    # fills the cache if this worker has not run the setting yet (pytest-xdist)
-    assert _run(cache, tmp_path / "out") == 0
-    capsys.readouterr()
     rc = _run(cache, tmp_path / "out", "--check", "--reference-csv", str(path))
     io = capsys.readouterr()
     assert rc == 1

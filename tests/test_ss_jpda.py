@@ -224,7 +224,7 @@ h = hashlib.sha256()
 for name, policy in (("env-pf-0.1", "raster"), ("default", "renyi")):
     sc = resolve_scenarios([name])[0]
     tracker = TrackerSpec.parse("ss-jpda").make()
-    for rec in play(sc, tracker, 3, policy=make_policy(policy), n_steps=25):
+    for rec in play(sc, tracker, 3, policy=make_policy(policy), n_steps=15):
         e = rec.estimate
         for a in (e.states, e.covariances, e.labels, tracker.existence):
             h.update(np.ascontiguousarray(a).tobytes())

@@ -90,3 +90,88 @@ def test_gnn_track_prior_is_the_untracked_intensity_at_its_birth():
     assert got == pytest.approx(want, rel=1e-12)
     assert got < expit(np.log(np.expm1(n0 / n)) + log_pos) - 0.01  # a smaller prior
     assert tracker._prior_logodds[first.id] == pytest.approx(np.log(np.expm1(n0 / n)))
+
+
+# ======================================================================= ss-jpda
+def _births_model():
+    """``births``: survival 0.98, 0.05 arrivals a step, ``die`` at the walls."""
+    model = get_scenario("births").model
+    bd = model.birth_death
+    assert bd.boundary == "die" and bd.survival_probability < 1 and bd.birth_rate > 0
+    return model
+
+
+def test_jpda_undetected_intensity_per_look_and_its_birth_existence():
+    """Step 0: cell ``a`` looked at 3 times, ``c`` once, all negative: from ``lambda_1 = p_s
+    n0 / n + b / n`` the intensity is ``lambda_1 m^3`` at ``a`` and ``lambda_1 m`` at ``c``
+    (``m = (1 - p_d) / (1 - p_f)``, once per look), ``lambda_1`` elsewhere. Step 1: ``a``
+    looked at twice, one positive: a track is born with existence ``(1 - e^{-x}) / (1 - (1
+    - p_f,2) e^{-x})``, ``x = lambda_2 (1 - (1 - p_d)^2)``, ``p_f,2 = 1 - (1 - p_f)^2``,
+    ``lambda_2 = p_s lambda_1 m^3 + b / n``; ``a`` then holds ``lambda_2 m^2``."""
+    model = _births_model()
+    grid, sensor, bd = model.grid, model.sensor, model.birth_death
+    n, ps, b = grid.n_cells, bd.survival_probability, bd.birth_rate
+    p_d, p_f = sensor.p_d, sensor.p_f
+    m = (1 - p_d) / (1 - p_f)
+    tracker = trackers.make("ss-jpda")
+    tracker.reset(model, np.random.default_rng(0))
+    a, c, far = 5 * grid.nx + 5, 5 * grid.nx + 6, 11 * grid.nx + 1
+    tracker.predict()
+    tracker.update(_looks([a, a, a, c], [False] * 4))
+    lam1 = ps * bd.initial_count_mean / n + b / n
+    np.testing.assert_allclose(tracker._undetected.at(np.array([a, c, far])),
+                               [lam1 * m ** 3, lam1 * m, lam1], rtol=1e-12)
+    assert len(tracker.existence) == 0
+    tracker.predict()
+    tracker.update(_looks([a, a], [True, False]))
+    lam2 = ps * lam1 * m ** 3 + b / n
+    x = lam2 * (1 - (1 - p_d) ** 2)
+    r0 = -np.expm1(-x) / (1 - (1 - p_f) ** 2 * np.exp(-x))
+    assert r0 > tracker.prune_existence
+    np.testing.assert_allclose(tracker.existence, [r0], rtol=1e-12)
+    np.testing.assert_allclose(tracker._undetected.at(np.array([a, c, far])),
+                               [lam2 * m ** 2, ps * lam1 * m + b / n, ps * lam1 + b / n],
+                               rtol=1e-12)
+
+
+def test_jpda_recycles_only_the_tentative_tracks_it_prunes_or_caps():
+    """Six tracks at rest, none looked at (one negative look far away), cap of one track:
+    a tentative track pruned (``p_s r`` below ``prune_existence``) and one dropped by the
+    cap give ``p_s r`` back to the undetected intensity of their cell; a tentative track
+    outside the workspace (``die``), one the covariance deleter removes and a confirmed
+    one deleted below ``beta`` give nothing; the kept track is the most probable. The
+    whole field must equal ``p_s (p_s n0 / n + b / n) + b / n`` (two steps; times ``m`` at
+    the looked cell) plus exactly those two amounts."""
+    model = _births_model()
+    grid, bd = model.grid, model.birth_death
+    n, ps, b = grid.n_cells, bd.survival_probability, bd.birth_rate
+    m_ratio = (1 - model.sensor.p_d) / (1 - model.sensor.p_f)
+    tracker = trackers.make("ss-jpda", max_tracks=1)
+    tracker.reset(model, np.random.default_rng(0))
+    tracker.predict()
+
+    def at(ix, iy):
+        return [(ix + 0.5) * grid.cell_size, 0.0, (iy + 0.5) * grid.cell_size, 0.0]
+
+    sharp = np.diag([0.05, 0.01, 0.05, 0.01])
+    wide = np.diag([100.0, 0.01, 100.0, 0.01])  # position sd 10 cells > max_position_sd 5
+    tracks = {  # name: (mean, covariance, existence, confirmed)
+        "pruned": (at(2, 2), sharp, 0.5 * tracker.prune_existence, False),
+        "outside": ([-3.0, 0.0, 5.5, 0.0], sharp, 0.5 * tracker.prune_existence, False),
+        "too-wide": (at(8, 2), wide, 0.5, False),
+        "deleted": (at(2, 8), sharp, 0.5 * tracker.lost_track_probability, True),
+        "kept": (at(8, 8), sharp, 0.3, False),
+        "capped": (at(5, 5), sharp, 0.2, False),
+    }
+    mean, cov, r, confirmed = (np.array(x) for x in zip(*tracks.values(), strict=True))
+    tracker.set_tracks(mean, cov, r, confirmed)
+    tracker.predict()
+    looked = 11 * grid.nx + 11
+    tracker.update(_looks([looked], [False]))
+    field = np.full(n, ps * (ps * bd.initial_count_mean / n + b / n) + b / n)  # 2 predicts
+    field[looked] *= m_ratio
+    for name in ("pruned", "capped"):
+        (x, _, y, _), _, r_name, _ = tracks[name]
+        field[int(y) * grid.nx + int(x)] += ps * r_name
+    np.testing.assert_allclose(tracker._undetected.at(np.arange(n)), field, rtol=1e-12)
+    np.testing.assert_allclose(tracker.existence, [ps * tracks["kept"][2]], rtol=1e-12)

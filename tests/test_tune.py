@@ -246,18 +246,18 @@ def test_an_interrupt_between_asks_resumes_to_the_uninterrupted_trials(study, tm
                                                                      monkeypatch):
     st, res, _ = study
     out, tuned_dir = tmp_path / "out", tmp_path / "tuned"
-    real, calls = tune._study_for_trial, []
+    real, calls = tune._draw, []
 
-    def ask_then_stop(settings, storage, number):
+    def ask_then_stop(settings, storage, study_id, number, space):
         calls.append(number)
         if number == 3:  # trial 2 of batch 1 asked, trial 3 not yet
             raise KeyboardInterrupt
-        return real(settings, storage, number)
+        return real(settings, storage, study_id, number, space)
 
-    monkeypatch.setattr(tune, "_study_for_trial", ask_then_stop)
+    monkeypatch.setattr(tune, "_draw", ask_then_stop)
     with pytest.raises(KeyboardInterrupt):
         tune.tune_tracker(st, out, tuned_dir=tuned_dir, progress=False)
-    monkeypatch.setattr(tune, "_study_for_trial", real)
+    monkeypatch.setattr(tune, "_draw", real)
     done = tune.tune_tracker(st, out, tuned_dir=tuned_dir, progress=False, resume=True)
     assert calls == [0, 1, 2, 3]
     assert trial_rows(done.trials) == trial_rows(res.trials)

@@ -148,6 +148,11 @@ def _check_common(args: argparse.Namespace) -> None:
         raise UsageError(f"--c {c} with --p {args.p} is not allowed: c ** p must stay "
                          f"within 1e-{MAX_C_POWER_P_EXP} .. 1e{MAX_C_POWER_P_EXP} (the metrics "
                          "raise distances to the power p)")
+    _check_run_timeout(args)
+
+
+def _check_run_timeout(args: argparse.Namespace) -> None:
+    """``--run-timeout``: seconds > 0, at most :data:`MAX_TIMEOUT_S`."""
     timeout = getattr(args, "run_timeout", None)
     if timeout is not None and not (math.isfinite(timeout) and 0 < timeout <= MAX_TIMEOUT_S):
         raise UsageError(f"--run-timeout {timeout} is not allowed: expected seconds > 0 and "
@@ -524,6 +529,9 @@ def cmd_tune(args: argparse.Namespace) -> int:
     if args.batch_size is not None and not 1 <= args.batch_size <= MAX_TRIALS:
         raise UsageError(f"--batch-size {args.batch_size} is not allowed: expected an "
                          f"integer from 1 to {MAX_TRIALS}")
+    if not 0 <= args.startup_trials <= MAX_TRIALS:
+        raise UsageError(f"--startup-trials {args.startup_trials} is not allowed: expected an "
+                         f"integer from 0 to {MAX_TRIALS}")
     if not 0 <= args.seed <= MAX_SAMPLER_SEED:
         raise UsageError(f"--seed {args.seed} is not allowed: expected an integer from 0 to "
                          f"{MAX_SAMPLER_SEED} (2**32 - 1)")
@@ -553,7 +561,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
                                     if args.resume else None) or workers
         s = tune.TuneSettings(spec, scs, seeds, trials=args.trials, objective=args.objective,
                               policy=policy[0], looks=looks[0] if looks else None, c=args.c,
-                              p=args.p, seed=args.seed, batch_size=batch)
+                              p=args.p, seed=args.seed, batch_size=batch,
+                              startup_trials=args.startup_trials)
         problem = s.problem()
         if problem:
             raise UsageError(problem)
@@ -563,7 +572,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     with _folder_lock(out_dir):
         res = tune.run_tune(settings, out_dir, tuned_dir=args.tuned_dir, workers=workers,
                             resume=args.resume, progress=not args.no_progress,
-                            argv=args.argv)
+                            argv=args.argv, run_timeout=args.run_timeout)
     status = 0
     for r in res.results:
         if r.record is None:
@@ -590,6 +599,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     if args.workers is not None and args.workers < 1:
         raise UsageError(f"--workers {args.workers} is not allowed: expected an integer >= 1")
+    _check_run_timeout(args)
     if args.exact and not args.check:
         raise UsageError("--exact only applies with --check")
     if args.check and args.update_reference:
@@ -624,7 +634,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         print(warning, file=sys.stderr)
     prepare_out_dir(out, parts=False)
     res = run(setting, out, cache, tracker_texts=tracker_texts, workers=workers,
-              progress=not args.no_progress, use_cache=not args.no_cache)
+              progress=not args.no_progress, use_cache=not args.no_cache,
+              run_timeout=args.run_timeout)
     print(f"wrote {out}/ (figures, CSVs, report.md, report.html; runs "
           f"{'from the cache' if res.cached else 'computed'})")
     failed = _failure_line(res.results, out)
@@ -800,10 +811,14 @@ def _add_sweep_options(p: argparse.ArgumentParser, *, seeds_default: int,
                         "folder of this command under reports/")
     _add_metric_options(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_run_timeout(p)
+
+
+def _add_run_timeout(p: argparse.ArgumentParser, then: str = "gets an error row") -> None:
+    """``--run-timeout``: the wall-time limit of one run (every command that runs)."""
     p.add_argument("--run-timeout", type=float, default=None, metavar="SECONDS",
-                   help="wall-time limit of one run: a run still going is ended and gets "
-                        "an error row (default: 10x the slowest run's estimate, at least "
-                        "60 s)")
+                   help=f"wall-time limit of one run: a run still going is ended and {then} "
+                        "(default: 10x the slowest run's estimate, at least 60 s)")
 
 
 def _add_metric_options(p: argparse.ArgumentParser) -> None:
@@ -1027,6 +1042,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="looks per step (default: each scenario's looks_per_step)")
     p.add_argument("--seed", type=int, default=0,
                    help="seed of the TPE sampler (default 0)")
+    p.add_argument("--startup-trials", type=int, default=_tune.STARTUP_TRIALS, metavar="N",
+                   help="random trials before TPE models the results (default "
+                        f"{_tune.STARTUP_TRIALS})")
     p.add_argument("--batch-size", type=int, default=None, metavar="B",
                    help="trials asked together and run in parallel (default: the workers; a "
                         "resumed study keeps its own)")
@@ -1042,6 +1060,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "without --out: the most recent unfinished reports/tune-* folder")
     _add_metric_options(p)
     p.add_argument("--no-progress", action="store_true", help="no progress lines")
+    _add_run_timeout(p, "fails its trial")
     add_executor_arguments(p)
     p.set_defaults(func=cmd_tune)
 
@@ -1102,6 +1121,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel worker processes (default: the number of CPUs)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_run_timeout(p, "gets an error row (the reproduction exits 1)")
     add_executor_arguments(p)
     p.set_defaults(func=cmd_reproduce)
 

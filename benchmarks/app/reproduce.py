@@ -332,16 +332,18 @@ def cache_key(setting: Setting, specs: list[TrackerSpec], policy: PolicySpec,
 
 # ------------------------------------------------------------------------ runs
 def run_or_load(setting: Setting, specs: list[TrackerSpec], cache_dir: Path, *,
-                workers: int = 1, progress: bool = True, use_cache: bool = True
+                workers: int = 1, progress: bool = True, use_cache: bool = True,
+                run_timeout: float | None = None
                 ) -> tuple[pd.DataFrame, dict[str, dict[str, pd.DataFrame]], bool]:
     """The results table and the snapshot trace frames (per scenario), from the cache
     when present. Returns ``(results, traces, cached)``. ``use_cache=False`` neither
-    reads nor writes ``cache_dir`` (the runs go to a temporary folder)."""
+    reads nor writes ``cache_dir`` (the runs go to a temporary folder). A run past
+    ``run_timeout`` seconds (None: the app's default) is ended with an error row."""
     policy = PolicySpec(setting.policy)
     if not use_cache:
         with tempfile.TemporaryDirectory(prefix="mttbench-reproduce-") as tmp:
             results, traces = _run(setting, specs, policy, Path(tmp), workers, progress,
-                                   save_traces=False)
+                                   save_traces=False, run_timeout=run_timeout)
         return results, traces, False
     folder = cache_dir / cache_key(setting, specs, policy)
     done = folder / "done.json"
@@ -354,7 +356,8 @@ def run_or_load(setting: Setting, specs: list[TrackerSpec], cache_dir: Path, *,
     if folder.exists():
         shutil.rmtree(folder)
     folder.mkdir(parents=True)
-    results, traces = _run(setting, specs, policy, folder, workers, progress, save_traces=True)
+    results, traces = _run(setting, specs, policy, folder, workers, progress, save_traces=True,
+                           run_timeout=run_timeout)
     if (results["status"] == "error").any():
         return results, traces, False  # not marked done: the next call reruns the failures
     done.write_text(json.dumps({"traces": sorted(traces), "setting": setting.name}))
@@ -369,19 +372,28 @@ def setting_jobs(setting: Setting, specs: list[TrackerSpec]) -> list:
 
 
 def _run(setting: Setting, specs: list[TrackerSpec], policy: PolicySpec, folder: Path,
-         workers: int, progress: bool, save_traces: bool
+         workers: int, progress: bool, save_traces: bool, run_timeout: float | None = None
          ) -> tuple[pd.DataFrame, dict[str, dict[str, pd.DataFrame]]]:
-    """Run the sweep into ``folder`` and trace the highlight tracker's snapshot runs."""
+    """Run the sweep into ``folder`` and trace the highlight tracker's snapshot runs (in
+    this process: only those whose run finished in the sweep, so that a run that hung or
+    killed its worker there is not run again here, without a limit)."""
     jobs = setting_jobs(setting, specs)
     scs = [dataclasses.replace(scenarios.get(n), n_steps=setting.n_steps)
            for n in setting.scenarios]
     results = run_sweep(jobs, folder, workers=workers, progress=progress, resume=False,
-                        c=setting.c, p=setting.p)
+                        c=setting.c, p=setting.p, run_timeout=run_timeout)
     shutil.rmtree(folder / "parts", ignore_errors=True)
     traces: dict[str, dict[str, pd.DataFrame]] = {}
     hl = [s for s in specs if s.name == setting.highlight]
     if hl:
         for sc in scs:
+            run = results[(results["scenario"] == sc.name)
+                          & (results["tracker_label"] == hl[0].label)
+                          & (results["seed"] == setting.snapshot_seed)]
+            if run.empty or (run["status"] == "error").any():
+                print(f"snapshot of {hl[0].label} on {sc.name} left out: its run failed",
+                      file=sys.stderr)
+                continue
             try:
                 frames = trace_run(sc, hl[0], setting.snapshot_seed, policy).frames()
             except Exception as exc:  # noqa: BLE001 - the tables already show the failure
@@ -648,8 +660,10 @@ class Reproduction:
 
 def reproduce_paper(setting: Setting, out_dir: str | Path, cache_dir: str | Path, *,
                     tracker_texts: tuple[str, ...] | None = None, workers: int = 1,
-                    progress: bool = True, use_cache: bool = True) -> Reproduction:
-    """Run (or load) the setting, write the figures, CSVs and report into ``out_dir``."""
+                    progress: bool = True, use_cache: bool = True,
+                    run_timeout: float | None = None) -> Reproduction:
+    """Run (or load) the setting, write the figures, CSVs and report into ``out_dir``; a
+    run past ``run_timeout`` seconds (None: the app's default) gets an error row."""
     if tracker_texts:
         setting = dataclasses.replace(setting, trackers=tuple(tracker_texts))
     specs, missing = available_trackers(setting.trackers)
@@ -660,7 +674,8 @@ def reproduce_paper(setting: Setting, out_dir: str | Path, cache_dir: str | Path
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     results, traces, cached = run_or_load(setting, specs, Path(cache_dir), workers=workers,
-                                          progress=progress, use_cache=use_cache)
+                                          progress=progress, use_cache=use_cache,
+                                          run_timeout=run_timeout)
     curves = error_curves(results)
     hl = next((s.label for s in specs if s.name == setting.highlight), specs[0].label)
     figs: list[tuple[Path, str]] = []

@@ -223,16 +223,18 @@ def cache_key(setting: KreucherSetting, specs: list[TrackerSpec],
 
 
 def run_or_load(setting: KreucherSetting, specs: list[TrackerSpec], cache_dir: Path, *,
-                workers: int = 1, progress: bool = True, use_cache: bool = True
-                ) -> tuple[pd.DataFrame, bool]:
+                workers: int = 1, progress: bool = True, use_cache: bool = True,
+                run_timeout: float | None = None) -> tuple[pd.DataFrame, bool]:
     """The sweep's results table, from the cache when it holds this key; ``(results,
     cached)``. ``use_cache=False`` neither reads nor writes ``cache_dir``. A sweep with a
-    failed run is not marked done, so the next call reruns it."""
+    failed run (one past ``run_timeout`` seconds included; None: the app's default) is
+    not marked done, so the next call reruns it."""
     jobs = setting_jobs(setting, specs)
     if not use_cache:
         with tempfile.TemporaryDirectory(prefix="mttbench-kreucher-") as tmp:
             return run_sweep(jobs, Path(tmp), workers=workers, progress=progress,
-                             resume=False, c=setting.c, p=setting.p), False
+                             resume=False, c=setting.c, p=setting.p,
+                             run_timeout=run_timeout), False
     folder = Path(cache_dir) / cache_key(setting, specs)
     done = folder / "done.json"
     if done.exists():
@@ -241,7 +243,7 @@ def run_or_load(setting: KreucherSetting, specs: list[TrackerSpec], cache_dir: P
         shutil.rmtree(folder)
     folder.mkdir(parents=True)
     results = run_sweep(jobs, folder, workers=workers, progress=progress, resume=False,
-                        c=setting.c, p=setting.p)
+                        c=setting.c, p=setting.p, run_timeout=run_timeout)
     shutil.rmtree(folder / "parts", ignore_errors=True)
     if not (results["status"] == "error").any():
         done.write_text(json.dumps({"setting": setting.name, "runs": len(jobs)}))
@@ -594,9 +596,10 @@ def _write_report(out: Path, setting: KreucherSetting, specs: list[TrackerSpec],
 # ------------------------------------------------------------------------ main
 def reproduce_kreucher(setting: KreucherSetting, out_dir: str | Path, cache_dir: str | Path, *,
                        tracker_texts: tuple[str, ...] | None = None, workers: int = 1,
-                       progress: bool = True, use_cache: bool = True
-                       ) -> reproduce.Reproduction:
-    """Run (or load) the setting; write the figure, CSVs and report into ``out_dir``."""
+                       progress: bool = True, use_cache: bool = True,
+                       run_timeout: float | None = None) -> reproduce.Reproduction:
+    """Run (or load) the setting; write the figure, CSVs and report into ``out_dir``; a
+    run past ``run_timeout`` seconds (None: the app's default) gets an error row."""
     if tracker_texts:
         setting = dataclasses.replace(setting, trackers=tuple(tracker_texts))
     specs, missing = reproduce.available_trackers(setting.trackers)
@@ -607,7 +610,8 @@ def reproduce_kreucher(setting: KreucherSetting, out_dir: str | Path, cache_dir:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     results, cached = run_or_load(setting, specs, Path(cache_dir), workers=workers,
-                                  progress=progress, use_cache=use_cache)
+                                  progress=progress, use_cache=use_cache,
+                                  run_timeout=run_timeout)
     runs = per_seed(results, setting.burn_in)
     curve = curve_table(runs, setting)
     matched = matched_table(curve, setting.managed_looks)

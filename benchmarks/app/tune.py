@@ -38,9 +38,12 @@ its executor, then each trial is told its value. The sampler of trial ``n`` is s
 from ``(seed, n)`` (:func:`trial_seed`) rather than drawn from one stream, so the trials
 depend only on the seed, the batch size and the values of the earlier trials: the same
 settings give the same trials on any number of workers, and a study interrupted at any
-point and resumed gives the trials of an uninterrupted one (trials left ``RUNNING`` by the
-interrupt are run again with their stored parameters; finished runs are read back from
-``parts/``).
+point and resumed gives the trials of an uninterrupted one: a trial is drawn on an
+in-memory copy of the study and reaches the journal whole, in one write (:func:`_draw`),
+so an interrupt or a kill leaves either no trial or a whole one; trials left ``RUNNING``
+are run again with their stored parameters; finished runs are read back from
+``parts/``. The journal's lock is an ``flock`` (:class:`_JournalLock`), which no
+interrupt or kill can leave behind.
 
 **Files.** ``out/`` (default ``reports/tune-<UTC timestamp>``) holds ``manifest.json``,
 ``parts/`` (one file per run: job-level resume), ``results.parquet`` (every run of the
@@ -55,6 +58,7 @@ trial beats the defaults on the tuning seeds, the file says so and holds no para
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import math
 import os
@@ -294,11 +298,41 @@ def _quiet_optuna() -> None:
     optuna.logging.set_verbosity(optuna.logging.WARNING)
 
 
+class _JournalLock:
+    """The journal's writer lock as an ``fcntl.flock`` on the journal file itself (the
+    interface of optuna's ``BaseJournalFileLock``: ``acquire``, ``release``).
+
+    The kernel drops it with its holder, so neither Ctrl-C nor a kill can leave it held.
+    optuna's default lock is a symlink beside the journal, renamed away on release: a
+    Ctrl-C landing in its acquire or release raised an ``OSError`` of its own instead of
+    the interrupt, and a kill left the symlink behind for the next session to wait on."""
+
+    def __init__(self, path: str) -> None:
+        self._path = path
+        self._fd: int | None = None
+
+    def acquire(self) -> bool:
+        fd = os.open(self._path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        except BaseException:
+            os.close(fd)
+            raise
+        self._fd = fd
+        return True
+
+    def release(self) -> None:
+        fd, self._fd = self._fd, None
+        if fd is not None:
+            os.close(fd)  # closing the descriptor drops its flock
+
+
 def _storage(study_dir: Path):
     from optuna.storages import JournalStorage
     from optuna.storages.journal import JournalFileBackend
 
-    return JournalStorage(JournalFileBackend(str(study_dir / "study.journal")))
+    path = str(study_dir / "study.journal")
+    return JournalStorage(JournalFileBackend(path, lock_obj=_JournalLock(path)))
 
 
 def _sampler(settings: TuneSettings, number: int):
@@ -341,6 +375,35 @@ def _study_for_trial(settings: TuneSettings, storage: Any, number: int):
 
     return optuna.load_study(study_name=settings.name, storage=storage,
                              sampler=_sampler(settings, number))
+
+
+def _draw(settings: TuneSettings, storage: Any, study_id: int, number: int,
+          space: Mapping[str, tuple[Param, Search]]) -> dict[str, Any]:
+    """Draw trial ``number`` and add it, ``RUNNING`` with all its parameters, to the study
+    in one journal write; returns its parameters.
+
+    The draw runs on an in-memory copy of the study's trials ``0..number-1`` (states,
+    values, parameters and the sampler's attributes, all the sampler reads) with the
+    sampler of :func:`trial_seed`, so it is the draw optuna would make on the study
+    itself; only the finished trial reaches the journal. An interrupt or a kill at any
+    moment thus leaves either no trial ``number`` (the next session draws it again, the
+    same) or the whole trial (run again with its parameters), never a half-drawn one."""
+    import optuna
+    from optuna.storages import InMemoryStorage
+
+    earlier = [t for t in storage.get_all_trials(study_id, deepcopy=False) if t.number < number]
+    if len(earlier) != number:
+        raise RuntimeError(f"trial {number} asked with {len(earlier)} trials before it")
+    scratch = optuna.create_study(storage=InMemoryStorage(), direction="minimize",
+                                  sampler=_sampler(settings, number))
+    scratch.add_trials(earlier)
+    trial = scratch.ask()
+    if trial.number != number:
+        raise RuntimeError(f"trial {number} drawn as number {trial.number}")
+    trial.set_user_attr("sampler_seed", trial_seed(settings.seed, number))
+    params = suggest(trial, space)
+    storage.create_new_trial(study_id, template_trial=scratch.trials[number])
+    return params
 
 
 def _check_params(settings: TuneSettings, params: Mapping[str, Any]) -> str:
@@ -400,10 +463,22 @@ def tune_tracker(settings: TuneSettings, out_dir: str | Path, *,
         if not running and n >= settings.trials and not need_default:
             break
         batch: list[tuple[int, dict[str, Any]]] = []
+
+        def admit(batch: list, number: int, params: dict[str, Any]) -> None:
+            """Into the batch, or failed at once if its parameters do not go together
+            (told before the next draw, which must see it failed)."""
+            problem = _check_params(settings, params)
+            if problem:
+                set_attr(number, "message", f"parameters refused: {problem}")
+                study.tell(number, state=TrialState.FAIL)
+                say(f"  {settings.name} trial {number}: failed: parameters refused: {problem}")
+            else:
+                batch.append((number, params))
+
         for t in running:  # left by an interrupt: run again with their parameters
             if set(t.params) == set(space):
-                batch.append((t.number, {k: space[k][0].parse(v) for k, v in t.params.items()}))
-            else:
+                admit(batch, t.number, {k: space[k][0].parse(v) for k, v in t.params.items()})
+            else:  # only a journal written before draws were atomic (_draw) holds these
                 set_attr(t.number, "message", "interrupted while its parameters were drawn")
                 study.tell(t.number, state=TrialState.FAIL)
         if running:
@@ -411,17 +486,7 @@ def tune_tracker(settings: TuneSettings, out_dir: str | Path, *,
         else:
             end = min((n // B + 1) * B, settings.trials) if n < settings.trials else n
         for number in range(n, end):
-            trial = _study_for_trial(settings, storage, number).ask()
-            assert trial.number == number, (trial.number, number)
-            trial.set_user_attr("sampler_seed", trial_seed(settings.seed, number))
-            params = suggest(trial, space)
-            problem = _check_params(settings, params)
-            if problem:
-                trial.set_user_attr("message", f"parameters refused: {problem}")
-                study.tell(number, state=TrialState.FAIL)
-                say(f"  {settings.name} trial {number}: failed: parameters refused: {problem}")
-                continue
-            batch.append((number, params))
+            admit(batch, number, _draw(settings, storage, study_id, number, space))
         specs = {number: settings.spec(params) for number, params in batch}
         jobs: dict[str, Job] = {}
         for spec in [*specs.values(), *([default_spec] if need_default else [])]:
@@ -433,9 +498,9 @@ def tune_tracker(settings: TuneSettings, out_dir: str | Path, *,
                       resume=True, c=settings.c, p=settings.p, extend=True, **options)
         if need_default:
             value, per_sc, msg = objective_value(results, default_spec.label, settings)
-            study.set_user_attr("default_value", value)
             study.set_user_attr("default_per_scenario", per_sc)
             study.set_user_attr("default_message", msg)
+            study.set_user_attr("default_value", value)  # last: it marks the three written
             say(f"  {settings.name} defaults: "
                 + (f"{settings.objective} {value:.4f}" if value is not None else f"failed: {msg}"))
         for number, _ in batch:
@@ -584,10 +649,12 @@ def run_tune(settings: Sequence[TuneSettings], out_dir: str | Path, *,
              tuned_dir: str | Path | None = None, workers: int | None = None,
              resume: bool = False, progress: bool = True,
              executor_options: Mapping[str, Any] | None = None,
-             argv: Sequence[str] | None = None) -> TuneOutput:
+             argv: Sequence[str] | None = None,
+             run_timeout: float | None = None) -> TuneOutput:
     """Tune each tracker in turn (:func:`tune_tracker`) into ``out_dir``, with a
     ``manifest.json`` (status ``running``, then ``finished``/``interrupted``/``failed``)
-    and, at the end, ``results.parquet`` holding every run of every study."""
+    and, at the end, ``results.parquet`` holding every run of every study. A run past
+    ``run_timeout`` seconds (None: the app's default) is ended: its trial fails."""
     t0 = time.perf_counter()
     started = datetime.now(UTC)
     workers = workers or os.cpu_count() or 1
@@ -625,9 +692,10 @@ def run_tune(settings: Sequence[TuneSettings], out_dir: str | Path, *,
     done: list[TuneResult] = []
     try:
         for s in settings:
+            options = {**(executor_options or {}),
+                       **({"run_timeout": run_timeout} if run_timeout is not None else {})}
             res = tune_tracker(s, out, tuned_dir=tuned_dir, workers=workers, resume=resume,
-                               progress=progress, executor_options=executor_options,
-                               argv=command)
+                               progress=progress, executor_options=options, argv=command)
             done.append(res)
             manifest["trackers"][s.name]["tuned_file"] = (str(res.tuned_file)
                                                           if res.tuned_file else None)
