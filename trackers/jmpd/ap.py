@@ -316,9 +316,9 @@ class JMPDAPTracker(Tracker):
             self.vel[:n_start, :len(declared)] = back[:, [1, 3]]
             self.vvar[:n_start, :len(declared)] = self._q22
             self.valid[:n_start, :len(declared)] = True
-        # undetected targets (module docstring, 6): the initial ones, n0 p_s^(k+1) alive
-        # less the particle's targets, spread over the cells in proportion to v (v <- v
-        # (1 - p_d) per look); and the arrivals' intensity u, kept lazily as the value at
+        # undetected targets (module docstring, 6): the initial ones (r_i below, or n0 less
+        # the particle's targets where none can die), spread over the cells in proportion
+        # to v (v <- v l(0) per look); and the arrivals' intensity u, kept lazily as the value at
         # each cell's last look and its step; all three in a CellTable (one default value
         # per column, and the values of the cells looked at so far)
         self._n0 = float(bd.initial_count_mean)
