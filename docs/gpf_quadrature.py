@@ -1,5 +1,5 @@
 """Error of the truncated-moment quadrature by Gauss-Legendre order and difficulty
-(docs/gpf.md section 10): the table behind ``_GL_ORDERS`` in trackers/gpf_grid.py.
+(docs/gpf.md section 10): the table behind ``_GL_ORDERS`` in trackers/gpf/grid.py.
 
     .venv/bin/python docs/gpf_quadrature.py [--n 200000]
 
@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from mttbench.trackers import gpf_grid
+from mttbench.trackers.gpf import grid as gpf_grid
 
 BINS = (0.0, 0.5, 1.0, 2.0, 3.0, 4.0, 6.0, 8.0)
 EDGES = list(zip(BINS[:-1], BINS[1:], strict=True))

@@ -22,7 +22,7 @@ from mttbench.scenarios.model import (
 from mttbench.scenarios.simulator import simulate
 from mttbench.trackers.cells import gaussian_cell_mass
 from mttbench.trackers.gpf import DEFAULT_DEATH_FLOOR, EmptyPriorGPF, merge_particles
-from mttbench.trackers.gpf_grid import fold_into_workspace
+from mttbench.trackers.gpf.grid import fold_into_workspace
 
 #: round-off only (a few products and sums of O(1) numbers)
 EXACT = 1e-12

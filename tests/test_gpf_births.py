@@ -1,6 +1,6 @@
 """GPF births from the undetected-target field, against hand computations on tiny grids.
 
-The rule (trackers/gpf.py, "Births and the initial prior"; trackers/gpf_grid.py, last
+The rule (trackers/gpf/tracker.py, "Births and the initial prior"; trackers/gpf/grid.py, last
 paragraph): each looked cell with field value ``u_c > 0`` adds a birth candidate, a
 Bernoulli of weight ``u_c`` uniform on the cell; in a cell that returned a detection the
 candidate always joins the cluster of the particles that occupy the cell, so that a return
@@ -64,7 +64,7 @@ def _joint_posterior(priors: list[dict[str, float]], returns: list[bool], epsilo
     ``priors[i]`` maps the options ``"absent"``, ``"cell"`` (the looked cell, which
     returned a detection) and ``"elsewhere"`` to their prior probabilities; the likelihood
     of a joint choice is ``l(T)`` with ``T`` the number in the looked cell. The cut acts on
-    the joint choices' posterior (trackers/gpf_grid.py, "missed cells"): those with
+    the joint choices' posterior (trackers/gpf/grid.py, "missed cells"): those with
     posterior ``<= epsilon`` are dropped and the rest renormalised."""
     weights, present = [], []
     for choice in itertools.product(*[list(p.items()) for p in priors]):

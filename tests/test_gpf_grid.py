@@ -17,8 +17,8 @@ from scipy import integrate
 from scipy.stats import multivariate_normal
 
 from mttbench.scenarios.model import Grid, RayleighGridSensor
-from mttbench.trackers import gpf_grid
-from mttbench.trackers.gpf_grid import grid_update, rect_position_moments
+from mttbench.trackers.gpf import grid as gpf_grid
+from mttbench.trackers.gpf.grid import grid_update, rect_position_moments
 
 GRID = Grid(6, 5, cell_size=1.0)
 SENSOR = RayleighGridSensor(p_d=0.5, snr=10.0, looks_per_step=10)
@@ -187,7 +187,7 @@ def _monte_carlo_two(w, means, covs, cells, returns, n, rng):
     """Posterior existence and mean-given-existence of two particles by importance sampling,
     under the update's likelihood: the looks at a cell that returned a detection see its
     count ``T`` (``l(T)``), those at a cell without one see each target as if it were
-    alone there (``l(1)`` per target in it; trackers/gpf_grid.py, "missed cells")."""
+    alone there (``l(1)`` per target in it; trackers/gpf/grid.py, "missed cells")."""
     exist = rng.random((n, 2)) < w
     pos = np.stack([rng.multivariate_normal(means[i][[0, 2]],
                                             covs[i][np.ix_([0, 2], [0, 2])], n)
@@ -238,7 +238,7 @@ def test_cluster_with_epsilon_reports_dropped_mass():
     """Dropped mass = brute-force sum of the joint choices' posterior at or below epsilon.
     The options of a member: absent, elsewhere, each detected cell, and its cells without a
     detection pooled into one (likelihood ``sum_c m_c l_c(1) / sum_c m_c``; trackers/
-    gpf_grid.py, "missed cells"); a joint choice weighs its prior times ``l_c(T_c)`` in each
+    gpf/grid.py, "missed cells"); a joint choice weighs its prior times ``l_c(T_c)`` in each
     detected cell, and of the choices that differ only by which members took which detected
     cells only the most probable is kept (JPDA*). The cut acts on the normalised posterior,
     so a member's "absent" survives however well its detected-cell option alone would
@@ -305,7 +305,7 @@ def test_cluster_components_equal_scipy_connected_components():
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from mttbench.trackers.gpf_grid import _components
+    from mttbench.trackers.gpf.grid import _components
 
     rng = np.random.default_rng(11)
     for _ in range(200):
@@ -321,7 +321,7 @@ def test_cluster_components_equal_scipy_connected_components():
 def test_small_clusters_listed_together_equal_one_at_a_time(eps):
     """The batched full listing of small clusters equals the per-cluster enumeration (with
     the JPDA* rule, cells 0-2 counting as detected)."""
-    from mttbench.trackers.gpf_grid import _cluster_posterior, _small_clusters_posterior
+    from mttbench.trackers.gpf.grid import _cluster_posterior, _small_clusters_posterior
 
     rng = np.random.default_rng(int(eps * 1000) + 5)
     sizes = [2, 3, 1, 4, 2]

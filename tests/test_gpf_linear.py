@@ -18,7 +18,7 @@ from scipy.stats import multivariate_normal
 from mttbench import scenarios
 from mttbench.scenarios.model import Grid, Looks
 from mttbench.trackers.gpf import EmptyPriorGPF
-from mttbench.trackers.gpf_linear import enumerate_combinations, superposition_update
+from mttbench.trackers.gpf.linear import enumerate_combinations, superposition_update
 
 TOL = dict(rtol=1e-10, atol=1e-10)
 

@@ -25,7 +25,7 @@ from mttbench.trackers.gpf import (
     GaussianParticleFilter,
     truncate_to_workspace,
 )
-from mttbench.trackers.gpf_grid import fold_into_workspace
+from mttbench.trackers.gpf.grid import fold_into_workspace
 
 N_MC = 400_000
 W, H = 12.0, 12.0

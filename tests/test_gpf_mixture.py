@@ -25,9 +25,9 @@ from mttbench.scenarios.model import (
     RayleighGridSensor,
     TrackingModel,
 )
-from mttbench.trackers import gpf
 from mttbench.trackers.gpf import collapse, condition_on_count_bound, merge_particles
-from mttbench.trackers.gpf_grid import grid_update
+from mttbench.trackers.gpf import tracker as gpf
+from mttbench.trackers.gpf.grid import grid_update
 
 GRID = Grid(6, 5, cell_size=1.0)
 SENSOR = RayleighGridSensor(p_d=0.5, snr=10.0, looks_per_step=10)

@@ -18,8 +18,9 @@ from mttbench.benchmarks.engine.loop import play
 from mttbench.benchmarks.engine.policies import AllCells
 from mttbench.benchmarks.engine.specs import TrackerSpec
 from mttbench.scenarios.model import Grid
-from mttbench.trackers import cell_evidence, cells, gpf_grid, grid_backend
+from mttbench.trackers import cell_evidence, cells, grid_backend
 from mttbench.trackers.cells import CellField
+from mttbench.trackers.gpf import grid as gpf_grid
 from mttbench.trackers.jmpd import use_backend
 from mttbench.trackers.pmb import ppp
 

@@ -27,7 +27,7 @@ from mttbench.scenarios.model import (
 from mttbench.testing import check_tracker
 from mttbench.trackers import make
 from mttbench.trackers.gpf import collapse
-from mttbench.trackers.gpf_grid import known_existence_update
+from mttbench.trackers.gpf.grid import known_existence_update
 from mttbench.trackers.pmb import PMBTracker, cell_ratios, pmb_update
 from mttbench.trackers.pmb.tracker import COMPONENT_FLOOR, reduce_rows
 

@@ -42,7 +42,7 @@ from mttbench.trackers.cells import (
     gaussian_cell_mass_sparse,
     poisson_binomial,
 )
-from mttbench.trackers.gpf_grid import reflection_images
+from mttbench.trackers.gpf.grid import reflection_images
 
 #: most mass a Gaussian loses outside its 6-sd box: 2 Phi(-6) per axis
 TAIL = 4e-9
@@ -325,7 +325,7 @@ def _stonesoup():
 
 def test_ss_gnn_counts_equal_the_dense_computation(monkeypatch):
     _stonesoup()
-    from mttbench.trackers.stonesoup_peers import track_key
+    from mttbench.trackers.stonesoup.peers import track_key
 
     sc = _scenario("births", 30)
     tr = trackers.make("ss-gnn")
@@ -344,7 +344,7 @@ def test_ss_gmphd_counts_equal_the_dense_computation():
     """Poisson of the components' predicted intensity per cell: the former matrix product
     summed in another order, so equal to round-off."""
     _stonesoup()
-    from mttbench.trackers.stonesoup_peers import poisson_counts
+    from mttbench.trackers.stonesoup.peers import poisson_counts
 
     sc = _scenario("births", 30)
     tr = trackers.make("ss-gmphd")

@@ -1,4 +1,4 @@
-"""``ss-jpda`` (trackers/stonesoup_jpda.py): Stone Soup's JPDA with EHM, tracks by
+"""``ss-jpda`` (trackers/stonesoup/jpda.py): Stone Soup's JPDA with EHM, tracks by
 existence from the model.
 
 * The conformance kit (:func:`mttbench.testing.check_tracker`), one item per check.
@@ -32,7 +32,7 @@ from mttbench.benchmarks.engine.loop import play
 from mttbench.benchmarks.engine.specs import TrackerSpec, resolve_scenarios
 from mttbench.scenarios.model import Looks
 from mttbench.scenarios.spec import get as get_scenario
-from mttbench.trackers.stonesoup_jpda import StoneSoupJPDA
+from mttbench.trackers.stonesoup.jpda import StoneSoupJPDA
 
 pytest.importorskip("stonesoup", minversion="1.9",
                     reason="needs the stonesoup extra: pip install 'mttbench[stonesoup]'")

@@ -12,7 +12,7 @@ from scipy.stats import multivariate_normal
 from mttbench import trackers
 from mttbench.scenarios.model import Looks
 from mttbench.scenarios.spec import get as get_scenario
-from mttbench.trackers import stonesoup_peers as sp
+from mttbench.trackers.stonesoup import peers as sp
 
 pytestmark = pytest.mark.skipif(sp.missing_extra() is not None, reason="needs stonesoup")
 

@@ -1,4 +1,4 @@
-"""Stone Soup's trackers as peers (``ss-gnn``, ``ss-gmphd``; trackers/stonesoup_peers.py).
+"""Stone Soup's trackers as peers (``ss-gnn``, ``ss-gmphd``; trackers/stonesoup/peers.py).
 
 * The conformance kit runs on both peers in tests/test_conformance.py (it takes every
   registered tracker); here: they are registered and skip no check but the ones they
@@ -33,7 +33,7 @@ from mttbench.benchmarks.engine.specs import TrackerSpec
 from mttbench.scenarios.envelope import get_point
 from mttbench.scenarios.model import Dynamics, Looks
 from mttbench.scenarios.spec import get as get_scenario
-from mttbench.trackers import stonesoup_peers as sp
+from mttbench.trackers.stonesoup import peers as sp
 
 PEERS = ("ss-gnn", "ss-gmphd", "ss-jpda")
 
@@ -154,7 +154,7 @@ def test_the_module_imports_without_stonesoup():
         import sys
         sys.modules["stonesoup"] = None
         from mttbench import trackers
-        from mttbench.trackers import stonesoup_peers as sp
+        from mttbench.trackers.stonesoup import peers as sp
         assert "ss-gnn" in trackers.available() and "ss-gmphd" in trackers.available()
         assert sp.missing_extra() == sp.EXTRA_HINT
         for cls in (sp.StoneSoupGNN, sp.StoneSoupGMPHD):

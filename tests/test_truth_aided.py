@@ -17,7 +17,7 @@ from mttbench.benchmarks.engine.specs import PolicySpec, TrackerSpec
 from mttbench.scenarios.model import Grid, RayleighGridSensor
 from mttbench.testing import check_tracker
 from mttbench.trackers import make
-from mttbench.trackers.gpf_grid import fold_into_workspace, known_existence_update
+from mttbench.trackers.gpf.grid import fold_into_workspace, known_existence_update
 from mttbench.trackers.kfnn import KFNNTracker
 from mttbench.trackers.truth_aided import TruthAidedTracker
 

@@ -5,7 +5,7 @@ register through the entry-point group ``mttbench.trackers`` (loaded on the firs
 of the registry), or are named by class path, ``package.module:ClassName``.
 """
 
-from . import gpf, grid_bayes, jmpd, kfnn, null, pmb, stonesoup_jpda, stonesoup_peers, truth_aided  # noqa: F401  (importing registers them)
+from . import gpf, grid_bayes, jmpd, kfnn, null, pmb, stonesoup, truth_aided  # noqa: F401  (importing registers them)
 from .base import (
     Estimate,
     Tracker,

@@ -73,7 +73,7 @@ TARGET_S = 2e-4
 LOOKED_CELL_BYTES = 128
 #: per cell looked at so far and step (the undetected field's update)
 LOOKED_CELL_S = 1e-8
-#: per (Gaussian, looked cell) pair of the grid update (``gpf_grid``, gpf and
+#: per (Gaussian, looked cell) pair of the grid update (``gpf.grid``, gpf and
 #: truth-aided): its quadrature's temporaries (16 arrays of up to 24 nodes) and moments
 PAIR_BYTES = 3072
 #: per (Gaussian, looked cell) pair: its truncated moments (gpf on ``large``: 3-5 ms for

@@ -1,5 +1,5 @@
 """Which form of the grid arithmetic runs: the numba kernels (:mod:`.grid_kernels`) or
-the numpy forms (:mod:`.gpf_grid`, :mod:`.cells`, :mod:`.cell_evidence`).
+the numpy forms (:mod:`.gpf.grid`, :mod:`.cells`, :mod:`.cell_evidence`).
 
 One switch with the JMPD's (:mod:`.jmpd.backend`): numba installed, the environment
 variable ``MTTBENCH_NO_NUMBA`` unset (or ``0``) and :func:`.jmpd.backend.use_backend`

@@ -1,5 +1,5 @@
 """Compiled (numba) kernels of the grid arithmetic (GPF, pmb, the cell-evidence trackers),
-each equal bit for bit to the numpy form it replaces (:mod:`.gpf_grid`, :mod:`.cells`,
+each equal bit for bit to the numpy form it replaces (:mod:`.gpf.grid`, :mod:`.cells`,
 :mod:`.cell_evidence`).
 
 Why: a GPF step on a small grid is a few hundred numpy calls on arrays of a few dozen
@@ -120,7 +120,7 @@ def rect_position_moments(mean_xy: np.ndarray, cov_xy: np.ndarray, x0: np.ndarra
                           bounds: np.ndarray, n_nodes: np.ndarray, first: np.ndarray,
                           nodes: np.ndarray, weights: np.ndarray
                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`.gpf_grid.rect_position_moments` (and its ``_gl_moments``), one pass per
+    """:func:`.gpf.grid.rect_position_moments` (and its ``_gl_moments``), one pass per
     pair. The Gauss-Legendre rules: ``bounds (G,)`` difficulty bounds, rule ``g`` with
     ``n_nodes[g]`` nodes at ``nodes[first[g]:]``, ``weights`` alike."""
     n = mean_xy.shape[0]

@@ -64,7 +64,7 @@ Track score (sequential probability ratio test; Blackman and Popoli 1999, ch. 6.
     before the step's looks (below) plus, on a model without arrivals, the share of its
     expected count ``E[N_k] = p_s^k n0`` that neither the tracks (``sum r``) nor the
     intensity holds, ``max(0, E[N_k] - sum r - sum lambda) / n`` (the rule of the Stone
-    Soup peers, :mod:`~mttbench.trackers.stonesoup_peers`). At the first step this is
+    Soup peers, :mod:`~mttbench.trackers.stonesoup.peers`). At the first step this is
     Blackman's prior of the model's density per cell; where the looks have since found
     nothing, or a track holds the target, a detection is most likely clutter and starts
     less likely (docs/kfnn.md). ``sigmoid(L0 + L)`` is the posterior probability that the

@@ -52,7 +52,7 @@ posterior of the prior ``N(m, P)`` is::
 
 a mixture, over the looked cells and "the rest of W", of the Gaussian truncated to each
 (weights ``mass_c Lambda_c`` and ``mass_W - sum_c mass_c``). With the centred moments of
-the Gaussian on a rectangle ``R`` (:func:`~mttbench.trackers.gpf_grid.rect_state_moments`:
+the Gaussian on a rectangle ``R`` (:func:`~mttbench.trackers.gpf.grid.rect_state_moments`:
 ``mass_R``, ``M1_R = int_R (x - m) N``, ``M2_R = int_R (x - m)(x - m)^T N``, position and
 velocity jointly)::
 
@@ -88,7 +88,7 @@ of its mass left out) renormalised to ``W``; a known but not yet detected target
 more". It is a :class:`~mttbench.trackers.cells.CellCounts`: rows of their own in the
 targets' boxes, one default row (the not yet detected targets only) everywhere else.
 Nothing in a step costs ``O(cells)``: the filters' update works on the looked cells near
-each target (:func:`~mttbench.trackers.gpf_grid.known_existence_update`).
+each target (:func:`~mttbench.trackers.gpf.grid.known_existence_update`).
 
 Superposition sensor: not supported (the linear update with a known count would need
 the targets' joint covariance; this reference is for the grid sensor).
@@ -117,7 +117,7 @@ from .base import (
     register,
 )
 from .cells import CellCounts, bernoulli_cell_counts, gaussian_cell_mass_sparse
-from .gpf_grid import known_existence_update, reflection_images
+from .gpf.grid import known_existence_update, reflection_images
 from .params import Param
 
 #: count columns of P_c: 0, 1, 2 and "3 or more"

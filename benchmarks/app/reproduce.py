@@ -183,7 +183,7 @@ DEPARTURES = [
     "(z = mean of the targets' positions + Gaussian noise); Section V simulates Kreucher's "
     "Rayleigh grid sensor with binary returns. The figures come from Section V, so we run the "
     "grid sensor, where the GPF updates each Gaussian by the moment match of its truncation "
-    "to the looked-at cells (trackers/gpf_grid.py); the superposition sensor has its own preset.",
+    "to the looked-at cells (trackers/gpf/grid.py); the superposition sensor has its own preset.",
     "Q literal against sensible. The paper copies Q = diag(20, 0.2, 20, 0.2) from Kreucher "
     "et al.; on 1x1 cells that is a jump of about 4.5 cells per step, so no tracker can follow "
     "a target from step to step. The `paper` preset keeps it literally; `default` uses a "
@@ -198,7 +198,7 @@ DEPARTURES = [
     "combinations in which it exists (dropping cross-particle correlation).",
     "Typos in the equations. The combination weight is printed with ||Sigma^-1|| and without "
     "the 1/2 in the exponent, and the covariance update has 1/n where 1/n^2 belongs; we use "
-    "the Gaussian density and the derivation's result (trackers/gpf_linear.py).",
+    "the Gaussian density and the derivation's result (trackers/gpf/linear.py).",
     "Cell selection. The paper's alpha-divergence information value is computed on the joint "
     "density; we score each cell by the expected Renyi gain (alpha = 0.5) of its predicted "
     "count distribution P_c(t) and add gains over cells (benchmarks/engine/information.py), so "

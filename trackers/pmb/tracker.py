@@ -18,9 +18,9 @@ Step:
 
 * **predict**: ``m <- F m``, ``P <- F P F^T + Q``, ``r <- p r`` with ``p = min(p_s, 1 -
   death_probability)``; walls as the truth: "reflect" folds the Gaussian back into the
-  workspace (:func:`~mttbench.trackers.gpf_grid.fold_into_workspace`), "die" truncates it
+  workspace (:func:`~mttbench.trackers.gpf.grid.fold_into_workspace`), "die" truncates it
   to the workspace and multiplies ``r`` by the mass inside
-  (:func:`~mttbench.trackers.gpf.truncate_to_workspace`). The PPP:
+  (:func:`~mttbench.trackers.gpf.tracker.truncate_to_workspace`). The PPP:
   ``lambda <- p_s lambda + birth_rate / n_cells``.
 * **update** (:func:`.update.pmb_update`): the association marginals over (tracks,
   cells with a detection) by LBP per connected cluster, the marginal multi-Bernoulli
@@ -91,8 +91,8 @@ from ..cells import (
     gaussian_cell_mass_sparse,
     untracked_probabilities,
 )
-from ..gpf import collapse, merge_groups, truncate_to_workspace
-from ..gpf_grid import fold_into_workspace
+from ..gpf.grid import fold_into_workspace
+from ..gpf.tracker import collapse, merge_groups, truncate_to_workspace
 from ..grid_backend import compiled_grid_kernels
 from ..params import Budget, Param, Search
 from .ppp import add_intensity, predict_intensity, recycle
@@ -307,7 +307,7 @@ class PMBTracker(Tracker):
 
     def _merge(self) -> None:
         """Tracks whose moment-matched Gaussians are closer than ``merge_threshold``
-        (squared Mahalanobis, :func:`~mttbench.trackers.gpf.merge_groups`, greedily from
+        (squared Mahalanobis, :func:`~mttbench.trackers.gpf.tracker.merge_groups`, greedily from
         the most likely) become one Bernoulli: existence ``min(1, sum r)``, the members'
         rows with weights ``r_i a_r`` (renormalised), the label of the most likely member;
         then the mixture is bounded again (:func:`reduce_rows`)."""

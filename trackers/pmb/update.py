@@ -20,7 +20,7 @@ two add up to the exact ``L_c = S_c + M_c``.
 
 Bernoulli ``i`` (existence ``r_i``, Gaussian ``N(m_i, P_i)``), with ``m_ic`` its mass in
 looked cell ``c`` (cells within 6 marginal sd of the mean;
-:func:`~mttbench.trackers.gpf_grid.rect_state_moments`) and ``m_i,out = 1 - sum_c m_ic``::
+:func:`~mttbench.trackers.gpf.grid.rect_state_moments`) and ``m_i,out = 1 - sum_c m_ic``::
 
     Q_i  = m_i,out + sum_c m_ic M_c                     (present, source of nothing)
     w_i0 = 1 - r_i + r_i Q_i                            (a_i = 0)
@@ -42,7 +42,7 @@ belief propagation (:mod:`.lbp`). The marginal multi-Bernoulli update is then (W
   truncated to cell ``j`` with weight ``P(a_i = j)``. A track's density is itself a
   Gaussian mixture (rows ``alpha_r N_r``): each row gives one posterior row per hypothesis
   (Williams' Bernoulli mixture), moment matched within the row (the truncation and moment
-  match of :func:`~mttbench.trackers.gpf_grid.known_existence_update`: sums of the
+  match of :func:`~mttbench.trackers.gpf.grid.known_existence_update`: sums of the
   rectangles' ``(mass, M1, M2)`` from the shared ``rect_state_moments``). The tracker then
   merges the rows of one track that truncate to the same cell, drops rows below a weight
   floor and moment-matches the lightest beyond ``max_components`` into one (the deviation
@@ -69,7 +69,7 @@ import numpy as np
 
 from ...scenarios.model import Grid, RayleighGridSensor
 from ..cells import look_log_ratios
-from ..gpf_grid import rect_state_moments
+from ..gpf.grid import rect_state_moments
 from ..grid_backend import looked_in_boxes
 from .lbp import Marginals, association_marginals
 

@@ -10,7 +10,7 @@ On the grid sensor a particle ("track") may carry a mixture of up to ``max_compo
 Gaussians (a Bernoulli with a Gaussian-mixture density, as in multi-Bernoulli filters; a
 deviation from the paper, whose particle is one Gaussian, ``max_components=1``): a
 detection a broad track may have made splits off as a component (``split_share``,
-:func:`.gpf_grid.grid_update`) instead of being blended with the rest into a broader
+:func:`.grid.grid_update`) instead of being blended with the rest into a broader
 Gaussian, while the track keeps one existence probability. Each component is predicted
 like a particle; within a track components merge by the Bhattacharyya rule below, those
 below ``_COMPONENT_FLOOR`` go, and beyond ``max_components`` the lightest are moment
@@ -24,7 +24,7 @@ Step (the harness calls predict, then update, then estimate):
 * **Predict**: ``mu <- F mu``, ``Sigma <- F Sigma F^T + Q``, ``w <- p w`` with the survival
   ``p = min(p_s, 1 - death_probability)``. No probability stays outside the workspace:
   under "reflect" the mass beyond a wall is mirrored back (position and that axis's
-  velocity; :func:`.gpf_grid.fold_into_workspace`, the Gaussian's reflection images
+  velocity; :func:`.grid.fold_into_workspace`, the Gaussian's reflection images
   restricted to the workspace, moment matched), under "die" ``w`` is multiplied by the
   mass inside and the Gaussian becomes its truncation to the workspace
   (:func:`truncate_to_workspace`). So a broad Gaussian pays, in the grid update, for the
@@ -40,14 +40,14 @@ Step (the harness calls predict, then update, then estimate):
   moves ``f sum w`` of existence into the undetected field (count bound, below), from
   which any detection no track holds starts a track at ``w ~ 1`` (``u l(1) >> 1`` at low
   ``p_f``); at density that is a stream of extra tracks (docs/gpf.md section 13).
-* **Update**: :mod:`trackers.gpf_linear` (superposition: the paper's combinations ``E`` and
-  appendix gain, moment-matched fold-back) or :mod:`trackers.gpf_grid` (grid: truncated
+* **Update**: :mod:`trackers.gpf.linear` (superposition: the paper's combinations ``E`` and
+  appendix gain, moment-matched fold-back) or :mod:`trackers.gpf.grid` (grid: truncated
   Gaussians, exact Bernoulli weights, combinations per cluster of tracks sharing a
   detected cell, each member's looked cells without a detection pooled into one option,
   JPDA* against coalescence).
 * **Combinations**: as in the paper, cut on their probability ``<= epsilon``, at most
   ``max_combinations`` (the most probable) kept, renormalised; on the grid the cut acts
-  on the combinations' posterior (:mod:`.gpf_grid`, "missed cells"; a deviation: the
+  on the combinations' posterior (:mod:`.grid`, "missed cells"; a deviation: the
   paper cuts on the prior), and a track joins a detected cell's cluster when its
   probability of being in the cell, prior ``w m_c`` or updated alone ``w m_c l_c / (w L
   + 1 - w)``, exceeds ``INTERACTION_THRESHOLD`` (the second: at very low ``p_f`` a track
@@ -113,9 +113,9 @@ from typing import ClassVar
 import numpy as np
 from scipy.special import ndtr
 
-from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
-from . import kalman
-from .base import (
+from ...scenarios.model import Looks, RayleighGridSensor, TrackingModel
+from .. import kalman
+from ..base import (
     BOX_CELLS,
     LOOKED_CELL_BYTES,
     LOOKED_CELL_S,
@@ -129,22 +129,22 @@ from .base import (
     param_number,
     register,
 )
-from .cells import (
+from ..cells import (
     CellCounts,
     CellField,
     bernoulli_cell_counts,
     gaussian_cell_mass_sparse,
 )
-from .gpf_grid import fold_into_workspace, grid_update, rect_state_moments
-from .gpf_linear import superposition_update
-from .grid_backend import compiled_grid_kernels
-from .params import Budget, Param, Search
+from ..grid_backend import compiled_grid_kernels
+from ..params import Budget, Param, Search
+from .grid import fold_into_workspace, grid_update, rect_state_moments
+from .linear import superposition_update
 
 #: merged weight rules of :func:`merge_groups` (module docstring, "Merge")
 _MERGE_RULES = ("bounded_sum", "capped_sum")
 #: on the grid, a track joins the cluster of a detected cell when its probability of being
 #: in the cell, prior ``w m_c`` or updated alone, exceeds this (a birth candidate always
-#: joins); below it the two are updated apart (:func:`.gpf_grid.grid_update`)
+#: joins); below it the two are updated apart (:func:`.grid.grid_update`)
 INTERACTION_THRESHOLD = 1e-3
 #: slack on "the group's weight sum stays <= 1" (float round-off of weights that are 1)
 _SUM_TOL = 1e-9
@@ -324,7 +324,7 @@ def truncate_to_workspace(m: np.ndarray, P: np.ndarray, width: float, height: fl
                           tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each Gaussian restricted to the workspace ``[0, width) x [0, height)`` and moment
     matched (mean and covariance of the truncated density, velocities by regression on
-    position, :func:`.gpf_grid.rect_state_moments`). Returns ``mass (K,)`` (the Gaussian's
+    position, :func:`.grid.rect_state_moments`). Returns ``mass (K,)`` (the Gaussian's
     mass inside) and the new ``m``, ``P``; Gaussians with mass inside above ``1 - tol``
     are returned unchanged."""
     K = len(m)

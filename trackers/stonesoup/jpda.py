@@ -3,7 +3,7 @@
 by an existence probability computed from the model (JIPDA-style track management).
 
 An optional extra, as ``ss-gnn`` and ``ss-gmphd`` (:mod:`~mttbench.trackers.
-stonesoup_peers`, whose model conversion, detections, undetected intensity and
+stonesoup.peers`, whose model conversion, detections, undetected intensity and
 determinism measures it shares): Stone Soup is imported on the first :meth:`reset`.
 
 Stone Soup's components, unchanged
@@ -24,7 +24,7 @@ Per-track hypothesiser (the detection probability of a track)
     ``P_G`` chi-square gate dropped). The adapter gives each track its own hypothesiser with
     ``P_D = r sum_c q_c (1 - (1 - p)^n_c)``, ``p = (p_d - p_f) / (1 - p_f)`` the cell
     sensor's detection of a target beside independent clutter (:func:`~mttbench.trackers.
-    stonesoup_peers.target_detection_probability`): ``q_c`` the predicted position Gaussian's
+    stonesoup.peers.target_detection_probability`): ``q_c`` the predicted position Gaussian's
     mass in looked cell ``c`` (within 6 sd), ``n_c`` the looks at it this step, ``r`` the
     track's existence probability. With that ``P_D`` the joint association weights that
     JPDA's EHM marginalises are JIPDA's (Musicki & Evans, "Joint integrated probabilistic
@@ -118,20 +118,20 @@ from typing import Any, ClassVar
 import numpy as np
 from scipy.stats import chi2
 
-from ..scenarios.model import Looks, TrackingModel
-from . import kalman
-from .base import LOOKED_CELL_BYTES, LOOKED_CELL_S, Estimate, ResourceTerms, register
-from .cell_evidence import look_ratios
-from .cells import (
+from ...scenarios.model import Looks, TrackingModel
+from .. import kalman
+from ..base import LOOKED_CELL_BYTES, LOOKED_CELL_S, Estimate, ResourceTerms, register
+from ..cell_evidence import look_ratios
+from ..cells import (
     CellCounts,
     CellField,
     bernoulli_cell_counts,
     gaussian_cell_mass_sparse,
     untracked_probabilities,
 )
-from .params import Budget, Param, Search
-from .pmb.ppp import add_intensity
-from .stonesoup_peers import (
+from ..params import Budget, Param, Search
+from ..pmb.ppp import add_intensity
+from .peers import (
     N_COUNTS,
     _mean_cov,
     _StoneSoupPeer,

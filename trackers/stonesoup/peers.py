@@ -169,9 +169,9 @@ import numpy as np
 from scipy.special import expit
 from scipy.stats import poisson
 
-from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
-from . import kalman
-from .base import (
+from ...scenarios.model import Looks, RayleighGridSensor, TrackingModel
+from .. import kalman
+from ..base import (
     BOX_CELLS,
     LOOKED_CELL_BYTES,
     LOOKED_CELL_S,
@@ -182,22 +182,22 @@ from .base import (
     param_number,
     register,
 )
-from .cell_evidence import (
+from ..cell_evidence import (
     cell_evidence,
     drop_raise,
     look_ratios,
     looked_log_ratios,
     target_prior_logodds,
 )
-from .cells import (
+from ..cells import (
     CellCounts,
     CellField,
     bernoulli_cell_counts,
     gaussian_cell_mass_sparse,
     untracked_probabilities,
 )
-from .params import Budget, Param, Search
-from .pmb.ppp import recycle
+from ..params import Budget, Param, Search
+from ..pmb.ppp import recycle
 
 #: the one-line reason when Stone Soup is missing (run rows, ``mttbench trackers``)
 EXTRA_HINT = "needs the stonesoup extra: pip install 'mttbench[stonesoup]'"

@@ -86,11 +86,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtr
 
-from ..scenarios.model import Grid, RayleighGridSensor
-from . import kalman
-from .cells import look_log_ratios
-from .gpf_linear import enumerate_combinations
-from .grid_backend import compiled_grid_kernels, looked_in_boxes
+from ...scenarios.model import Grid, RayleighGridSensor
+from .. import kalman
+from ..cells import look_log_ratios
+from ..grid_backend import compiled_grid_kernels, looked_in_boxes
+from .linear import enumerate_combinations
 
 _RANGE_SIGMAS = 7.0
 _INV_SQRT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
