@@ -36,9 +36,10 @@ def coupled_slots(valid: np.ndarray) -> np.ndarray:
     dependent: ``|P(a b) - P(a) P(b)|`` above ``COUPLING_SHARE min(P(a), P(b))`` and above
     ``COUPLING_Z`` binomial standard errors ``sqrt(P(a) P(b) (1 - P(a) P(b)) / N)``, or
     held but never together (``P(a b) = 0``, however rare): above all two slots that hold
-    one target in different particles. Recombining such slots from different ancestors would give receivers both
-    or neither, a count the posterior does not have, so they are sampled as one cluster
-    (joint sampling is valid for any clusters; a needless link costs time only)."""
+    one target in different particles. Recombining such slots from different ancestors
+    would give receivers both or neither, a count the posterior does not have, so they
+    are sampled as one cluster (joint sampling is valid for any clusters; a needless link
+    costs time only)."""
     N = valid.shape[0]
     v = valid.astype(np.float32)
     joint = (v.T @ v).astype(np.float64) / N
