@@ -149,3 +149,19 @@ def test_every_tracker_runs_closed_loop_with_renyi(name, repeats):
         est = tracker.estimate()
         assert np.isfinite(est.count) and est.count >= 0
         assert np.all(np.isfinite(est.states))
+
+
+def test_raster_advances_its_look_budget_every_step_and_wraps():
+    """Raster on the 12x12 ``default`` grid (144 cells) with M = 50: step ``k`` looks at
+    cells ``50 k, ..., 50 k + 49`` mod 144, so step 2 wraps (100..143, then 0..5) and
+    step 3 starts at 6; every cell is looked at once in each 144 consecutive looks."""
+    pol = make_policy("raster")
+    pol.reset(MODEL, 50, np.random.default_rng(0))
+    n = MODEL.grid.n_cells
+    assert n == 144
+    looks = [pol.select(k) for k in range(4)]
+    for k, cells in enumerate(looks):
+        np.testing.assert_array_equal(cells, (50 * k + np.arange(50)) % n)
+    assert looks[3][0] == 6
+    first = np.concatenate(looks)[:144]
+    assert sorted(first.tolist()) == list(range(144))

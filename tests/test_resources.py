@@ -774,3 +774,20 @@ def test_every_sweep_of_the_app_has_a_run_timeout(monkeypatch, tmp_path):
     assert seen["run_timeout"] == max(60.0, 10.0 * slowest)
     progress.run_sweep(jobs, tmp_path, progress=False, run_timeout=7.5)
     assert seen["run_timeout"] == 7.5
+
+
+def test_default_run_timeout_is_ten_times_the_slowest_estimate_with_a_floor(monkeypatch):
+    """The default ``--run-timeout``: 10x the slowest run's estimated seconds, never below
+    60 s; a run with no estimate counts as 0 (the floor)."""
+    seconds = {"fast": 2.0, "slow": 30.0}
+
+    def fake_estimate(job):
+        if job == "broken":
+            raise ValueError("no estimate")
+        return type("Estimate", (), {"seconds": seconds[job]})()
+
+    monkeypatch.setattr(resources, "estimate_job", fake_estimate)
+    assert resources.default_run_timeout(["fast", "slow"]) == 300.0
+    assert resources.default_run_timeout(["fast"]) == 60.0
+    assert resources.default_run_timeout(["broken", "slow"]) == 300.0
+    assert resources.default_run_timeout([]) == 60.0
