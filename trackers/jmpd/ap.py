@@ -381,8 +381,9 @@ class JMPDAPTracker(Tracker):
         return pi_init, np.broadcast_to(pi_arr, pi_init.shape)
 
     def _miss_factor(self, n_looks: np.ndarray) -> np.ndarray:
-        """``l(0)^n = ((1 - p_d) / (1 - p_f))^n``: a target in a cell missed by each of its
-        ``n`` looks, relative to an empty cell."""
+        """``l(0)^n = ((1 - p_d) / (1 - p_f))^n`` (the sensor's likelihood ratio of a miss,
+        as a power: the stored references' numbers): a target in a cell missed by each of
+        its ``n`` looks, against an empty cell."""
         sensor = self._model.sensor
         return ((1.0 - sensor.p_d) / (1.0 - sensor.p_f)) ** n_looks
 
@@ -406,13 +407,14 @@ class JMPDAPTracker(Tracker):
             return np.zeros(self._N)
         missed = ~detected
         seen = float((v[missed] * (1.0 - self._miss_factor(n_looks[missed]))).sum()) / rest
+        seen = min(max(seen, 0.0), 1.0)
         remaining = self._remaining()
         n = np.ceil(remaining)
-        q = np.where(n > 0, remaining / np.maximum(n, 1.0), 0.0)
-        keep = 1.0 - q * min(max(seen, 0.0), 1.0)
-        if self._can_die:
-            self._r = n * np.where(keep > 0.0, (q - q * seen) / np.where(keep > 0.0, keep, 1.0),
-                                   0.0)
+        q = remaining / np.maximum(n, 1.0)
+        keep = 1.0 - q * seen
+        if self._can_die:  # q (1 - s) / keep; a target seen for sure (keep = 0) is gone
+            self._r = n * np.divide(q - q * seen, keep, out=np.zeros_like(q),
+                                    where=keep > 0.0)
         with np.errstate(divide="ignore"):
             return n * np.log(keep)
 
@@ -517,11 +519,11 @@ class JMPDAPTracker(Tracker):
 
         log_w = np.zeros(N)
         if clusters:
-            log_w += self._move_persistent(clusters, rhohat, psi, sd, index, table, beta)
+            moved, anc = self._move_persistent(clusters, rhohat, psi, sd, index, table, beta)
+            log_w += moved
             # the undetected initial targets go with the largest cluster's ancestor (all
             # of them when one cluster holds every target, as for a single target)
-            largest = int(np.argmax([len(c) for c in clusters]))
-            self._r = self._r[self._last_anc[:, largest]]
+            self._r = self._r[anc[:, int(np.argmax([len(c) for c in clusters]))]]
         log_w += self._births(centres, active, index, table)
         if len(looks):
             lc, n_looks = np.unique(np.asarray(looks.cells, dtype=np.int64),
@@ -683,7 +685,8 @@ class JMPDAPTracker(Tracker):
 
     def _move_persistent(self, clusters, rhohat, psi, sd, index, table, beta):
         """Steps 2-3 of the module docstring for every cluster at once, in place; returns
-        the per-particle ``-sum_l log pi_l(z | X_il)``."""
+        the per-particle ``-sum_l log pi_l(z | X_il)`` and the ancestors ``(N, clusters)``
+        each receiver took its clusters from."""
         if self._kernels is not None:
             return self._move_persistent_compiled(clusters, rhohat, psi, sd, index, table,
                                                   beta)
@@ -788,8 +791,7 @@ class JMPDAPTracker(Tracker):
         self.vvar[:, slots] = vvar + q22 - cross * gain
         self.valid[:, slots] = alive
         # the weight keeps p(z | X) / prod_l pi_l: nonzero only where clusters share a cell
-        self._last_anc = anc
-        return -log_pi[anc, np.arange(len(clusters))[None, :]].sum(axis=1)
+        return -log_pi[anc, np.arange(len(clusters))[None, :]].sum(axis=1), anc
 
     def _move_persistent_compiled(self, clusters, rhohat, psi, sd, index, table, beta):
         """:meth:`_move_persistent` by :func:`.ap_kernels.propose` and
@@ -844,8 +846,7 @@ class JMPDAPTracker(Tracker):
                 self.vel, self.vvar, self.pos, vel, vvar, self.valid)
         self._install("vel", vel)
         self._install("vvar", vvar)
-        self._last_anc = anc
-        return -log_pi[anc, np.arange(C)[None, :]].sum(axis=1)
+        return -log_pi[anc, np.arange(C)[None, :]].sum(axis=1), anc
 
     def _births(self, centres, active, index, table) -> np.ndarray:
         """Step 4 of the module docstring; returns the per-particle prior/proposal log
