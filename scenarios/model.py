@@ -193,15 +193,103 @@ class SuperpositionSensor:
 Sensor = RayleighGridSensor | SuperpositionSensor
 
 
+# ----------------------------------------------------------------------- visibility
+@dataclass(frozen=True)
+class Occlusion:
+    """Cells the sensor cannot look at during a range of steps.
+
+    The rectangle of columns ``x[0]..x[1]`` and rows ``y[0]..y[1]`` (cell indices,
+    inclusive) is blind during steps ``steps[0]..steps[1]`` (inclusive). With a
+    ``velocity`` ``(vx, vy)`` (cells per step, fractions allowed) it moves: at step ``k``
+    it is shifted by ``floor((vx, vy) * (k - steps[0]))`` whole cells and wraps around the
+    grid's edges (a blind band sweeping the grid; ``vx = 0.25`` moves it one cell every 4
+    steps). A cell ``(ix, iy)`` is blind at step ``k`` if, with ``t = k - k0``::
+
+        (ix - x0 - floor(vx t)) mod nx < x1 - x0 + 1
+        and (iy - y0 - floor(vy t)) mod ny < y1 - y0 + 1
+
+    (a static rectangle inside the grid: ``x0 <= ix <= x1`` and ``y0 <= iy <= y1``).
+    """
+
+    x: tuple[int, int]
+    y: tuple[int, int]
+    steps: tuple[int, int]
+    velocity: tuple[float, float] = (0.0, 0.0)
+
+    def active(self, k: int) -> bool:
+        return self.steps[0] <= k <= self.steps[1]
+
+    def origin(self, k: int, grid: Grid) -> tuple[int, int]:
+        """The rectangle's lower-left cell ``(ix, iy)`` at step ``k``, wrapped into the grid."""
+        t = k - self.steps[0]
+        return ((self.x[0] + math.floor(self.velocity[0] * t)) % grid.nx,
+                (self.y[0] + math.floor(self.velocity[1] * t)) % grid.ny)
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """Width and height in cells."""
+        return self.x[1] - self.x[0] + 1, self.y[1] - self.y[0] + 1
+
+
+@dataclass(frozen=True)
+class Visibility:
+    """Which cells can be looked at, step by step: none blind unless ``occlusions`` say so.
+
+    Every query costs ``O(blind cells)`` or ``O(cells asked about x active occlusions)``,
+    never ``O(grid)``: the occlusions are rectangles, not a per-cell map.
+    """
+
+    occlusions: tuple[Occlusion, ...] = ()
+
+    def active(self, k: int) -> tuple[Occlusion, ...]:
+        """The occlusions in force at step ``k``."""
+        return tuple(o for o in self.occlusions if o.active(k))
+
+    def blocked(self, k: int, grid: Grid) -> np.ndarray:
+        """Flat indices of the cells that cannot be looked at during step ``k``: sorted,
+        distinct, int64 (empty when nothing is blind)."""
+        parts = []
+        for o in self.active(k):
+            ox, oy = o.origin(k, grid)
+            w, h = o.size
+            ix = (ox + np.arange(w, dtype=np.int64)) % grid.nx
+            iy = (oy + np.arange(h, dtype=np.int64)) % grid.ny
+            parts.append((iy[:, None] * grid.nx + ix[None, :]).reshape(-1))
+        if not parts:
+            return np.zeros(0, dtype=np.int64)
+        return np.unique(np.concatenate(parts))
+
+    def is_blocked(self, k: int, cells: np.ndarray, grid: Grid) -> np.ndarray:
+        """Boolean mask ``(n,)``: which of the flat ``cells (n,)`` are blind at step ``k``."""
+        cells = np.asarray(cells, dtype=np.int64)
+        out = np.zeros(cells.shape, dtype=bool)
+        ix, iy = cells % grid.nx, cells // grid.nx
+        for o in self.active(k):
+            ox, oy = o.origin(k, grid)
+            w, h = o.size
+            out |= ((ix - ox) % grid.nx < w) & ((iy - oy) % grid.ny < h)
+        return out
+
+
 # ------------------------------------------------------------------ tracking model
 @dataclass(frozen=True)
 class TrackingModel:
-    """What a tracker is told about a scenario: the model, never the truth."""
+    """What a tracker is told about a scenario: the model, never the truth.
+
+    ``visibility`` says which cells the sensor cannot look at during which steps; a look
+    at a blind cell is not made (the harness drops it), so a tracker only ever sees
+    looks at visible cells."""
 
     grid: Grid
     dynamics: Dynamics
     birth_death: BirthDeath = field(default_factory=BirthDeath)
     sensor: Sensor = field(default_factory=RayleighGridSensor)
+    #: cells the grid sensor cannot look at, by step (none by default)
+    visibility: Visibility = field(default_factory=Visibility)
+
+    def blocked_cells(self, k: int) -> np.ndarray:
+        """Sorted flat cells ``(n,)`` int64 that cannot be looked at during step ``k``."""
+        return self.visibility.blocked(k, self.grid)
 
     @property
     def is_grid(self) -> bool:

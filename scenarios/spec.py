@@ -18,6 +18,13 @@ File layout (every key is checked; unknown keys are refused)::
                 boundary ("reflect" | "die")
     [sensor]    kind = "rayleigh": p_d, snr (linear) or snr_db, looks_per_step
                 kind = "superposition": h_matrix (m x 4), r_matrix (m x m)
+    [[occlusion]]  optional, any number (rayleigh sensor only): cells not to be looked at,
+                x = [first, last] columns, y = [first, last] rows (cell indices,
+                inclusive, inside the grid), steps = [first, last] (inclusive, 0-based,
+                < n_steps), velocity = [vx, vy] (cells per step, default [0, 0]:
+                a moving rectangle is shifted by whole cells, floor(v t) after t
+                steps, and wraps around the grid's edges; |vx| < nx, |vy| < ny);
+                see scenarios.model.Occlusion
 
 Files are UTF-8 (a byte-order mark is accepted), regular files of at most 1 MiB (a
 FIFO or a device is refused unopened). Beyond the per-field ranges, values whose
@@ -47,9 +54,11 @@ from .model import (
     BirthDeath,
     Dynamics,
     Grid,
+    Occlusion,
     RayleighGridSensor,
     SuperpositionSensor,
     TrackingModel,
+    Visibility,
 )
 
 #: the most cells of a grid (flat cell indices stay exact in int64 and float64)
@@ -134,7 +143,50 @@ def _psd(where: str, m: tuple[tuple[float, ...], ...]) -> None:
 
 
 # ------------------------------------------------------------------------ parsing
-_TOP = {"name", "description", "n_steps", "grid", "dynamics", "targets", "sensor"}
+_TOP = {"name", "description", "n_steps", "grid", "dynamics", "targets", "sensor",
+        "occlusion"}
+_OCCLUSION_KEYS = {"x", "y", "steps", "velocity"}
+
+
+def _index_pair(where: str, v: Any, upper: int, what: str) -> tuple[int, int]:
+    """``[first, last]``: two integers with ``0 <= first <= last < upper``."""
+    allowed = f"two {what} [first, last] with 0 <= first <= last < {upper}"
+    if (not isinstance(v, list) or len(v) != 2
+            or not all(isinstance(i, int) and not isinstance(i, bool) for i in v)
+            or not 0 <= v[0] <= v[1] < upper):
+        raise _fail(where, v, allowed)
+    return int(v[0]), int(v[1])
+
+
+def _occlusions(data: Any, grid: Grid, n_steps: int) -> tuple[Occlusion, ...]:
+    """The ``[[occlusion]]`` tables, each checked (see the module docstring)."""
+    if not isinstance(data, list):
+        raise ScenarioError(f"occlusion must be an array of tables ([[occlusion]]), got "
+                            f"{data!r}")
+    out = []
+    for i, o in enumerate(data, start=1):
+        where = f"[[occlusion]] #{i}"
+        if not isinstance(o, dict):
+            raise ScenarioError(f"{where} must be a table, got {o!r}")
+        unknown = set(o) - _OCCLUSION_KEYS
+        if unknown:
+            raise ScenarioError(f"unknown key(s) {sorted(unknown)} in {where}: allowed keys "
+                                f"are {sorted(_OCCLUSION_KEYS)}")
+        missing = {"x", "y", "steps"} - set(o)
+        if missing:
+            raise ScenarioError(f"missing field(s) {sorted(missing)} in {where}")
+        x = _index_pair(f"{where}.x", o["x"], grid.nx, "column indices")
+        y = _index_pair(f"{where}.y", o["y"], grid.ny, "row indices")
+        steps = _index_pair(f"{where}.steps", o["steps"], n_steps, "steps")
+        v = o.get("velocity", [0.0, 0.0])
+        if (not isinstance(v, list) or len(v) != 2
+                or not all(isinstance(i, int | float) and not isinstance(i, bool)
+                           and math.isfinite(i) for i in v)
+                or abs(v[0]) >= grid.nx or abs(v[1]) >= grid.ny):
+            raise _fail(f"{where}.velocity", v, f"two numbers [vx, vy] (cells per step) "
+                        f"with |vx| < {grid.nx} and |vy| < {grid.ny}")
+        out.append(Occlusion(x=x, y=y, steps=steps, velocity=(float(v[0]), float(v[1]))))
+    return tuple(out)
 
 
 def from_dict(data: dict, *, default_name: str | None = None) -> Scenario:
@@ -276,7 +328,14 @@ def from_dict(data: dict, *, default_name: str | None = None) -> Scenario:
     else:
         raise _fail("[sensor].kind", kind, 'one of "rayleigh", "superposition"')
 
-    model = TrackingModel(grid=grid, dynamics=dynamics, birth_death=birth, sensor=sensor)
+    occlusions: tuple[Occlusion, ...] = ()
+    if "occlusion" in data:
+        if kind != "rayleigh":
+            raise ScenarioError("[[occlusion]] applies to a rayleigh [sensor] only (the "
+                                "superposition sensor does not look at cells)")
+        occlusions = _occlusions(data["occlusion"], grid, n_steps)
+    model = TrackingModel(grid=grid, dynamics=dynamics, birth_death=birth, sensor=sensor,
+                          visibility=Visibility(occlusions))
     return Scenario(name=name, description=description, n_steps=n_steps, model=model)
 
 
@@ -295,8 +354,12 @@ def to_dict(sc: Scenario) -> dict:
     else:
         sensor = {"kind": "superposition", "h_matrix": [list(r) for r in m.sensor.h_matrix],
                   "r_matrix": [list(r) for r in m.sensor.r_matrix]}
-    return {"name": sc.name, "description": sc.description, "n_steps": sc.n_steps,
-            "grid": asdict(m.grid), "dynamics": dyn, "targets": targets, "sensor": sensor}
+    doc = {"name": sc.name, "description": sc.description, "n_steps": sc.n_steps,
+           "grid": asdict(m.grid), "dynamics": dyn, "targets": targets, "sensor": sensor}
+    if m.visibility.occlusions:  # absent when nothing is blind: older files stay as they were
+        doc["occlusion"] = [{"x": list(o.x), "y": list(o.y), "steps": list(o.steps),
+                             "velocity": list(o.velocity)} for o in m.visibility.occlusions]
+    return doc
 
 
 def loads(text: str, *, default_name: str | None = None) -> Scenario:

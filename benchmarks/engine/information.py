@@ -125,7 +125,8 @@ def greedy_looks(counts: np.ndarray | CellCounts, p_detect: np.ndarray, n_looks:
                  alpha: float = 0.5, repeats: bool = True,
                  rng: np.random.Generator | None = None,
                  tables: dict[int, np.ndarray] | None = None,
-                 dense_cells: int = DENSE_CELLS) -> np.ndarray:
+                 dense_cells: int = DENSE_CELLS, *, blocked: np.ndarray | None = None,
+                 weights: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Choose ``n_looks`` looks by expected gain; returns flat cells ``(L,)`` int64.
 
     ``counts`` is the dense ``(n_cells, n_counts)`` array or a :class:`CellCounts`. A
@@ -148,11 +149,21 @@ def greedy_looks(counts: np.ndarray | CellCounts, p_detect: np.ndarray, n_looks:
     gain (every count certain) spreads the looks over distinct cells. ``tables``
     optionally caches the binomial tables ``p(s|t)`` by ``n`` across calls with the
     same ``p_detect``.
+
+    ``blocked`` (sorted flat cells) cannot be looked at: they are never chosen, and
+    ``repeats=False`` takes ``min(n_looks, visible cells)`` cells. ``weights`` ``(cells
+    (n,), factors (n,) > 0)`` multiplies those cells' gains (every other cell: 1), so the
+    choice maximises ``w_c G_c(1)`` (``w_c (G_c(n_c + 1) - G_c(n_c))`` with repeats).
+    Neither given (or both empty): the choice above, bit for bit.
     """
     tables = {} if tables is None else tables
+    blocked = None if blocked is None or not len(blocked) else np.asarray(blocked, np.int64)
+    if weights is not None and not len(weights[0]):
+        weights = None
     if isinstance(counts, CellCounts):
         if counts.n_cells > dense_cells:
-            return greedy_looks_sparse(counts, p_detect, n_looks, alpha, repeats, rng, tables)
+            return greedy_looks_sparse(counts, p_detect, n_looks, alpha, repeats, rng, tables,
+                                       blocked=blocked, weights=weights)
         counts = counts.dense()
     pd = np.asarray(p_detect, dtype=float)
 
@@ -166,8 +177,23 @@ def greedy_looks(counts: np.ndarray | CellCounts, p_detect: np.ndarray, n_looks:
     perm = rng.permutation(n_cells) if rng is not None else np.arange(n_cells)
     P = P[perm]  # work in a shuffled order: the first maximum is then a random one
     first = expected_gain(P, table(1), alpha)
+    n_visible = n_cells
+    scale = None
+    if weights is not None:  # in the shuffled order, like P
+        w = np.ones(n_cells)
+        w[np.asarray(weights[0], dtype=np.int64)] = np.asarray(weights[1], dtype=float)
+        scale = w[perm]
+        first = first * scale
+    if blocked is not None:
+        blind = np.zeros(n_cells, dtype=bool)
+        blind[blocked] = True
+        blind = blind[perm]
+        n_visible = n_cells - int(blind.sum())
+        first = np.where(blind, -np.inf, first)
+        if n_visible == 0:
+            return np.zeros(0, dtype=np.int64)
     if not repeats:
-        m = min(int(n_looks), n_cells)
+        m = min(int(n_looks), n_visible)
         order = np.argsort(-first, kind="stable")[:m]
         return np.sort(perm[order]).astype(np.int64)
     # G_c(n) for every cell and n = 0..n_pre in a few vectorised calls; a cell that
@@ -177,6 +203,8 @@ def greedy_looks(counts: np.ndarray | CellCounts, p_detect: np.ndarray, n_looks:
     curve[:, 1] = first
     for n in range(2, n_pre + 1):
         curve[:, n] = expected_gain(P, table(n), alpha)
+        if scale is not None:
+            curve[:, n] *= scale
     n_given = np.zeros(n_cells, dtype=np.int64)
     gain_now = np.zeros(n_cells)  # G_c(n_c)
     marginal = first.copy()  # G_c(n_c + 1) - G_c(n_c)
@@ -191,7 +219,8 @@ def greedy_looks(counts: np.ndarray | CellCounts, p_detect: np.ndarray, n_looks:
         n_given[c] = n
         gain_now[c] = curve[c, n] if n <= n_pre else gain_now[c] + marginal[c]
         nxt = (curve[c, n + 1] if n + 1 <= n_pre
-               else expected_gain(P[c:c + 1], table(n + 1), alpha)[0])
+               else expected_gain(P[c:c + 1], table(n + 1), alpha)[0]
+               * (1.0 if scale is None else scale[c]))
         marginal[c] = nxt - gain_now[c]
     return np.sort(perm[chosen]).astype(np.int64)
 
@@ -199,7 +228,9 @@ def greedy_looks(counts: np.ndarray | CellCounts, p_detect: np.ndarray, n_looks:
 def greedy_looks_sparse(counts: CellCounts, p_detect: np.ndarray, n_looks: int,
                         alpha: float = 0.5, repeats: bool = True,
                         rng: np.random.Generator | None = None,
-                        tables: dict[int, np.ndarray] | None = None) -> np.ndarray:
+                        tables: dict[int, np.ndarray] | None = None, *,
+                        blocked: np.ndarray | None = None,
+                        weights: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """:func:`greedy_looks` on a :class:`CellCounts` without touching every cell.
 
     The gains are computed once per distinct row: each own row and the one default row
@@ -220,9 +251,20 @@ def greedy_looks_sparse(counts: CellCounts, p_detect: np.ndarray, n_looks: int,
 
     ``rng`` None: deterministic tie-breaks (by cell index). Cost ``O(own cells * n_counts
     + n_looks log n_looks)`` plus the binomial tables.
+
+    ``blocked`` and ``weights`` as in :func:`greedy_looks`: their cells are made own cells
+    first (their rows the default row where the tracker gave none; ``O((own + blocked +
+    weighted) log)``), the blocked ones with gain ``-inf`` (never chosen), the weighted
+    ones with their gains multiplied; the default row keeps weight 1.
     """
     tables = {} if tables is None else tables
     pd = np.asarray(p_detect, dtype=float)
+    extra = [np.asarray(x, dtype=np.int64) for x in
+             ((blocked if blocked is not None else ()),
+              (weights[0] if weights is not None else ()))]
+    if any(len(x) for x in extra):
+        cells = np.union1d(counts.cells, np.concatenate(extra))
+        counts = CellCounts(counts.n_cells, cells, counts.row_of(cells), counts.default)
 
     def table(n: int) -> np.ndarray:
         if n not in tables:
@@ -234,25 +276,42 @@ def greedy_looks_sparse(counts: CellCounts, p_detect: np.ndarray, n_looks: int,
     rows = np.vstack([counts.rows, counts.default[None]])  # the distinct rows: own + default
     first = expected_gain(rows, table(1), alpha)
     own_gain, g_def = first[:m], float(first[m])
+    own_scale = np.ones(m)
+    if weights is not None:
+        at = np.searchsorted(counts.cells, np.asarray(weights[0], dtype=np.int64))
+        own_scale[at] = np.asarray(weights[1], dtype=float)
+        own_gain = own_gain * own_scale
+    n_visible = counts.n_cells
+    if blocked is not None:
+        blind = np.searchsorted(counts.cells, blocked)
+        own_gain = own_gain.copy()
+        own_gain[blind] = -np.inf
+        n_visible -= len(blocked)
+        if n_visible == 0:
+            return np.zeros(0, dtype=np.int64)
     if not repeats:
-        return _top_cells(counts, own_gain, g_def, min(L, counts.n_cells), rng)
-    # candidate own cells: the first L in (gain descending, key ascending) order
+        return _top_cells(counts, own_gain, g_def, min(L, n_visible), rng)
+    # candidate own cells: the first L in (gain descending, key ascending) order, never
+    # a blocked one
     key = rng.random(m) if rng is not None else counts.cells / max(counts.n_cells, 1)
     cand = np.lexsort((key, -own_gain))[:L]
+    cand = cand[np.isfinite(own_gain[cand])]
     n_pre = min(L, _PRECOMPUTED_LOOKS) + 1
     curve_rows = np.vstack([counts.rows[cand], counts.default[None]])
+    curve_scale = np.append(own_scale[cand], 1.0)
     curve = np.zeros((len(cand) + 1, n_pre + 1))
     curve[:-1, 1], curve[-1, 1] = own_gain[cand], g_def
     for n in range(2, n_pre + 1):
-        curve[:, n] = expected_gain(curve_rows, table(n), alpha)
+        curve[:, n] = expected_gain(curve_rows, table(n), alpha) * curve_scale
     later: dict[tuple[int, int], float] = {}  # G(n) beyond n_pre, by (candidate, n)
 
     def gain(i: int, n: int) -> float:
-        """``G(n)`` of candidate ``i`` (``i = len(cand)``: the default row, shared)."""
+        """``w G(n)`` of candidate ``i`` (``i = len(cand)``: the default row, shared)."""
         if n <= n_pre:
             return float(curve[i, n])
         if (i, n) not in later:
-            later[i, n] = float(expected_gain(curve_rows[i:i + 1], table(n), alpha)[0])
+            later[i, n] = float(expected_gain(curve_rows[i:i + 1], table(n), alpha)[0]
+                                * curve_scale[i])
         return later[i, n]
 
     # heap entries: (-marginal, looks given, key, candidate, cell); default cells that have
@@ -284,7 +343,9 @@ def _top_cells(counts: CellCounts, own_gain: np.ndarray, g_def: float, L: int,
     perm = rng.permutation(m) if rng is not None else np.arange(m)
     order = perm[np.argsort(-own_gain[perm], kind="stable")]
     g = own_gain[order]
-    above, tie, below = order[g > g_def], order[g == g_def], order[g < g_def]
+    # blocked own cells (gain -inf) are in none of the three
+    above, tie = order[g > g_def], order[g == g_def]
+    below = order[(g < g_def) & np.isfinite(g)]
     if len(above) >= L:
         return np.sort(counts.cells[above[:L]])
     need = L - len(above)

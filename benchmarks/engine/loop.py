@@ -14,6 +14,7 @@ of the runtime benchmarks and the conformance kit all come from it); it yields a
         tracker.observe_truth(states, ids)  # untimed; only if tracker.uses_truth
         P = tracker.cell_count_distribution()               # timed (selection), if needed
         cells = policy.select(k, counts=P, truth_cells=...) # timed (selection)
+        cells = cells[visible]          # a look at a cell the model blinds is not made
         looks = run.look(k, cells)      # or run.measure(k) for the superposition sensor
         tracker.update(looks)                               # timed (tracker)
         est = tracker.estimate()                            # timed (tracker)
@@ -361,6 +362,7 @@ class Playback:
         tracker, policy, run = self.tracker, self.policy, self.world
         grid = self.scenario.model.grid
         given_truth = bool(getattr(tracker, "uses_truth", False))
+        visibility = self.scenario.model.visibility
         for k in range(self.n_steps):
             self.step = k
             truth = run.states[k]
@@ -381,6 +383,9 @@ class Playback:
                     truth_cells = flat[flat >= 0]
                 cells = policy.select(k, counts=counts, truth_cells=truth_cells)
                 w2, c2 = time.perf_counter(), time.process_time()
+                if visibility.occlusions:  # a look at a blind cell is not made
+                    cells = np.asarray(cells, dtype=np.int64).reshape(-1)
+                    cells = cells[~visibility.is_blocked(k, cells, grid)]
                 looks = run.look(k, cells)
             else:
                 w2, c2 = w1s, c1s
@@ -404,6 +409,7 @@ def play(scenario: Scenario, tracker: Tracker, seed: int, *, policy: Policy | No
         P = tracker.cell_count_distribution()              # timed (selection), if asked
         cells = policy.select(k, counts=P, truth_cells=...)   # timed (selection)
         # P as the tracker returns it: a dense array or a CellCounts (never converted)
+        cells = cells[visible at step k]   # the model's visibility: blind cells get no look
         looks = world.look(k, cells)       # world.measure(k) on the superposition sensor
         tracker.update(looks); est = tracker.estimate()    # timed (tracker)
 

@@ -10,6 +10,10 @@ plus one default row), passed only to policies with ``uses_prediction = True`` s
 policies never pay for it; ``truth_cells`` (flat cells of the true targets) only to
 policies with ``uses_truth = True`` (the oracle), which are marked as such in every result.
 
+Visibility: cells the model's :class:`~mttbench.scenarios.model.Visibility` blinds at step
+``k`` (:meth:`Policy.blocked_cells`) cannot be looked at; :func:`~mttbench.benchmarks.engine.
+loop.play` drops such looks, and every policy here chooses among the visible cells only.
+
 Cost per step: ``raster``, ``random`` and ``oracle`` ``O(looks)`` (plus the true targets)
 whatever the grid; ``renyi`` ``O(own rows of P_c + looks log looks)`` on a
 :class:`~mttbench.trackers.cells.CellCounts` over more than
@@ -53,6 +57,15 @@ class PolicyTerms:
 CHOICE_SHUFFLE_RATIO = 50
 
 
+def skip_cells(i: np.ndarray, excluded: np.ndarray) -> np.ndarray:
+    """The ``i``-th cells (0-based) among those not in ``excluded`` (sorted, distinct):
+    ``i`` plus the excluded cells at or below the answer, by a search over ``excluded``
+    (``O(len(i) log len(excluded))``, never a list of the other cells)."""
+    excluded = np.asarray(excluded, dtype=np.int64)
+    i = np.asarray(i, dtype=np.int64)
+    return i + np.searchsorted(excluded - np.arange(excluded.size), i, side="right")
+
+
 def _choice_bytes(n_cells: float, looks: float) -> float:
     """Bytes of ``Generator.choice(n_cells, looks, replace=False)``'s working array."""
     return min(n_cells, CHOICE_SHUFFLE_RATIO * looks) * 8.0
@@ -94,6 +107,15 @@ class Policy(Configurable, ABC):
         self._model = model
         self._rng = rng
 
+    def blocked_cells(self, k: int) -> np.ndarray:
+        """Sorted flat cells ``(n,)`` int64 that cannot be looked at during step ``k``
+        (the model's visibility; ``O(blind cells)``). The harness drops a look at one of
+        them, so a policy that chooses them wastes the look."""
+        model = getattr(self, "_model", None)
+        if model is None or not model.visibility.occlusions:
+            return np.zeros(0, dtype=np.int64)
+        return model.blocked_cells(k)
+
     @abstractmethod
     def select(self, k: int, counts: np.ndarray | CellCounts | None = None,
                truth_cells: np.ndarray | None = None) -> np.ndarray:
@@ -127,7 +149,9 @@ class AllCells(Policy):
     parameters: ClassVar[dict[str, Param]] = {}
 
     def select(self, k, counts=None, truth_cells=None):
-        return np.arange(self._n_cells, dtype=np.int64)
+        cells = np.arange(self._n_cells, dtype=np.int64)
+        blocked = self.blocked_cells(k)
+        return np.setdiff1d(cells, blocked, assume_unique=True) if blocked.size else cells
 
     @classmethod
     def resource_terms(cls, params, model, looks_per_step) -> PolicyTerms:
@@ -148,8 +172,11 @@ class RandomCells(Policy):
     parameters: ClassVar[dict[str, Param]] = {}
 
     def select(self, k, counts=None, truth_cells=None):
-        m = min(self._n_looks, self._n_cells)
-        return np.sort(self._rng.choice(self._n_cells, size=m, replace=False)).astype(np.int64)
+        blocked = self.blocked_cells(k)
+        n_free = self._n_cells - blocked.size  # drawn among the visible cells
+        m = min(self._n_looks, n_free)
+        i = self._rng.choice(n_free, size=m, replace=False)
+        return np.sort(skip_cells(i, blocked) if blocked.size else i).astype(np.int64)
 
     @classmethod
     def resource_terms(cls, params, model, looks_per_step) -> PolicyTerms:
@@ -172,6 +199,11 @@ class Raster(Policy):
     each cell 2 or 3 times), each repeat an independent look
     (:class:`~mttbench.scenarios.model.Looks`). That is how periodic scans of more looks
     than cells (Kreucher's 216 and 312 on 12x12) are run.
+
+    With a visibility in the model the sweep skips the blind cells: the pointer walks the
+    visible cells of the step (``M`` of them, wrapping) and then stands after the last
+    cell looked at, so no look is wasted and the scan resumes where it stopped. Without
+    blind cells this is the formula above.
     """
 
     name = "raster"
@@ -179,10 +211,24 @@ class Raster(Policy):
                "looks than cells: some cells are looked at twice or more per step)")
     parameters: ClassVar[dict[str, Param]] = {}
 
+    def reset(self, model: TrackingModel, n_looks: int, rng: np.random.Generator) -> None:
+        super().reset(model, n_looks, rng)
+        self._pointer = 0  # the next cell of the sweep (a visibility in the model only)
+
     def select(self, k, counts=None, truth_cells=None):
         m = self._n_looks
-        start = (k * m) % self._n_cells  # reduced first: k * M stays small
-        return ((start + np.arange(m, dtype=np.int64)) % self._n_cells).astype(np.int64)
+        if not self._model.visibility.occlusions:
+            start = (k * m) % self._n_cells  # reduced first: k * M stays small
+            return ((start + np.arange(m, dtype=np.int64)) % self._n_cells).astype(np.int64)
+        blocked = self.blocked_cells(k)
+        n_free = self._n_cells - blocked.size
+        if n_free == 0 or m == 0:
+            return np.zeros(0, dtype=np.int64)
+        # rank of the pointer among the visible cells, then M consecutive visible ranks
+        first = self._pointer - int(np.searchsorted(blocked, self._pointer))
+        cells = skip_cells((first + np.arange(m, dtype=np.int64)) % n_free, blocked)
+        self._pointer = (int(cells[-1]) + 1) % self._n_cells
+        return cells.astype(np.int64)
 
 
 @register_policy
@@ -206,15 +252,18 @@ class Oracle(Policy):
     def select(self, k, counts=None, truth_cells=None):
         if truth_cells is None:
             raise ValueError("the oracle policy needs the true targets' cells")
-        m = min(self._n_looks, self._n_cells)
+        blocked = self.blocked_cells(k)
+        m = min(self._n_looks, self._n_cells - blocked.size)
         truth = np.unique(np.asarray(truth_cells, dtype=np.int64))
         truth = truth[(truth >= 0) & (truth < self._n_cells)]
+        if blocked.size:  # a target in a blind cell cannot be looked at
+            truth = truth[~np.isin(truth, blocked, assume_unique=True)]
         if truth.size >= m:
             return np.sort(self._rng.choice(truth, size=m, replace=False)).astype(np.int64)
-        # the i-th cell not holding a target: i plus the true cells at or below it
-        i = self._rng.choice(self._n_cells - truth.size, size=m - truth.size, replace=False)
-        fill = i + np.searchsorted(truth - np.arange(truth.size), i, side="right")
-        return np.sort(np.concatenate([truth, fill])).astype(np.int64)
+        # the i-th cell neither holding a target nor blind
+        taken = np.union1d(truth, blocked) if blocked.size else truth
+        i = self._rng.choice(self._n_cells - taken.size, size=m - truth.size, replace=False)
+        return np.sort(np.concatenate([truth, skip_cells(i, taken)])).astype(np.int64)
 
     @classmethod
     def resource_terms(cls, params, model, looks_per_step) -> PolicyTerms:
@@ -319,4 +368,9 @@ class RenyiGain(Policy):
             pd = self._model.sensor.detection_probability(np.arange(n_counts))
             self._pd_cache[n_counts] = pd
         return greedy_looks(counts, pd, self._n_looks, self.alpha, self.repeats, self._rng,
-                            self._tables.setdefault(n_counts, {}))
+                            self._tables.setdefault(n_counts, {}),
+                            blocked=self.blocked_cells(k))
+
+
+# the non-myopic policy lives in its own module; imported here so that it registers
+from . import policy_lookahead  # noqa: E402, F401
