@@ -9,6 +9,7 @@
     mttbench compare                        # the main job: head-to-head report
     mttbench reproduce paper [--reduced] [--check]   # the paper's figures, checked
     mttbench reproduce kreucher [--reduced] [--check]  # managed against periodic looks
+    mttbench reproduce cdc2004 [--reduced] [--check]   # non-myopic against myopic, occlusion
     mttbench export default --seeds 5 --policy random --out worlds   # open world files
     mttbench score worlds --estimates est.csv --name mine   # an outside tracker's estimates
     mttbench bayes default --seeds 10       # the converged Bayes reference, stored
@@ -605,6 +606,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     if args.check and args.update_reference:
         raise UsageError("--check and --update-reference: give one of them (check against "
                          "the reference, or replace it)")
+    if args.target == "cdc2004":
+        return _reproduce_cdc2004(args)
     if args.target == "kreucher":
         from . import reproduce_kreucher as target_module
 
@@ -670,6 +673,53 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
                   + (" (another numpy, scipy or CPU dispatch can change the last bits, and a "
                      "particle filter's run then diverges: --check without --exact allows "
                      "for that)" if args.exact else ""), file=sys.stderr)
+    return 1
+
+
+def _reproduce_cdc2004(args: argparse.Namespace) -> int:
+    """``reproduce cdc2004`` (:mod:`~mttbench.benchmarks.app.reproduce_cdc2004`): its
+    ``--check`` is its own (structure, and not worse than myopic beyond noise), with no
+    reference CSV."""
+    from . import reproduce
+    from . import reproduce_cdc2004 as cdc
+
+    for flag in ("update_reference", "exact", "reference_csv"):
+        if getattr(args, flag):
+            raise UsageError(f"--{flag.replace('_', '-')} does not apply to cdc2004: it has no "
+                             "reference CSV (--check runs its own checks)")
+    setting = cdc.SETTINGS["reduced" if args.reduced else "full"]
+    out = Path(args.out) if args.out else Path("reports") / args.target
+    cache = Path(args.cache_dir) if args.cache_dir else Path(".cache") / "reproduce"
+    tracker_texts = tuple(split_specs(args.trackers)) if args.trackers else None
+    if tracker_texts:
+        resolve_trackers(tracker_texts)
+    specs, _ = reproduce.available_trackers(tracker_texts or setting.trackers)
+    workers = args.workers or os.cpu_count() or 1
+    for warning in resources.check_jobs(cdc.setting_jobs(setting, specs), workers):
+        print(warning, file=sys.stderr)
+    prepare_out_dir(out, parts=False)
+    rep = cdc.reproduce_cdc2004(setting, out, cache, tracker_texts=tracker_texts,
+                                workers=workers, progress=not args.no_progress,
+                                use_cache=not args.no_cache, run_timeout=args.run_timeout)
+    print(f"wrote {out}/ (policies.csv, paired.csv, runs.csv, report.md, report.html; runs "
+          f"{'from the cache' if rep.cached else 'computed'})")
+    for line in cdc.verdict_lines(rep.paired, setting):
+        print(line.replace("`", ""))
+    failed = _failure_line(rep.results, out)
+    if failed:
+        print(failed.replace(str(out / "summary.csv"), str(out / "report.md")), file=sys.stderr)
+        return 1
+    if not args.check:
+        return 0
+    result = cdc.check(setting, rep.specs, rep.results)
+    if result.passed:
+        print(f"check passed: {result.n_conditions} conditions (every run, every seed, no "
+              "look at a blind cell, visibility in force, not worse than myopic beyond noise)")
+        return 0
+    print(f"check FAILED: {len(result.lines)} of {result.n_conditions} conditions:",
+          file=sys.stderr)
+    for line in result.lines:
+        print("  " + line, file=sys.stderr)
     return 1
 
 
@@ -1076,6 +1126,11 @@ def build_parser() -> argparse.ArgumentParser:
                     "(renyi at 24 looks against raster at 24-312 looks, the raster looks that "
                     "match the managed scan, for the literature-strength JMPD and the GPF) "
                     "into reports/kreucher (module mttbench.benchmarks.app.reproduce_kreucher). "
+                    "cdc2004: the non-myopic `lookahead` policy against the myopic `renyi` "
+                    "on the `occlusion` preset, paired over seeds, against Kreucher, Hero, "
+                    "Kastella and Chang (CDC 2004) into reports/cdc2004 (module "
+                    "mttbench.benchmarks.app.reproduce_cdc2004; its --check is its own: "
+                    "structure, and not worse than myopic beyond noise). "
                     "Runs are cached by their "
                     "configuration, code, package versions, platform and numpy CPU dispatch "
                     "(.cache/reproduce); figures only plot. --check compares the curves "
@@ -1088,10 +1143,12 @@ def build_parser() -> argparse.ArgumentParser:
               mttbench reproduce paper --reduced --check  # what CI runs
               mttbench reproduce paper --reduced --check --exact  # same machine, bit for bit
               mttbench reproduce paper --reduced --update-reference  # after a change
-              mttbench reproduce kreucher --reduced --check  # managed against periodic"""))
-    p.add_argument("target", choices=["paper", "kreucher"],
-                   help="what to reproduce: the paper's figures, or Kreucher's "
-                        "managed-versus-periodic curve")
+              mttbench reproduce kreucher --reduced --check  # managed against periodic
+              mttbench reproduce cdc2004 --reduced --check   # non-myopic under occlusion"""))
+    p.add_argument("target", choices=["paper", "kreucher", "cdc2004"],
+                   help="what to reproduce: the paper's figures, Kreucher's "
+                        "managed-versus-periodic curve, or the non-myopic policy against "
+                        "the myopic one under occlusion (Kreucher et al., CDC 2004)")
     p.add_argument("--reduced", action="store_true",
                    help="the reduced setting (fewer seeds and steps; what CI checks)")
     p.add_argument("--check", action="store_true",
