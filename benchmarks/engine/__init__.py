@@ -8,7 +8,8 @@ module            what it holds
 ``loop``          :class:`~.loop.Job`, the results table's columns, the one step loop
                   :func:`~.loop.play` and one run's rows :func:`~.loop.run_job`
 ``metrics``       per-step scores and the metric registry
-``policies``      cell-selection policies; ``information``: the Renyi gains
+``policies``      cell-selection policies; ``information``: the Renyi gains;
+                  ``policy_lookahead``: the non-myopic ``lookahead`` policy
 ``executors``     where runs go: local processes or a Dask cluster
 ``store``         parts written atomically, read back, the results table
 ``sweep``         :func:`~.sweep.run_sweep`: jobs -> parts -> ``results.parquet``
@@ -17,3 +18,7 @@ module            what it holds
 
 Nothing here imports :mod:`mttbench.benchmarks.app` (a test enforces it).
 """
+
+# registers "lookahead" with the policies' registry whichever engine module is imported
+# first (the module imports policies, so policies cannot import it)
+from . import policy_lookahead  # noqa: E402, F401

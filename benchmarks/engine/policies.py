@@ -370,7 +370,3 @@ class RenyiGain(Policy):
         return greedy_looks(counts, pd, self._n_looks, self.alpha, self.repeats, self._rng,
                             self._tables.setdefault(n_counts, {}),
                             blocked=self.blocked_cells(k))
-
-
-# the non-myopic policy lives in its own module; imported here so that it registers
-from . import policy_lookahead  # noqa: E402, F401
