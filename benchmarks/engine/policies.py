@@ -11,8 +11,9 @@ policies never pay for it; ``truth_cells`` (flat cells of the true targets) only
 policies with ``uses_truth = True`` (the oracle), which are marked as such in every result.
 
 Visibility: cells the model's :class:`~mttbench.scenarios.model.Visibility` blinds at step
-``k`` (:meth:`Policy.blocked_cells`) cannot be looked at; :func:`~mttbench.benchmarks.engine.
-loop.play` drops such looks, and every policy here chooses among the visible cells only.
+``k`` (:meth:`Policy.blocked_cells`) cannot be looked at; the harness
+(:func:`~mttbench.benchmarks.engine.loop.play`) drops such looks, and every policy here
+chooses among the visible cells only.
 
 Cost per step: ``raster``, ``random`` and ``oracle`` ``O(looks)`` (plus the true targets)
 whatever the grid; ``renyi`` ``O(own rows of P_c + looks log looks)`` on a

@@ -27,7 +27,8 @@ The looks of step ``k`` are the ``M`` distinct visible cells of largest ``Q_c(k)
 (``repeats=true``: greedy by ``w_c (G_c(n_c + 1) - G_c(n_c))`` with ``w_c`` the bracket
 above), cells blind at step ``k`` never (:func:`~.information.greedy_looks` with
 ``blocked`` and ``weights``). ``beta = 0`` or ``H = 0``, or a scenario without
-visibility: the ``renyi`` policy's choice, bit for bit (same random tie-breaks).
+visibility: the ``renyi`` policy's choice, bit for bit, given the same generator (in a
+sweep each policy's generator is seeded from its own configuration, so tie-breaks differ).
 
 Deviations from the paper:
 
