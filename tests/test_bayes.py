@@ -48,9 +48,10 @@ def test_paired_step_pairs_only_the_shared_seeds():
     assert step["n_pairs"] == 2 and step["diff_mean"] == pytest.approx(0.5)
 
 
-def synthetic_sweep(ospa_of_n, cpu_of_n=lambda n: 1e-6 * n, fail_at=None):
+def synthetic_sweep(ospa_of_n, cpu_of_n=lambda n: 1e-6 * n, fail_at=None, truth=None):
     """A sweep whose runs have OSPA ``ospa_of_n(n, seed)`` at every step and a CPU time
-    per step ``cpu_of_n(n)``; the runs at ``fail_at`` particles fail."""
+    per step ``cpu_of_n(n)``; the runs at ``fail_at`` particles fail. ``truth``: the true
+    count at each of the 3 steps (rows then carry ``true_count`` and ``ospa_c`` = 2)."""
     calls = []
 
     def sweep(jobs, folder):
@@ -65,7 +66,9 @@ def synthetic_sweep(ospa_of_n, cpu_of_n=lambda n: 1e-6 * n, fail_at=None):
                              "seed": job.seed, "step": step,
                              "ospa": ospa_of_n(n, job.seed),
                              "tracker_cpu_s": cpu_of_n(n),
-                             "status": "error" if n == fail_at else "ok", "error": ""})
+                             "status": "error" if n == fail_at else "ok", "error": "",
+                             **({} if truth is None else
+                                {"true_count": truth[step], "ospa_c": 2.0})})
         return pd.DataFrame(rows)
 
     return sweep, calls
@@ -89,6 +92,31 @@ def test_the_ladder_stops_at_the_first_pair_within_tolerance(tmp_path):
     assert [s["n_low"] for s in ref.provenance["steps"]] == [100, 400, 1600]
     assert set(ref.rows["tracker_label"]) == {bayes.REFERENCE}
     assert set(ref.rows["param_n_particles"]) == {6400}
+
+
+def test_the_gap_share_widens_the_tolerance_by_the_floors_exact_score(tmp_path):
+    # truth 1, 1, 0 targets: the floor scores c = 2, 2, 0 -> 4/3 a run. OSPA(n) = 0.4 +
+    # 1/sqrt(n): steps 0.05 (100 -> 400), 0.025 (400 -> 1600). At 1600 the gap is
+    # 4/3 - 0.425 = 0.908, 5% of it 0.0454 >= 0.025: converged at 1600, not 6400.
+    sweep, _ = synthetic_sweep(lambda n, s: 0.4 + 1.0 / math.sqrt(n) + SEED_NOISE[s],
+                               truth=[1, 1, 0])
+    ref = bayes.run_ladder([TINY], range(4), sweep, tmp_path,
+                           ladder=bayes.Ladder(100, 4, 102400, 0.02, 1e9, 0.05),
+                           say=lambda _: None)[TINY.name]
+    assert ref.converged and ref.n_particles == 1600
+    step = ref.provenance["steps"][-1]
+    gap = 4.0 / 3.0 - np.mean([0.4 + 1.0 / 40.0 + e for e in SEED_NOISE])
+    assert step["gap"] == pytest.approx(gap, abs=1e-6)
+    assert step["tolerance"] == pytest.approx(0.05 * gap, abs=1e-6)
+    assert "of the achievable gap" in ref.verdict()
+    # the first step (0.05) is beyond 5% of its gap (0.858): not converged at 400
+    assert ref.provenance["steps"][0]["bound"] > ref.provenance["steps"][0]["tolerance"]
+    # with the share off, the absolute rule alone: 6400 as without the floor's numbers
+    off = bayes.run_ladder([TINY], range(4), sweep, tmp_path / "off",
+                           ladder=bayes.Ladder(100, 4, 102400, 0.02, 1e9, 0.0),
+                           say=lambda _: None)[TINY.name]
+    assert off.converged and off.n_particles == 6400
+    assert "of the achievable gap" not in off.verdict()
 
 
 def test_a_rung_past_the_run_limit_is_not_run_and_the_verdict_says_so(tmp_path):
@@ -124,7 +152,8 @@ def test_n_max_reached_without_convergence(tmp_path):
 @pytest.mark.parametrize("kwargs, what", [
     ({"n_start": 0}, "--n-start"), ({"factor": 1}, "--factor"),
     ({"n_start": 1000, "n_max": 2000}, "--n-max"), ({"tolerance": 0.0}, "--tolerance"),
-    ({"tolerance": math.nan}, "--tolerance"), ({"run_limit_s": -1.0}, "--run-limit")])
+    ({"tolerance": math.nan}, "--tolerance"), ({"run_limit_s": -1.0}, "--run-limit"),
+    ({"gap_share": 1.0}, "--gap-share"), ({"gap_share": -0.1}, "--gap-share")])
 def test_bad_ladders_are_refused_in_one_line(kwargs, what):
     with pytest.raises(UsageError, match=what):
         bayes.Ladder(**kwargs)
