@@ -736,7 +736,7 @@ def cmd_bayes(args: argparse.Namespace) -> int:
         raise UsageError("name the scenarios (SCENARIO ...) or --suite, one of the two")
     ladder = bayes.Ladder(n_start=args.n_start, factor=args.factor, n_max=args.n_max,
                           tolerance=args.tolerance, run_limit_s=args.run_limit,
-                          gap_share=args.gap_share)
+                          gap_share=args.gap_share, confirm=args.confirm)
     scs = resolve_scenarios(_scenario_names(args), args.steps)
     pols = resolve_policies(args.policy)
     if len(pols) != 1:
@@ -1235,6 +1235,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gap-share", type=float, default=0.05, metavar="S",
                    help="or within S of the achievable gap (null OSPA minus the higher "
                         "count's), whichever is wider (default 0.05; 0: --tolerance alone)")
+    p.add_argument("--confirm", type=int, default=2, metavar="K",
+                   help="converged when the last K steps (N -> 4N) each lie within it "
+                        "(default 2; 1 to 3)")
     p.add_argument("--run-limit", type=float, default=600.0, metavar="SECONDS",
                    help="skip a rung whose runs would take more CPU seconds each (4x the "
                         "last rung's, measured; default 600)")
