@@ -425,7 +425,6 @@ def cmd_run(args: argparse.Namespace) -> int:
 def cmd_compare(args: argparse.Namespace) -> int:
     """The head-to-head report (:mod:`benchmarks.app.compare`)."""
     from .compare import run_compare
-
     from .policy_axis import resolve as resolve_policy_axis
 
     _check_common(args)
@@ -905,7 +904,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="The main job. Every registered tracker (including the `null` baseline; "
                     "JMPD at 1000 and 250 particles) on the scenarios "
                     f"{', '.join(COMPARE_SCENARIOS)}, raster policy at each scenario's look "
-                    f"budget, {COMPARE_SEEDS} seeds, in parallel processes. Writes "
+                    f"budget (--policies: every tracker under each policy), {COMPARE_SEEDS} "
+                    "seeds, in parallel processes. Writes "
                     "results.parquet, summary.csv/.md, report.md, a self-contained "
                     "report.html, figures/ and manifest.json into --out (default "
                     "reports/compare-<UTC timestamp>). Defaults take about 1.5 minutes on 2 "

@@ -359,7 +359,7 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
 def _compute_missing_bayes(scs, seeds: list[int], out: Path, stores: list[Path],
                            ladder: bayes.Ladder, workers: int, progress: bool, c: float,
                            p: float, run_timeout: float | None,
-                           pols: Sequence[PolicySpec] = (PolicySpec("raster"),)) -> None:
+                           pols: Sequence[PolicySpec] = (bayes.RASTER,)) -> None:
     """The Bayes reference of every scenario and policy that has none stored for these
     seeds, run in ``<out>/bayes/ladder`` (raster; ``ladder-<policy>`` for the others;
     resumable with the comparison) and stored in ``stores[-1]``."""
@@ -429,7 +429,7 @@ def _seed_text(seeds: list[int]) -> str:
 
 
 def _snapshot_trace(scs, specs: list[TrackerSpec], seeds: list[int],
-                    policy: PolicySpec = PolicySpec("raster")):
+                    policy: PolicySpec = bayes.RASTER):
     """Trace seed ``seeds[0]`` of the first grid scenario for the preferred tracker under
     ``policy``."""
     from ...scenarios.model import RayleighGridSensor

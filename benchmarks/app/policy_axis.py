@@ -342,19 +342,22 @@ def best_lines(axis: PolicyAxis) -> list[str]:
 
 def bayes_lines(axis: PolicyAxis) -> list[str]:
     """Where a Bayes reference is stored under some policies of a group but not others:
-    one line saying under which there is none (its rows are never borrowed)."""
-    out = []
+    which (one line per such pattern, its groups listed; a reference's rows are never
+    borrowed by another policy)."""
+    patterns: dict[tuple[tuple[str, ...], tuple[str, ...]], list[str]] = {}
     for (sc, looks), have in sorted(axis.bayes_policies.items()):
         here = axis.table[(axis.table["scenario"] == sc)
                           & (axis.table["looks_per_step"] == looks)]
         pols = [p for p in axis.policies if p in set(here["policy_label"].astype(str))]
-        missing = [p for p in pols if p not in have]
+        missing = tuple(p for p in pols if p not in have)
         if have and missing:
-            out.append(f"{_where(sc, looks)}: the `{summary.BAYES_TRACKER}` reference is stored "
-                       f"under {', '.join(f'`{p}`' for p in pols if p in have)} only; none "
-                       f"under {', '.join(f'`{p}`' for p in missing)} (a reference is the "
-                       "model's Bayes filter under one policy's looks, never another's).")
-    return out
+            stored = tuple(p for p in pols if p in have)
+            patterns.setdefault((stored, missing), []).append(_where(sc, looks))
+    return [f"{', '.join(groups)}: the `{summary.BAYES_TRACKER}` reference is stored under "
+            f"{', '.join(f'`{p}`' for p in stored)} only; none under "
+            f"{', '.join(f'`{p}`' for p in missing)} (a reference is the model's Bayes "
+            "filter under one policy's looks, never another's)."
+            for (stored, missing), groups in patterns.items()]
 
 
 def explanation(axis: PolicyAxis) -> str:
