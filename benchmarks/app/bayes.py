@@ -439,22 +439,27 @@ def run_ladder(scenarios: Sequence[Scenario], seeds: Sequence[int], sweep: Sweep
 # ---------------------------------------------------------------- reports and tables
 def attach(results: pd.DataFrame, scenarios: Sequence[Scenario], seeds: Sequence[int],
            policy: PolicySpec = RASTER, looks: int | None = None,
-           c: float | None = None, p: float = 2.0, stores: Sequence[str | Path] | None = None
-           ) -> tuple[pd.DataFrame, list[str]]:
+           c: float | None = None, p: float = 2.0, stores: Sequence[str | Path] | None = None,
+           name_policy: bool = False) -> tuple[pd.DataFrame, list[str]]:
     """``results`` with the stored reference's rows of every scenario that has one for
-    these seeds (:func:`find`), and one line per scenario saying what was attached
-    (converged at N, or an estimate) or that none is stored, with the command that
-    computes it."""
+    these seeds under ``policy`` (:func:`find`: the key holds the policy, so another
+    policy's reference is never attached), and one line per scenario saying what was
+    attached (converged at N, or an estimate) or that none is stored, with the command
+    that computes it. The lines name the policy when it is not raster or when
+    ``name_policy`` (a report of several policies)."""
     frames, notes = [results], []
+    under = policy != RASTER or name_policy
+    option = "" if policy == RASTER else f" --policy {policy_text(policy)}"
     for sc in scenarios:
+        where = f"`{sc.name}`" + (f" under `{policy.label}`" if under else "")
         ref = find(sc, policy, looks, seeds, c, p, stores)
         if ref is None:
-            notes.append(f"`{sc.name}`: no stored `bayes` reference for these seeds "
+            notes.append(f"{where}: no stored `bayes` reference for these seeds "
                          f"(compute it: `mttbench bayes {sc.name} --seeds "
-                         f"{max(seeds) + 1}`)")
+                         f"{max(seeds) + 1}{option}`)")
             continue
         rows = ref.rows.copy()
-        notes.append(f"`{sc.name}`: `bayes` {ref.verdict()}; computed in "
+        notes.append(f"{where}: `bayes` {ref.verdict()}; computed in "
                      f"{ref.provenance.get('wall_time_s', 0):.0f} s at commit "
                      f"{str((ref.provenance.get('git') or {}).get('commit') or '?')[:7]}")
         frames.append(rows)
@@ -462,6 +467,13 @@ def attach(results: pd.DataFrame, scenarios: Sequence[Scenario], seeds: Sequence
         return results, notes
     merged = pd.concat(frames, ignore_index=True, sort=False)
     return merged, notes
+
+
+def policy_text(policy: PolicySpec) -> str:
+    """``policy`` as typed on the command line."""
+    if not policy.params:
+        return policy.name
+    return policy.name + ":" + ",".join(f"{k}={v}" for k, v in sorted(policy.params.items()))
 
 
 def ladder_table(refs: Mapping[str, Reference]) -> pd.DataFrame:
