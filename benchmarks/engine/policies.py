@@ -71,6 +71,9 @@ class Policy(Configurable, ABC):
     summary: ClassVar[str] = ""
     uses_prediction: ClassVar[bool] = False
     uses_truth: ClassVar[bool] = False
+    #: the harness passes ``undetected=tracker.undetected_intensity()`` to ``select``
+    #: (a :class:`~mttbench.trackers.cells.CellField` or None) only when this is True
+    uses_undetected: ClassVar[bool] = False
 
     def get_params(self) -> dict[str, Any]:
         """Constructor parameters, as stored under their own names (scikit-learn's rule;
@@ -320,3 +323,7 @@ class RenyiGain(Policy):
             self._pd_cache[n_counts] = pd
         return greedy_looks(counts, pd, self._n_looks, self.alpha, self.repeats, self._rng,
                             self._tables.setdefault(n_counts, {}))
+
+
+# the search-against-track policy lives in its own module and registers itself here
+from . import policy_search as _policy_search  # noqa: E402,F401
