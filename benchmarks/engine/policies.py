@@ -323,7 +323,3 @@ class RenyiGain(Policy):
             self._pd_cache[n_counts] = pd
         return greedy_looks(counts, pd, self._n_looks, self.alpha, self.repeats, self._rng,
                             self._tables.setdefault(n_counts, {}))
-
-
-# the search-against-track policy lives in its own module and registers itself here
-from . import policy_search as _policy_search  # noqa: E402,F401
