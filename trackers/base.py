@@ -233,8 +233,8 @@ class Tracker(Configurable, ABC):
     def undetected_intensity(self) -> CellField | None:
         """The expected number of targets no track holds, per cell, as predicted for this
         step (valid where :meth:`cell_count_distribution` is), or None if the tracker holds
-        no such field (the default; a policy then derives one from the model). A copy:
-        the caller may not change the tracker through it."""
+        no such field (the default; a policy then derives one from the model). Read only:
+        the caller never changes it (a tracker may return its own field, as KF-NN does)."""
         return None
 
     @abstractmethod

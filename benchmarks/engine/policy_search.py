@@ -15,10 +15,11 @@ prediction over the neighbouring cells. This policy weighs the two by those dura
 * ``D_c`` -- the same gain of the undetected component alone: the count of undetected
   targets in ``c``, ``Poisson(lambda_c)`` truncated to ``P_c``'s columns (last column
   "that many or more"), ``lambda_c`` the tracker's undetected-target intensity
-  (:meth:`~mttbench.trackers.base.Tracker.undetected_intensity`; the GPF's field ``u_c``,
-  a Bernoulli, enters as its mean) or, for a tracker that holds none, the model's own
-  (below). It is the existence information of a look about a target no track holds; for a
-  cell no track reaches ``G_c = D_c`` and ``V_c = w D_c``;
+  (:meth:`~mttbench.trackers.base.Tracker.undetected_intensity`: pmb's PPP, KF-NN's
+  intensity, the GPF's field ``u_c``, a Bernoulli, entering as its mean) or, for a
+  tracker that holds none, the model's own (below). It is the existence information of a
+  look about a target no track holds; for a cell no track reaches ``G_c = D_c`` and
+  ``V_c = w D_c``;
 * ``H_search = 1 / (1 - p_s (1 - min(1, M p_d(1) / C)))`` -- the expected number of steps
   a target missed now stays alive and undetected: each step it survives with ``p_s`` and a
   later look finds it with probability about ``M p_d(1) / C`` (``M`` looks spread over
