@@ -8,7 +8,8 @@ module            what it holds
 ``loop``          :class:`~.loop.Job`, the results table's columns, the one step loop
                   :func:`~.loop.play` and one run's rows :func:`~.loop.run_job`
 ``metrics``       per-step scores and the metric registry
-``policies``      cell-selection policies; ``information``: the Renyi gains
+``policies``      cell-selection policies; ``information``: the Renyi gains;
+                  ``policy_search``: ``search-track`` (registered on import of the engine)
 ``executors``     where runs go: local processes or a Dask cluster
 ``store``         parts written atomically, read back, the results table
 ``sweep``         :func:`~.sweep.run_sweep`: jobs -> parts -> ``results.parquet``
@@ -17,3 +18,5 @@ module            what it holds
 
 Nothing here imports :mod:`mttbench.benchmarks.app` (a test enforces it).
 """
+
+from . import policy_search as _policy_search  # noqa: E402,F401  (registers search-track)
