@@ -4,7 +4,8 @@
 
 One row per scenario: OSPA (mean ± 95% t half-width over the seeds) at every rung, the
 last paired difference OSPA(N) - OSPA(4N) with its half-width and the bound |mean| + half
-that the tolerance is checked against, the verdict, and the wall and CPU time it took.
+that the tolerance is checked against, that tolerance (0.02, or 5% of the achievable gap
+null minus the reference, whichever is wider), the verdict, and the wall and CPU time it took.
 """
 
 from __future__ import annotations
@@ -27,9 +28,9 @@ def main(argv: list[str]) -> int:
     provs = [json.loads(p.read_text()) for p in sorted(store.glob("*.json"))]
     rungs = sorted({r["n_particles"] for p in provs for r in p["rungs"]})
     head = ["scenario", "seeds", *(f"N = {n}" for n in rungs), "last step (N -> 4N)",
-            "bound", "verdict", "wall s", "CPU s"]
+            "bound", "tolerance", "verdict", "wall s", "CPU s"]
     print("| " + " | ".join(head) + " |")
-    print("|---|---:|" + "---:|" * len(rungs) + "---:|---:|---|---:|---:|")
+    print("|---|---:|" + "---:|" * len(rungs) + "---:|---:|---:|---|---:|---:|")
     for p in provs:
         by_n = {r["n_particles"]: r for r in p["rungs"]}
         cells = [f"`{p['scenario']}`", str(len(p["seeds"]))]
@@ -39,9 +40,10 @@ def main(argv: list[str]) -> int:
         step = (p.get("steps") or [None])[-1]
         if step:
             cells += [_pm(step["diff_mean"], step["diff_ci95"], "+.3f"),
-                      "n/a" if step["bound"] is None else f"{step['bound']:.3f}"]
+                      "n/a" if step["bound"] is None else f"{step['bound']:.3f}",
+                      f"{step.get('tolerance') or p['tolerance']:.3f}"]
         else:
-            cells += ["", ""]
+            cells += ["", "", ""]
         verdict = (f"converged at {p['n_reference']}" if p["converged"]
                    else f"not converged at {p['n_reference']}")
         cells += [verdict, f"{p['wall_time_s']:.0f}", f"{p['cpu_time_s']:.0f}"]

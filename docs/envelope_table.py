@@ -1,7 +1,7 @@
 """The operating envelope's tables (docs/envelope.md) from a sweep's results.parquet.
 
     .venv/bin/python docs/envelope_table.py RESULTS_PARQUET [RESULTS_PARQUET ...] [--points]
-        [--metric gospa]
+        [--metric gospa] [--policies raster renyi ...]
 
 For each policy in the table (one section per policy and look budget set), per envelope
 point x tracker, Markdown tables of:
@@ -27,6 +27,15 @@ achievable gap `(null - X) / (null - bayes)`;
 then every flagged (point, tracker) as a list, and per tracker how many points it fails and
 its median share of the gap closed over the points. Several tables (say a raster and a renyi
 sweep) are read as one.
+
+Where a point ran under two policies or more (`mttbench compare --suite envelope --policies
+raster renyi`, or several sweeps read as one), a last section puts them side by side
+(mttbench.benchmarks.app.policy_axis): per point and tracker the share of the gap closed under
+each policy, the paired difference `Q - base` of each other policy against the first
+(`--policies` gives the order; default raster first, then as they appear), and the best
+tracker-policy pair per point with whether it is ahead of the runner-up beyond noise. The Bayes
+reference is looked up per policy (its key holds the policy): a point with a stored raster
+reference and none for renyi gets the raster rows only.
 The references `null` (reports nothing) and `truth-aided` (uses the truth) are shown in the
 count table but never flagged. `--points` first prints the points table (name, axis, split,
 p_f, density, speed, look fraction, description) from the package's envelope. `--metric
@@ -36,14 +45,20 @@ gospa` computes tables 1 and 3 (and their flags) on GOSPA instead of OSPA.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 
 import numpy as np
 import pandas as pd
 
-from mttbench.benchmarks.app import bayes
-from mttbench.benchmarks.app.summary import PROBLEM_LIMITED_SHARE, gap_closed, paired_difference
+from mttbench.benchmarks.app import bayes, policy_axis
+from mttbench.benchmarks.app.summary import (
+    PROBLEM_LIMITED_SHARE,
+    gap_closed,
+    paired_difference,
+    per_run,
+)
 from mttbench.benchmarks.engine.specs import PolicySpec, resolve_scenarios
 from mttbench.scenarios import envelope
 
@@ -66,7 +81,7 @@ def cell(mean: float, half: float, fmt: str = "{:+.2f}") -> str:
 
 
 #: columns of text, aligned left (the others hold numbers, aligned right)
-TEXT = {"point", "axis", "split", "grid", "description", "tracker"}
+TEXT = {"point", "axis", "split", "grid", "description", "tracker", "best", "runner-up"}
 
 
 def md(header: list[str], rows: list[list[str]]) -> str:
@@ -263,26 +278,136 @@ def tables(df: pd.DataFrame, metric: str = "ospa") -> str:
     return "\n".join(out)
 
 
+def _policy_spec(g: pd.DataFrame) -> PolicySpec:
+    """The policy of rows ``g`` (one policy label) from their name and parameters."""
+    params = json.loads(str(g["policy_params"].iloc[0])) if "policy_params" in g.columns \
+        else {}
+    return PolicySpec(str(g["policy"].iloc[0]), params or {})
+
+
 def with_bayes_rows(df: pd.DataFrame, stores: list[str] | None) -> pd.DataFrame:
-    """``df`` with the stored Bayes reference's rows of every raster point whose seeds it
-    covers (one line on stderr per point without one)."""
+    """``df`` with the stored Bayes reference's rows of every point and policy whose seeds
+    it covers (one line on stderr per point and policy without one); a reference is keyed
+    by its policy, so one policy's is never attached to another's rows."""
     frames = [df]
-    raster = df[df["policy_label"] == "raster"]
-    for (sc_name, looks), g in raster.groupby(["scenario", "looks_per_step"], sort=True):
+    cells = df[df["policy_label"].astype(str) != policy_axis.NO_POLICY]
+    for (sc_name, looks, pol), g in cells.groupby(["scenario", "looks_per_step",
+                                                   "policy_label"], sort=True):
         n_steps = int(g["step"].max()) + 1
         try:
             (sc,) = resolve_scenarios([str(sc_name)], n_steps)
         except Exception:  # noqa: BLE001 - a scenario this package does not know
             continue
         default_looks = int(sc.model.sensor.looks_per_step)
-        ref = bayes.find(sc, PolicySpec("raster"), None if int(looks) == default_looks
+        ref = bayes.find(sc, _policy_spec(g), None if int(looks) == default_looks
                          else int(looks), sorted(set(g["seed"].astype(int))),
                          float(g["ospa_c"].iloc[0]), float(g["ospa_p"].iloc[0]), stores)
         if ref is None:
-            print(f"no stored bayes reference for {sc_name} @{looks}", file=sys.stderr)
+            print(f"no stored bayes reference for {sc_name} @{looks} under {pol}",
+                  file=sys.stderr)
             continue
         frames.append(ref.rows)
     return pd.concat(frames, ignore_index=True, sort=False)
+
+
+def policy_tables(df: pd.DataFrame, metric: str = "ospa",
+                  order: list[str] | None = None) -> str:
+    """The policies side by side (``""`` when no point ran two policies): per point the
+    share of the gap closed of each tracker under each policy, the paired difference of
+    each other policy against the first, the best pair, and per tracker a tally."""
+    runs = per_run(df)
+    order = order or (["raster"] if "raster" in set(runs["policy_label"].astype(str)) else [])
+    axis = policy_axis.policy_axis(runs, None, metric, order)
+    if not axis.available:
+        return ""
+    rank = {n: i for i, n in enumerate(envelope.point_names())}
+    t = axis.table
+    players = sorted(set(t.loc[(t["role"] == "") & ~t["tracker_uses_truth"].astype(bool),
+                               "tracker_label"].astype(str)))
+    ceiling = sorted(set(t.loc[t["role"] == "ceiling", "tracker_label"].astype(str)))
+    pols, base = axis.policies, axis.policies[0]
+    keys = sorted({(str(s), int(m)) for s, m in zip(t["scenario"], t["looks_per_step"],
+                                                     strict=True)},
+                  key=lambda k: (rank.get(k[0], 1e9), k))
+    several = {s for s, _ in keys if sum(1 for x, _ in keys if x == s) > 1}
+    name = {k: f"`{k[0]}`" + (f" @{k[1]}" if k[0] in several else "") for k in keys}
+    name_m = metric.upper()
+
+    def at(frame: pd.DataFrame, k: tuple[str, int]) -> pd.DataFrame:
+        return frame[(frame["scenario"].astype(str) == k[0])
+                     & (frame["looks_per_step"].astype(np.int64) == k[1])]
+
+    out = [f"## Policies side by side ({', '.join(pols)})\n",
+           "Every tracker under every policy on the same worlds (paired by seed). "
+           f"{policy_axis.BEYOND_NOISE_MARK.strip()} a paired difference whose 95% interval "
+           "excludes 0.\n"]
+    # 1. share of the gap closed per tracker and policy
+    rows = []
+    for k in keys:
+        here = at(t, k)
+        row = [name[k]]
+        for lab in players:
+            for p in pols:
+                r = here[(here["tracker_label"] == lab) & (here["policy_label"] == p)]
+                row.append("n/a" if r.empty else cell(float(r["share_mean"].iloc[0]),
+                                                      math.nan, "{:.2f}"))
+        rows.append(row)
+    out.append(f"### Share of the {name_m} gap closed per policy (each policy's own null and "
+               "truth-aided)\n")
+    out.append(md(["point", *(f"{short(lab)} {p}" for lab in players for p in pols)], rows))
+    # 2. paired differences against the base policy
+    d = axis.diffs
+    for q in pols[1:]:
+        rows = []
+        tally = {lab: [0, 0, 0] for lab in players}  # better, level, worse under q
+        for k in keys:
+            here = at(d, k)
+            row = [name[k]]
+            for lab in [*players, *ceiling]:
+                r = here[(here["tracker_label"] == lab) & (here["policy_label"] == q)]
+                if r.empty:
+                    row.append("n/a")
+                    continue
+                m, h = float(r["diff_mean"].iloc[0]), float(r["diff_ci95"].iloc[0])
+                beyond = not math.isnan(h) and abs(m) > h
+                row.append(cell(m, h, "{:+.3f}")
+                           + (policy_axis.BEYOND_NOISE_MARK if beyond else ""))
+                if lab in tally:
+                    tally[lab][0 if beyond and m < 0 else 2 if beyond else 1] += 1
+            rows.append(row)
+        out.append(f"\n### {name_m} under {q} minus under {base} (paired by seed; negative = "
+                   f"{q} better)\n")
+        out.append(md(["point", *map(short, players),
+                       *(f"{short(c)} (reference)" for c in ceiling)], rows))
+        out.append(f"\nPoints where {q} is better / level / worse than {base} beyond noise: "
+                   + "; ".join(f"{short(lab)} {a}/{b}/{c}" for lab, (a, b, c) in tally.items())
+                   + ".\n")
+    # 3. the best pair per point
+    rows = []
+    for k in keys:
+        b = at(axis.best, k)
+        if b.empty:
+            continue
+        r = b.iloc[0]
+        rows.append([name[k], f"{short(r['tracker_label'])} / {r['policy_label']}",
+                     cell(float(r["mean"]), float(r["ci95"]), "{:.3f}"),
+                     "–" if not r["runner_tracker"] else
+                     f"{short(r['runner_tracker'])} / {r['runner_policy']}",
+                     cell(float(r["diff_mean"]), float(r["diff_ci95"]), "{:+.3f}"),
+                     "yes" if bool(r["beyond_noise"]) else "no"])
+    out.append(f"\n### Best tracker / policy per point (least mean {name_m}; runner-up minus "
+               "best, paired)\n")
+    out.append(md(["point", "best", name_m, "runner-up", "runner-up - best",
+                   "beyond noise"], rows))
+    med = []
+    for lab in players:
+        mine = t[t["tracker_label"] == lab]
+        med.append([short(lab), *(
+            f"{mine.loc[mine['policy_label'] == p, 'share_mean'].median():.2f}" for p in pols)])
+    out.append("\n### Median share of the gap closed over the points\n")
+    out.append(md(["tracker", *pols], med))
+    out.append("")
+    return "\n".join(out)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -295,6 +420,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--bayes-store", nargs="+", default=None, metavar="DIR",
                     help="stored Bayes references (default: the package's)")
     ap.add_argument("--no-bayes", action="store_true", help="leave the Bayes reference out")
+    ap.add_argument("--policies", nargs="+", default=None, metavar="LABEL",
+                    help="policy labels in the order of the side-by-side tables (the first is "
+                         "the base of the paired differences; default raster first)")
     args = ap.parse_args(argv)
     if args.points:
         print(points_table() + "\n")
@@ -302,6 +430,9 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_bayes:
         df = with_bayes_rows(df, args.bayes_store)
     print(tables(df, args.metric))
+    side = policy_tables(df, args.metric, args.policies)
+    if side:
+        print(side)
     return 0
 
 

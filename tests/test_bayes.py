@@ -48,9 +48,10 @@ def test_paired_step_pairs_only_the_shared_seeds():
     assert step["n_pairs"] == 2 and step["diff_mean"] == pytest.approx(0.5)
 
 
-def synthetic_sweep(ospa_of_n, cpu_of_n=lambda n: 1e-6 * n, fail_at=None):
+def synthetic_sweep(ospa_of_n, cpu_of_n=lambda n: 1e-6 * n, fail_at=None, truth=None):
     """A sweep whose runs have OSPA ``ospa_of_n(n, seed)`` at every step and a CPU time
-    per step ``cpu_of_n(n)``; the runs at ``fail_at`` particles fail."""
+    per step ``cpu_of_n(n)``; the runs at ``fail_at`` particles fail. ``truth``: the true
+    count at each of the 3 steps (rows then carry ``true_count`` and ``ospa_c`` = 2)."""
     calls = []
 
     def sweep(jobs, folder):
@@ -65,7 +66,9 @@ def synthetic_sweep(ospa_of_n, cpu_of_n=lambda n: 1e-6 * n, fail_at=None):
                              "seed": job.seed, "step": step,
                              "ospa": ospa_of_n(n, job.seed),
                              "tracker_cpu_s": cpu_of_n(n),
-                             "status": "error" if n == fail_at else "ok", "error": ""})
+                             "status": "error" if n == fail_at else "ok", "error": "",
+                             **({} if truth is None else
+                                {"true_count": truth[step], "ospa_c": 2.0})})
         return pd.DataFrame(rows)
 
     return sweep, calls
@@ -83,12 +86,52 @@ def test_the_ladder_stops_at_the_first_pair_within_tolerance(tmp_path):
                             say=lambda _: None)
     ref = refs[TINY.name]
     # differences 1/sqrt(n) - 1/sqrt(4n) = 0.5/sqrt(n): 0.05 (100), 0.025 (400),
-    # 0.0125 (1600 -> 6400, the first within 0.02)
-    assert ref.converged and ref.n_particles == 6400
-    assert sorted(set(calls)) == [100, 400, 1600, 6400]
-    assert [s["n_low"] for s in ref.provenance["steps"]] == [100, 400, 1600]
+    # 0.0125 (1600 -> 6400, the first within 0.02), 0.00625 (6400 -> 25600, the second:
+    # two consecutive steps within, converged)
+    assert ref.converged and ref.n_particles == 25600
+    assert sorted(set(calls)) == [100, 400, 1600, 6400, 25600]
+    assert [s["n_low"] for s in ref.provenance["steps"]] == [100, 400, 1600, 6400]
     assert set(ref.rows["tracker_label"]) == {bayes.REFERENCE}
-    assert set(ref.rows["param_n_particles"]) == {6400}
+    assert set(ref.rows["param_n_particles"]) == {25600}
+
+
+def test_one_step_within_is_not_converged_when_the_next_is_not():
+    # a small first step followed by a large one (as kreucher's 1000 -> 4000 -> 16000)
+    ladder = bayes.Ladder(100, 4, 102400, 0.02, 1e9, 0.0)
+    within = {"bound": 0.01, "tolerance": 0.02}
+    beyond = {"bound": 0.04, "tolerance": 0.02}
+    assert not ladder.is_converged([within])
+    assert not ladder.is_converged([beyond, within])
+    assert not ladder.is_converged([within, beyond])
+    assert ladder.is_converged([beyond, within, within])
+    assert bayes.Ladder(100, 4, 102400, 0.02, 1e9, 0.0, 1).is_converged([beyond, within])
+    assert not ladder.is_converged([within, {"bound": None, "tolerance": 0.02}])
+
+
+def test_the_gap_share_widens_the_tolerance_by_the_floors_exact_score(tmp_path):
+    # truth 1, 1, 0 targets: the floor scores c = 2, 2, 0 -> 4/3 a run. OSPA(n) = 0.4 +
+    # 1/sqrt(n): steps 0.05 (100 -> 400), 0.025 (400 -> 1600), 0.0125 (1600 -> 6400).
+    # At 1600 the gap is 4/3 - 0.425 = 0.908, 5% of it 0.0454 >= 0.025: the two steps
+    # from 400 are within, converged at 6400 (the absolute 0.02 alone: 25600).
+    sweep, _ = synthetic_sweep(lambda n, s: 0.4 + 1.0 / math.sqrt(n) + SEED_NOISE[s],
+                               truth=[1, 1, 0])
+    ref = bayes.run_ladder([TINY], range(4), sweep, tmp_path,
+                           ladder=bayes.Ladder(100, 4, 102400, 0.02, 1e9, 0.05),
+                           say=lambda _: None)[TINY.name]
+    assert ref.converged and ref.n_particles == 6400
+    step = ref.provenance["steps"][-2]
+    gap = 4.0 / 3.0 - np.mean([0.4 + 1.0 / 40.0 + e for e in SEED_NOISE])
+    assert step["gap"] == pytest.approx(gap, abs=1e-6)
+    assert step["tolerance"] == pytest.approx(0.05 * gap, abs=1e-6)
+    assert "of the achievable gap" in ref.verdict()
+    # the first step (0.05) is beyond 5% of its gap (0.858): not converged at 400
+    assert ref.provenance["steps"][0]["bound"] > ref.provenance["steps"][0]["tolerance"]
+    # with the share off, the absolute rule alone: 6400 as without the floor's numbers
+    off = bayes.run_ladder([TINY], range(4), sweep, tmp_path / "off",
+                           ladder=bayes.Ladder(100, 4, 102400, 0.02, 1e9, 0.0),
+                           say=lambda _: None)[TINY.name]
+    assert off.converged and off.n_particles == 25600
+    assert "of the achievable gap" not in off.verdict()
 
 
 def test_a_rung_past_the_run_limit_is_not_run_and_the_verdict_says_so(tmp_path):
@@ -124,7 +167,10 @@ def test_n_max_reached_without_convergence(tmp_path):
 @pytest.mark.parametrize("kwargs, what", [
     ({"n_start": 0}, "--n-start"), ({"factor": 1}, "--factor"),
     ({"n_start": 1000, "n_max": 2000}, "--n-max"), ({"tolerance": 0.0}, "--tolerance"),
-    ({"tolerance": math.nan}, "--tolerance"), ({"run_limit_s": -1.0}, "--run-limit")])
+    ({"tolerance": math.nan}, "--tolerance"), ({"run_limit_s": -1.0}, "--run-limit"),
+    ({"gap_share": 1.0}, "--gap-share"), ({"gap_share": -0.1}, "--gap-share"),
+    ({"confirm": 0}, "--confirm"), ({"confirm": 4, "n_max": 10 ** 9}, "--confirm"),
+    ({"n_start": 1000, "n_max": 4000}, r"factor\^confirm")])
 def test_bad_ladders_are_refused_in_one_line(kwargs, what):
     with pytest.raises(UsageError, match=what):
         bayes.Ladder(**kwargs)
@@ -134,7 +180,7 @@ def test_bad_ladders_are_refused_in_one_line(kwargs, what):
 def stored(tmp_path, seeds=(0, 1, 2)) -> bayes.Reference:
     sweep, _ = synthetic_sweep(lambda n, s: 1.0 + 0.1 * s)
     refs = bayes.run_ladder([TINY], seeds, sweep, tmp_path / "work",
-                            ladder=bayes.Ladder(100, 4, 400, 0.5, 1e9), say=lambda _: None)
+                            ladder=bayes.Ladder(100, 4, 1600, 0.5, 1e9), say=lambda _: None)
     ref = refs[TINY.name]
     bayes.save(tmp_path / "store", TINY, ref.provenance["key"], ref)
     return ref
@@ -245,14 +291,14 @@ def test_attach_adds_the_stored_rows_and_says_which_are_missing(tmp_path):
     merged, notes = bayes.attach(base, [TINY, other], [0, 1], stores=[tmp_path / "store"])
     assert set(merged["tracker_label"]) == {"null", "bayes"}
     assert set(merged.loc[merged["tracker_label"] == "bayes", "seed"]) == {0, 1}
-    assert "converged at N = 400" in notes[0]
+    assert "converged at N = 1600" in notes[0]
     assert "no stored `bayes` reference" in notes[1] and "mttbench bayes env-pf-0.1" in notes[1]
 
 
 # ------------------------------------------------------------------ the command
 def test_mttbench_bayes_end_to_end_stores_and_resumes(tmp_path, capsys):
     args = ["bayes", "env-centre", "--steps", "3", "--seeds", "2", "--n-start", "20",
-            "--n-max", "80", "--out", str(tmp_path / "work"), "--store",
+            "--n-max", "80", "--confirm", "1", "--out", str(tmp_path / "work"), "--store",
             str(tmp_path / "store"), "--workers", "1", "--no-progress"]
     assert main(args) == 0
     out = capsys.readouterr().out
@@ -275,7 +321,8 @@ def test_mttbench_bayes_end_to_end_stores_and_resumes(tmp_path, capsys):
 @pytest.mark.parametrize("extra, what", [
     (["--n-start", "0"], "--n-start"), (["--n-max", "10"], "--n-max"),
     (["--policy", "raster", "renyi"], "one policy"), (["--looks", "4", "8"], "one look"),
-    (["--seeds", "1"], "at least 2 seeds"), (["--tolerance", "-1"], "--tolerance")])
+    (["--seeds", "1"], "at least 2 seeds"), (["--tolerance", "-1"], "--tolerance"),
+    (["--confirm", "0"], "--confirm"), (["--n-max", "8000"], "factor^confirm")])
 def test_mttbench_bayes_refuses_bad_input_in_one_line(tmp_path, capsys, extra, what):
     code = main(["bayes", "env-centre", "--steps", "3", "--seeds", "2", "--out",
                  str(tmp_path / "w"), "--store", str(tmp_path / "s"), "--no-progress", *extra])
@@ -331,4 +378,4 @@ def test_the_frontier_draws_the_stored_bayes_line(tmp_path, monkeypatch, capsys)
                  "2", "--workers", "1", "--no-progress", "--out", str(tmp_path / "f")])
     assert code == 0
     text = (tmp_path / "f" / "frontier.md").read_text()
-    assert "bayes (converged, N = 400)" in text
+    assert "bayes (converged, N = 1600)" in text

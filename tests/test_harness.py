@@ -16,6 +16,7 @@ from mttbench.benchmarks.app.summary import (
     mean_ci95,
     paired_difference,
     per_run,
+    run_failures,
     summarize,
     to_markdown,
 )
@@ -460,3 +461,21 @@ def test_the_trackers_timed_share_excludes_the_selection_and_the_looks(monkeypat
     for rec in recs:
         assert rec.tracker_wall_s == 111.0 and rec.tracker_cpu_s == 111.0
         assert rec.select_wall_s == 11000.0 and rec.select_cpu_s == 11000.0
+
+
+def test_run_failures_counts_runs_not_rows():
+    # three runs of four steps; the second fails at step 2 (its two ok rows, then the
+    # error row), as run_job writes them: 1 of 3 runs failed, whatever the row counts
+    rows = []
+    for seed in range(3):
+        for step in range(4):
+            failed = seed == 1 and step == 2
+            rows.append({"scenario": "s", "tracker_label": "t", "policy_label": "raster",
+                         "looks_per_step": 4, "seed": seed, "step": step,
+                         "status": "error" if failed else "ok",
+                         "error": "ValueError: boom" if failed else ""})
+            if failed:
+                break
+    k, n, first = run_failures(pd.DataFrame(rows))
+    assert (k, n) == (1, 3)
+    assert first == "s/t/seed 1: ValueError: boom (step 2)"

@@ -689,3 +689,34 @@ def test_the_deletion_drop_is_raised_only_for_a_track_tested_more_than_the_even_
     assert np.array_equal(got[:4], np.zeros(4))  # never lowered below the plain drop
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=0)
     assert got[4] == pytest.approx(np.log(21 / 6), rel=1e-12)
+
+
+def test_a_confirmed_track_stays_confirmed_when_its_score_falls_below_the_level() -> None:
+    """Confirmation is a one-way decision: at SNR 2 (p_f = 0.125, a hit adds at most log 4,
+    a miss log(0.5 / 0.875) = -0.56) hits confirm the track just past the level
+    ``log((1 - alpha) / alpha)``; misses then take its posterior log-odds ``L0 + L`` below
+    that level long before its score lies the drop ``log(1 / beta)`` below its peak (beta
+    = 1e-4: 9.2). On those steps it is still confirmed, its peak unchanged (the confirmed
+    track's deletion test, not the tentative one's)."""
+    tracker = KFNNTracker(lost_track_probability=1e-4)
+    tracker.reset(_model(snr=2.0), np.random.default_rng(0))
+    cell = _cell(6.5, 6.5)
+    for _ in range(10):
+        tracker.predict()
+        tracker.update(_looks([cell]))
+        if tracker.track_table()["confirmed"].tolist() == [True]:
+            break
+    assert tracker.track_table()["confirmed"].tolist() == [True]
+    peak = float(tracker.track_table()["peak"][0])
+    below = 0
+    for _ in range(40):
+        tracker.predict()
+        tracker.update(_looks([]))
+        table = tracker.track_table()
+        if not table["id"].size:
+            break
+        if tracker._prior_logodds[0] + table["score"][0] < tracker._confirm_at:
+            below += 1
+            assert table["confirmed"].tolist() == [True]
+            assert table["peak"][0] == peak
+    assert below >= 1  # the case the test is about happened

@@ -157,8 +157,9 @@ def test_every_policy_looks_at_visible_cells_only_and_wastes_none(name, looks):
             assert len(cells) == min(looks, n_visible) == len(np.unique(cells))
 
 
-@pytest.mark.parametrize("name", ["renyi", "lookahead"])
-@pytest.mark.parametrize("repeats", [False, True])
+@pytest.mark.parametrize("name, repeats", [("renyi", False), ("renyi", True),
+                                           ("lookahead", False), ("lookahead", True),
+                                           ("search-track", None)])
 def test_sparse_path_skips_blind_cells(name, repeats):
     """A grid beyond the dense path (60x60): the blind cells, own or default, are never
     chosen, and a blind band over most own cells leaves the looks to visible ones."""
@@ -169,7 +170,7 @@ def test_sparse_path_skips_blind_cells(name, repeats):
     own = np.sort(rng.choice(model.grid.n_cells, 80, replace=False))
     default = np.array([0.995, 0.004, 0.001])
     rows = rng.dirichlet(np.ones(3), size=own.size)
-    policy = make_policy(name, repeats=repeats)
+    policy = make_policy(name) if repeats is None else make_policy(name, repeats=repeats)
     policy.reset(model, 40, np.random.default_rng(4))
     for k in range(0, 30, 7):
         cells = policy.select(k, counts=CellCounts(model.grid.n_cells, own, rows, default))

@@ -26,7 +26,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..scenarios.model import Looks, TrackingModel
-from .cells import CellCounts
+from .cells import CellCounts, CellField
 from .params import Budget, Configurable
 from .registry import Registry
 
@@ -229,6 +229,13 @@ class Tracker(Configurable, ABC):
         n_counts)`` array (``O(cells)``: fine on small grids; policies accept both, and
         :func:`~mttbench.trackers.cells.as_cell_counts` turns either into the former).
         """
+
+    def undetected_intensity(self) -> CellField | None:
+        """The expected number of targets no track holds, per cell, as predicted for this
+        step (valid where :meth:`cell_count_distribution` is), or None if the tracker holds
+        no such field (the default; a policy then derives one from the model). Read only:
+        the caller never changes it (a tracker may return its own field, as KF-NN does)."""
+        return None
 
     @abstractmethod
     def update(self, looks: Looks) -> None:

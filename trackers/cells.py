@@ -395,6 +395,12 @@ class CellField:
         self.cells = np.zeros(0, dtype=np.int64)
         self.values = np.zeros(0)
 
+    def copy(self) -> CellField:
+        """An independent copy (its own arrays)."""
+        out = CellField(self.n_cells, self.default)
+        out.cells, out.values = self.cells.copy(), self.values.copy()
+        return out
+
     def affine(self, a: float, b: float) -> None:
         """``x <- a x + b`` in every cell."""
         self.default = a * self.default + b

@@ -426,8 +426,10 @@ def cmd_run(args: argparse.Namespace) -> int:
 def cmd_compare(args: argparse.Namespace) -> int:
     """The head-to-head report (:mod:`benchmarks.app.compare`)."""
     from .compare import run_compare
+    from .policy_axis import resolve as resolve_policy_axis
 
     _check_common(args)
+    policy_specs = resolve_policy_axis(args.policies)
     seeds = _seeds(args, default=COMPARE_SEEDS)
     out_dir = _out_dir(args, "compare-", is_finished)
     args.out_dir = out_dir  # for the resume line after Ctrl-C
@@ -437,7 +439,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
                           progress=not args.no_progress, resume=args.resume, c=args.c,
                           p=args.p, argv=args.argv, tuned_dir=args.tuned_dir,
                           untuned=args.untuned, tuning_effect=args.tuning_effect,
-                          run_timeout=args.run_timeout, compute_bayes=args.bayes)
+                          run_timeout=args.run_timeout, compute_bayes=args.bayes,
+                          policies=policy_specs)
     print((res.out_dir / "summary.md").read_text(encoding="utf-8"))
     man = res.manifest
     wall = f"{man['wall_time_s']:.0f} s"
@@ -785,7 +788,8 @@ def cmd_bayes(args: argparse.Namespace) -> int:
     if bool(args.scenarios) == bool(args.suite):
         raise UsageError("name the scenarios (SCENARIO ...) or --suite, one of the two")
     ladder = bayes.Ladder(n_start=args.n_start, factor=args.factor, n_max=args.n_max,
-                          tolerance=args.tolerance, run_limit_s=args.run_limit)
+                          tolerance=args.tolerance, run_limit_s=args.run_limit,
+                          gap_share=args.gap_share, confirm=args.confirm)
     scs = resolve_scenarios(_scenario_names(args), args.steps)
     pols = resolve_policies(args.policy)
     if len(pols) != 1:
@@ -951,7 +955,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="The main job. Every registered tracker (including the `null` baseline; "
                     "JMPD at 1000 and 250 particles) on the scenarios "
                     f"{', '.join(COMPARE_SCENARIOS)}, raster policy at each scenario's look "
-                    f"budget, {COMPARE_SEEDS} seeds, in parallel processes. Writes "
+                    f"budget (--policies: every tracker under each policy), {COMPARE_SEEDS} "
+                    "seeds, in parallel processes. Writes "
                     "results.parquet, summary.csv/.md, report.md, a self-contained "
                     "report.html, figures/ and manifest.json into --out (default "
                     "reports/compare-<UTC timestamp>). Defaults take about 1.5 minutes on 2 "
@@ -961,7 +966,8 @@ def build_parser() -> argparse.ArgumentParser:
               mttbench compare
               mttbench compare --seeds 30 --steps 200 --workers 8
               mttbench compare --trackers kfnn gpf jmpd:n_particles=4000 --scenarios crossing \\
-                  --reference gpf"""))
+                  --reference gpf
+              mttbench compare --policies raster renyi --trackers null truth-aided gpf pmb"""))
     g = p.add_mutually_exclusive_group()
     g.add_argument("--scenarios", nargs="+", default=list(COMPARE_SCENARIOS),
                    metavar="SCENARIO", help="override the scenarios")
@@ -969,6 +975,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_sweep_options(p, seeds_default=COMPARE_SEEDS, trackers_required=False)
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel worker processes (default: the number of CPUs)")
+    p.add_argument("--policies", "--policy", nargs="+", default=["raster"], metavar="SPEC",
+                   help="cell-selection policies, comma or space separated (default "
+                        "raster): every tracker runs under each on the same worlds; the "
+                        "report adds a tracker x policy table with the paired differences "
+                        "against the first and the best pair per scenario (see `mttbench "
+                        "trackers`)")
     p.add_argument("--reference", default=None, metavar="TRACKER",
                    help="tracker (name or label) that paired differences subtract "
                         f"(default: the first of {', '.join(COMPARE_REFERENCES)} that runs, "
@@ -1288,6 +1300,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tolerance", type=float, default=0.02, metavar="D",
                    help="converged when the paired OSPA difference's 95%% interval lies "
                         "within +-D (default 0.02)")
+    p.add_argument("--gap-share", type=float, default=0.05, metavar="S",
+                   help="or within S of the achievable gap (null OSPA minus the higher "
+                        "count's), whichever is wider (default 0.05; 0: --tolerance alone)")
+    p.add_argument("--confirm", type=int, default=2, metavar="K",
+                   help="converged when the last K steps (N -> 4N) each lie within it "
+                        "(default 2; 1 to 3)")
     p.add_argument("--run-limit", type=float, default=600.0, metavar="SECONDS",
                    help="skip a rung whose runs would take more CPU seconds each (4x the "
                         "last rung's, measured; default 600)")

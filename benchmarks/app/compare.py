@@ -32,6 +32,11 @@ length, the raster policy at each scenario's look budget, and JMPD at 1000 parti
 runtime figure shows the particle-count trade-off. ``--seeds``, ``--steps``,
 ``--trackers`` (with ``name:key=val`` parameters), ``--scenarios`` scale it.
 
+Policies: ``--policies raster renyi ...`` runs every tracker under every policy on the
+same worlds (:mod:`~mttbench.benchmarks.app.policy_axis`: the tracker x policy table,
+paired differences between policies, the best pair); one policy gives the report of
+that policy alone.
+
 Parameters: a tracker with a tuned file (``tuned/<tracker>.toml``, written by ``mttbench
 tune`` on seeds held apart; :mod:`~mttbench.benchmarks.app.tuned`) runs those parameters,
 labelled ``name(tuned)``; ``--untuned`` runs the defaults; ``--tuning-effect`` runs both
@@ -63,7 +68,7 @@ from ..engine.loop import build_jobs, spec_uses_truth
 from ..engine.metrics import cutoff, describe_cutoff, run_metric_params
 from ..engine.specs import PolicySpec, TrackerSpec, resolve_scenarios, resolve_trackers
 from ..engine.store import check_sweep, prepare_out_dir, write_text_atomic
-from . import bayes, resources, summary, tuned
+from . import bayes, policy_axis, resources, summary, tuned
 from .progress import run_sweep
 from .resources import default_run_timeout
 from .usage import UsageError
@@ -170,7 +175,8 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
                 tuned_dir: str | Path | None = None, untuned: bool = False,
                 tuning_effect: bool = False,
                 run_timeout: float | None = None, compute_bayes: bool = False,
-                bayes_ladder: bayes.Ladder | None = None) -> CompareOutput:
+                bayes_ladder: bayes.Ladder | None = None,
+                policies: Sequence[PolicySpec] | None = None) -> CompareOutput:
     """Run the comparison and write the report folder (see the module docstring).
 
     ``tracker_texts`` None means :func:`default_tracker_texts`; ``seeds`` None means
@@ -198,8 +204,13 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
     the label ``name(tuned)`` unless ``untuned``; ``tuning_effect`` also runs its defaults
     (label ``name``) for the report's "Effect of tuning". A bare ``reference`` name means
     the tuned setting.
+
+    ``policies`` (None: raster) are the cell-selection policies every tracker runs under,
+    the first the base of the paired differences between policies; the Bayes reference
+    is looked up (and computed) per policy, never borrowed from another policy.
     """
     t0 = time.perf_counter()
+    pols = list(policies) if policies else [PolicySpec("raster")]
     started = datetime.now(UTC)
     scs = resolve_scenarios(list(scenario_names), steps)
     texts = list(tracker_texts) if tracker_texts else default_tracker_texts()
@@ -217,7 +228,7 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
     workers = workers or os.cpu_count() or 1
     out = Path(out_dir) if out_dir else Path("reports") / f"compare-{started:%Y%m%dT%H%M%SZ}"
 
-    jobs = build_jobs(scs, specs, [PolicySpec("raster")], None, seeds)
+    jobs = build_jobs(scs, specs, pols, None, seeds)
     for line in resources.check_jobs(jobs, workers):
         print(line, file=sys.stderr)
     prepare_out_dir(out)
@@ -247,6 +258,7 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
         "scenarios": [sc.name for sc in scs],
         "steps": {sc.name: sc.n_steps for sc in scs},
         "trackers": [s.label for s in specs],
+        "policies": [pol.label for pol in pols],
         "parameters": {label: {"tuned_file": str(src.tuned.path) if src.tuned else None,
                                "source": src.why, "params": src.params}
                        for label, src in plan.sources.items()},
@@ -268,26 +280,34 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
         write_text_atomic(out / "manifest.json", json.dumps(manifest, indent=2) + "\n")
 
     save_manifest("running")
-    print(f"{len(jobs)} runs ({len(scs)} scenarios x {len(specs)} trackers x {len(seeds)} "
-          f"seeds) on {describe_current(workers)} -> {out}", file=sys.stderr)
+    axis = f" x {len(pols)} policies" if len(pols) > 1 else ""
+    print(f"{len(jobs)} runs ({len(scs)} scenarios x {len(specs)} trackers{axis} x "
+          f"{len(seeds)} seeds) on {describe_current(workers)} -> {out}", file=sys.stderr)
     try:
         results = run_sweep(jobs, out, workers=workers, progress=progress, resume=resume,
                             c=c, p=p, run_timeout=run_timeout or default_run_timeout(jobs))
         stores = [bayes.default_store(), out / "bayes" / "store"]
         if compute_bayes:
             _compute_missing_bayes(scs, seeds, out, stores, bayes_ladder or bayes.Ladder(),
-                                   workers, progress, c, p, run_timeout)
+                                   workers, progress, c, p, run_timeout, pols)
         t_runs = time.perf_counter() - t0
         manifest["runs_wall_time_s"] = round(t_runs, 3)
         manifest["n_rows"] = len(results)
-        results, bayes_lines = bayes.attach(results, scs, seeds, PolicySpec("raster"), None,
-                                            c, p, stores)
+        bayes_lines = []
+        for pol in pols:
+            results, lines = bayes.attach(results, scs, seeds, pol, None, c, p, stores,
+                                          name_policy=len(pols) > 1)
+            bayes_lines += lines
         manifest["bayes"] = bayes_lines
+        order = [pol.label for pol in pols]
+        axis_md = policy_axis.markdown(policy_axis.policy_axis(
+            summary.per_run(results), order=order)) if len(pols) > 1 else ""
 
         summary.write_summary(results, out, "mttbench compare",
-                              notes=tuned.parameter_notes(plan))
+                              notes=tuned.parameter_notes(plan),
+                              sections=[axis_md] if axis_md else ())
 
-        trace = _snapshot_trace(scs, specs, seeds) if snapshot else None
+        trace = _snapshot_trace(scs, specs, seeds, pols[0]) if snapshot else None
         earlier = sum(float(s.get("wall_time_s") or 0.0) for s in sessions[:-1])
         wall_text = f"{t_runs:.1f} s"
         if len(sessions) > 1:
@@ -300,8 +320,7 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
                            f"{tuned.show_path(plan.tuned_dir)}/<tracker>.toml exists (label "
                            "name(tuned)), else the defaults; see Parameters"),
             "seeds": _seed_text(seeds),
-            "policy": "raster sweep at each scenario's looks_per_step (the same cells for "
-                      "every tracker, so differences are the trackers')",
+            "policy": _policy_setting(pols),
             "metrics": f"OSPA/GOSPA cut-off c = {_cutoff_text(c, scs)}, order p = {p:g}; "
                        "positions only",
             "reference for paired differences": reference or "none (every tracker uses "
@@ -326,7 +345,8 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
         files = report.build_report(results, out, reference=reference, intro=intro,
                                     settings=settings, trace=trace,
                                     sections=tuned.report_sections(plan, results),
-                                    tuned_on=tuned.tuned_scenarios(plan))
+                                    tuned_on=tuned.tuned_scenarios(plan),
+                                    policy_order=order)
     except BaseException as exc:
         status = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
         with contextlib.suppress(OSError):
@@ -338,19 +358,37 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
 
 def _compute_missing_bayes(scs, seeds: list[int], out: Path, stores: list[Path],
                            ladder: bayes.Ladder, workers: int, progress: bool, c: float,
-                           p: float, run_timeout: float | None) -> None:
-    """The Bayes reference of every scenario that has none stored for these seeds, run in
-    ``<out>/bayes/ladder`` (resumable with the comparison) and stored in ``stores[-1]``."""
-    missing = [sc for sc in scs
-               if bayes.find(sc, PolicySpec("raster"), None, seeds, c, p, stores) is None]
-    if not missing:
-        return
-    print(f"computing the bayes reference of {', '.join(sc.name for sc in missing)} "
-          f"(docs/bayes.md)", file=sys.stderr)
-    bayes.run_command(missing, seeds, ladder, PolicySpec("raster"), None,
-                      out / "bayes" / "ladder", stores[-1], workers=workers,
-                      progress=progress, resume=True, c=c, p=p, run_timeout=run_timeout,
-                      provenance={"git": git_commit(), "versions": package_versions()})
+                           p: float, run_timeout: float | None,
+                           pols: Sequence[PolicySpec] = (bayes.RASTER,)) -> None:
+    """The Bayes reference of every scenario and policy that has none stored for these
+    seeds, run in ``<out>/bayes/ladder`` (raster; ``ladder-<policy>`` for the others;
+    resumable with the comparison) and stored in ``stores[-1]``."""
+    for pol in pols:
+        missing = [sc for sc in scs if bayes.find(sc, pol, None, seeds, c, p, stores) is None]
+        if not missing:
+            continue
+        under = "" if pol == PolicySpec("raster") else f" under {pol.label}"
+        print(f"computing the bayes reference of {', '.join(sc.name for sc in missing)}"
+              f"{under} (docs/bayes.md)", file=sys.stderr)
+        folder = "ladder" if not under else "ladder-" + "".join(
+            ch if ch.isalnum() or ch in "-_." else "_" for ch in pol.label)
+        bayes.run_command(missing, seeds, ladder, pol, None, out / "bayes" / folder,
+                          stores[-1], workers=workers, progress=progress, resume=True, c=c,
+                          p=p, run_timeout=run_timeout,
+                          provenance={"git": git_commit(), "versions": package_versions()})
+
+
+def _policy_setting(pols: Sequence[PolicySpec]) -> str:
+    """The report's line on the cell-selection policy (or policies)."""
+    if len(pols) == 1 and pols[0] == PolicySpec("raster"):
+        return ("raster sweep at each scenario's looks_per_step (the same cells for every "
+                "tracker, so differences are the trackers')")
+    if len(pols) == 1:
+        return (f"{pols[0].label} at each scenario's looks_per_step (every tracker chooses "
+                "its own cells when the policy reads the tracker's prediction)")
+    return (", ".join(pol.label for pol in pols) + " at each scenario's looks_per_step, "
+            "every tracker under each on the same worlds (paired by seed); differences "
+            f"between policies against {pols[0].label}")
 
 
 def default_reference(specs: Sequence[TrackerSpec]) -> str | None:
@@ -390,8 +428,10 @@ def _seed_text(seeds: list[int]) -> str:
     return ", ".join(map(str, seeds))
 
 
-def _snapshot_trace(scs, specs: list[TrackerSpec], seeds: list[int]):
-    """Trace seed ``seeds[0]`` of the first grid scenario for the preferred tracker."""
+def _snapshot_trace(scs, specs: list[TrackerSpec], seeds: list[int],
+                    policy: PolicySpec = bayes.RASTER):
+    """Trace seed ``seeds[0]`` of the first grid scenario for the preferred tracker under
+    ``policy``."""
     from ...scenarios.model import RayleighGridSensor
     from ..engine.snapshot import trace_run
 
@@ -401,6 +441,6 @@ def _snapshot_trace(scs, specs: list[TrackerSpec], seeds: list[int]):
     by_name = {s.name: s for s in specs}
     chosen = next((by_name[n] for n in SNAPSHOT_PREFERENCE if n in by_name), specs[0])
     try:
-        return trace_run(grid_scs[0], chosen, seeds[0], PolicySpec("raster"))
+        return trace_run(grid_scs[0], chosen, seeds[0], policy)
     except Exception:  # noqa: BLE001 - a failing tracker is already in the tables
         return None

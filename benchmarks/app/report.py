@@ -27,6 +27,11 @@ scenario whose gap is too small to rank trackers (below 0.15, or its interval re
 0). Without them the section says which did not run. Trackers and policies given the
 truth are marked `` (uses truth)`` in every table.
 
+When a scenario ran under several policies, the verdict names the best tracker-policy
+pair per scenario and a section gives the tracker x policy table with the paired
+differences between policies (:mod:`benchmarks.app.policy_axis`); the figures then have
+one panel per scenario and policy.
+
 Check a report in a real browser (headless Debian chromium; writes ``screenshot.png``
 into the report folder)::
 
@@ -56,7 +61,7 @@ from ..engine.metrics import (
     registered_run_metrics,
 )
 from ..engine.store import write_text_atomic
-from . import figures, summary, verdict
+from . import figures, policy_axis, summary, verdict
 
 #: metrics shown in a table of their own (GOSPA: its parts are p-th-power costs)
 _OWN_TABLE = ("gospa",)
@@ -647,7 +652,8 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
                  intro: list[str] | None = None, settings: dict[str, Any] | None = None,
                  trace: Any = None, notes: list[str] | None = None,
                  draw: bool = True, sections: list[tuple[Any, ...]] | None = None,
-                 tuned_on: dict[str, frozenset[str]] | None = None) -> ReportFiles:
+                 tuned_on: dict[str, frozenset[str]] | None = None,
+                 policy_order: list[str] | None = None) -> ReportFiles:
     """Write ``report.md``, ``report.html`` and ``figures/*.png`` into ``out_dir``.
 
     ``reference`` is the tracker label that paired differences subtract (skipped
@@ -657,7 +663,9 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
     ``sections`` blocks (:class:`Document`) shown after the settings (``compare``: the
     parameters each tracker ran and the effect of tuning). ``tuned_on`` maps a tuned
     setting's label to the scenarios its file was tuned on: every table marks the rows
-    out of sample for it (:func:`mark_out_of_sample`).
+    out of sample for it (:func:`mark_out_of_sample`). ``policy_order``: the policies in
+    the order given (the first is the base of the differences between policies; default
+    their order in ``results``).
     """
     out_dir = Path(out_dir)
     fig_dir = out_dir / "figures"
@@ -666,14 +674,20 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
     summ = summary.summarize(runs)
     truth = summary.truth_labels(runs)
     gc = summary.gap_closed(runs)
+    axis = policy_axis.policy_axis(runs, gc, gc.metric, policy_order)
 
     figs: dict[str, Path] = {}
     if draw:
-        _draw_figures(results, runs, summ, fig_dir, trace, figs, gc)
+        if axis.available:  # one panel per scenario and policy
+            _draw_figures(_panel_per_policy(results), _panel_per_policy(runs),
+                          _panel_per_policy(summ), fig_dir, trace, figs, gc,
+                          summary.cutoff_text(results))
+        else:
+            _draw_figures(results, runs, summ, fig_dir, trace, figs, gc)
 
     doc = Document()
     doc.add("h1", title)
-    _verdict_section(doc, results, runs, summ, gc, figs)
+    _verdict_section(doc, results, runs, summ, gc, figs, axis)
     for para in intro or []:
         doc.add("p", para)
     out_of_sample = sorted({sc for sc in summ["scenario"].astype(str)
@@ -685,6 +699,7 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
                      + "; ".join(f"`{lab}`: {', '.join(sorted(on))}"
                                  for lab, on in sorted((tuned_on or {}).items())) + ").")
     _floor_ceiling_section(doc, gc, truth, tuned_on)
+    _policy_section(doc, axis)
     unranked = baseline_notes(summ, runs)
     if unranked:
         doc.add("h2", "Where the baseline is not beaten")
@@ -762,11 +777,38 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
     return ReportFiles(md_path, html_path, figs)
 
 
+def _panel_per_policy(table: pd.DataFrame) -> pd.DataFrame:
+    """``table`` with each grid scenario's name followed by its policy, so the figures
+    draw one panel per scenario and policy."""
+    pol = table["policy_label"].astype(str)
+    out = table.copy()
+    out["scenario"] = [sc if p == policy_axis.NO_POLICY else f"{sc} · {p}"
+                       for sc, p in zip(table["scenario"].astype(str), pol, strict=True)]
+    return out
+
+
+def _policy_section(doc: Document, axis: policy_axis.PolicyAxis) -> None:
+    """Trackers x policies: the best pair per scenario, where the Bayes reference is
+    stored under one policy only, and per scenario the tracker x policy table."""
+    if not axis.available:
+        return
+    doc.add("h2", "Trackers x policies")
+    doc.add("p", policy_axis.explanation(axis))
+    lines = policy_axis.best_lines(axis) + policy_axis.bayes_lines(axis)
+    if lines:
+        doc.add("list", lines)
+    for head, table in policy_axis.display_tables(axis):
+        doc.add("h3", head.replace("`", ""))
+        doc.add("table", table)
+
+
 def _verdict_section(doc: Document, results: pd.DataFrame, runs: pd.DataFrame,
-                     summ: pd.DataFrame, gc: summary.GapClosed, figs: dict[str, Path]) -> None:
+                     summ: pd.DataFrame, gc: summary.GapClosed, figs: dict[str, Path],
+                     axis: policy_axis.PolicyAxis | None = None) -> None:
     """The report's opening: per scenario who leads and by how much (paired, 95%
-    intervals), the gaps and what cannot be ranked (:mod:`.verdict`), each tracker's cost,
-    and the figure of the share of the gap closed."""
+    intervals), the gaps and what cannot be ranked (:mod:`.verdict`), the best
+    tracker-policy pair where several policies ran (:mod:`.policy_axis`), each tracker's
+    cost, and the figure of the share of the gap closed."""
     doc.add("h2", "Verdict")
     name = column_label(gc.metric)
     doc.add("p", f"{name} with {summary.cutoff_text(results)}. "
@@ -777,6 +819,11 @@ def _verdict_section(doc: Document, results: pd.DataFrame, runs: pd.DataFrame,
                  f"the floor's {name} minus the ceiling's, the achievable gap the floor's minus "
                  "the Bayes reference's; the tables below give every number.")
     doc.add("list", verdict.group_lines(runs, gc, gc.metric, baseline_notes(summ, runs)))
+    if axis is not None and axis.available and not axis.best.empty:
+        doc.add("p", "Best tracker-policy pair per scenario (the table \"Trackers x "
+                     "policies\" below gives every pair and the paired differences between "
+                     "policies):")
+        doc.add("list", policy_axis.best_lines(axis))
     if not gc.available:
         doc.add("p", gc.absent)
     cost = verdict.cost_line(summ)
@@ -794,9 +841,10 @@ def _verdict_section(doc: Document, results: pd.DataFrame, runs: pd.DataFrame,
 
 def _draw_figures(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame, fig_dir: Path,
                   trace: Any, figs: dict[str, Path],
-                  gc: summary.GapClosed | None = None) -> None:
+                  gc: summary.GapClosed | None = None, cut: str | None = None) -> None:
+    cut = cut or summary.cutoff_text(results)
     figs["ospa"] = figures.metric_over_time(results, "ospa", fig_dir / "ospa_over_time.png",
-                                            f"OSPA ({summary.cutoff_text(results)})")
+                                            f"OSPA ({cut})")
     figs["count_error"] = figures.metric_over_time(results, "count_error",
                                                    fig_dir / "count_error_over_time.png",
                                                    "count error |N_est - N|")
@@ -805,7 +853,7 @@ def _draw_figures(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame,
                        if m.name == "ospa2_window"), None)
         figs["ospa2"] = figures.metric_over_time(
             results, "ospa2_window", fig_dir / "ospa2_over_time.png", "OSPA(2)",
-            f"OSPA(2) of the window ending at the step ({summary.cutoff_text(results)}"
+            f"OSPA(2) of the window ending at the step ({cut}"
             + (f", {window:g} steps)" if window else ")"))
     figs["runtime"] = figures.runtime_per_step(runs, fig_dir / "runtime_per_step.png")
     figs["accuracy_runtime"] = figures.accuracy_vs_runtime(summ,

@@ -820,12 +820,13 @@ def cutoff_text(results: pd.DataFrame) -> str:
 
 
 def write_summary(results: pd.DataFrame, out_dir: str | Path, title: str,
-                  notes: Sequence[str] = ()) -> str:
+                  notes: Sequence[str] = (), sections: Sequence[str] = ()) -> str:
     """Write ``summary.csv`` and ``summary.md`` (headed ``title``) of ``results`` into
     ``out_dir``, each all or nothing; return the Markdown text. ``notes``: more lines
     listed under the table (``compare``: which parameters each tracker ran).
     ``summary.md`` then has the track-level sections of :func:`track_markdown` (the
-    switches around the crossings only from a step table with the per-step series)."""
+    switches around the crossings only from a step table with the per-step series), then
+    ``sections`` (Markdown; ``compare``: the tracker x policy tables)."""
     from ..engine.store import write_text_atomic
 
     out_dir = Path(out_dir)
@@ -838,5 +839,7 @@ def write_summary(results: pd.DataFrame, out_dir: str | Path, title: str,
     if extra:
         text += "\n" + "\n".join(f"- {line}" for line in extra) + "\n"
     text += track_markdown(runs, table, crossing_summary(results))
+    for section in sections:
+        text += "\n" + section.rstrip("\n") + "\n"
     write_text_atomic(out_dir / "summary.md", text)
     return text

@@ -9,7 +9,8 @@ module            what it holds
                   :func:`~.loop.play` and one run's rows :func:`~.loop.run_job`
 ``metrics``       per-step scores and the metric registry
 ``policies``      cell-selection policies; ``information``: the Renyi gains;
-                  ``policy_lookahead``: the non-myopic ``lookahead`` policy
+                  ``policy_search``: ``search-track`` (registered on import of the engine);
+                  ``policy_lookahead``: the non-myopic ``lookahead`` policy (likewise)
 ``executors``     where runs go: local processes or a Dask cluster
 ``store``         parts written atomically, read back, the results table
 ``sweep``         :func:`~.sweep.run_sweep`: jobs -> parts -> ``results.parquet``
@@ -19,6 +20,7 @@ module            what it holds
 Nothing here imports :mod:`mttbench.benchmarks.app` (a test enforces it).
 """
 
-# registers "lookahead" with the policies' registry whichever engine module is imported
-# first (the module imports policies, so policies cannot import it)
-from . import policy_lookahead  # noqa: E402, F401
+# register their policies whichever engine module is imported first (each imports
+# policies, so policies cannot import them)
+from . import policy_lookahead as _policy_lookahead  # noqa: E402,F401  (registers lookahead)
+from . import policy_search as _policy_search  # noqa: E402,F401  (registers search-track)

@@ -22,12 +22,14 @@ of the runtime benchmarks and the conformance kit all come from it); it yields a
 
 The policy's generator does not depend on the tracker, so a random policy looks
 at the same cells for every tracker of a run (common random numbers). The
-policy gets ``counts`` only if it ``uses_prediction`` and ``truth_cells`` only
-if it ``uses_truth`` (the oracle). A tracker sees the truth only if its class sets
-``uses_truth = True`` (the ``truth-aided`` reference): then, and only then, the loop
-calls its ``observe_truth(states (n, 4), ids (n,))`` with the current step's truth,
-after ``predict`` and before the cell selection and ``update`` (so its ``P_c(t)`` knows
-the count too); that call is in neither timing. Each side's use of the truth is
+policy gets ``counts`` only if it ``uses_prediction``, ``undetected`` (the tracker's
+:meth:`~mttbench.trackers.base.Tracker.undetected_intensity`, in the selection's time)
+only if it ``uses_undetected``, and ``truth_cells`` only if it ``uses_truth`` (the
+oracle). A tracker sees the truth only if its class sets ``uses_truth = True`` (the
+``truth-aided`` reference): then, and only then, the loop calls its
+``observe_truth(states (n, 4), ids (n,))`` with the current step's truth, after
+``predict`` and before the cell selection and ``update`` (so its ``P_c(t)`` knows the
+count too); that call is in neither timing. Each side's use of the truth is
 recorded from its own class attribute: ``tracker_uses_truth`` and ``policy_uses_truth``.
 
 Results table (one row per scenario x tracker x policy x looks x seed x step):
@@ -381,7 +383,9 @@ class Playback:
                 if policy.uses_truth:
                     flat = grid.cell_of(truth[:, 0], truth[:, 2])
                     truth_cells = flat[flat >= 0]
-                cells = policy.select(k, counts=counts, truth_cells=truth_cells)
+                extra = ({"undetected": tracker.undetected_intensity()}
+                         if getattr(policy, "uses_undetected", False) else {})
+                cells = policy.select(k, counts=counts, truth_cells=truth_cells, **extra)
                 w2, c2 = time.perf_counter(), time.process_time()
                 if visibility.occlusions:  # a look at a blind cell is not made
                     cells = np.asarray(cells, dtype=np.int64).reshape(-1)

@@ -85,6 +85,9 @@ class Policy(Configurable, ABC):
     summary: ClassVar[str] = ""
     uses_prediction: ClassVar[bool] = False
     uses_truth: ClassVar[bool] = False
+    #: the harness passes ``undetected=tracker.undetected_intensity()`` to ``select``
+    #: (a :class:`~mttbench.trackers.cells.CellField` or None) only when this is True
+    uses_undetected: ClassVar[bool] = False
 
     def get_params(self) -> dict[str, Any]:
         """Constructor parameters, as stored under their own names (scikit-learn's rule;

@@ -635,6 +635,11 @@ class GaussianParticleFilter(Tracker):
                                      last_default=self._u.default, last_cells=self._u.cells,
                                      last_probs=self._u.values)
 
+    def undetected_intensity(self) -> CellField:
+        """The undetected field ``u`` (a copy): per cell the probability, hence the
+        expected number, of a target no track holds (all zero without births)."""
+        return self._u.copy()
+
     # ----------------------------------------------------------------- update
     def update(self, looks: Looks) -> None:
         sensor = self._model.sensor

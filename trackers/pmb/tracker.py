@@ -275,6 +275,11 @@ class PMBTracker(Tracker):
                                      last_cells=ppp_cells, last_probs=ppp_probs)
 
     # ------------------------------------------------------------------- update
+    def undetected_intensity(self) -> CellField:
+        """The PPP's intensity ``lambda_c`` (a copy): the expected number of undetected
+        targets per cell."""
+        return self._ppp.copy()
+
     def update(self, looks: Looks) -> None:
         if not len(looks):
             return
