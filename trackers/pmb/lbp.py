@@ -33,7 +33,11 @@ half-step), and a cluster whose messages have converged is left alone
 (:func:`edge_clusters`). The "sum over the others" of each message is the node's total
 minus the edge's own term (the vectorised form; Williams and Lau's implementation does
 the same), which loses relative precision only when one term carries nearly all of a
-total, at which point the message it feeds is dominated by that term anyway.
+total, at which point the message it feeds is dominated by that term anyway. The
+difference is floored at the term every "others" sum contains (``w_i0`` for a track,
+``beta_j`` for a measurement): where the subtraction cancels to nothing or below (a
+detection whose likelihood ratio is ``1e30`` after many positive repeats of one cell),
+the floor is the exact lower bound of the sum, not a division by a rounding residue.
 """
 
 from __future__ import annotations
@@ -104,10 +108,10 @@ def association_marginals(w_missed: np.ndarray, ei: np.ndarray, ej: np.ndarray,
     for it in range(1, max_iter + 1):  # noqa: B007 - the count is reported
         # mu_{i->j} = w_ij / (w_i0 + sum_{j' != j} w_ij' nu_{j'->i})
         s_track = w0 + np.bincount(ei, weights=w * nu, minlength=T)
-        mu = w / np.maximum(s_track[ei] - w * nu, 1e-300)
+        mu = w / np.maximum(s_track[ei] - w * nu, w0[ei])
         # nu_{j->i} = 1 / (beta_j + sum_{i' != i} mu_{i'->j})
         s_meas = beta + np.bincount(ej, weights=mu, minlength=J)
-        new_nu = 1.0 / np.maximum(s_meas[ej] - mu, 1e-300)
+        new_nu = 1.0 / np.maximum(s_meas[ej] - mu, beta[ej])
         change = np.abs(new_nu - nu) / np.maximum(new_nu, 1e-300)
         nu = np.where(active, new_nu, nu)
         worst = np.zeros(n_clusters)
@@ -120,7 +124,7 @@ def association_marginals(w_missed: np.ndarray, ei: np.ndarray, ej: np.ndarray,
     s_track = w0 + np.bincount(ei, weights=w * nu, minlength=T)
     p_edge = w * nu / s_track[ei]
     p_missed = w0 / s_track
-    mu = w / np.maximum(s_track[ei] - w * nu, 1e-300)
+    mu = w / np.maximum(s_track[ei] - w * nu, w0[ei])
     s_meas = beta + np.bincount(ej, weights=mu, minlength=J)
     p_unused = beta / s_meas
     return Marginals(p_missed, p_edge, p_unused, it, converged, cluster)
