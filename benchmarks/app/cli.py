@@ -46,6 +46,7 @@ import textwrap
 from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
@@ -617,14 +618,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         run = target_module.reproduce_kreucher
     else:
         target_module, run = reproduce, reproduce.reproduce_paper
-    setting = target_module.SETTINGS["reduced" if args.reduced else "full"]
-    out = Path(args.out) if args.out else Path("reports") / args.target
-    cache = Path(args.cache_dir) if args.cache_dir else Path(".cache") / "reproduce"
-    tracker_texts = tuple(split_specs(args.trackers)) if args.trackers else None
-    if tracker_texts:
-        resolve_trackers(tracker_texts)
-    specs, _ = reproduce.available_trackers(tracker_texts or setting.trackers)
-    workers = args.workers or os.cpu_count() or 1
+    setting, out, cache, tracker_texts, specs, workers = _reproduce_inputs(args, target_module)
     ref_path = (Path(args.reference_csv) if args.reference_csv
                 else reproduce.REFERENCE_DIR / f"{args.target}_{setting.name}.csv")
     if args.check and not ref_path.is_file():
@@ -679,25 +673,33 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return 1
 
 
-def _reproduce_cdc2004(args: argparse.Namespace) -> int:
-    """``reproduce cdc2004`` (:mod:`~mttbench.benchmarks.app.reproduce_cdc2004`): its
-    ``--check`` is its own (structure, and not worse than myopic beyond noise), with no
-    reference CSV."""
+def _reproduce_inputs(args: argparse.Namespace, module: Any) -> tuple:
+    """What every reproduction reads from the command line: ``module``'s setting (full or
+    ``--reduced``), the output and cache folders, the ``--trackers`` texts (checked), the
+    registered trackers' specs and the worker count."""
     from . import reproduce
-    from . import reproduce_cdc2004 as cdc
 
-    for flag in ("update_reference", "exact", "reference_csv"):
-        if getattr(args, flag):
-            raise UsageError(f"--{flag.replace('_', '-')} does not apply to cdc2004: it has no "
-                             "reference CSV (--check runs its own checks)")
-    setting = cdc.SETTINGS["reduced" if args.reduced else "full"]
+    setting = module.SETTINGS["reduced" if args.reduced else "full"]
     out = Path(args.out) if args.out else Path("reports") / args.target
     cache = Path(args.cache_dir) if args.cache_dir else Path(".cache") / "reproduce"
     tracker_texts = tuple(split_specs(args.trackers)) if args.trackers else None
     if tracker_texts:
         resolve_trackers(tracker_texts)
     specs, _ = reproduce.available_trackers(tracker_texts or setting.trackers)
-    workers = args.workers or os.cpu_count() or 1
+    return setting, out, cache, tracker_texts, specs, args.workers or os.cpu_count() or 1
+
+
+def _reproduce_cdc2004(args: argparse.Namespace) -> int:
+    """``reproduce cdc2004`` (:mod:`~mttbench.benchmarks.app.reproduce_cdc2004`): its
+    ``--check`` is its own (structure, and not worse than myopic beyond noise), with no
+    reference CSV."""
+    from . import reproduce_cdc2004 as cdc
+
+    for flag in ("update_reference", "exact", "reference_csv"):
+        if getattr(args, flag):
+            raise UsageError(f"--{flag.replace('_', '-')} does not apply to cdc2004: it has no "
+                             "reference CSV (--check runs its own checks)")
+    setting, out, cache, tracker_texts, specs, workers = _reproduce_inputs(args, cdc)
     for warning in resources.check_jobs(cdc.setting_jobs(setting, specs), workers):
         print(warning, file=sys.stderr)
     prepare_out_dir(out, parts=False)

@@ -132,7 +132,7 @@ import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import pandas as pd
@@ -658,12 +658,15 @@ class Reproduction:
     results: pd.DataFrame  # the sweep's rows (failed runs have status "error")
 
 
-def reproduce_paper(setting: Setting, out_dir: str | Path, cache_dir: str | Path, *,
-                    tracker_texts: tuple[str, ...] | None = None, workers: int = 1,
-                    progress: bool = True, use_cache: bool = True,
-                    run_timeout: float | None = None) -> Reproduction:
-    """Run (or load) the setting, write the figures, CSVs and report into ``out_dir``; a
-    run past ``run_timeout`` seconds (None: the app's default) gets an error row."""
+#: a reproduction's setting (each module's own dataclass with a ``trackers`` field)
+S = TypeVar("S")
+
+
+def start(setting: S, tracker_texts: tuple[str, ...] | None, out_dir: str | Path
+          ) -> tuple[S, list[TrackerSpec], list[str], Path]:
+    """A reproduction's start: the setting with ``tracker_texts`` as its trackers (when
+    given), the registered ones' specs and the names left out (a line on stderr each;
+    ValueError when none is registered), and ``out_dir``, created."""
     if tracker_texts:
         setting = dataclasses.replace(setting, trackers=tuple(tracker_texts))
     specs, missing = available_trackers(setting.trackers)
@@ -673,6 +676,16 @@ def reproduce_paper(setting: Setting, out_dir: str | Path, cache_dir: str | Path
         print(f"tracker {name!r} is not registered: left out", file=sys.stderr)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    return setting, specs, missing, out
+
+
+def reproduce_paper(setting: Setting, out_dir: str | Path, cache_dir: str | Path, *,
+                    tracker_texts: tuple[str, ...] | None = None, workers: int = 1,
+                    progress: bool = True, use_cache: bool = True,
+                    run_timeout: float | None = None) -> Reproduction:
+    """Run (or load) the setting, write the figures, CSVs and report into ``out_dir``; a
+    run past ``run_timeout`` seconds (None: the app's default) gets an error row."""
+    setting, specs, missing, out = start(setting, tracker_texts, out_dir)
     results, traces, cached = run_or_load(setting, specs, Path(cache_dir), workers=workers,
                                           progress=progress, use_cache=use_cache,
                                           run_timeout=run_timeout)

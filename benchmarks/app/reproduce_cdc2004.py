@@ -46,7 +46,6 @@ import hashlib
 import json
 import math
 import shutil
-import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -354,15 +353,7 @@ def reproduce_cdc2004(setting: CdcSetting, out_dir: str | Path, cache_dir: str |
                       run_timeout: float | None = None) -> CdcReproduction:
     """Run (or load) the setting; write ``policies.csv``, ``paired.csv``, ``report.md``
     and ``report.html`` into ``out_dir``."""
-    if tracker_texts:
-        setting = dataclasses.replace(setting, trackers=tuple(tracker_texts))
-    specs, missing = reproduce.available_trackers(setting.trackers)
-    if not specs:
-        raise ValueError(f"none of the trackers {setting.trackers} is registered")
-    for name in missing:
-        print(f"tracker {name!r} is not registered: left out", file=sys.stderr)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    setting, specs, missing, out = reproduce.start(setting, tracker_texts, out_dir)
     results, cached = run_or_load(setting, specs, Path(cache_dir), workers=workers,
                                   progress=progress, use_cache=use_cache,
                                   run_timeout=run_timeout)

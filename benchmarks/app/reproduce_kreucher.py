@@ -84,7 +84,6 @@ import hashlib
 import json
 import math
 import shutil
-import sys
 import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -600,15 +599,7 @@ def reproduce_kreucher(setting: KreucherSetting, out_dir: str | Path, cache_dir:
                        run_timeout: float | None = None) -> reproduce.Reproduction:
     """Run (or load) the setting; write the figure, CSVs and report into ``out_dir``; a
     run past ``run_timeout`` seconds (None: the app's default) gets an error row."""
-    if tracker_texts:
-        setting = dataclasses.replace(setting, trackers=tuple(tracker_texts))
-    specs, missing = reproduce.available_trackers(setting.trackers)
-    if not specs:
-        raise ValueError(f"none of the trackers {setting.trackers} is registered")
-    for name in missing:
-        print(f"tracker {name!r} is not registered: left out", file=sys.stderr)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    setting, specs, missing, out = reproduce.start(setting, tracker_texts, out_dir)
     results, cached = run_or_load(setting, specs, Path(cache_dir), workers=workers,
                                   progress=progress, use_cache=use_cache,
                                   run_timeout=run_timeout)
