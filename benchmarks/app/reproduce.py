@@ -658,6 +658,31 @@ class Reproduction:
     results: pd.DataFrame  # the sweep's rows (failed runs have status "error")
 
 
+def cached_sweep(jobs: list, folder: Path | None, name: str, setting_name: str, *,
+                 c: float, p: float, workers: int = 1, progress: bool = True,
+                 run_timeout: float | None = None) -> tuple[pd.DataFrame, bool]:
+    """A reproduction's sweep, from its cache ``folder`` when a finished sweep is there;
+    ``(results, cached)``. ``folder`` None: a temporary folder, nothing cached. A sweep with
+    a failed run (one past ``run_timeout`` seconds included; None: the app's default) is
+    not marked done, so the next call reruns it."""
+    options = {"workers": workers, "progress": progress, "resume": False, "c": c, "p": p,
+               "run_timeout": run_timeout}
+    if folder is None:
+        with tempfile.TemporaryDirectory(prefix=f"mttbench-{name}-") as tmp:
+            return run_sweep(jobs, Path(tmp), **options), False
+    done = folder / "done.json"
+    if done.exists():
+        return pd.read_parquet(folder / "results.parquet"), True
+    if folder.exists():
+        shutil.rmtree(folder)
+    folder.mkdir(parents=True)
+    results = run_sweep(jobs, folder, **options)
+    shutil.rmtree(folder / "parts", ignore_errors=True)
+    if not (results["status"] == "error").any():
+        done.write_text(json.dumps({"setting": setting_name, "runs": len(jobs)}))
+    return results, False
+
+
 #: a reproduction's setting (each module's own dataclass with a ``trackers`` field)
 S = TypeVar("S")
 

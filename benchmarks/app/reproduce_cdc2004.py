@@ -45,8 +45,6 @@ import dataclasses
 import hashlib
 import json
 import math
-import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -58,7 +56,6 @@ from ...scenarios.spec import Scenario, dumps
 from ..engine.loop import Job, build_jobs
 from ..engine.specs import PolicySpec, TrackerSpec
 from . import reproduce
-from .progress import run_sweep
 from .report import Document
 from .reproduce_kreucher import per_seed
 from .summary import mean_ci95
@@ -137,25 +134,12 @@ def run_or_load(setting: CdcSetting, specs: list[TrackerSpec], cache_dir: Path, 
                 workers: int = 1, progress: bool = True, use_cache: bool = True,
                 run_timeout: float | None = None) -> tuple[pd.DataFrame, bool]:
     """The sweep's results table, from the cache when it holds this key; ``(results,
-    cached)``. A sweep with a failed run is not marked done (the next call reruns it)."""
-    jobs = setting_jobs(setting, specs)
-    options = {"workers": workers, "progress": progress, "resume": False, "c": setting.c,
-               "p": setting.p, "run_timeout": run_timeout}
-    if not use_cache:
-        with tempfile.TemporaryDirectory(prefix="mttbench-cdc2004-") as tmp:
-            return run_sweep(jobs, Path(tmp), **options), False
-    folder = Path(cache_dir) / cache_key(setting, specs)
-    done = folder / "done.json"
-    if done.exists():
-        return pd.read_parquet(folder / "results.parquet"), True
-    if folder.exists():
-        shutil.rmtree(folder)
-    folder.mkdir(parents=True)
-    results = run_sweep(jobs, folder, **options)
-    shutil.rmtree(folder / "parts", ignore_errors=True)
-    if not (results["status"] == "error").any():
-        done.write_text(json.dumps({"setting": setting.name, "runs": len(jobs)}))
-    return results, False
+    cached)``. ``use_cache=False`` neither reads nor writes ``cache_dir``
+    (:func:`~mttbench.benchmarks.app.reproduce.cached_sweep`)."""
+    folder = Path(cache_dir) / cache_key(setting, specs) if use_cache else None
+    return reproduce.cached_sweep(setting_jobs(setting, specs), folder, "cdc2004", setting.name,
+                                  c=setting.c, p=setting.p, workers=workers,
+                                  progress=progress, run_timeout=run_timeout)
 
 
 # ---------------------------------------------------------------------- numbers

@@ -83,8 +83,6 @@ import dataclasses
 import hashlib
 import json
 import math
-import shutil
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -98,7 +96,6 @@ from ...scenarios.spec import Scenario, dumps
 from ..engine.loop import Job, build_jobs
 from ..engine.specs import PolicySpec, TrackerSpec
 from . import figures_kreucher, reproduce
-from .progress import run_sweep
 from .report import Document
 from .summary import mean_ci95
 
@@ -225,28 +222,12 @@ def run_or_load(setting: KreucherSetting, specs: list[TrackerSpec], cache_dir: P
                 workers: int = 1, progress: bool = True, use_cache: bool = True,
                 run_timeout: float | None = None) -> tuple[pd.DataFrame, bool]:
     """The sweep's results table, from the cache when it holds this key; ``(results,
-    cached)``. ``use_cache=False`` neither reads nor writes ``cache_dir``. A sweep with a
-    failed run (one past ``run_timeout`` seconds included; None: the app's default) is
-    not marked done, so the next call reruns it."""
-    jobs = setting_jobs(setting, specs)
-    if not use_cache:
-        with tempfile.TemporaryDirectory(prefix="mttbench-kreucher-") as tmp:
-            return run_sweep(jobs, Path(tmp), workers=workers, progress=progress,
-                             resume=False, c=setting.c, p=setting.p,
-                             run_timeout=run_timeout), False
-    folder = Path(cache_dir) / cache_key(setting, specs)
-    done = folder / "done.json"
-    if done.exists():
-        return pd.read_parquet(folder / "results.parquet"), True
-    if folder.exists():
-        shutil.rmtree(folder)
-    folder.mkdir(parents=True)
-    results = run_sweep(jobs, folder, workers=workers, progress=progress, resume=False,
-                        c=setting.c, p=setting.p, run_timeout=run_timeout)
-    shutil.rmtree(folder / "parts", ignore_errors=True)
-    if not (results["status"] == "error").any():
-        done.write_text(json.dumps({"setting": setting.name, "runs": len(jobs)}))
-    return results, False
+    cached)``. ``use_cache=False`` neither reads nor writes ``cache_dir``
+    (:func:`~mttbench.benchmarks.app.reproduce.cached_sweep`)."""
+    folder = Path(cache_dir) / cache_key(setting, specs) if use_cache else None
+    return reproduce.cached_sweep(setting_jobs(setting, specs), folder, "kreucher", setting.name,
+                                  c=setting.c, p=setting.p, workers=workers,
+                                  progress=progress, run_timeout=run_timeout)
 
 
 # ---------------------------------------------------------------- the numbers
