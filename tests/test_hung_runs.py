@@ -10,7 +10,7 @@ import json
 import pandas as pd
 import pytest
 
-from mttbench.benchmarks.app import reproduce, reproduce_kreucher
+from mttbench.benchmarks.app import reproduce, reproduce_cdc2004, reproduce_kreucher
 from mttbench.benchmarks.app.cli import main
 
 #: the limit of the hung runs: short, and far above what a run of these trackers takes
@@ -69,11 +69,13 @@ def test_reproduce_kreucher_passes_the_limit_to_its_sweep(tmp_path, monkeypatch)
         seen.append(kw.get("run_timeout"))
         raise KeyboardInterrupt  # enough: the sweep was asked with its limit
 
-    monkeypatch.setattr(reproduce_kreucher, "run_sweep", sweep)
-    setting = reproduce_kreucher.SETTINGS["reduced"]
+    # the Kreucher and CDC 2004 reproductions sweep through reproduce.cached_sweep
+    monkeypatch.setattr(reproduce, "run_sweep", sweep)
     specs, _ = reproduce.available_trackers(("null",))
-    for use_cache in (True, False):
-        with pytest.raises(KeyboardInterrupt):
-            reproduce_kreucher.run_or_load(setting, specs, tmp_path, progress=False,
-                                           use_cache=use_cache, run_timeout=2.5)
-    assert seen == [2.5, 2.5]
+    for module in (reproduce_kreucher, reproduce_cdc2004):
+        setting = module.SETTINGS["reduced"]
+        for use_cache in (True, False):
+            with pytest.raises(KeyboardInterrupt):
+                module.run_or_load(setting, specs, tmp_path / module.__name__,
+                                   progress=False, use_cache=use_cache, run_timeout=2.5)
+    assert seen == [2.5] * 4
