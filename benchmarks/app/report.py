@@ -419,8 +419,9 @@ def _floor_ceiling_section(doc: Document, gc: summary.GapClosed,
     if gc.bayes_label is not None:
         doc.add("p", f"The `{summary.BAYES_TRACKER}` reference is the model's Bayes filter "
                      "(no truth: the best achievable on average, approximated by jmpd-ap at a "
-                     "particle count where four times more changes OSPA by less than its "
-                     "tolerance; `mttbench bayes`, docs/bayes.md). A tracker's share of the "
+                     "particle count where the last two fourfold increases each changed OSPA "
+                     "by less than the tolerance, or else the largest count run, an estimate; "
+                     "`mttbench bayes`, docs/bayes.md). A tracker's share of the "
                      f"achievable gap is (OSPA_{floor} - OSPA) / (OSPA_{floor} - "
                      f"OSPA_{summary.BAYES_TRACKER}) over the same seeds; where the reference "
                      "is far from the ceiling, the problem limits accuracy, not the trackers.")
