@@ -7,7 +7,7 @@ pairs, so its time is the interpreter's, not the arithmetic's (docs/speed.md has
 profiles). Each kernel here is one loop over the pairs.
 
 Exactness: every kernel performs the numpy form's IEEE operations in the same order.
-numpy's ``sum`` over a last axis is its pairwise summation from 0 (:func:`_row_sum`);
+numpy's ``sum`` over a last axis is its pairwise summation from 0 (:func:`.numba_exact.np_sum`);
 ``einsum("nq,nq->n")`` is numpy's baseline (SSE2) sum of products, two lanes, blocks of
 four vectors added from the last (:func:`_einsum_row`); the normal CDF is scipy's own C
 function (``cython_special``), ``exp`` the C library's, as numpy's is for doubles
@@ -22,28 +22,12 @@ it on first use only, and not at all when the numpy forms are chosen
 
 from __future__ import annotations
 
-import llvmlite.binding
 import numpy as np
-from numba import njit, types
-from numba.extending import get_cython_function_address
+from numba import njit
 
+from .numba_exact import ndtr as _ndtr
+from .numba_exact import np_sum
 
-def _scipy_ndtr() -> types.ExternalFunction:
-    """scipy's C ``ndtr`` for doubles (``double (double, int skip_dispatch)``) as an
-    external symbol, so that the kernels calling it cache on disk. ImportError when scipy
-    exports it with another signature (the numpy forms then run)."""
-    from scipy.special import cython_special
-    name = "__pyx_fuse_1ndtr"
-    capsule = cython_special.__pyx_capi__.get(name)
-    if capsule is None or '"double (double, int' not in repr(capsule):
-        raise ImportError(f"scipy.special.cython_special.{name} is not double (double, int)")
-    llvmlite.binding.add_symbol("mttbench_gpf_ndtr", get_cython_function_address(
-        "scipy.special.cython_special", name))
-    return types.ExternalFunction("mttbench_gpf_ndtr",
-                                  types.float64(types.float64, types.intc))
-
-
-_ndtr = _scipy_ndtr()
 _INV_SQRT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
 
 
@@ -65,33 +49,6 @@ def _nan_min(a: float, b: float) -> float:
     if b != b:
         return b
     return a if a <= b else b
-
-
-@njit(cache=True)
-def _row_sum(a: np.ndarray, n: int) -> float:
-    """``a[:n].sum()`` as numpy computes a row of at most 128: 0 plus the pairwise sum
-    (a sequential one below 8 entries, else 8 accumulators)."""
-    if n < 8:
-        res = -0.0
-        for i in range(n):
-            res += a[i]
-        return 0.0 + res
-    r0, r1, r2, r3 = a[0], a[1], a[2], a[3]
-    r4, r5, r6, r7 = a[4], a[5], a[6], a[7]
-    m = n - n % 8
-    for i in range(8, m, 8):
-        r0 += a[i]
-        r1 += a[i + 1]
-        r2 += a[i + 2]
-        r3 += a[i + 3]
-        r4 += a[i + 4]
-        r5 += a[i + 5]
-        r6 += a[i + 6]
-        r7 += a[i + 7]
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    for i in range(m, n):
-        res += a[i]
-    return 0.0 + res
 
 
 @njit(cache=True)
@@ -181,7 +138,7 @@ def rect_position_moments(mean_xy: np.ndarray, cov_xy: np.ndarray, x0: np.ndarra
         m2[p, 1, 1] = _einsum_row(wq, eyy, Q)
         m1[p, 0] = _einsum_row(wu, i0, Q)
         m1[p, 1] = _einsum_row(wq, ey, Q)
-        mass[p] = _row_sum(wi, Q)
+        mass[p] = np_sum(wi, Q)
     return mass, m1, m2
 
 

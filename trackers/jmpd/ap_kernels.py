@@ -9,7 +9,7 @@ here each group is one loop over the particles (docs/speed.md has the profiles).
 
 Exactness: every kernel performs the same IEEE operations, in the same order, as its
 numpy form: numpy's ``sum`` over a last axis is its pairwise summation
-(:func:`_pairwise`, starting from 0), a sum over the particles is sequential, the
+(:func:`..numba_exact.np_sum`, starting from 0), a sum over the particles is sequential, the
 normal CDF and its inverse are scipy's own functions (``cython_special``), ``exp`` and
 ``log`` the C library's, as numpy's are without AVX-512 (the tests compare both forms
 on whole runs and on random inputs). All random draws stay in numpy, in the same
@@ -22,100 +22,13 @@ first use only. Kernels compile on first call and are cached on disk (``cache=Tr
 
 from __future__ import annotations
 
-import llvmlite.binding
 import numpy as np
-from numba import njit, types
-from numba.extending import get_cython_function_address
+from numba import njit
 
+from ..numba_exact import ndtr as _ndtr
+from ..numba_exact import ndtri as _ndtri
+from ..numba_exact import np_sum
 from .kernels import _outside
-
-
-def _scipy_function(symbol: str, name: str) -> types.ExternalFunction:
-    """scipy's C function ``name`` of ``cython_special`` (``double (double, int
-    skip_dispatch)``) as an external symbol, so that the kernels calling it can be
-    cached on disk (a ctypes pointer cannot). ImportError when scipy exports it with
-    another signature (the numpy forms then run)."""
-    from scipy.special import cython_special
-    capsule = cython_special.__pyx_capi__.get(name)
-    if capsule is None or '"double (double, int' not in repr(capsule):
-        raise ImportError(f"scipy.special.cython_special.{name} is not double (double, int)")
-    llvmlite.binding.add_symbol(symbol, get_cython_function_address(
-        "scipy.special.cython_special", name))
-    return types.ExternalFunction(symbol, types.float64(types.float64, types.intc))
-
-
-#: scipy.special.ndtr and ndtri for doubles (the ufuncs' own C functions)
-_ndtr = _scipy_function("mttbench_scipy_ndtr", "__pyx_fuse_1ndtr")
-_ndtri = _scipy_function("mttbench_scipy_ndtri", "ndtri")
-
-
-@njit(cache=True)
-def _block(a: np.ndarray, lo: int, n: int) -> float:
-    """numpy's pairwise sum of ``a[lo:lo + n]`` for ``n <= 128`` (8 accumulators)."""
-    if n < 8:
-        res = -0.0
-        for i in range(n):
-            res += a[lo + i]
-        return res
-    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
-    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
-    m = n - n % 8
-    for i in range(lo + 8, lo + m, 8):
-        r0 += a[i]
-        r1 += a[i + 1]
-        r2 += a[i + 2]
-        r3 += a[i + 3]
-        r4 += a[i + 4]
-        r5 += a[i + 5]
-        r6 += a[i + 6]
-        r7 += a[i + 7]
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    for i in range(lo + m, lo + n):
-        res += a[i]
-    return res
-
-
-@njit(cache=True)
-def _pairwise(a: np.ndarray, lo: int, n: int) -> float:
-    """numpy's pairwise sum of ``a[lo:lo + n]``: blocks of at most 128 (:func:`_block`)
-    added as the halves of numpy's recursion (``n / 2`` rounded down to a multiple of
-    8), here by an explicit stack (numba cannot cache a recursive function)."""
-    if n <= 128:
-        return _block(a, lo, n)
-    seg_lo = np.empty(64, np.int64)
-    seg_n = np.empty(64, np.int64)
-    stage = np.zeros(64, np.int64)
-    values = np.empty(64)
-    sp, vp = 0, 0
-    seg_lo[0], seg_n[0] = lo, n
-    while sp >= 0:
-        sl, sn = seg_lo[sp], seg_n[sp]
-        if sn <= 128:
-            values[vp] = _block(a, sl, sn)
-            vp += 1
-            sp -= 1
-            continue
-        n2 = sn // 2
-        n2 -= n2 % 8
-        if stage[sp] == 0:  # the left half first
-            stage[sp] = 1
-            sp += 1
-            seg_lo[sp], seg_n[sp], stage[sp] = sl, n2, 0
-        elif stage[sp] == 1:  # then the right half
-            stage[sp] = 2
-            sp += 1
-            seg_lo[sp], seg_n[sp], stage[sp] = sl + n2, sn - n2, 0
-        else:  # both done: left + right
-            values[vp - 2] = values[vp - 2] + values[vp - 1]
-            vp -= 1
-            sp -= 1
-    return values[0]
-
-
-@njit(cache=True)
-def np_sum(a: np.ndarray, n: int) -> float:
-    """``a[:n].sum()`` as numpy computes it (0 plus the pairwise sum)."""
-    return 0.0 + _pairwise(a, 0, n)
 
 
 # ------------------------------------------------------------------ predict
