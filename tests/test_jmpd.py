@@ -568,7 +568,7 @@ def test_registered_with_parameters():
     ip = trackers.make("jmpd-ip", n_particles=100)
     assert ip.get_params()["proposal"] == "ip"
     assert trackers.make("jmpd").get_params() == {
-        "n_particles": 2000, "t_max": 5, "birth_rate": None, "death_probability": None,
+        "n_particles": 2000, "t_max": None, "birth_rate": None, "death_probability": None,
         "resample_threshold": 0.5, "proposal": "bootstrap", "initial_count": None}
 
 

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -11,6 +12,7 @@ import pytest
 from mttbench import scenarios, trackers
 from mttbench.scenarios.simulator import simulate_truth
 from mttbench.trackers.jmpd import JMPDIPTracker, JMPDTracker
+from mttbench.trackers.jmpd.tracker import default_t_max
 
 BASE = scenarios.get("default")
 
@@ -47,12 +49,40 @@ def test_refused_exactly_above_the_peak_expected_count(cls, n0, p_s, b, peak):
 
 
 def test_large_preset_needs_t_max_25():
-    """25 targets, no births or deaths: the default t_max = 5 is refused, 25 fits."""
+    """25 targets, no births or deaths: t_max = 5 is refused, 25 fits, and the default
+    (t_max from the model) fits."""
     model = scenarios.get("large").model
     for name in ("jmpd", "jmpd-ip"):
-        assert "expected target count 25" in trackers.make(name).unsupported_reason(model)
+        assert "expected target count 25" in trackers.make(name, t_max=5).unsupported_reason(
+            model)
         assert trackers.make(name, t_max=25).unsupported_reason(model) is None
         assert trackers.make(name, t_max=24).unsupported_reason(model) is not None
+        assert trackers.make(name).unsupported_reason(model) is None
+
+
+def _poisson_quantile_by_summation(mean: float, q: float) -> int:
+    """The smallest t with sum_{k <= t} e^-mean mean^k / k! >= q, by summing the pmf."""
+    t, term = 0, math.exp(-mean)
+    total = term
+    while total < q:
+        t += 1
+        term *= mean / t
+        total += term
+    return t
+
+
+@pytest.mark.parametrize("n0, p_s, b, peak", CASES + [(9, 1.0, 0.0, 9), (0, 0.99, 0.25, 25)])
+def test_default_t_max_is_the_poisson_quantile_of_the_peak(n0, p_s, b, peak):
+    """Without ``t_max`` a particle gets the 99% Poisson quantile of the expected peak
+    (checked against the pmf summed by hand) and reset allocates that many slots."""
+    sc = _scenario(n0, p_s, b)
+    want = _poisson_quantile_by_summation(peak, 0.99)
+    assert default_t_max(sc.model) == want
+    tr = JMPDTracker(n_particles=20)
+    assert tr.unsupported_reason(sc.model) is None
+    tr.reset(sc.model, np.random.default_rng(0))
+    assert tr.mask.shape == (20, want)
+    assert JMPDTracker(n_particles=20, initial_count=want + 3)._slots(sc.model) == want + 3
 
 
 @pytest.mark.parametrize("preset", ["default", "crossing", "births", "paper", "superposition"])

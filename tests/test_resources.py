@@ -42,6 +42,7 @@ from mttbench.trackers.jmpd.tracker import (
     JMPD_LOOK_BYTES,
     JMPD_SLOT_BYTES,
     JMPD_SLOT_T_BYTES,
+    default_t_max,
 )
 from mttbench.trackers.null import NullTracker
 
@@ -127,17 +128,23 @@ def test_no_term_grows_with_the_grid_past_the_dense_path():
 def test_tracker_and_prediction_terms_follow_the_parameters():
     sc = scenario(12)  # 24 looks on 144 cells, 3 targets, 100 steps
     r = resources
-    small = r.estimate_job(job(sc, "jmpd", n_particles=1000))
+    small = r.estimate_job(job(sc, "jmpd", n_particles=1000, t_max=5))
     big = r.estimate_job(job(sc, "jmpd", n_particles=4000, t_max=10))
     assert small.parts["tracker"] == (1000 * 5 * (JMPD_SLOT_BYTES + 5 * JMPD_SLOT_T_BYTES)
                                       + 24 * 6 * JMPD_LOOK_BYTES)
     assert big.parts["tracker"] == (4000 * 10 * (JMPD_SLOT_BYTES + 10 * JMPD_SLOT_T_BYTES)
                                     + 24 * 11 * JMPD_LOOK_BYTES)
-    ip = r.estimate_job(job(sc, "jmpd-ip", n_particles=1000))
+    ip = r.estimate_job(job(sc, "jmpd-ip", n_particles=1000, t_max=5))
     assert ip.parts["tracker"] == (1000 * 5 * (JMPD_SLOT_BYTES + 5 * JMPD_IP_SLOT_T_BYTES)
                                    + 24 * 6 * JMPD_LOOK_BYTES)
     assert ip.seconds > small.seconds
     assert "predicted cell counts" not in small.parts
+    # jmpd without t_max: the slots the model asks for (default_t_max)
+    t_auto = default_t_max(sc.model)
+    auto = r.estimate_job(job(sc, "jmpd", n_particles=1000))
+    assert t_auto != 5 and auto.parts["tracker"] == (
+        1000 * t_auto * (JMPD_SLOT_BYTES + t_auto * JMPD_SLOT_T_BYTES)
+        + 24 * (t_auto + 1) * JMPD_LOOK_BYTES)
     # jmpd-ap without t_max: its automatic slots
     t_ap = _auto_slots(sc.model)
     ap = r.estimate_job(job(sc, "jmpd-ap"))
@@ -272,19 +279,19 @@ OLD_ESTIMATES: dict[tuple[str, str, str | None, int | None], tuple[float, float,
         420444800.0, 0.74,
         {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0,
          'tracker': 364800.0}),
-    ('12', 'jmpd', 'raster', None): (
+    ('12', 'jmpd:t_max=5', 'raster', None): (
         425558848.0, 0.8048000000000001,
         {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
          'simulator': 2109440.0, 'tracker': 3364608.0}),
-    ('12', 'jmpd', 'renyi', None): (
+    ('12', 'jmpd:t_max=5', 'renyi', None): (
         427755328.0, 0.9737792500144231,
         {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
          'simulator': 2109440.0, 'predicted cell counts': 2196480.0, 'tracker': 3364608.0}),
-    ('1e5', 'jmpd', 'renyi', None): (
+    ('1e5', 'jmpd:t_max=5', 'renyi', None): (
         441537856.0, 1.6016992500144231,
         {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
          'simulator': 6419456.0, 'predicted cell counts': 11520000.0, 'tracker': 3408000.0}),
-    ('superposition', 'jmpd', None, None): (
+    ('superposition', 'jmpd:t_max=5', None, None): (
         423440000.0, 0.8,
         {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0,
          'tracker': 3360000.0}),
@@ -304,35 +311,35 @@ OLD_ESTIMATES: dict[tuple[str, str, str | None, int | None], tuple[float, float,
         422160000.0, 0.5499999999999999,
         {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0,
          'tracker': 2080000.0}),
-    ('12', 'jmpd:proposal=ip', 'raster', None): (
+    ('12', 'jmpd:proposal=ip,t_max=5', 'raster', None): (
         427158848.0, 2.6048,
         {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
          'simulator': 2109440.0, 'tracker': 4964608.0}),
-    ('12', 'jmpd:proposal=ip', 'renyi', None): (
+    ('12', 'jmpd:proposal=ip,t_max=5', 'renyi', None): (
         429355328.0, 2.7737792500144236,
         {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
          'simulator': 2109440.0, 'predicted cell counts': 2196480.0, 'tracker': 4964608.0}),
-    ('1e5', 'jmpd:proposal=ip', 'renyi', None): (
+    ('1e5', 'jmpd:proposal=ip,t_max=5', 'renyi', None): (
         443137856.0, 3.4016992500144236,
         {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
          'simulator': 6419456.0, 'predicted cell counts': 11520000.0, 'tracker': 5008000.0}),
-    ('superposition', 'jmpd:proposal=ip', None, None): (
+    ('superposition', 'jmpd:proposal=ip,t_max=5', None, None): (
         425040000.0, 2.6,
         {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0,
          'tracker': 4960000.0}),
-    ('12', 'jmpd-ip', 'raster', None): (
+    ('12', 'jmpd-ip:t_max=5', 'raster', None): (
         427158848.0, 2.6048,
         {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
          'simulator': 2109440.0, 'tracker': 4964608.0}),
-    ('12', 'jmpd-ip', 'renyi', None): (
+    ('12', 'jmpd-ip:t_max=5', 'renyi', None): (
         429355328.0, 2.7737792500144236,
         {'worker': 402653184.0, 'run': 16777216.0, 'truth': 40000.0, 'result rows': 614400.0,
          'simulator': 2109440.0, 'predicted cell counts': 2196480.0, 'tracker': 4964608.0}),
-    ('1e5', 'jmpd-ip', 'renyi', None): (
+    ('1e5', 'jmpd-ip:t_max=5', 'renyi', None): (
         443137856.0, 3.4016992500144236,
         {'worker': 402653184.0, 'run': 16777216.0, 'truth': 145600.0, 'result rows': 614400.0,
          'simulator': 6419456.0, 'predicted cell counts': 11520000.0, 'tracker': 5008000.0}),
-    ('superposition', 'jmpd-ip', None, None): (
+    ('superposition', 'jmpd-ip:t_max=5', None, None): (
         425040000.0, 2.6,
         {'worker': 402653184.0, 'run': 16777216.0, 'truth': 35200.0, 'result rows': 614400.0,
          'tracker': 4960000.0}),
@@ -595,14 +602,15 @@ def test_a_tracker_and_a_policy_from_elsewhere_declare_their_own_terms(monkeypat
 def test_a_job_that_cannot_fit_is_refused_on_any_machine():
     """JMPD with 1e9 particles of 5 slots: about 1.5 TiB of particles, refused with one line
     even with 1 TiB available (512 GiB per worker)."""
-    jobs = build_jobs([scenario(12)], [TrackerSpec("jmpd", {"n_particles": 10**9})], None,
+    jobs = build_jobs([scenario(12)], [TrackerSpec("jmpd", {"n_particles": 10**9,
+                                                           "t_max": 5})], None,
                       None, [0, 1])
     with pytest.raises(ConfigError) as err:
         resources.check_jobs(jobs, workers=2, available=1024 * GIB)
     msg = str(err.value)
     assert "\n" not in msg
     assert msg.startswith("scenario 'grid12' (12x12 grid, 100 steps) with tracker "
-                          "jmpd(n_particles=1000000000): one run needs about ")
+                          "jmpd(n_particles=1000000000,t_max=5): one run needs about ")
     assert re.search(r"needs about 1\.\d\d TiB of memory \(mostly the tracker, 1\.\d\d TiB\), "
                      r"more than the 512 GiB per worker \(1 TiB available / 2 workers\); use "
                      r"fewer particles or looks, fewer --steps or fewer --workers$", msg), msg

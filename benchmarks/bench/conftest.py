@@ -165,9 +165,9 @@ def start_from_truth(tracker: Tracker, scenario: Scenario, truth: np.ndarray,
     """
     if not isinstance(tracker, JMPDTracker):
         raise TypeError(f"no start from the truth for {type(tracker).__name__}")
-    n = len(truth)
-    if n > int(tracker.t_max):
-        raise ValueError(f"{n} targets do not fit t_max = {tracker.t_max}")
+    n, slots = len(truth), tracker.mask.shape[1]  # t_max as reset resolved it
+    if n > slots:
+        raise ValueError(f"{n} targets do not fit t_max = {slots}")
     back = truth @ np.linalg.inv(tracker.prior.F).T  # (n, 4)
     states, mask = tracker.states, tracker.mask  # (N, t_max, 4), (N, t_max) views
     spread = np.array([0.3, 0.03, 0.3, 0.03])
@@ -259,6 +259,12 @@ def _looks_at(world: Run, policy: Policy, k: int) -> Looks:
     return world.look(k, policy.select(k, truth_cells=truth_cells))
 
 
+#: a configuration whose declared state (``Tracker.resource_terms``) is larger is skipped:
+#: ``mttbench run`` would refuse it on this size of machine (e.g. the bootstrap JMPD with
+#: its model-sized ``t_max`` on the 1,000-target scaling point)
+MAX_STATE_BYTES = 2 * 2**30
+
+
 def warm_up(scenario: Scenario, tracker: Tracker, n_steps: int, seed: int = 0, *,
             policy: Policy | None = None, from_truth: bool = False,
             timed_policy: Policy | None = None) -> Warm:
@@ -277,6 +283,13 @@ def warm_up(scenario: Scenario, tracker: Tracker, n_steps: int, seed: int = 0, *
     reason = tracker.unsupported_reason(scenario.model)
     if reason:
         pytest.skip(f"{tracker.name} cannot run {scenario.name}: {reason}")
+    terms = type(tracker).resource_terms(tracker.get_params(), scenario.model,
+                                         getattr(scenario.model.sensor, "looks_per_step", 0),
+                                         len(scenario.model.birth_death.initial_states)
+                                         + scenario.model.birth_death.n_random_initial)
+    if terms.state_bytes > MAX_STATE_BYTES:
+        pytest.skip(f"{tracker.name} on {scenario.name}: its state alone needs about "
+                    f"{terms.state_bytes / 2**30:.1f} GiB (more than a benchmark gets)")
     playback = play(scenario, tracker, seed, policy=policy, n_steps=n_steps)
     world = playback.world
     if from_truth:

@@ -40,6 +40,52 @@ JMPD_SLOT_T_S = 2e-8
 JMPD_IP_FACTOR = 4.0
 
 
+#: the horizon (steps) at which a model whose count grows without bound (``p_s = 1``,
+#: births) is taken for its peak: the shipped presets' length
+PEAK_HORIZON = 100
+#: the Poisson quantile of the expected peak count that ``t_max`` None covers
+T_MAX_QUANTILE = 0.99
+
+
+def expected_peak_count(model: TrackingModel) -> tuple[float, str]:
+    """The peak over the run of the expected target count, and how it arises.
+
+    The expected count of the model's existence process (``BirthDeath``: ``n0``
+    initial targets, survival ``p_s``, Poisson births ``b`` per step) after ``k`` steps
+    is ``m(k) = n0 p_s^k + b (1 - p_s^k) / (1 - p_s)`` (``n0 + b k`` when ``p_s = 1``):
+
+    * ``p_s < 1``: ``m(k)`` moves monotonically from ``n0`` to the stationary mean
+      ``b / (1 - p_s)``, so the peak is ``max(n0, b / (1 - p_s))``;
+    * ``p_s = 1`` and ``b > 0``: ``m(k)`` grows without bound; the peak is taken at
+      :data:`PEAK_HORIZON` steps, ``n0 + 100 b`` (a longer run can outgrow it);
+    * ``p_s = 1`` and ``b = 0``: ``n0``.
+
+    Targets that die at a ``die`` boundary only lower the count, so this is an upper
+    bound there.
+    """
+    bd = model.birth_death
+    n0 = float(len(bd.initial_states) + bd.n_random_initial)
+    p_s, b = float(bd.survival_probability), float(bd.birth_rate)
+    if p_s < 1.0:
+        return max(n0, b / (1.0 - p_s)), f"initial {n0:.0f}, stationary mean {b / (1.0 - p_s):.3g}"
+    if b > 0.0:
+        return n0 + PEAK_HORIZON * b, (f"initial {n0:.0f}, {PEAK_HORIZON * b:.3g} more births "
+                                       f"in {PEAK_HORIZON} steps")
+    return n0, f"initial {n0:.0f}"
+
+
+def default_t_max(model: TrackingModel) -> int:
+    """Slots per particle when ``t_max`` is not given: the :data:`T_MAX_QUANTILE`
+    quantile of a Poisson count whose mean is the expected peak
+    (:func:`expected_peak_count`), at least 1. A particle then holds the counts the
+    model makes likely; more slots cost ``O(N t_max^2)`` and, measured on the presets
+    (docs/jmpd.md), buy no accuracy."""
+    from scipy.stats import poisson
+
+    peak, _ = expected_peak_count(model)
+    return max(1, int(poisson.ppf(T_MAX_QUANTILE, peak))) if peak > 0 else 1
+
+
 @register
 class JMPDTracker(Tracker):
     """JMPD particle filter, bootstrap (kinematic prior) proposal by default.
@@ -67,7 +113,9 @@ class JMPDTracker(Tracker):
     }
     parameters: ClassVar[dict[str, Param]] = {
         "n_particles": Param(int, 1, doc="particles N"),
-        "t_max": Param(int, 1, doc="largest count a particle can hold"),
+        "t_max": Param(int, 1, allow_none=True,
+                       none="the 99% Poisson quantile of the expected peak count",
+                       doc="largest count a particle can hold"),
         # tuning (mttbench tune; jmpd-ip inherits it): the birth and death floors about
         # their defaults 0.02 and 0.01 (log, two decades), the resampling threshold over
         # its range; the particle count is a cost, the proposal a method, neither tuned
@@ -89,7 +137,7 @@ class JMPDTracker(Tracker):
         "n_particles": Budget(100, 16000, doc="particles N, about 6 us each per step: "
                                               "16000 is about 0.1 s per step on one core"),
     }
-    def __init__(self, n_particles: int = 2000, t_max: int = 5,
+    def __init__(self, n_particles: int = 2000, t_max: int | None = None,
                  birth_rate: float | None = None, death_probability: float | None = None,
                  resample_threshold: float = 0.5,
                  proposal: Literal["bootstrap", "ip"] = "bootstrap",
@@ -144,52 +192,36 @@ class JMPDTracker(Tracker):
 
     # ------------------------------------------------------------- life cycle
     def unsupported_reason(self, model: TrackingModel) -> str | None:
-        """Refuses a scenario whose expected target count exceeds ``t_max`` (a particle
-        holds at most ``t_max`` targets, so it could not represent the truth).
-
-        The expected count of the model's existence process (``BirthDeath``: ``n0``
-        initial targets, survival ``p_s``, Poisson births ``b`` per step) after ``k``
-        steps is ``m(k) = n0 p_s^k + b (1 - p_s^k) / (1 - p_s)`` (``n0 + b k`` when
-        ``p_s = 1``). The rule compares its peak with ``t_max``:
-
-        * ``p_s < 1``: ``m(k)`` moves monotonically from ``n0`` to the stationary mean
-          ``b / (1 - p_s)``, so the peak is ``max(n0, b / (1 - p_s))``;
-        * ``p_s = 1`` and ``b > 0``: ``m(k)`` grows without bound; the rule takes it at a
-          horizon of 100 steps (the shipped presets' length), ``n0 + 100 b`` (a longer
-          run can outgrow ``t_max``);
-        * ``p_s = 1`` and ``b = 0``: ``n0``.
-
-        Targets that die at a ``die`` boundary only lower the count, so the rule is an
-        upper bound there. Refused when the peak is more than ``t_max`` (beyond rounding:
-        ``1e-9``).
-        """
-        horizon = 100  # steps (see the docstring)
-        bd = model.birth_death
-        n0 = float(len(bd.initial_states) + bd.n_random_initial)
-        p_s, b = float(bd.survival_probability), float(bd.birth_rate)
-        if p_s < 1.0:
-            peak, how = max(n0, b / (1.0 - p_s)), f", stationary mean {b / (1.0 - p_s):.3g}"
-        elif b > 0.0:
-            peak, how = n0 + horizon * b, f", {horizon * b:.3g} more births in {horizon} steps"
-        else:
-            peak, how = n0, ""
+        """Refuses a scenario whose expected peak count (:func:`expected_peak_count`)
+        exceeds a given ``t_max`` (a particle holds at most ``t_max`` targets, so it
+        could not represent the truth). With ``t_max`` None every scenario is supported:
+        the slots follow the model (:func:`default_t_max`)."""
+        if self.t_max is None:
+            return None
+        peak, how = expected_peak_count(model)
         need = math.ceil(peak - 1e-9)  # 0.5 / (1 - 0.9) is 5.000000000000001
         if need <= int(self.t_max):
             return None
-        return (f"expected target count {peak:.3g} (initial {n0:.0f}{how}) exceeds "
+        return (f"expected target count {peak:.3g} ({how}) exceeds "
                 f"t_max = {int(self.t_max)}: use t_max >= {need}")
+
+    def _slots(self, model: TrackingModel) -> int:
+        """``t_max`` as given, else :func:`default_t_max` (at least ``initial_count``)."""
+        if self.t_max is not None:
+            return int(self.t_max)
+        return max(default_t_max(model), int(self.initial_count or 0))
 
     @classmethod
     def param_conflict(cls, params):
         n0, t_max = params["initial_count"], params["t_max"]
-        if n0 is not None and n0 > t_max:
+        if n0 is not None and t_max is not None and n0 > t_max:
             return (f"initial_count={n0} with t_max={t_max}: need initial_count <= t_max "
                     "(a particle holds at most t_max targets)")
         return None
 
     def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
         self.validate_params(self.get_params())  # the declaration above (built directly)
-        N, T = int(self.n_particles), int(self.t_max)
+        N, T = int(self.n_particles), self._slots(model)
         kernels = compiled_kernels()
         self.uses_compiled_kernels = kernels is not None
         if kernels is not None:
@@ -269,7 +301,8 @@ class JMPDTracker(Tracker):
         tables of ``t_max + 1`` columns per looked cell; ``P_c(t)`` from the slots
         (``t_max + 1`` columns) and their in-particle counts from sorted runs."""
         n = param_number(params, "n_particles", 2000)
-        t_max = param_number(params, "t_max", 5)
+        t_max = (float(default_t_max(model)) if params.get("t_max") is None
+                 else param_number(params, "t_max", 5))
         ip = params.get("proposal") == "ip"
         per_t = JMPD_IP_SLOT_T_BYTES if ip else JMPD_SLOT_T_BYTES
         return ResourceTerms(
@@ -292,7 +325,7 @@ class JMPDIPTracker(JMPDTracker):
     #: one configuration and draw the same random numbers
     defaults_only = True
 
-    def __init__(self, n_particles: int = 2000, t_max: int = 5,
+    def __init__(self, n_particles: int = 2000, t_max: int | None = None,
                  birth_rate: float | None = None, death_probability: float | None = None,
                  resample_threshold: float = 0.5,
                  proposal: Literal["bootstrap", "ip"] = "ip",
