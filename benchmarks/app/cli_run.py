@@ -14,7 +14,7 @@ from ..engine.executors import describe_current
 from ..engine.loop import build_jobs
 from ..engine.specs import resolve_policies, resolve_scenarios, resolve_trackers
 from ..engine.store import check_sweep, prepare_out_dir, sweep_lock
-from . import resources
+from . import policy_axis, resources
 from .cli_common import (
     SUITE_HELP,
     add_sweep_options,
@@ -53,8 +53,9 @@ def _sweep(args: argparse.Namespace, scs, tracker_specs, policy_specs, looks, se
                                 resume=resume, c=args.c, p=args.p,
                                 run_timeout=args.run_timeout or default_run_timeout(jobs),
                                 store=getattr(args, "store", None))
-            text = write_summary(_with_bayes(results, scs, policy_specs, looks, seeds, args),
-                                 out_dir, title)
+            table = _with_bayes(results, scs, policy_specs, looks, seeds, args)
+            text = write_summary(table, out_dir, title,
+                                 sections=_policy_sections(table, policy_specs))
     print(text)
     rows = ("dataset/ (the rows, by scenario and tracker), runs.parquet"
             if (Path(out_dir) / "runs.parquet").is_file() else "results.parquet")
@@ -83,6 +84,15 @@ def _with_bayes(results: pd.DataFrame, scs, policy_specs, looks, seeds,
             if "no stored" not in line:
                 print(f"bayes reference: {line}", file=sys.stderr)
     return results
+
+
+def _policy_sections(results: pd.DataFrame, policy_specs) -> list[str]:
+    """The tracker x policy section of ``compare`` (:mod:`.policy_axis`: the table, the
+    paired ``policy - first`` differences, the best pair) where a scenario and look budget
+    ran under two policies or more, the policies in the order given; none otherwise."""
+    axis = policy_axis.policy_axis(results, order=[spec.label for spec in policy_specs])
+    text = policy_axis.markdown(axis)
+    return [text] if text else []
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -121,9 +131,11 @@ def add_parser(sub: argparse._SubParsersAction, fmt: type[argparse.HelpFormatter
                         "or paths to .toml files")
     g.add_argument("--suite", metavar="SUITE", help=SUITE_HELP)
     add_sweep_options(p, seeds_default=10, trackers_required=True)
-    p.add_argument("--policy", nargs="+", default=["raster"], metavar="SPEC",
+    p.add_argument("--policy", "--policies", nargs="+", default=["raster"], metavar="SPEC",
                    help="cell-selection policies, comma or space separated "
-                        "(default raster; see `mttbench trackers`)")
+                        "(default raster; see `mttbench trackers`); with two or more, "
+                        "summary.md adds the tracker x policy table of `compare` (paired "
+                        "differences against the first given, the best pair)")
     p.add_argument("--store", choices=("parts", "dataset"), default=None,
                    help="how the rows are kept: parts (one Parquet file per run, then "
                         "results.parquet; the default) or dataset (one file per worker "
