@@ -8,7 +8,8 @@ import pandas as pd
 import pytest
 
 from mttbench import scenarios, trackers
-from mttbench.benchmarks.app.cli import COMPARE_SCENARIOS, main
+from mttbench.benchmarks.app.cli import main
+from mttbench.benchmarks.app.compare import COMPARE_SCENARIOS
 from mttbench.benchmarks.engine import policies
 from mttbench.benchmarks.engine.loop import COLUMNS
 from mttbench.scenarios.spec import dumps

@@ -32,6 +32,7 @@ from test_packaging import ok, run_python
 from mttbench import Estimate, Tracker, trackers
 from mttbench.benchmarks.app import (
     cli,
+    cli_common,
     compare,
     progress,
     reproduce,
@@ -277,7 +278,7 @@ def test_tuning_seeds_never_meet_evaluation_seeds(study):
     seeds = {int(pd.read_parquet(p)["seed"].iloc[0]) for p in (root / "out/parts").glob("*")}
     assert seeds == set(SEEDS) and min(seeds) >= base
     # every way of choosing evaluation seeds stays below them
-    assert cli.MAX_SEEDS <= base and compare.COMPARE_SEEDS <= base
+    assert cli_common.MAX_SEEDS <= base and compare.COMPARE_SEEDS <= base
     for module in (reproduce, reproduce_kreucher):
         for setting in module.SETTINGS.values():
             assert max(setting.seeds) < base

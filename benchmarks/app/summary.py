@@ -826,7 +826,7 @@ def write_summary(results: pd.DataFrame, out_dir: str | Path, title: str,
     listed under the table (``compare``: which parameters each tracker ran).
     ``summary.md`` then has the track-level sections of :func:`track_markdown` (the
     switches around the crossings only from a step table with the per-step series), then
-    ``sections`` (Markdown; ``compare``: the tracker x policy tables)."""
+    ``sections`` (Markdown; ``compare`` and ``run``: the tracker x policy tables)."""
     from ..engine.store import write_text_atomic
 
     out_dir = Path(out_dir)
