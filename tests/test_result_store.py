@@ -375,3 +375,18 @@ def test_resume_recomputes_a_part_whose_rows_are_not_its_runs(tmp_path, capsys, 
     assert "1 damaged part file(s) will be recomputed" in capsys.readouterr().err
     assert pd.read_parquet(target).attrs[PART_META_KEY] == identity
     pd.testing.assert_frame_equal(_rows(again), fresh, check_exact=True)
+
+
+def test_an_extended_sweeps_manifest_gathers_every_batchs_jobs(tmp_path):
+    """tune's sweeps grow batch by batch (``extend``): the folder's manifest lists the
+    union of the jobs of every batch, each once (reference: the jobs' own keys)."""
+    from mttbench.benchmarks.engine.store import read_sweep_manifest
+
+    first, second = _jobs(("null",), seeds=[0, 1]), _jobs(("null",), seeds=[1, 2])
+    out = tmp_path / "tune"
+    for jobs in (first, second):
+        run_sweep(jobs, out, extend=True, resume=True)
+    want = sorted({job.key(None, 2.0) for job in [*first, *second]})
+    assert len(want) == 3
+    assert read_sweep_manifest(out)["jobs"] == want
+    assert sorted(p.stem for p in (out / "parts").glob("*.parquet")) == want
