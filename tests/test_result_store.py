@@ -32,12 +32,12 @@ from mttbench.benchmarks.engine.store import (
     PART_META_KEY,
     RUN_KEY,
     RUNS_FILE,
+    _write_part,
     check_batch,
     dataset_runs,
     load_results,
     load_runs,
     read_batch_identity,
-    _write_part,
     runs_of,
 )
 from mttbench.benchmarks.engine.sweep import run_sweep
