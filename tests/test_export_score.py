@@ -415,3 +415,33 @@ def test_the_stonesoup_example_runs_every_step_and_is_scored(tmp_path):
     assert (res / "summary.md").is_file() and (res / "score.json").is_file()
     assert sorted(rows["step"]) == list(range(25)) and set(rows["status"]) == {"ok"}
     assert rows["ospa"].between(0, 2).all() and rows["ospa"].mean() < 2.0  # it tracks
+
+
+def test_scoring_reads_the_worlds_cell_size_for_the_default_cutoff(tmp_path):
+    """The default cut-off is 2 cells of the world's grid: on cells of 2.5 units the rows
+    scored outside equal run_job's (c = 5) metric for metric, and differ from a scoring
+    with c = 2 units (the reference is the in-process run, not the scorer)."""
+    import dataclasses
+
+    base = resolve_scenarios(["births"], 20)[0]
+    grid = dataclasses.replace(base.model.grid, cell_size=2.5)
+    scenario = dataclasses.replace(base, model=dataclasses.replace(base.model, grid=grid))
+    spec, policy = TrackerSpec("kfnn"), PolicySpec("random")
+    out = tmp_path / "worlds"
+    ex.export_worlds([scenario], [policy], [0], out)
+    folder = _world(out, "births", 0, "random", 24)
+    _write_estimates(scenario, spec, policy, 0, folder / "estimates.csv")
+    res = tmp_path / "scored"
+    assert main(["score", str(out), "--estimates", "estimates.csv", "--name", "kfnn",
+                 "--out", str(res)]) == 0
+    got = pd.read_parquet(res / "results.parquet").sort_values("step")
+    ref = run_job(Job(scenario, spec, policy, None, 0)).sort_values("step")
+    assert (got["ospa_c"] == 5.0).all() and (ref["ospa_c"] == 5.0).all()
+    cols = ["ospa", "gospa", "ospa_card", "tgospa", "ospa2"]
+    assert np.array_equal(got[cols].to_numpy(float), ref[cols].to_numpy(float), equal_nan=True)
+    res2 = tmp_path / "scored2"
+    assert main(["score", str(out), "--estimates", "estimates.csv", "--name", "kfnn",
+                 "--c", "2", "--out", str(res2)]) == 0
+    two = pd.read_parquet(res2 / "results.parquet").sort_values("step")
+    assert (two["ospa_c"] == 2.0).all()
+    assert not np.allclose(two["ospa"].to_numpy(), got["ospa"].to_numpy())

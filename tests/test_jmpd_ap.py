@@ -925,3 +925,54 @@ def test_one_random_target_in_clutter_is_never_held_twice():
         held = t.valid.sum(axis=1)
         assert held.max() <= 1, rec.k
         assert 0.0 <= rec.estimate.count <= 1.0 + 1e-9
+
+
+def test_an_undetected_target_shifts_each_count_row_by_a_bernoulli():
+    """``P_c(t)`` with the undetected targets: each row is the law of ``N + B``, ``N`` the
+    particles' count there and ``B ~ Bernoulli(pi)`` independent, ``pi = 1 - (1 - pi_init)
+    (1 - pi_arr)``, the last column "that many or more". Reference: numpy's convolution of
+    the two laws, its tail folded into the last column."""
+    rng = _rng(3)
+    P = rng.dirichlet(np.ones(5), size=6)  # every column, the top two included, > 0
+    pi_init, pi_arr = rng.uniform(0, 0.6, 6), rng.uniform(0, 0.3, 6)
+    got = ap_module._with_undetected(P, (pi_init[None], pi_arr[None]))
+    for row, want_from, a, b in zip(got, P, pi_init, pi_arr, strict=True):
+        pi = 1 - (1 - a) * (1 - b)
+        full = np.convolve(want_from, [1 - pi, pi])
+        want = np.r_[full[:4], full[4:].sum()]
+        np.testing.assert_allclose(row, want, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(got.sum(axis=1), 1.0, rtol=1e-12)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_predictive_is_the_kalman_prediction_of_a_known_position(compiled):
+    """Per slot and axis the position is known and the velocity ``N(m, s)``: the predictive
+    of the position is the first entry of ``F P F^T + Q`` with ``P = [[0, 0], [0, s]]``,
+    i.e. mean ``rho + tau m`` and variance ``tau^2 s + q11``, with the model's own ``F`` and
+    ``Q`` at a time step other than 1 (numpy's pass and the compiled one)."""
+    tau, q = 2.5, 0.02
+    model = TrackingModel(grid=Grid(40, 30, 1.0), dynamics=Dynamics(tau=tau, wna_intensity=q),
+                          birth_death=BirthDeath(n_random_initial=2), sensor=SENSOR)
+    tr = _tracker(model, 0, n_particles=50, t_max=4)
+    if not compiled:
+        tr.uses_compiled_kernels = False
+    elif not tr.uses_compiled_kernels:
+        pytest.skip("no compiled kernels here")
+    rng = _rng(1)
+    shape = tr.pos.shape
+    tr.pos[:] = rng.uniform(10.0, 20.0, shape)
+    tr.vel[:] = rng.normal(0.0, 0.3, shape)
+    tr.vvar[:] = rng.uniform(0.01, 0.2, shape)
+    tr.valid[:] = True
+    pos, vel, vvar = tr.pos.copy(), tr.vel.copy(), tr.vvar.copy()
+    tr.predict()
+    rhohat, psi = tr._pred
+    F, Q = model.dynamics.F, model.dynamics.Q
+    for axis, (i, j) in enumerate([(0, 1), (2, 3)]):
+        P = np.zeros(vvar.shape[:2] + (2, 2))
+        P[..., 1, 1] = vvar[..., axis]
+        Fa, Qa = F[np.ix_([i, j], [i, j])], Q[np.ix_([i, j], [i, j])]
+        P_pred = Fa @ P @ Fa.T + Qa
+        np.testing.assert_allclose(psi[..., axis], P_pred[..., 0, 0], rtol=1e-12)
+        np.testing.assert_allclose(rhohat[..., axis], pos[..., axis] + tau * vel[..., axis],
+                                   rtol=1e-12)

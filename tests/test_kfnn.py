@@ -390,12 +390,14 @@ def test_confirmed_track_deleted_after_the_lost_track_drop(beta: float) -> None:
     _confirmed_track(tracker, _cell(6.5, 6.5))
     t1 = np.log(beta)  # minus the drop
     r = (1 - model.sensor.p_d) / (1 - model.sensor.p_f)
+    most = np.ceil(abs(t1) / abs(np.log1p(-0.999 * (1 - r))))
     steps = 0
     while tracker.track_table()["id"].size:  # until the track is deleted
         tracker.predict()
         tracker.update(_looks([]))
         steps += 1
-    assert abs(t1) / abs(np.log(r)) <= steps <= np.ceil(abs(t1) / abs(np.log1p(-0.999 * (1 - r))))
+        assert steps <= most, "the track outlived the drop below its peak"
+    assert abs(t1) / abs(np.log(r)) <= steps
 
 
 def test_a_deleted_tracks_existence_returns_to_the_undetected_intensity() -> None:
@@ -720,3 +722,36 @@ def test_a_confirmed_track_stays_confirmed_when_its_score_falls_below_the_level(
             assert table["confirmed"].tolist() == [True]
             assert table["peak"][0] == peak
     assert below >= 1  # the case the test is about happened
+
+
+@pytest.mark.parametrize("alpha, beta", [(0.05, 0.3), (0.3, 0.05), (0.2, 0.2)])
+def test_a_tentative_track_is_deleted_at_walds_lower_threshold(alpha: float, beta: float
+                                                               ) -> None:
+    """Heavy clutter (p_d = 0.9, p_f = 0.31): a track born from one detection stays
+    tentative, then every cell is looked at and empty. Its score path does not depend on
+    beta (a twin with beta = 1e-12 keeps the track and gives it); the track must live
+    exactly while that score is above Wald's T1 = log(beta / (1 - alpha)) and be gone at
+    the first step at or below it."""
+    snr = np.log(0.31) / np.log(0.9) - 1
+    model = _model(p_d=0.9, snr=snr)
+    twin = KFNNTracker(false_track_probability=alpha, lost_track_probability=1e-12)
+    tracker = KFNNTracker(false_track_probability=alpha, lost_track_probability=beta)
+    home = _cell(6.5, 6.5)
+    for tr in (twin, tracker):
+        tr.reset(model, np.random.default_rng(0))
+        tr.predict()
+        tr.update(_looks([home]))
+    _, t1 = _thresholds(alpha, beta, model)
+    path = []
+    for _ in range(8):
+        twin.predict()
+        twin.update(_looks([]))
+        table = twin.track_table()
+        assert table["id"].tolist() == [0] and not table["confirmed"][0]
+        path.append(float(table["score"][0]))
+    want = next(k for k, s in enumerate(path) if s <= t1)  # the step it must go
+    assert want >= 1 and path[want - 1] > t1  # so the test tells the thresholds apart
+    for k in range(want + 1):
+        tracker.predict()
+        tracker.update(_looks([]))
+        assert tracker.track_table()["id"].size == (0 if k == want else 1), k

@@ -430,3 +430,22 @@ def test_recycling_a_mixture_track_returns_r_times_each_components_weight():
                           for iy in range(cy - 1, cy + 2)])
         assert tr.intensity.at(block).sum() == pytest.approx(r * weight, rel=1e-8)
     assert tr.intensity.total() == pytest.approx(r, rel=1e-8)
+
+
+def test_a_mixture_track_is_reported_by_its_heaviest_component():
+    """Two tracks, each a two-Gaussian mixture (rows not in weight order): the estimate
+    gives each track the mean and covariance of its heaviest row (argmax per track)."""
+    tr = PMBTracker()
+    tr.reset(_model(n0=2.0), np.random.default_rng(0))
+    m0 = np.array([[1.5, 0.0, 1.5, 0.0], [6.5, 0.0, 1.5, 0.0]])
+    tr.set_tracks([0.9, 0.8], m0, np.stack([_cov(0.1, 0.1)] * 2))
+    own = np.array([0, 0, 1, 1])
+    a = np.array([0.3, 0.7, 0.6, 0.4])
+    m = np.array([[1.5, 0, 1.5, 0], [2.5, 0, 5.5, 0], [6.5, 0, 1.5, 0], [6.5, 0, 6.5, 0]], float)
+    P = np.stack([_cov(0.1 * (i + 1), 0.1) for i in range(4)])
+    tr._own, tr._a, tr._m, tr._P = own, a, m, P
+    heaviest = [int(np.flatnonzero(own == t)[np.argmax(a[own == t])]) for t in (0, 1)]
+    assert heaviest == [1, 2]
+    est = tr.estimate()
+    np.testing.assert_array_equal(est.states, m[heaviest])
+    np.testing.assert_array_equal(est.covariances, P[heaviest])

@@ -29,8 +29,10 @@ from mttbench.benchmarks.engine.store import (
     BATCH_META_KEY,
     DATASET_DIR,
     DATASET_MANIFEST,
+    PART_META_KEY,
     RUN_KEY,
     RUNS_FILE,
+    _write_part,
     check_batch,
     dataset_runs,
     load_results,
@@ -339,3 +341,52 @@ def test_a_run_held_whole_by_two_batch_files_comes_back_once(tmp_path, reference
     pd.testing.assert_frame_equal(_rows(load_results(out)), reference[0], check_exact=True)
     pd.testing.assert_frame_equal(_runs(runs), _runs(reference[1]), check_exact=False,
                                   rtol=1e-12)
+
+
+# ------------------------------------------------- the parts store: a part's own checks
+def _part_claims_a_row_more(path: Path) -> None:
+    """The identity says one row more than the file holds (rows, steps, status intact)."""
+    df = pd.read_parquet(path)
+    df.attrs[PART_META_KEY]["rows"] += 1
+    df.to_parquet(path, index=False)
+
+
+def _part_steps_shifted(path: Path) -> None:
+    """Steps 1..n instead of 0..n-1, the identity rewritten to agree (rows and status)."""
+    df = pd.read_parquet(path)
+    df["step"] += 1
+    _write_part(df, path)
+
+
+@pytest.mark.parametrize("tamper", [_part_claims_a_row_more, _part_steps_shifted],
+                         ids=["rows-disagree", "steps-shifted"])
+def test_resume_recomputes_a_part_whose_rows_are_not_its_runs(tmp_path, capsys, tamper):
+    """A part file is kept on resume only if its identity's row count is its row count and
+    its steps are 0..n-1 (an ok run); else it is recomputed. Reference: the fresh sweep's
+    rows, and the part's identity as a fresh write gives it."""
+    jobs = _jobs(trackers=("null",), seeds=range(2))
+    out = tmp_path / "out"
+    fresh = _rows(run_sweep(jobs, out, store="parts"))
+    target = sorted((out / "parts").glob("*.parquet"))[0]
+    identity = pd.read_parquet(target).attrs[PART_META_KEY]
+    tamper(target)
+    capsys.readouterr()
+    again = run_sweep(jobs, out, store="parts", resume=True)
+    assert "1 damaged part file(s) will be recomputed" in capsys.readouterr().err
+    assert pd.read_parquet(target).attrs[PART_META_KEY] == identity
+    pd.testing.assert_frame_equal(_rows(again), fresh, check_exact=True)
+
+
+def test_an_extended_sweeps_manifest_gathers_every_batchs_jobs(tmp_path):
+    """tune's sweeps grow batch by batch (``extend``): the folder's manifest lists the
+    union of the jobs of every batch, each once (reference: the jobs' own keys)."""
+    from mttbench.benchmarks.engine.store import read_sweep_manifest
+
+    first, second = _jobs(("null",), seeds=[0, 1]), _jobs(("null",), seeds=[1, 2])
+    out = tmp_path / "tune"
+    for jobs in (first, second):
+        run_sweep(jobs, out, extend=True, resume=True)
+    want = sorted({job.key(None, 2.0) for job in [*first, *second]})
+    assert len(want) == 3
+    assert read_sweep_manifest(out)["jobs"] == want
+    assert sorted(p.stem for p in (out / "parts").glob("*.parquet")) == want

@@ -399,3 +399,26 @@ def test_crossing_switches_sum_the_series_in_and_out_of_the_windows():
            "status"] = "error"
     left = summary.crossing_switches(df)
     assert sorted(zip(left["tracker_label"], left["seed"], strict=True)) == [("a", 1), ("a", 2)]
+
+
+def test_mostly_tracked_and_lost_columns_count_truths_at_the_thresholds():
+    """Five truths far apart over 10 steps, tracked (an estimate 0.1 away, its own label)
+    on their first 0, 2, 5, 8 and 10 steps: coverages 0, 0.2, 0.5, 0.8, 1. By the
+    definitions (at least 80% of its life: mostly tracked; at most 20%: mostly lost) the
+    run-level columns are 2/5 and 2/5, the thresholds included, as clear_mot's own
+    fractions."""
+    from mttbench.benchmarks.engine.metrics import RunData, run_level_metrics
+
+    T, tracked = 10, np.array([0, 2, 5, 8, 10])
+    ids = np.arange(5)
+    where = np.column_stack([10.0 * ids, np.zeros(5)])
+    truth = [where] * T
+    estimate = [where[tracked > t] + 0.1 for t in range(T)]
+    labels = [100 + ids[tracked > t] for t in range(T)]
+    values = run_level_metrics(RunData(truth, [ids] * T, estimate, labels))
+    coverage = tracked / T
+    assert values["mostly_tracked"] == np.mean(coverage >= 0.8) == 0.4
+    assert values["mostly_lost"] == np.mean(coverage <= 0.2) == 0.4
+    own = clear_mot(truth, [ids] * T, estimate, labels, gate=2.0)
+    assert (values["mostly_tracked"], values["mostly_lost"]) == (own.mostly_tracked,
+                                                                 own.mostly_lost)
