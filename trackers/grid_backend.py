@@ -17,6 +17,7 @@ from . import cells
 from .jmpd.backend import compiled_kernels
 
 _KERNELS: ModuleType | None = None
+_GPF_KERNELS: ModuleType | None = None
 
 
 def compiled_grid_kernels() -> ModuleType | None:
@@ -34,6 +35,20 @@ def compiled_grid_kernels() -> ModuleType | None:
         grid_kernels.warm_up()
         _KERNELS = grid_kernels
     return _KERNELS
+
+
+def compiled_gpf_kernels() -> ModuleType | None:
+    """:mod:`.gpf.update_kernels` (the GPF's grid update in two compiled passes; compiles
+    or loads them: its ``warm_up``) when the compiled backend is on, else None; the GPF
+    calls it in ``reset``."""
+    global _GPF_KERNELS
+    if compiled_grid_kernels() is None:
+        return None
+    if _GPF_KERNELS is None:
+        from .gpf import update_kernels
+        update_kernels.warm_up()
+        _GPF_KERNELS = update_kernels
+    return _GPF_KERNELS
 
 
 def looked_in_boxes(ix_lo: np.ndarray, ix_hi: np.ndarray, iy_lo: np.ndarray,

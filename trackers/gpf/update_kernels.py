@@ -1,0 +1,435 @@
+"""The GPF's grid update (:func:`.grid.grid_update`) as two compiled (numba) passes,
+equal bit for bit to its numpy forms :func:`.grid._pairs_and_singletons` and
+:func:`.grid._moment_match`; the clusters' combinatorics between them stay numpy.
+
+Why: on a small grid the update is a few hundred numpy calls on arrays of a few dozen
+pairs, so its time is the interpreter's (docs/speed.md, "GPF: the update in two passes").
+
+Exactness: each pass performs the numpy form's IEEE operations in the same order.
+``bincount`` and ``ufunc.at`` add sequentially in index order from 0; ``np.unique``'s
+keys are sorted by a stable sort, so that equal keys keep their index order;
+``np.logaddexp`` is numpy's ``npy_logaddexp`` (:func:`_logaddexp`); the 2x2 ``einsum``
+contractions of :func:`.grid.lift_to_state` are ``0 + a_0 b_0 + a_1 b_1`` (the one
+exception, ``matmul`` in :func:`.grid.position_regression`, stays numpy: its regression
+``B`` and residual are inputs here); ``exp``, ``log``, ``log1p`` are the C library's, as
+numpy's are for doubles without AVX-512. ``tests/test_gpf_kernels.py`` compares each
+pass with its numpy form; ``tests/test_grid_kernels.py`` compares whole runs.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..grid_kernels import looked_in_boxes, rect_position_moments
+
+_LOGE2 = math.log(2.0)
+
+
+@njit(cache=True, inline="always")
+def _nan_max(a: float, b: float) -> float:
+    """``np.maximum`` of two doubles (a NaN wins)."""
+    if a != a:
+        return a
+    if b != b:
+        return b
+    return a if a >= b else b
+
+
+@njit(cache=True, inline="always")
+def _nan_min(a: float, b: float) -> float:
+    """``np.minimum`` of two doubles (a NaN wins)."""
+    if a != a:
+        return a
+    if b != b:
+        return b
+    return a if a <= b else b
+
+
+@njit(cache=True)
+def _logaddexp(x: float, y: float) -> float:
+    """``np.logaddexp`` for doubles (numpy's ``npy_logaddexp``)."""
+    if x == y:
+        return x + _LOGE2
+    tmp = x - y
+    if tmp > 0:
+        return x + np.log1p(np.exp(-tmp))
+    if tmp <= 0:
+        return y + np.log1p(np.exp(tmp))
+    return tmp
+
+
+@njit(cache=True)
+def _search(a: np.ndarray, v: int) -> int:
+    """``np.searchsorted(a, v)`` (side left) on a sorted int array."""
+    lo, hi = 0, len(a)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if a[mid] < v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True)
+def _find(parent: np.ndarray, i: int) -> int:
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True)
+def pairs_and_singletons(w, m, P, uniform_cell, own, alp, U, hit, cells, returns, ll_pos,
+                         ll_neg, s, nx, ny, threshold, range_sigmas, bounds, n_nodes, first,
+                         nodes, weights):
+    """:func:`.grid._pairs_and_singletons`; ``ll_pos``, ``ll_neg``: one look's ``log l(1)``
+    for a return and for none (``LL1`` sums them per looked cell in look order). The
+    clusters are the connected components by union-find, each labelled by its smallest
+    track, as the numpy form's minimum-label propagation labels them. The last output is
+    True when a uniform row's cell was not looked at (the caller raises)."""
+    T = len(w)
+    R = m.shape[0]
+    n_u = len(U)
+    # the looks' log l(1) per looked cell, column 1 of look_log_ratios(..., 1)
+    LL1 = np.zeros((n_u, 2))
+    for j in range(len(cells)):
+        LL1[_search(U, cells[j]), 1] += ll_pos if returns[j] else ll_neg
+    gauss = np.ones(T, np.bool_)
+    n_gr = 0
+    for r in range(R):
+        if uniform_cell[r] < 0:
+            n_gr += 1
+        else:
+            gauss[own[r]] = False
+    gr = np.empty(n_gr, np.int64)
+    lo_x = np.empty(n_gr)
+    hi_x = np.empty(n_gr)
+    lo_y = np.empty(n_gr)
+    hi_y = np.empty(n_gr)
+    i = 0
+    for r in range(R):
+        if uniform_cell[r] < 0:
+            sx = np.sqrt(_nan_max(P[r, 0, 0], 0.0))
+            sy = np.sqrt(_nan_max(P[r, 2, 2], 0.0))
+            gr[i] = r
+            lo_x[i] = np.floor((m[r, 0] - range_sigmas * sx) / s)
+            hi_x[i] = np.floor((m[r, 0] + range_sigmas * sx) / s)
+            lo_y[i] = np.floor((m[r, 2] - range_sigmas * sy) / s)
+            hi_y[i] = np.floor((m[r, 2] + range_sigmas * sy) / s)
+            i += 1
+    box, pu0 = looked_in_boxes(lo_x, hi_x, lo_y, hi_y, U, nx, ny)
+    n0 = len(box)
+    mean_xy = np.empty((n0, 2))
+    cov_xy = np.empty((n0, 2, 2))
+    x0 = np.empty(n0)
+    x1 = np.empty(n0)
+    y0 = np.empty(n0)
+    y1 = np.empty(n0)
+    for p in range(n0):
+        r = gr[box[p]]
+        mean_xy[p, 0], mean_xy[p, 1] = m[r, 0], m[r, 2]
+        cov_xy[p, 0, 0], cov_xy[p, 0, 1] = P[r, 0, 0], P[r, 0, 2]
+        cov_xy[p, 1, 0], cov_xy[p, 1, 1] = P[r, 2, 0], P[r, 2, 2]
+        c = U[pu0[p]]
+        ix, iy = c % nx, c // nx
+        x0[p], x1[p] = ix * s, (ix + 1) * s
+        y0[p], y1[p] = iy * s, (iy + 1) * s
+    mass0, m10, m20 = rect_position_moments(mean_xy, cov_xy, x0, x1, y0, y1, bounds,
+                                            n_nodes, first, nodes, weights)
+    n_g = 0
+    for p in range(n0):
+        if mass0[p] > 1e-12:
+            n_g += 1
+    ri_g = np.empty(n_g, np.int64)
+    pu_g = np.empty(n_g, np.int64)
+    mass_g = np.empty(n_g)
+    p1_g = np.empty((n_g, 2))
+    p2_g = np.empty((n_g, 2, 2))
+    i = 0
+    for p in range(n0):
+        if mass0[p] > 1e-12:
+            ri_g[i], pu_g[i], mass_g[i] = gr[box[p]], pu0[p], mass0[p]
+            p1_g[i] = m10[p]
+            p2_g[i] = m20[p]
+            i += 1
+    # uniform rows: one pair each, mass 1
+    n_rows = n_g + R - n_gr
+    row_key = np.empty(n_rows, np.int64)
+    row_mass = np.empty(n_rows)
+    for p in range(n_g):
+        row_key[p] = own[ri_g[p]] * n_u + pu_g[p]
+        row_mass[p] = alp[ri_g[p]] * mass_g[p]
+    bad = False
+    i = n_g
+    for r in range(R):
+        if uniform_cell[r] >= 0:
+            pos = _search(U, uniform_cell[r])
+            if U[min(pos, n_u - 1)] != uniform_cell[r]:
+                bad = True
+            row_key[i] = own[r] * n_u + pos
+            row_mass[i] = 1.0
+            i += 1
+    # (track, looked cell) pairs: np.unique(row_key, return_inverse=True), bincount
+    order = np.argsort(row_key, kind="mergesort")
+    pair_of = np.empty(n_rows, np.int64)
+    n_p = 0
+    for j in range(n_rows):
+        if j == 0 or row_key[order[j]] != row_key[order[j - 1]]:
+            n_p += 1
+        pair_of[order[j]] = n_p - 1
+    pi = np.empty(n_p, np.int64)
+    pu = np.empty(n_p, np.int64)
+    mass = np.zeros(n_p)
+    for j in range(n_rows):
+        k = pair_of[order[j]]
+        pi[k] = row_key[order[j]] // n_u
+        pu[k] = row_key[order[j]] % n_u
+    for j in range(n_rows):
+        mass[pair_of[j]] += row_mass[j]
+    mass_in = np.zeros(T)
+    for k in range(n_p):
+        mass_in[pi[k]] += mass[k]
+    mass_out = np.empty(T)
+    logL = np.empty(T)
+    log_w = np.empty(T)
+    log_not_w = np.empty(T)
+    for t in range(T):
+        mass_out[t] = _nan_min(_nan_max(1.0 - mass_in[t], 0.0), 1.0) if gauss[t] else 0.0
+        logL[t] = np.log(mass_out[t])
+        log_w[t] = np.log(w[t])
+        log_not_w[t] = np.log1p(-w[t])
+    # each track's likelihood as if alone, log L = log(m_out + sum_c m_c l_c(1))
+    log_terms = np.empty(n_p)
+    for k in range(n_p):
+        log_terms[k] = np.log(_nan_max(mass[k], 1e-300)) + LL1[pu[k], 1]
+        logL[pi[k]] = _logaddexp(logL[pi[k]], log_terms[k])
+    # significant pairs in detected cells, and the clusters they link
+    lae = np.empty(T)
+    for t in range(T):
+        lae[t] = _logaddexp(log_w[t] + logL[t], log_not_w[t])
+    signif = np.zeros(n_p, np.bool_)
+    n_sig = np.zeros(n_u, np.int64)
+    for k in range(n_p):
+        t, u = pi[k], pu[k]
+        occ = w[t] * mass[k]
+        occ_alone = np.exp(log_w[t] + log_terms[k] - lae[t])
+        sig = (_nan_max(occ, occ_alone) > threshold) or ((not gauss[t]) and hit[u])
+        if sig and hit[u]:
+            signif[k] = True
+            n_sig[u] += 1
+    parent = np.arange(T)
+    cell_first = np.full(n_u, -1, np.int64)
+    for k in range(n_p):
+        if signif[k] and n_sig[pu[k]] >= 2:
+            u = pu[k]
+            if cell_first[u] < 0:
+                cell_first[u] = pi[k]
+            else:
+                a, b = _find(parent, cell_first[u]), _find(parent, pi[k])
+                if a < b:
+                    parent[b] = a
+                elif b < a:
+                    parent[a] = b
+    plabel = np.empty(T, np.int64)
+    sizes = np.zeros(T, np.int64)
+    for t in range(T):
+        plabel[t] = _find(parent, t)
+        sizes[plabel[t]] += 1
+    in_cluster = np.empty(T, np.bool_)
+    t_max = 1
+    for t in range(T):
+        in_cluster[t] = sizes[plabel[t]] >= 2
+        t_max = max(t_max, sizes[plabel[t]])
+    # singletons, closed form in log space
+    w_new = w.copy()
+    g_out = np.zeros(T)
+    g_pair = np.zeros(n_p)
+    for t in range(T):
+        if not in_cluster[t]:
+            logit = np.log(w[t]) + logL[t] - np.log1p(-w[t])
+            w_new[t] = 1.0 if w[t] >= 1.0 else 1.0 / (1.0 + np.exp(-logit))
+            g_out[t] = np.exp(-logL[t])
+    for k in range(n_p):
+        if not in_cluster[pi[k]]:
+            g_pair[k] = np.exp(LL1[pu[k], 1] - logL[pi[k]])
+    return (ri_g, pu_g, mass_g, p1_g, p2_g, pi, pu, pair_of, mass, mass_out, logL, LL1,
+            plabel, in_cluster, t_max, w_new, g_out, g_pair, bad)
+
+
+@njit(cache=True, inline="always")
+def _lift(B, resid, r, mass, a0, a1, b00, b01, b11, M1, M2, o):
+    """:func:`.grid.lift_to_state` of one row: position moments ``mass``, ``(a0, a1)``,
+    ``[[b00, b01], [b01, b11]]`` of row ``r``'s Gaussian into ``M1[o]``, ``M2[o]``."""
+    m1 = (a0, a1)
+    m2 = ((b00, b01), (b01, b11))
+    for i in range(2):
+        M1[o, 2 * i] = m1[i]
+        M1[o, 2 * i + 1] = (0.0 + B[r, i, 0] * m1[0]) + B[r, i, 1] * m1[1]
+    pv = np.empty((2, 2))
+    for i in range(2):
+        for k in range(2):
+            pv[i, k] = (0.0 + m2[i][0] * B[r, k, 0]) + m2[i][1] * B[r, k, 1]
+    for i in range(2):
+        for k in range(2):
+            M2[o, 2 * i, 2 * k] = m2[i][k]
+            M2[o, 2 * i, 2 * k + 1] = pv[i, k]
+            M2[o, 2 * i + 1, 2 * k] = pv[k, i]
+            M2[o, 2 * i + 1, 2 * k + 1] = (((0.0 + B[r, i, 0] * pv[0, k])
+                                            + B[r, i, 1] * pv[1, k]) + mass * resid[r, i, k])
+
+
+@njit(cache=True)
+def moment_match(ri_g, pu_g, mass_g, p1_g, p2_g, pair_of, g_pair, g_out, w_new, own, alp,
+                 gauss_row, hit, m, P, B, resid, T, split_share):
+    """:func:`.grid._moment_match`: the rows' sums over their pairs in pair order, the
+    lift to the full state, the split components appended after the kept rows."""
+    R = m.shape[0]
+    n_gp = len(ri_g)
+    g_rp = np.empty(n_gp)
+    live = np.empty(n_gp, np.bool_)
+    coef = np.empty(n_gp)
+    go_r = np.empty(R)
+    for r in range(R):
+        go_r[r] = g_out[own[r]]
+    acc = np.zeros(R)
+    for p in range(n_gp):
+        r = ri_g[p]
+        live[p] = w_new[own[r]] > 0.0
+        g_rp[p] = g_pair[pair_of[p]] if live[p] else 0.0
+        coef[p] = g_rp[p] - go_r[r]
+        acc[r] += coef[p] * mass_g[p]
+    Z_full = go_r + acc
+    split = np.zeros(n_gp, np.bool_)
+    any_split = False
+    if split_share > 0.0:
+        full_alpha = np.empty(R)
+        tot = np.zeros(T)
+        for r in range(R):
+            full_alpha[r] = alp[r] * (Z_full[r] if gauss_row[r] else 1.0)
+            tot[own[r]] += full_alpha[r]
+        for p in range(n_gp):
+            r = ri_g[p]
+            part = alp[r] * g_rp[p] * mass_g[p]
+            share = part / _nan_max(tot[own[r]], 1e-300)
+            split[p] = (hit[pu_g[p]] and share >= split_share and live[p]
+                        and part < (1.0 - split_share) * full_alpha[r])
+            any_split |= split[p]
+    # the rest of each row: sums over its pairs of coef * (mass, m1, m2), lifted once
+    sums = np.zeros((6, R))
+    for p in range(n_gp):
+        r = ri_g[p]
+        c = coef[p] - g_rp[p] if split[p] else coef[p]
+        sums[0, r] += c * mass_g[p]
+        sums[1, r] += c * p1_g[p, 0]
+        sums[2, r] += c * p1_g[p, 1]
+        sums[3, r] += c * p2_g[p, 0, 0]
+        sums[4, r] += c * p2_g[p, 0, 1]
+        sums[5, r] += c * p2_g[p, 1, 1]
+    Z = go_r + sums[0] if any_split else Z_full
+    d = np.empty((R, 4))
+    S2 = np.empty((R, 4, 4))
+    means = m.copy()
+    covs = P.copy()
+    new_alpha = np.empty(R)
+    upd = np.empty(R, np.bool_)
+    dd = np.empty(4)
+    for r in range(R):
+        _lift(B, resid, r, Z[r] - go_r[r], sums[1, r], sums[2, r], sums[3, r], sums[4, r],
+              sums[5, r], d, S2, r)
+        for i in range(4):
+            for j in range(4):
+                S2[r, i, j] = S2[r, i, j] + go_r[r] * P[r, i, j]
+        new_alpha[r] = alp[r] * (Z[r] if gauss_row[r] else 1.0)
+        upd[r] = gauss_row[r] and w_new[own[r]] > 0.0 and Z[r] > 0.0
+        if upd[r]:
+            for i in range(4):
+                dd[i] = d[r, i] / Z[r]
+                means[r, i] = m[r, i] + dd[i]
+            for i in range(4):
+                for j in range(4):
+                    cij = S2[r, i, j] / Z[r] - dd[i] * dd[j]
+                    cji = S2[r, j, i] / Z[r] - dd[j] * dd[i]
+                    covs[r, i, j] = 0.5 * (cij + cji)
+    if not any_split:
+        out_own = own.copy()
+        prior_alpha = alp
+    else:
+        # a split row's remainder is dropped when negligible or its moments degenerate
+        was_split = np.zeros(R, np.bool_)
+        n_s = 0
+        for p in range(n_gp):
+            if split[p]:
+                was_split[ri_g[p]] = True
+                n_s += 1
+        rest_ok = np.empty(R, np.bool_)
+        n_rest = 0
+        for r in range(R):
+            sane = covs[r, 0, 0] > 0.0 and covs[r, 2, 2] > 0.0
+            rest_ok[r] = (not was_split[r]) or (upd[r] and Z[r] > 1e-6 * Z_full[r] and sane)
+            n_rest += rest_ok[r]
+        n_out = n_rest + n_s
+        out_m = np.empty((n_out, 4))
+        out_P = np.empty((n_out, 4, 4))
+        out_alpha = np.empty(n_out)
+        out_own = np.empty(n_out, np.int64)
+        prior_alpha = np.empty(n_out)
+        o = 0
+        for r in range(R):
+            if rest_ok[r]:
+                out_m[o] = means[r]
+                out_P[o] = covs[r]
+                out_alpha[o] = new_alpha[r]
+                out_own[o] = own[r]
+                prior_alpha[o] = alp[r]
+                o += 1
+        M1 = np.empty((1, 4))
+        M2 = np.empty((1, 4, 4))
+        sd = np.empty(4)
+        for p in range(n_gp):
+            if not split[p]:
+                continue
+            r, sm = ri_g[p], mass_g[p]
+            _lift(B, resid, r, sm, p1_g[p, 0], p1_g[p, 1], p2_g[p, 0, 0], p2_g[p, 0, 1],
+                  p2_g[p, 1, 1], M1, M2, 0)
+            for i in range(4):
+                sd[i] = M1[0, i] / sm
+                out_m[o, i] = m[r, i] + sd[i]
+            for i in range(4):
+                for j in range(4):
+                    cij = M2[0, i, j] / sm - sd[i] * sd[j]
+                    cji = M2[0, j, i] / sm - sd[j] * sd[i]
+                    out_P[o, i, j] = 0.5 * (cij + cji)
+            out_alpha[o] = alp[r] * g_rp[p] * sm
+            out_own[o] = own[r]
+            prior_alpha[o] = alp[r] * 0.0
+            o += 1
+        means, covs, new_alpha = out_m, out_P, out_alpha
+    # renormalise the mixture weights within each track (a track with no posterior mass
+    # keeps its prior weights)
+    tot = np.zeros(T)
+    for o in range(len(out_own)):
+        tot[out_own[o]] += new_alpha[o]
+    alpha = np.empty(len(out_own))
+    for o in range(len(out_own)):
+        t = tot[out_own[o]]
+        alpha[o] = new_alpha[o] / t if t > 0.0 else prior_alpha[o]
+    return means, covs, alpha, out_own
+
+
+def warm_up() -> None:
+    """Compile (or load from the disk cache) both passes on tiny inputs, for the argument
+    types :func:`.grid.grid_update` passes. Cheap after the first time in a process."""
+    if getattr(warm_up, "done", False):
+        return
+    f, i, b = np.ones(1), np.zeros(1, np.int64), np.zeros(1, np.bool_)
+    m, P = np.zeros((1, 4)), np.eye(4)[None]
+    out = pairs_and_singletons(
+        0.5 * f, m, P, i - 1, i, f, i, b, i, b, 0.5, -0.1, 1.0, 1, 1, 1e-3, 6.0,
+        np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2))
+    moment_match(out[0], out[1], out[2], out[3], out[4], out[7], out[17], out[16], out[15],
+                 i, f, b | True, b, m, P, np.zeros((1, 2, 2)), np.zeros((1, 2, 2)), 1, 0.1)
+    warm_up.done = True
