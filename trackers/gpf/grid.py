@@ -80,6 +80,7 @@ cell without a detection only by the usual occupancy threshold.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -201,7 +202,10 @@ def position_regression(covs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ``v - m_v = B (p - m_p) + e``: ``B = S_vp S_pp^-1 (K, 2, 2)`` (closed-form 2x2 inverse)
     and the residual covariance ``S_vv - B S_pv (K, 2, 2)``."""
     Svp = covs[:, 1::2, 0::2]  # positions are state entries 0, 2; velocities 1, 3
-    B = Svp @ kalman.inverse(covs[:, 0::2, 0::2])
+    kernels = compiled_gpf_kernels()
+    inv = (kalman.inverse(covs[:, 0::2, 0::2]) if kernels is None
+           else kernels.position_inverse(np.ascontiguousarray(covs, dtype=float)))
+    B = Svp @ inv
     return B, covs[:, 1::2, 1::2] - B @ np.swapaxes(Svp, -1, -2)
 
 
@@ -551,12 +555,12 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
         pairs = _pairs_and_singletons(w, m, P, uniform_cell, own, alp, U, hit, cells, returns,
                                       grid, sensor, interaction_threshold, range_sigmas)
     else:
-        ll_pos, ll_neg = sensor.log_likelihood_ratio(np.array([True, False]), np.ones(2))
+        ll_pos, ll_neg = _one_target_ratios(sensor)
         pairs = kernels.pairs_and_singletons(
             w, np.ascontiguousarray(m, dtype=float), np.ascontiguousarray(P, dtype=float),
             np.ascontiguousarray(uniform_cell, dtype=np.int64), own, alp, U, hit,
             np.ascontiguousarray(cells, dtype=np.int64), np.ascontiguousarray(returns, dtype=bool),
-            float(ll_pos), float(ll_neg), float(grid.cell_size), grid.nx, grid.ny,
+            ll_pos, ll_neg, float(grid.cell_size), grid.nx, grid.ny,
             float(interaction_threshold), float(range_sigmas), *_gl_table())
     (ri_g, pu_g, mass_g, p1_g, p2_g, pi, pu, pair_of, mass, mass_out, logL, LL1, plabel,
      in_cluster, t_max, w_new, g_out, g_pair, bad_uniform) = pairs
@@ -640,6 +644,14 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
             np.ascontiguousarray(P, dtype=float), B, resid, T, float(split_share))
     return GridUpdateResult(np.clip(w_new, 0.0, 1.0), means, covs, dropped, n_clusters,
                             max_cluster, new_alpha, out_own)
+
+
+@functools.lru_cache(maxsize=64)
+def _one_target_ratios(sensor: RayleighGridSensor) -> tuple[float, float]:
+    """``log l(1)`` of one look with a return and without, as :func:`.cells.look_log_ratios`
+    computes them (the sensor is immutable)."""
+    ll_pos, ll_neg = sensor.log_likelihood_ratio(np.array([True, False]), np.ones(2))
+    return float(ll_pos), float(ll_neg)
 
 
 def _pairs_and_singletons(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.ndarray,
@@ -996,10 +1008,15 @@ def fold_into_workspace(m: np.ndarray, P: np.ndarray, grid: Grid
     m = np.asarray(m, dtype=float).reshape(-1, 4)
     P = np.asarray(P, dtype=float).reshape(-1, 4, 4)
     width, height = grid.extent
-    sx = RANGE_SIGMAS * np.sqrt(np.maximum(P[:, 0, 0], 0.0))
-    sy = RANGE_SIGMAS * np.sqrt(np.maximum(P[:, 2, 2], 0.0))
-    edge = np.nonzero((m[:, 0] - sx < 0) | (m[:, 0] + sx > width)
-                      | (m[:, 2] - sy < 0) | (m[:, 2] + sy > height))[0]
+    kernels = compiled_gpf_kernels()
+    if kernels is not None:
+        edge = kernels.near_walls(np.ascontiguousarray(m), np.ascontiguousarray(P), RANGE_SIGMAS,
+                                  float(width), float(height))
+    else:
+        sx = RANGE_SIGMAS * np.sqrt(np.maximum(P[:, 0, 0], 0.0))
+        sy = RANGE_SIGMAS * np.sqrt(np.maximum(P[:, 2, 2], 0.0))
+        edge = np.nonzero((m[:, 0] - sx < 0) | (m[:, 0] + sx > width)
+                          | (m[:, 2] - sy < 0) | (m[:, 2] + sy > height))[0]
     means, covs = m.copy(), P.copy()
     if len(edge):
         means[edge], covs[edge] = known_existence_update(

@@ -24,6 +24,7 @@ import numpy as np
 from numba import njit
 
 from ..grid_kernels import looked_in_boxes, rect_position_moments
+from ..numba_exact import np_sum
 
 _LOGE2 = math.log(2.0)
 
@@ -420,6 +421,223 @@ def moment_match(ri_g, pu_g, mass_g, p1_g, p2_g, pair_of, g_pair, g_out, w_new, 
     return means, covs, alpha, out_own
 
 
+@njit(cache=True)
+def with_candidates(w, own, a, m, P, cand, u_cand, s, nx, vs):
+    """The tracks followed by one birth candidate per cell of ``cand`` (existence
+    ``u_cand``, at rest at the cell's centre, covariance ``diag(s^2/12, vs, s^2/12, vs)``):
+    ``w``, ``owner``, ``alpha``, ``means``, ``covs`` and ``uniform_cell`` as
+    :meth:`.tracker.GaussianParticleFilter._update_grid` builds them with numpy."""
+    T, R, n_c = len(w), m.shape[0], len(cand)
+    w2 = np.empty(T + n_c)
+    w2[:T] = w
+    w2[T:] = u_cand
+    own2 = np.empty(R + n_c, np.int64)
+    a2 = np.ones(R + n_c)
+    ucell = np.full(R + n_c, -1, np.int64)
+    m2 = np.zeros((R + n_c, 4))
+    P2 = np.zeros((R + n_c, 4, 4))
+    own2[:R] = own
+    a2[:R] = a
+    m2[:R] = m
+    P2[:R] = P
+    pv = s * s / 12.0
+    for j in range(n_c):
+        r = R + j
+        own2[r] = T + j
+        ucell[r] = cand[j]
+        m2[r, 0] = (cand[j] % nx + 0.5) * s
+        m2[r, 2] = (cand[j] // nx + 0.5) * s
+        P2[r, 0, 0], P2[r, 1, 1], P2[r, 2, 2], P2[r, 3, 3] = pv, vs, pv, vs
+    return w2, own2, a2, m2, P2, ucell
+
+
+@njit(cache=True)
+def keep_promoted(weights, owner, alpha, means, covs, T, cand, cells, returns, prune):
+    """After the update with birth candidates (tracks ``T..``): a candidate whose cell
+    returned a detection and whose weight exceeds ``prune`` becomes a track; returns that
+    mask, the candidates' new field values (0 where promoted, else their weight) and the
+    kept tracks' ``w``, rows' ``owner`` (renumbered), ``alpha``, ``means``, ``covs``."""
+    n_c = len(cand)
+    det = np.sort(cells[returns])
+    keep_track = np.ones(T + n_c, np.bool_)
+    promote = np.zeros(n_c, np.bool_)
+    u_new = np.empty(n_c)
+    for j in range(n_c):
+        wc = weights[T + j]
+        pos = _search(det, cand[j])
+        promote[j] = pos < len(det) and det[pos] == cand[j] and wc > prune
+        u_new[j] = 0.0 if promote[j] else wc
+        keep_track[T + j] = promote[j]
+    new_index = np.cumsum(keep_track) - 1
+    n_t = 0
+    for t in range(T + n_c):
+        n_t += keep_track[t]
+    w = np.empty(n_t)
+    for t in range(T + n_c):
+        if keep_track[t]:
+            w[new_index[t]] = weights[t]
+    n_r = 0
+    for r in range(len(owner)):
+        n_r += keep_track[owner[r]]
+    own = np.empty(n_r, np.int64)
+    a = np.empty(n_r)
+    m = np.empty((n_r, 4))
+    P = np.empty((n_r, 4, 4))
+    o = 0
+    for r in range(len(owner)):
+        if keep_track[owner[r]]:
+            own[o] = new_index[owner[r]]
+            a[o] = alpha[r]
+            m[o] = means[r]
+            P[o] = covs[r]
+            o += 1
+    return promote, u_new, w, own, a, m, P
+
+
+@njit(cache=True)
+def pair_screen(m, P, threshold, groups, use_groups):
+    """:func:`.tracker._pair_distances`' screen: the pairs ``i < j`` (in
+    ``np.triu_indices`` order) whose position-only lower bound is not ``>= threshold``
+    (NaN passes), in the same group when ``use_groups``; returns them with ``m_i - m_j``
+    and ``P_i + P_j`` for the exact solve."""
+    K = m.shape[0]
+    n = 0
+    ci = np.empty(K * (K - 1) // 2, np.int64)
+    cj = np.empty(K * (K - 1) // 2, np.int64)
+    for i in range(K):
+        for j in range(i + 1, K):
+            if use_groups and groups[i] != groups[j]:
+                continue
+            a = P[i, 0, 0] + P[j, 0, 0]
+            b = P[i, 0, 2] + P[j, 0, 2]
+            c = P[i, 2, 2] + P[j, 2, 2]
+            dx = m[i, 0] - m[j, 0]
+            dy = m[i, 2] - m[j, 2]
+            det = a * c - b * b
+            lower = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
+            if not lower >= threshold:
+                ci[n], cj[n] = i, j
+                n += 1
+    dc = np.empty((n, 4))
+    Sc = np.empty((n, 4, 4))
+    for k in range(n):
+        i, j = ci[k], cj[k]
+        for x in range(4):
+            dc[k, x] = m[i, x] - m[j, x]
+            for y in range(4):
+                Sc[k, x, y] = P[i, x, y] + P[j, x, y]
+    return ci[:n], cj[:n], dc, Sc
+
+
+@njit(cache=True)
+def greedy_merge(w, m, P, close, threshold, bounded, sum_tol):
+    """:func:`.tracker.merge_groups` after its sort by decreasing weight and its
+    distances ``close``: the groups, greedily from the heaviest (``bounded``: members by
+    increasing distance while the sum stays ``<= 1 + sum_tol``), each group's weight
+    (``min(1, sum)``, numpy's pairwise sum in index order), and its ``w``-weighted moment
+    match (sequential sums in index order, as ``np.add.at``). Returns the weights, the
+    label of each input and the merged means and covariances."""
+    K = len(w)
+    label = np.full(K, -1, np.int64)
+    out_w = np.empty(K)
+    n_g = 0
+    buf = np.empty(K)
+    for i in range(K):
+        if label[i] >= 0:
+            continue
+        g = n_g
+        n_g += 1
+        label[i] = g
+        lonely = True
+        for j in range(K):
+            if close[i, j] < threshold:
+                lonely = False
+        if lonely:
+            out_w[g] = 1.0 if 1.0 < w[i] else w[i]  # Python's min(w, 1.0)
+            continue
+        grp = np.empty(K, np.int64)
+        n = 0
+        for j in range(K):
+            if close[i, j] < threshold and label[j] < 0:
+                grp[n] = j
+                n += 1
+        if bounded:
+            tot = w[i]
+            order = np.argsort(close[i, grp[:n]], kind="mergesort")
+            for q in range(n):
+                j = grp[order[q]]
+                if tot + w[j] <= 1.0 + sum_tol:
+                    label[j] = g
+                    tot += w[j]
+            out_w[g] = 1.0 if 1.0 < tot else tot  # Python's min(tot, 1.0)
+        else:
+            for q in range(n):
+                label[grp[q]] = g
+            nb = 0
+            for j in range(K):
+                if label[j] == g:
+                    buf[nb] = w[j]
+                    nb += 1
+            tot = np_sum(buf, nb)
+            out_w[g] = tot if tot < 1.0 else 1.0  # Python's min(1.0, tot)
+    mean = np.zeros((n_g, 4))
+    cov = np.zeros((n_g, 4, 4))
+    if n_g == K:
+        return out_w[:n_g], label, mean, cov
+    tot_w = np.zeros(n_g)
+    head = np.full(n_g, -1, np.int64)
+    for j in range(K):
+        tot_w[label[j]] += w[j]
+        if head[label[j]] < 0:
+            head[label[j]] = j
+    wn = np.empty(K)
+    for j in range(K):
+        g = label[j]
+        if tot_w[g] > 0.0:
+            wn[j] = w[j] / tot_w[g]
+        else:
+            wn[j] = 1.0 if j == head[g] else 0.0
+        for x in range(4):
+            mean[g, x] += wn[j] * m[j, x]
+    for j in range(K):
+        g = label[j]
+        for x in range(4):
+            dx = m[j, x] - mean[g, x]
+            for y in range(4):
+                cov[g, x, y] += wn[j] * (P[j, x, y] + dx * (m[j, y] - mean[g, y]))
+    return out_w[:n_g], label, mean, cov
+
+
+@njit(cache=True)
+def position_inverse(P):
+    """:func:`.kalman.inverse` of each position block ``P[:, 0::2, 0::2]`` (closed form)."""
+    R = P.shape[0]
+    out = np.empty((R, 2, 2))
+    for r in range(R):
+        a, b, c, d = P[r, 0, 0], P[r, 0, 2], P[r, 2, 0], P[r, 2, 2]
+        det = a * d - b * c
+        out[r, 0, 0], out[r, 0, 1] = d / det, -b / det
+        out[r, 1, 0], out[r, 1, 1] = -c / det, a / det
+    return out
+
+
+@njit(cache=True)
+def near_walls(m, P, range_sigmas, width, height):
+    """The rows whose ``range_sigmas`` box reaches beyond the workspace
+    (:func:`.grid.fold_into_workspace`'s test)."""
+    R = m.shape[0]
+    out = np.empty(R, np.int64)
+    n = 0
+    for r in range(R):
+        sx = range_sigmas * np.sqrt(_nan_max(P[r, 0, 0], 0.0))
+        sy = range_sigmas * np.sqrt(_nan_max(P[r, 2, 2], 0.0))
+        if (m[r, 0] - sx < 0 or m[r, 0] + sx > width or m[r, 2] - sy < 0
+                or m[r, 2] + sy > height):
+            out[n] = r
+            n += 1
+    return out[:n]
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) both passes on tiny inputs, for the argument
     types :func:`.grid.grid_update` passes. Cheap after the first time in a process."""
@@ -432,4 +650,11 @@ def warm_up() -> None:
         np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2))
     moment_match(out[0], out[1], out[2], out[3], out[4], out[7], out[17], out[16], out[15],
                  i, f, b | True, b, m, P, np.zeros((1, 2, 2)), np.zeros((1, 2, 2)), 1, 0.1)
+    w2, own2, a2, m2, P2, ucell = with_candidates(f, i, f, m, P, i, f, 1.0, 1, 1.0)
+    keep_promoted(w2, own2, a2, m2, P2, 1, i, i, b, 1e-3)
+    ci, cj, dc, Sc = pair_screen(m2, P2, 4.0, i, False)
+    for bounded in (False, True):
+        greedy_merge(w2, m2, P2, np.zeros((2, 2)), 4.0, bounded, 1e-9)
+    position_inverse(P2)
+    near_walls(m2, P2, 6.0, 1.0, 1.0)
     warm_up.done = True
