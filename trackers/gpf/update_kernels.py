@@ -12,7 +12,8 @@ keys are sorted by a stable sort, so that equal keys keep their index order;
 contractions of :func:`.grid.lift_to_state` are ``0 + a_0 b_0 + a_1 b_1`` (the one
 exception, ``matmul`` in :func:`.grid.position_regression`, stays numpy: its regression
 ``B`` and residual are inputs here); ``exp``, ``log``, ``log1p`` are the C library's, as
-numpy's are for doubles without AVX-512. ``tests/test_gpf_kernels.py`` compares each
+numpy's are for doubles without AVX-512; a division by zero gives numpy's inf or NaN
+(``error_model="numpy"``), not an exception. ``tests/test_gpf_kernels.py`` compares each
 pass with its numpy form; ``tests/test_grid_kernels.py`` compares whole runs.
 """
 
@@ -29,7 +30,7 @@ from ..numba_exact import np_sum
 _LOGE2 = math.log(2.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _nan_max(a: float, b: float) -> float:
     """``np.maximum`` of two doubles (a NaN wins)."""
     if a != a:
@@ -39,7 +40,7 @@ def _nan_max(a: float, b: float) -> float:
     return a if a >= b else b
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _nan_min(a: float, b: float) -> float:
     """``np.minimum`` of two doubles (a NaN wins)."""
     if a != a:
@@ -49,7 +50,7 @@ def _nan_min(a: float, b: float) -> float:
     return a if a <= b else b
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _logaddexp(x: float, y: float) -> float:
     """``np.logaddexp`` for doubles (numpy's ``npy_logaddexp``)."""
     if x == y:
@@ -62,7 +63,7 @@ def _logaddexp(x: float, y: float) -> float:
     return tmp
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _search(a: np.ndarray, v: int) -> int:
     """``np.searchsorted(a, v)`` (side left) on a sorted int array."""
     lo, hi = 0, len(a)
@@ -75,7 +76,7 @@ def _search(a: np.ndarray, v: int) -> int:
     return lo
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _find(parent: np.ndarray, i: int) -> int:
     while parent[i] != i:
         parent[i] = parent[parent[i]]
@@ -83,7 +84,7 @@ def _find(parent: np.ndarray, i: int) -> int:
     return i
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def pairs_and_singletons(w, m, P, uniform_cell, own, alp, U, hit, cells, returns, ll_pos,
                          ll_neg, s, nx, ny, threshold, range_sigmas, bounds, n_nodes, first,
                          nodes, weights):
@@ -168,9 +169,9 @@ def pairs_and_singletons(w, m, P, uniform_cell, own, alp, U, hit, cells, returns
     i = n_g
     for r in range(R):
         if uniform_cell[r] >= 0:
-            pos = _search(U, uniform_cell[r])
-            if U[min(pos, n_u - 1)] != uniform_cell[r]:
-                bad = True
+            pos = min(_search(U, uniform_cell[r]), n_u - 1)
+            if U[pos] != uniform_cell[r]:
+                bad = True  # the caller raises; pos stays a valid index meanwhile
             row_key[i] = own[r] * n_u + pos
             row_mass[i] = 1.0
             i += 1
@@ -261,7 +262,7 @@ def pairs_and_singletons(w, m, P, uniform_cell, own, alp, U, hit, cells, returns
             plabel, in_cluster, t_max, w_new, g_out, g_pair, bad)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _lift(B, resid, r, mass, a0, a1, b00, b01, b11, M1, M2, o):
     """:func:`.grid.lift_to_state` of one row: position moments ``mass``, ``(a0, a1)``,
     ``[[b00, b01], [b01, b11]]`` of row ``r``'s Gaussian into ``M1[o]``, ``M2[o]``."""
@@ -283,7 +284,7 @@ def _lift(B, resid, r, mass, a0, a1, b00, b01, b11, M1, M2, o):
                                             + B[r, i, 1] * pv[1, k]) + mass * resid[r, i, k])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def moment_match(ri_g, pu_g, mass_g, p1_g, p2_g, pair_of, g_pair, g_out, w_new, own, alp,
                  gauss_row, hit, m, P, B, resid, T, split_share):
     """:func:`.grid._moment_match`: the rows' sums over their pairs in pair order, the
@@ -421,7 +422,7 @@ def moment_match(ri_g, pu_g, mass_g, p1_g, p2_g, pair_of, g_pair, g_out, w_new, 
     return means, covs, alpha, out_own
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def with_candidates(w, own, a, m, P, cand, u_cand, s, nx, vs):
     """The tracks followed by one birth candidate per cell of ``cand`` (existence
     ``u_cand``, at rest at the cell's centre, covariance ``diag(s^2/12, vs, s^2/12, vs)``):
@@ -451,7 +452,7 @@ def with_candidates(w, own, a, m, P, cand, u_cand, s, nx, vs):
     return w2, own2, a2, m2, P2, ucell
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def keep_promoted(weights, owner, alpha, means, covs, T, cand, cells, returns, prune):
     """After the update with birth candidates (tracks ``T..``): a candidate whose cell
     returned a detection and whose weight exceeds ``prune`` becomes a track; returns that
@@ -494,7 +495,7 @@ def keep_promoted(weights, owner, alpha, means, covs, T, cand, cells, returns, p
     return promote, u_new, w, own, a, m, P
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def pair_screen(m, P, threshold, groups, use_groups):
     """:func:`.tracker._pair_distances`' screen: the pairs ``i < j`` (in
     ``np.triu_indices`` order) whose position-only lower bound is not ``>= threshold``
@@ -529,7 +530,7 @@ def pair_screen(m, P, threshold, groups, use_groups):
     return ci[:n], cj[:n], dc, Sc
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def greedy_merge(w, m, P, close, threshold, bounded, sum_tol):
     """:func:`.tracker.merge_groups` after its sort by decreasing weight and its
     distances ``close``: the groups, greedily from the heaviest (``bounded``: members by
@@ -608,7 +609,7 @@ def greedy_merge(w, m, P, close, threshold, bounded, sum_tol):
     return out_w[:n_g], label, mean, cov
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def position_inverse(P):
     """:func:`.kalman.inverse` of each position block ``P[:, 0::2, 0::2]`` (closed form)."""
     R = P.shape[0]
@@ -621,7 +622,7 @@ def position_inverse(P):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def near_walls(m, P, range_sigmas, width, height):
     """The rows whose ``range_sigmas`` box reaches beyond the workspace
     (:func:`.grid.fold_into_workspace`'s test)."""
