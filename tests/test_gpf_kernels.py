@@ -181,3 +181,23 @@ def test_position_regression_and_the_fold_equal_the_numpy_forms():
     got = _both(lambda: gpf_grid.fold_into_workspace(m, P, grid))
     assert _equal(*got)
     assert not np.array_equal(got[0][0], m)  # some Gaussians reached beyond a wall
+
+
+def test_option_beliefs_equal_the_numpy_form():
+    """Large clusters' beliefs: members sharing detected cells, options of probability 0,
+    a member without detected cells, couplings to T = 1, 2 and 5."""
+    rng = np.random.default_rng(13)
+    for _ in range(200):
+        n, n_opt = int(rng.integers(1, 9)), int(rng.integers(3, 8))
+        probs = rng.random((n, n_opt)) * (rng.random((n, n_opt)) < 0.8)
+        probs[:, 0] += 0.01
+        probs /= probs.sum(axis=1, keepdims=True)
+        n_u = int(rng.integers(1, 6))
+        cell = np.where(rng.random((n, n_opt)) < 0.5, rng.integers(0, n_u, (n, n_opt)), -1)
+        cell[:, :2] = -1
+        if n > 1:
+            cell[0] = -1
+        t_max = int(rng.choice([1, 2, 5]))
+        LLc = np.zeros((n_u, t_max + 1))
+        LLc[:, 2:] = rng.normal(-3.0, 3.0, (n_u, t_max - 1))
+        assert _equal(*_both(lambda: gpf_grid._option_beliefs(probs, cell, LLc)))

@@ -395,6 +395,13 @@ def _option_beliefs(option_probs: np.ndarray, option_cell: np.ndarray, LLc: np.n
     b_j / (1 - b_j)``,
     the rest counted at ``T_-i = 2``); a damped fixed-point iteration from ``q``
     (loopy belief propagation's form on this factor graph, not its exact messages)."""
+    kernels = compiled_gpf_kernels()
+    if kernels is not None:
+        return kernels.option_beliefs(
+            np.ascontiguousarray(option_probs, dtype=float),
+            np.ascontiguousarray(option_cell, dtype=np.int64),
+            np.ascontiguousarray(LLc, dtype=float), _BELIEF_ITERATIONS, _BELIEF_DAMPING,
+            _BELIEF_CLIP)
     n, n_opt = option_probs.shape
     rows, cols = np.nonzero(option_cell >= 0)
     q = option_probs.copy()

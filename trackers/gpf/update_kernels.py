@@ -610,6 +610,73 @@ def greedy_merge(w, m, P, close, threshold, bounded, sum_tol):
 
 
 @njit(cache=True, error_model="numpy")
+def option_beliefs(option_probs, option_cell, LLc, iterations, damping, clip):
+    """:func:`.grid._option_beliefs`: the damped fixed-point iteration, with each
+    detected cell's sums over its options in (row, column) order (``bincount``'s) and each
+    row's normaliser numpy's pairwise sum."""
+    n, n_opt = option_probs.shape
+    q = option_probs.copy()
+    n_e = 0
+    for i in range(n):
+        for j in range(n_opt):
+            n_e += option_cell[i, j] >= 0
+    if n_e == 0:
+        return q
+    rows = np.empty(n_e, np.int64)
+    cols = np.empty(n_e, np.int64)
+    cell = np.empty(n_e, np.int64)
+    e = 0
+    for i in range(n):
+        for j in range(n_opt):
+            if option_cell[i, j] >= 0:
+                rows[e], cols[e], cell[e] = i, j, option_cell[i, j]
+                e += 1
+    # np.unique(cell, return_inverse=True)
+    order = np.argsort(cell, kind="mergesort")
+    cidx = np.empty(n_e, np.int64)
+    n_c = 0
+    for k in range(n_e):
+        if k == 0 or cell[order[k]] != cell[order[k - 1]]:
+            n_c += 1
+        cidx[order[k]] = n_c - 1
+    cells = np.empty(n_c, np.int64)
+    for k in range(n_e):
+        cells[cidx[k]] = cell[k]
+    # exp(LLc[c, T + 1] - LLc[c, T]) for T = 0, 1, 2 (the last difference repeated)
+    n_d = LLc.shape[1] - 1
+    steps = np.empty((n_c, 3))
+    for c in range(n_c):
+        for k in range(3):
+            d = min(k, n_d - 1)
+            steps[c, k] = np.exp(LLc[cells[c], d + 1] - LLc[cells[c], d])
+    log_free = np.empty(n_e)
+    odds = np.empty(n_e)
+    new = np.empty((n, n_opt))
+    for _ in range(iterations):
+        sum_free = np.zeros(n_c)
+        sum_odds = np.zeros(n_c)
+        for k in range(n_e):
+            b = _nan_min(q[rows[k], cols[k]], 1.0 - clip)
+            log_free[k] = np.log1p(-b)
+            odds[k] = b / (1.0 - b)
+            sum_free[cidx[k]] += log_free[k]
+            sum_odds[cidx[k]] += odds[k]
+        new[:] = option_probs
+        for k in range(n_e):
+            c = cidx[k]
+            p0 = np.exp(sum_free[c] - log_free[k])
+            p1 = p0 * _nan_max(sum_odds[c] - odds[k], 0.0)
+            p1 = _nan_min(p1, 1.0 - p0)
+            factor = p0 * steps[c, 0] + p1 * steps[c, 1] + (1.0 - p0 - p1) * steps[c, 2]
+            new[rows[k], cols[k]] *= factor
+        for i in range(n):
+            tot = np_sum(new[i], n_opt)
+            for j in range(n_opt):
+                q[i, j] = (1.0 - damping) * q[i, j] + damping * (new[i, j] / tot)
+    return q
+
+
+@njit(cache=True, error_model="numpy")
 def position_inverse(P):
     """:func:`.kalman.inverse` of each position block ``P[:, 0::2, 0::2]`` (closed form)."""
     R = P.shape[0]
@@ -657,5 +724,7 @@ def warm_up() -> None:
     for bounded in (False, True):
         greedy_merge(w2, m2, P2, np.zeros((2, 2)), 4.0, bounded, 1e-9)
     position_inverse(P2)
+    option_beliefs(np.full((2, 3), 1.0 / 3.0), np.array([[-1, -1, 0], [-1, -1, 0]]),
+                   np.zeros((1, 3)), 20, 0.5, 1e-12)
     near_walls(m2, P2, 6.0, 1.0, 1.0)
     warm_up.done = True
