@@ -201,3 +201,23 @@ def test_option_beliefs_equal_the_numpy_form():
         LLc = np.zeros((n_u, t_max + 1))
         LLc[:, 2:] = rng.normal(-3.0, 3.0, (n_u, t_max - 1))
         assert _equal(*_both(lambda: gpf_grid._option_beliefs(probs, cell, LLc)))
+
+
+def test_avoid_coalescence_equals_the_numpy_form():
+    """Many combinations that differ only by which members took which detected cells
+    (so that classes hold several), ties, ``-inf`` and NaN posteriors, padded members."""
+    rng = np.random.default_rng(17)
+    for _ in range(300):
+        C, S, n_u = int(rng.integers(1, 60)), int(rng.integers(1, 6)), int(rng.integers(1, 5))
+        cluster = np.sort(rng.integers(0, 3, C))
+        choice = rng.integers(0, 4, (C, S))
+        cell = np.where(rng.random((C, S)) < 0.6, rng.integers(0, n_u, (C, S)), -1)
+        pad = rng.random((C, S)) < 0.1
+        choice[pad], cell[pad] = -2, -2
+        detected = rng.random(n_u) < 0.6
+        log_post = np.round(rng.normal(size=C), 1)  # ties
+        log_post[rng.random(C) < 0.1] = -np.inf
+        log_post[rng.random(C) < 0.05] = np.nan
+        got = _both(lambda: gpf_grid.avoid_coalescence(cluster, choice, cell, detected,
+                                                       log_post))
+        assert _equal(*got)

@@ -304,6 +304,14 @@ def avoid_coalescence(cluster: np.ndarray, choice: np.ndarray, cell: np.ndarray,
     (members padded with ``-2``; cell ``-1``: none), ``detected (n_u,)``, ``log_post (C,)``;
     returns ``log_post`` with the others at ``-inf``. Without it the members of a cluster
     whose detections could be swapped all move to the same blend of them (coalescence)."""
+    kernels = compiled_gpf_kernels()
+    if kernels is not None:
+        return kernels.avoid_coalescence(
+            np.ascontiguousarray(cluster, dtype=np.int64),
+            np.ascontiguousarray(choice, dtype=np.int64),
+            np.ascontiguousarray(cell, dtype=np.int64),
+            np.ascontiguousarray(detected, dtype=bool),
+            np.ascontiguousarray(log_post, dtype=float))
     took = cell >= 0
     took[took] = detected[cell[took]]
     marker = np.where(took, -1, choice)

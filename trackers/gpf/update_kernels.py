@@ -677,6 +677,76 @@ def option_beliefs(option_probs, option_cell, LLc, iterations, damping, clip):
 
 
 @njit(cache=True, error_model="numpy")
+def _same_key(key, a, b):
+    for j in range(key.shape[1]):
+        if key[a, j] != key[b, j]:
+            return False
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _better(log_post, a, b):
+    """Row ``a`` precedes row ``b`` in ``np.lexsort((index, -log_post))`` (NaN last)."""
+    x, y = -log_post[a], -log_post[b]
+    if x != x:
+        return y != y and a < b
+    if y != y or x < y:
+        return True
+    return x == y and a < b
+
+
+@njit(cache=True, error_model="numpy")
+def avoid_coalescence(cluster, choice, cell, detected, log_post):
+    """:func:`.grid.avoid_coalescence`: the same classes of combinations (rows of equal
+    key: cluster, the choices of the members that took no detected cell, the sorted
+    detected cells taken), found by a hash of each key and an exact comparison within
+    equal hashes instead of numpy's sort of the keys' rows; in each class the row first
+    in ``np.lexsort((index, -log_post))`` keeps its value. Only that choice reaches the
+    output, so the result is numpy's exactly."""
+    C, S = choice.shape
+    key = np.empty((C, 1 + 2 * S), np.int64)
+    taken = np.empty(S, np.int64)
+    h = np.empty(C, np.uint64)
+    for r in range(C):
+        key[r, 0] = cluster[r]
+        for j in range(S):
+            took = cell[r, j] >= 0 and detected[cell[r, j]]
+            key[r, 1 + j] = -1 if took else choice[r, j]
+            taken[j] = cell[r, j] if took else -1
+        taken.sort()
+        for j in range(S):
+            key[r, 1 + S + j] = taken[j]
+        v = np.uint64(14695981039346656037)
+        for j in range(1 + 2 * S):
+            v = (v ^ np.uint64(key[r, j] & 0xFFFFFFFFFFFF)) * np.uint64(1099511628211)
+        h[r] = v
+    order = np.argsort(h, kind="mergesort")
+    out = np.full(C, -np.inf)
+    best = np.empty(C, np.int64)  # per class in the current run of equal hashes
+    reps = np.empty(C, np.int64)
+    start = 0
+    while start < C:
+        stop = start + 1
+        while stop < C and h[order[stop]] == h[order[start]]:
+            stop += 1
+        n_cls = 0
+        for q in range(start, stop):
+            r = order[q]
+            k = 0
+            while k < n_cls and not _same_key(key, reps[k], r):
+                k += 1
+            if k == n_cls:
+                reps[k], best[k] = r, r
+                n_cls += 1
+            elif _better(log_post, r, best[k]):
+                best[k] = r
+        for k in range(n_cls):
+            out[best[k]] = log_post[best[k]]
+        start = stop
+    return out
+
+
+@njit(cache=True, error_model="numpy")
 def position_inverse(P):
     """:func:`.kalman.inverse` of each position block ``P[:, 0::2, 0::2]`` (closed form)."""
     R = P.shape[0]
@@ -724,6 +794,8 @@ def warm_up() -> None:
     for bounded in (False, True):
         greedy_merge(w2, m2, P2, np.zeros((2, 2)), 4.0, bounded, 1e-9)
     position_inverse(P2)
+    avoid_coalescence(i, np.zeros((1, 2), np.int64), np.zeros((1, 2), np.int64),
+                      np.ones(1, np.bool_), np.zeros(1))
     option_beliefs(np.full((2, 3), 1.0 / 3.0), np.array([[-1, -1, 0], [-1, -1, 0]]),
                    np.zeros((1, 3)), 20, 0.5, 1e-12)
     near_walls(m2, P2, 6.0, 1.0, 1.0)
