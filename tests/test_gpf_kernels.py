@@ -19,12 +19,12 @@ from mttbench.trackers.jmpd import use_backend
 pytest.importorskip("mttbench.trackers.grid_kernels", reason="numba is not installed")
 
 
-def _both(f):
-    """``f()`` with the numpy forms, then with the kernels."""
+def _both(f, *args, **kwargs):
+    """``f(*args, **kwargs)`` with the numpy forms, then with the kernels."""
     out = []
     for backend in ("numpy", "compiled"):
         with use_backend(backend):
-            out.append(f())
+            out.append(f(*args, **kwargs))
     return out
 
 
@@ -89,9 +89,8 @@ def test_grid_update_equals_the_numpy_form(split_share):
     seen = {"clusters": 0, "splits": 0}
     for _ in range(150):
         w, m, P, ucell, cells, returns, grid, sensor, own, alpha = _update_case(rng)
-        got = _both(lambda: gpf_grid.grid_update(
-            w, m, P, ucell, cells, returns, grid, sensor, owner=own, alpha=alpha,
-            split_share=split_share))
+        got = _both(gpf_grid.grid_update, w, m, P, ucell, cells, returns, grid, sensor,
+                    owner=own, alpha=alpha, split_share=split_share)
         a, b = got
         assert _equal([a.weights, a.means, a.covs, a.alpha, a.owner],
                       [b.weights, b.means, b.covs, b.alpha, b.owner])
@@ -163,8 +162,7 @@ def test_merge_equals_the_numpy_form(rule, metric):
         w = rng.uniform(0.0, 1.0, K)
         groups = rng.integers(0, 3, K) if rng.random() < 0.5 else None
         threshold = float(rng.choice([1.0, 4.0, 16.0]))
-        a, b = _both(lambda: gpf_tracker.merge_groups(w, m, P, threshold, rule, metric,
-                                                      groups))
+        a, b = _both(gpf_tracker.merge_groups, w, m, P, threshold, rule, metric, groups)
         assert _equal(list(a), list(b))
         merged += len(a[0]) < K
     assert merged >= 30
@@ -174,11 +172,11 @@ def test_position_regression_and_the_fold_equal_the_numpy_forms():
     rng = np.random.default_rng(7)
     m, P = _states(rng, 500, 10.0)
     P[3, 0, 0] = P[3, 2, 2] = 0.0  # singular position block
-    assert _equal(*_both(lambda: gpf_grid.position_regression(P)))
+    assert _equal(*_both(gpf_grid.position_regression, P))
     # the fold's quadrature needs an x variance (row 0 has none, row 3 a singular block)
     m, P = np.delete(m, [0, 3], axis=0), np.delete(P, [0, 3], axis=0)
     grid = Grid(10, 10, 1.0)
-    got = _both(lambda: gpf_grid.fold_into_workspace(m, P, grid))
+    got = _both(gpf_grid.fold_into_workspace, m, P, grid)
     assert _equal(*got)
     assert not np.array_equal(got[0][0], m)  # some Gaussians reached beyond a wall
 
@@ -200,7 +198,7 @@ def test_option_beliefs_equal_the_numpy_form():
         t_max = int(rng.choice([1, 2, 5]))
         LLc = np.zeros((n_u, t_max + 1))
         LLc[:, 2:] = rng.normal(-3.0, 3.0, (n_u, t_max - 1))
-        assert _equal(*_both(lambda: gpf_grid._option_beliefs(probs, cell, LLc)))
+        assert _equal(*_both(gpf_grid._option_beliefs, probs, cell, LLc))
 
 
 def test_avoid_coalescence_equals_the_numpy_form():
@@ -218,6 +216,5 @@ def test_avoid_coalescence_equals_the_numpy_form():
         log_post = np.round(rng.normal(size=C), 1)  # ties
         log_post[rng.random(C) < 0.1] = -np.inf
         log_post[rng.random(C) < 0.05] = np.nan
-        got = _both(lambda: gpf_grid.avoid_coalescence(cluster, choice, cell, detected,
-                                                       log_post))
+        got = _both(gpf_grid.avoid_coalescence, cluster, choice, cell, detected, log_post)
         assert _equal(*got)

@@ -742,12 +742,18 @@ class GaussianParticleFilter(Tracker):
         keeps every member's components), then reduce each track's mixture: merge its
         components by the same rule, drop those below ``_COMPONENT_FLOOR``, and beyond
         ``max_components`` moment-match the lightest into one."""
-        alive = self._w >= self.prune_threshold
-        rows = alive[self._own]
-        idx = np.cumsum(alive) - 1
-        w, own, a = self._w[alive], idx[self._own[rows]], self._a[rows]
-        m, P = self._m[rows], self._P[rows]
-        tid = self._tid[alive]
+        kernels = compiled_gpf_kernels()
+        if kernels is not None:
+            w, own, a, m, P, tid = kernels.prune_tracks(
+                self._w, self._own, self._a, self._m, self._P, self._tid,
+                float(self.prune_threshold))
+        else:
+            alive = self._w >= self.prune_threshold
+            rows = alive[self._own]
+            idx = np.cumsum(alive) - 1
+            w, own, a = self._w[alive], idx[self._own[rows]], self._a[rows]
+            m, P = self._m[rows], self._P[rows]
+            tid = self._tid[alive]
         T = len(w)
         if T > 1 and self.merge_threshold > 0:
             if len(m) == T:
@@ -778,6 +784,10 @@ class GaussianParticleFilter(Tracker):
             w, own, a, m, P = w[top], idx[own[rows]], a[rows], m[rows], P[rows]
             tid = tid[top]
         self._tid = tid
+        if kernels is not None:
+            self._set(w, *kernels.rows_by_track(
+                *(np.ascontiguousarray(x) for x in (own, a, m, P))))
+            return
         order = np.argsort(own, kind="stable")
         self._set(w, own[order], a[order], m[order], P[order])
 

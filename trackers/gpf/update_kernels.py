@@ -747,6 +747,44 @@ def avoid_coalescence(cluster, choice, cell, detected, log_post):
 
 
 @njit(cache=True, error_model="numpy")
+def prune_tracks(w, own, a, m, P, tid, threshold):
+    """The tracks with ``w >= threshold`` (NaN goes), their rows, owners renumbered."""
+    T, R = len(w), len(own)
+    idx = np.empty(T, np.int64)
+    n_t = 0
+    for t in range(T):
+        idx[t] = n_t
+        n_t += w[t] >= threshold
+    w2 = np.empty(n_t)
+    tid2 = np.empty(n_t, np.int64)
+    for t in range(T):
+        if w[t] >= threshold:
+            w2[idx[t]], tid2[idx[t]] = w[t], tid[t]
+    n_r = 0
+    for r in range(R):
+        n_r += w[own[r]] >= threshold
+    own2 = np.empty(n_r, np.int64)
+    a2 = np.empty(n_r)
+    m2 = np.empty((n_r, 4))
+    P2 = np.empty((n_r, 4, 4))
+    o = 0
+    for r in range(R):
+        if w[own[r]] >= threshold:
+            own2[o], a2[o] = idx[own[r]], a[r]
+            m2[o] = m[r]
+            P2[o] = P[r]
+            o += 1
+    return w2, own2, a2, m2, P2, tid2
+
+
+@njit(cache=True, error_model="numpy")
+def rows_by_track(own, a, m, P):
+    """The rows in a stable order of their track."""
+    order = np.argsort(own, kind="mergesort")
+    return own[order], a[order], m[order], P[order]
+
+
+@njit(cache=True, error_model="numpy")
 def position_inverse(P):
     """:func:`.kalman.inverse` of each position block ``P[:, 0::2, 0::2]`` (closed form)."""
     R = P.shape[0]
@@ -794,6 +832,8 @@ def warm_up() -> None:
     for bounded in (False, True):
         greedy_merge(w2, m2, P2, np.zeros((2, 2)), 4.0, bounded, 1e-9)
     position_inverse(P2)
+    prune_tracks(w2, own2, a2, m2, P2, own2, 1e-3)
+    rows_by_track(own2, a2, m2, P2)
     avoid_coalescence(i, np.zeros((1, 2), np.int64), np.zeros((1, 2), np.int64),
                       np.ones(1, np.bool_), np.zeros(1))
     option_beliefs(np.full((2, 3), 1.0 / 3.0), np.array([[-1, -1, 0], [-1, -1, 0]]),
