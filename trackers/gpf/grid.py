@@ -562,21 +562,33 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     if T == 0 or len(cells) == 0:
         return GridUpdateResult(w.copy(), m.copy(), P.copy(), 0.0, 0, 0, alp.copy(),
                                 own.copy())
-    U = np.unique(cells)
-    hit = np.zeros(len(U), dtype=bool)
-    hit[np.searchsorted(U, cells[returns])] = True
     kernels = compiled_gpf_kernels()
     if kernels is None:
+        U = np.unique(cells)
+        hit = np.zeros(len(U), dtype=bool)
+        hit[np.searchsorted(U, cells[returns])] = True
         pairs = _pairs_and_singletons(w, m, P, uniform_cell, own, alp, U, hit, cells, returns,
                                       grid, sensor, interaction_threshold, range_sigmas)
     else:
+        # one pass, and a second for the moment match when no cluster holds two tracks
+        B, resid = position_regression(P)
         ll_pos, ll_neg = _one_target_ratios(sensor)
-        pairs = kernels.pairs_and_singletons(
+        ints, floats = kernels.grid_update_packed(
             w, np.ascontiguousarray(m, dtype=float), np.ascontiguousarray(P, dtype=float),
-            np.ascontiguousarray(uniform_cell, dtype=np.int64), own, alp, U, hit,
+            np.ascontiguousarray(uniform_cell, dtype=np.int64), np.ascontiguousarray(own),
+            np.ascontiguousarray(alp),
             np.ascontiguousarray(cells, dtype=np.int64), np.ascontiguousarray(returns, dtype=bool),
             ll_pos, ll_neg, float(grid.cell_size), grid.nx, grid.ny,
-            float(interaction_threshold), float(range_sigmas), *_gl_table())
+            float(interaction_threshold), float(range_sigmas), *_gl_table(), B, resid,
+            float(split_share))
+        if ints[6]:
+            raise ValueError("a uniform particle must sit in a looked cell")
+        if ints[7]:
+            n = int(ints[8])
+            return GridUpdateResult(floats[21 * n:], floats[:4 * n].reshape(n, 4),
+                                    floats[4 * n:20 * n].reshape(n, 4, 4), 0.0, 0, 0,
+                                    floats[20 * n:21 * n], ints[kernels.HEADER:])
+        pairs, hit = kernels.unpack_front(ints, floats)
     (ri_g, pu_g, mass_g, p1_g, p2_g, pi, pu, pair_of, mass, mass_out, logL, LL1, plabel,
      in_cluster, t_max, w_new, g_out, g_pair, bad_uniform) = pairs
     if bad_uniform:
@@ -647,8 +659,8 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     # ---- moment match each Gaussian row: density prior * g, g piecewise constant (its
     # track's g per cell)
     gauss_row = uniform_cell < 0
-    B, resid = position_regression(P)
     if kernels is None:
+        B, resid = position_regression(P)
         means, covs, new_alpha, out_own = _moment_match(
             ri_g, pu_g, mass_g, p1_g, p2_g, pair_of, g_pair, g_out, w_new, own, alp,
             gauss_row, hit, m, P, B, resid, T, split_share)

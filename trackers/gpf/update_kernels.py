@@ -262,6 +262,87 @@ def pairs_and_singletons(w, m, P, uniform_cell, own, alp, U, hit, cells, returns
             plabel, in_cluster, t_max, w_new, g_out, g_pair, bad)
 
 
+#: the header of :func:`grid_update_packed`'s integer output
+HEADER = 10
+
+
+@njit(cache=True, error_model="numpy")
+def grid_update_packed(w, m, P, uniform_cell, own, alp, cells, returns, ll_pos, ll_neg, s,
+                       nx, ny, threshold, range_sigmas, bounds, n_nodes, first, nodes,
+                       weights, B, resid, split_share):
+    """:func:`pairs_and_singletons` and, when no cluster holds two tracks, :func:`
+    moment_match`, with the looked cells and detected ones found here, everything
+    returned in one integer and one float array (numba boxes each returned array at a
+    cost of microseconds; :func:`.grid.grid_update` unpacks them). ``ints[:HEADER]``:
+    ``n_g, n_p, n_rows, T, n_u, t_max, bad, done, rows out``; ``done``: the update is
+    complete (ints: owner; floats: means, covs, alpha, clipped ``w``), else ints hold
+    ``ri_g, pu_g, pi, pu, pair_of, plabel, in_cluster, hit`` and floats ``mass_g, p1_g,
+    p2_g, mass, mass_out, logL, LL1, w_new, g_out, g_pair`` (flattened, in that order)."""
+    U = np.unique(cells)
+    n_u = len(U)
+    hit = np.zeros(n_u, np.bool_)
+    for j in range(len(cells)):
+        if returns[j]:
+            hit[_search(U, cells[j])] = True
+    (ri_g, pu_g, mass_g, p1_g, p2_g, pi, pu, pair_of, mass, mass_out, logL, LL1, plabel,
+     in_cluster, t_max, w_new, g_out, g_pair, bad) = pairs_and_singletons(
+        w, m, P, uniform_cell, own, alp, U, hit, cells, returns, ll_pos, ll_neg, s, nx, ny,
+        threshold, range_sigmas, bounds, n_nodes, first, nodes, weights)
+    T = len(w)
+    n_g, n_p, n_rows = len(ri_g), len(pi), len(pair_of)
+    head = np.array([n_g, n_p, n_rows, T, n_u, t_max, int(bad), 0, 0, 0], np.int64)
+    if not bad and t_max <= 1:
+        gauss_row = uniform_cell < 0
+        means, covs, alpha, out_own = moment_match(
+            ri_g, pu_g, mass_g, p1_g, p2_g, pair_of, g_pair, g_out, w_new, own, alp,
+            gauss_row, hit, m, P, B, resid, T, split_share)
+        n_out = len(out_own)
+        head[7], head[8] = 1, n_out
+        ints = np.empty(HEADER + n_out, np.int64)
+        ints[:HEADER] = head
+        ints[HEADER:] = out_own
+        floats = np.empty(21 * n_out + T)
+        floats[:4 * n_out] = means.ravel()
+        floats[4 * n_out:20 * n_out] = covs.ravel()
+        floats[20 * n_out:21 * n_out] = alpha
+        for t in range(T):
+            floats[21 * n_out + t] = _nan_min(_nan_max(w_new[t], 0.0), 1.0)
+        return ints, floats
+    ints = np.empty(HEADER + 2 * n_g + 2 * n_p + n_rows + 2 * T + n_u, np.int64)
+    ints[:HEADER] = head
+    o = HEADER
+    for part in (ri_g, pu_g, pi, pu, pair_of, plabel):
+        ints[o:o + len(part)] = part
+        o += len(part)
+    for t in range(T):
+        ints[o + t] = in_cluster[t]
+    o += T
+    for u in range(n_u):
+        ints[o + u] = hit[u]
+    floats = np.empty(7 * n_g + 2 * n_p + 5 * T + 2 * n_u)
+    o = 0
+    for part in (mass_g, p1_g.ravel(), p2_g.ravel(), mass, mass_out, logL, LL1.ravel(),
+                 w_new, g_out, g_pair):
+        floats[o:o + len(part)] = part
+        o += len(part)
+    return ints, floats
+
+
+def unpack_front(ints: np.ndarray, floats: np.ndarray) -> tuple:
+    """:func:`grid_update_packed`'s output when it stopped before the moment match: the
+    tuple of :func:`.grid._pairs_and_singletons` (views), then ``hit``."""
+    n_g, n_p, n_rows, T, n_u, t_max, bad = (int(v) for v in ints[:7])
+    cuts = np.cumsum([HEADER, n_g, n_g, n_p, n_p, n_rows, T, T, n_u])
+    ri_g, pu_g, pi, pu, pair_of, plabel, in_cluster, hit = (
+        ints[a:b] for a, b in zip(cuts[:-1], cuts[1:], strict=True))
+    cuts = np.cumsum([0, n_g, 2 * n_g, 4 * n_g, n_p, T, T, 2 * n_u, T, T, n_p])
+    (mass_g, p1_g, p2_g, mass, mass_out, logL, LL1, w_new, g_out, g_pair) = (
+        floats[a:b] for a, b in zip(cuts[:-1], cuts[1:], strict=True))
+    return (ri_g, pu_g, mass_g, p1_g.reshape(n_g, 2), p2_g.reshape(n_g, 2, 2), pi, pu,
+            pair_of, mass, mass_out, logL, LL1.reshape(n_u, 2), plabel,
+            in_cluster.astype(bool), t_max, w_new, g_out, g_pair, bool(bad)), hit.astype(bool)
+
+
 @njit(cache=True, inline="always", error_model="numpy")
 def _lift(B, resid, r, mass, a0, a1, b00, b01, b11, M1, M2, o):
     """:func:`.grid.lift_to_state` of one row: position moments ``mass``, ``(a0, a1)``,
@@ -826,6 +907,9 @@ def warm_up() -> None:
         np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2))
     moment_match(out[0], out[1], out[2], out[3], out[4], out[7], out[17], out[16], out[15],
                  i, f, b | True, b, m, P, np.zeros((1, 2, 2)), np.zeros((1, 2, 2)), 1, 0.1)
+    grid_update_packed(0.5 * f, m, P, i - 1, i, f, i, b, 0.5, -0.1, 1.0, 1, 1, 1e-3, 6.0,
+                       np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2),
+                       np.zeros((1, 2, 2)), np.zeros((1, 2, 2)), 0.1)
     w2, own2, a2, m2, P2, ucell = with_candidates(f, i, f, m, P, i, f, 1.0, 1, 1.0)
     keep_promoted(w2, own2, a2, m2, P2, 1, i, i, b, 1e-3)
     ci, cj, dc, Sc = pair_screen(m2, P2, 4.0, i, False)
