@@ -30,7 +30,7 @@ from ..numba_exact import np_sum
 _LOGE2 = math.log(2.0)
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _nan_max(a: float, b: float) -> float:
     """``np.maximum`` of two doubles (a NaN wins)."""
     if a != a:
@@ -40,7 +40,7 @@ def _nan_max(a: float, b: float) -> float:
     return a if a >= b else b
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _nan_min(a: float, b: float) -> float:
     """``np.minimum`` of two doubles (a NaN wins)."""
     if a != a:
@@ -343,7 +343,7 @@ def unpack_front(ints: np.ndarray, floats: np.ndarray) -> tuple:
             in_cluster.astype(bool), t_max, w_new, g_out, g_pair, bool(bad)), hit.astype(bool)
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _lift(B, resid, r, mass, a0, a1, b00, b01, b11, M1, M2, o):
     """:func:`.grid.lift_to_state` of one row: position moments ``mass``, ``(a0, a1)``,
     ``[[b00, b01], [b01, b11]]`` of row ``r``'s Gaussian into ``M1[o]``, ``M2[o]``."""
@@ -896,17 +896,17 @@ def near_walls(m, P, range_sigmas, width, height):
 
 
 def warm_up() -> None:
-    """Compile (or load from the disk cache) both passes on tiny inputs, for the argument
-    types :func:`.grid.grid_update` passes. Cheap after the first time in a process."""
+    """Compile (or load from the disk cache) every kernel the GPF calls, on tiny inputs of
+    the argument types it passes (about 50 s of CPU the first time after an edit, 0.2 s
+    from the cache; docs/speed.md). Cheap after the first time in a process."""
     if getattr(warm_up, "done", False):
         return
     f, i, b = np.ones(1), np.zeros(1, np.int64), np.zeros(1, np.bool_)
     m, P = np.zeros((1, 4)), np.eye(4)[None]
-    out = pairs_and_singletons(
-        0.5 * f, m, P, i - 1, i, f, i, b, i, b, 0.5, -0.1, 1.0, 1, 1, 1e-3, 6.0,
-        np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2))
-    moment_match(out[0], out[1], out[2], out[3], out[4], out[7], out[17], out[16], out[15],
-                 i, f, b | True, b, m, P, np.zeros((1, 2, 2)), np.zeros((1, 2, 2)), 1, 0.1)
+    # pairs_and_singletons is compiled into grid_update_packed (alone: tests only);
+    # moment_match alone serves the updates with clusters
+    moment_match(i, i, f, np.zeros((1, 2)), np.zeros((1, 2, 2)), i, f, f, f, i, f, b | True, b,
+                 m, P, np.zeros((1, 2, 2)), np.zeros((1, 2, 2)), 1, 0.1)
     grid_update_packed(0.5 * f, m, P, i - 1, i, f, i, b, 0.5, -0.1, 1.0, 1, 1, 1e-3, 6.0,
                        np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2),
                        np.zeros((1, 2, 2)), np.zeros((1, 2, 2)), 0.1)
