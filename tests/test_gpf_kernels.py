@@ -218,3 +218,17 @@ def test_avoid_coalescence_equals_the_numpy_form():
         log_post[rng.random(C) < 0.05] = np.nan
         got = _both(gpf_grid.avoid_coalescence, cluster, choice, cell, detected, log_post)
         assert _equal(*got)
+
+
+def test_rect_state_moments_equal_the_numpy_form():
+    """Rectangles of several Gaussians (owners repeated, unsorted), cells and the
+    workspace, for the GPF's fold and truncation and pmb's update."""
+    rng = np.random.default_rng(19)
+    m, P = _states(rng, 60, 8.0)
+    m, P = m[3:], P[3:]  # rows with an x variance and a regular position block
+    owner = rng.integers(0, len(m), 400)
+    x0, y0 = np.floor(rng.uniform(-2.0, 9.0, (2, 400)))
+    assert _equal(*_both(gpf_grid.rect_state_moments, m, P, x0, x0 + 1.0, y0, y0 + 1.0,
+                         owner))
+    zero, wide = np.zeros(len(m)), np.full(len(m), 8.0)
+    assert _equal(*_both(gpf_grid.rect_state_moments, m, P, zero, wide, zero, wide))

@@ -241,6 +241,13 @@ def rect_state_moments(means: np.ndarray, covs: np.ndarray, x0: np.ndarray, x1: 
     if owner is None:
         owner = np.arange(len(means))
     B, resid = position_regression(covs)
+    kernels = compiled_gpf_kernels()
+    if kernels is not None:
+        return kernels.state_moments(
+            np.ascontiguousarray(means, dtype=float), np.ascontiguousarray(covs, dtype=float),
+            np.ascontiguousarray(owner, dtype=np.int64),
+            *(np.ascontiguousarray(e, dtype=float) for e in (x0, x1, y0, y1)), B, resid,
+            *_gl_table())
     mass, m1, m2 = rect_position_moments(means[owner][:, 0::2], covs[owner][:, 0::2, 0::2],
                                          x0, x1, y0, y1)
     M1, M2 = lift_to_state(B[owner], resid[owner], mass, m1, m2)

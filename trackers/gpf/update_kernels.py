@@ -366,6 +366,29 @@ def _lift(B, resid, r, mass, a0, a1, b00, b01, b11, M1, M2, o):
 
 
 @njit(cache=True, error_model="numpy")
+def state_moments(means, covs, owner, x0, x1, y0, y1, B, resid, bounds, n_nodes, first,
+                  nodes, weights):
+    """:func:`.grid.rect_state_moments` after its regression (``B``, ``resid`` of
+    ``covs``): the rectangles' position moments and each lifted to the full state."""
+    n = len(owner)
+    mean_xy = np.empty((n, 2))
+    cov_xy = np.empty((n, 2, 2))
+    for p in range(n):
+        r = owner[p]
+        mean_xy[p, 0], mean_xy[p, 1] = means[r, 0], means[r, 2]
+        cov_xy[p, 0, 0], cov_xy[p, 0, 1] = covs[r, 0, 0], covs[r, 0, 2]
+        cov_xy[p, 1, 0], cov_xy[p, 1, 1] = covs[r, 2, 0], covs[r, 2, 2]
+    mass, m1, m2 = rect_position_moments(mean_xy, cov_xy, x0, x1, y0, y1, bounds, n_nodes,
+                                         first, nodes, weights)
+    M1 = np.empty((n, 4))
+    M2 = np.empty((n, 4, 4))
+    for p in range(n):
+        _lift(B, resid, owner[p], mass[p], m1[p, 0], m1[p, 1], m2[p, 0, 0], m2[p, 0, 1],
+              m2[p, 1, 1], M1, M2, p)
+    return mass, M1, M2
+
+
+@njit(cache=True, error_model="numpy")
 def moment_match(ri_g, pu_g, mass_g, p1_g, p2_g, pair_of, g_pair, g_out, w_new, own, alp,
                  gauss_row, hit, m, P, B, resid, T, split_share):
     """:func:`.grid._moment_match`: the rows' sums over their pairs in pair order, the
@@ -923,4 +946,6 @@ def warm_up() -> None:
     option_beliefs(np.full((2, 3), 1.0 / 3.0), np.array([[-1, -1, 0], [-1, -1, 0]]),
                    np.zeros((1, 3)), 20, 0.5, 1e-12)
     near_walls(m2, P2, 6.0, 1.0, 1.0)
+    state_moments(m2, P2, i, f, f + 1.0, f, f + 1.0, np.zeros((2, 2, 2)), np.zeros((2, 2, 2)),
+                  np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2))
     warm_up.done = True
