@@ -12,11 +12,20 @@ import numpy as np
 import pytest
 
 from mttbench.scenarios.model import Grid, RayleighGridSensor
+from mttbench.trackers import grid_backend
 from mttbench.trackers.gpf import grid as gpf_grid
 from mttbench.trackers.gpf import tracker as gpf_tracker
 from mttbench.trackers.jmpd import use_backend
 
 pytest.importorskip("mttbench.trackers.grid_kernels", reason="numba is not installed")
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _gpf_kernels_loaded():
+    """The GPF's kernels load in a thread (:func:`.grid_backend.compiled_gpf_kernels`);
+    here they must be in before any comparison, or both sides would run numpy."""
+    with use_backend("compiled"):
+        assert grid_backend.compiled_gpf_kernels(wait=None) is not None
 
 
 def _both(f, *args, **kwargs):

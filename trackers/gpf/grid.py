@@ -560,6 +560,10 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     row's part in a detected cell whose posterior share of its track is at least
     ``split_share`` becomes a component of its own (the Gaussian truncated to the cell),
     the rest of the row stays one moment-matched component.
+
+    With the compiled backend (:mod:`.grid_backend`) the pairs, the singletons and the
+    moment match run as :mod:`.update_kernels`' passes, with the same numbers bit for
+    bit; the clusters' combinatorics run in numpy either way.
     """
     T = len(w)
     R = len(m)

@@ -135,7 +135,7 @@ from ..cells import (
     bernoulli_cell_counts,
     gaussian_cell_mass_sparse,
 )
-from ..grid_backend import compiled_gpf_kernels
+from ..grid_backend import GPF_WAIT_S, compiled_gpf_kernels
 from ..params import Budget, Param, Search
 from .grid import fold_into_workspace, grid_update, rect_state_moments
 from .linear import superposition_update
@@ -476,7 +476,8 @@ class GaussianParticleFilter(Tracker):
     # weight a (R,) within the track (sums to 1 per track), mean m (R, 4), cov P (R, 4, 4).
     def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
         self.validate_params(self.get_params())  # the declaration above (built directly)
-        compiled_gpf_kernels()  # compile or load the grid kernels now, not in a timed step
+        # load the kernels now, not in a timed step (a compile goes on in the background)
+        compiled_gpf_kernels(wait=GPF_WAIT_S)
         self._model = model
         self._rng = rng
         self._F, self._Q = model.dynamics.F, model.dynamics.Q
