@@ -27,6 +27,14 @@ from mttbench.trackers.pmb import ppp
 pytest.importorskip("mttbench.trackers.grid_kernels", reason="numba is not installed")
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _gpf_kernels_loaded():
+    """The GPF's kernels load in a thread (:func:`.grid_backend.compiled_gpf_kernels`);
+    here they must be in before any comparison, or both sides would run numpy."""
+    with use_backend("compiled"):
+        assert grid_backend.compiled_gpf_kernels(wait=None) is not None
+
+
 def _both(f):
     """``f()`` with the numpy forms, then with the kernels."""
     out = []

@@ -80,6 +80,7 @@ cell without a detection only by the usual occupancy threshold.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -89,7 +90,7 @@ from scipy.special import ndtr
 from ...scenarios.model import Grid, RayleighGridSensor
 from .. import kalman
 from ..cells import look_log_ratios
-from ..grid_backend import compiled_grid_kernels, looked_in_boxes
+from ..grid_backend import compiled_gpf_kernels, compiled_grid_kernels, looked_in_boxes
 from .linear import enumerate_combinations
 
 _RANGE_SIGMAS = 7.0
@@ -201,7 +202,10 @@ def position_regression(covs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ``v - m_v = B (p - m_p) + e``: ``B = S_vp S_pp^-1 (K, 2, 2)`` (closed-form 2x2 inverse)
     and the residual covariance ``S_vv - B S_pv (K, 2, 2)``."""
     Svp = covs[:, 1::2, 0::2]  # positions are state entries 0, 2; velocities 1, 3
-    B = Svp @ kalman.inverse(covs[:, 0::2, 0::2])
+    kernels = compiled_gpf_kernels()
+    inv = (kalman.inverse(covs[:, 0::2, 0::2]) if kernels is None
+           else kernels.position_inverse(np.ascontiguousarray(covs, dtype=float)))
+    B = Svp @ inv
     return B, covs[:, 1::2, 1::2] - B @ np.swapaxes(Svp, -1, -2)
 
 
@@ -237,6 +241,13 @@ def rect_state_moments(means: np.ndarray, covs: np.ndarray, x0: np.ndarray, x1: 
     if owner is None:
         owner = np.arange(len(means))
     B, resid = position_regression(covs)
+    kernels = compiled_gpf_kernels()
+    if kernels is not None:
+        return kernels.state_moments(
+            np.ascontiguousarray(means, dtype=float), np.ascontiguousarray(covs, dtype=float),
+            np.ascontiguousarray(owner, dtype=np.int64),
+            *(np.ascontiguousarray(e, dtype=float) for e in (x0, x1, y0, y1)), B, resid,
+            *_gl_table())
     mass, m1, m2 = rect_position_moments(means[owner][:, 0::2], covs[owner][:, 0::2, 0::2],
                                          x0, x1, y0, y1)
     M1, M2 = lift_to_state(B[owner], resid[owner], mass, m1, m2)
@@ -300,6 +311,14 @@ def avoid_coalescence(cluster: np.ndarray, choice: np.ndarray, cell: np.ndarray,
     (members padded with ``-2``; cell ``-1``: none), ``detected (n_u,)``, ``log_post (C,)``;
     returns ``log_post`` with the others at ``-inf``. Without it the members of a cluster
     whose detections could be swapped all move to the same blend of them (coalescence)."""
+    kernels = compiled_gpf_kernels()
+    if kernels is not None:
+        return kernels.avoid_coalescence(
+            np.ascontiguousarray(cluster, dtype=np.int64),
+            np.ascontiguousarray(choice, dtype=np.int64),
+            np.ascontiguousarray(cell, dtype=np.int64),
+            np.ascontiguousarray(detected, dtype=bool),
+            np.ascontiguousarray(log_post, dtype=float))
     took = cell >= 0
     took[took] = detected[cell[took]]
     marker = np.where(took, -1, choice)
@@ -391,6 +410,13 @@ def _option_beliefs(option_probs: np.ndarray, option_cell: np.ndarray, LLc: np.n
     b_j / (1 - b_j)``,
     the rest counted at ``T_-i = 2``); a damped fixed-point iteration from ``q``
     (loopy belief propagation's form on this factor graph, not its exact messages)."""
+    kernels = compiled_gpf_kernels()
+    if kernels is not None:
+        return kernels.option_beliefs(
+            np.ascontiguousarray(option_probs, dtype=float),
+            np.ascontiguousarray(option_cell, dtype=np.int64),
+            np.ascontiguousarray(LLc, dtype=float), _BELIEF_ITERATIONS, _BELIEF_DAMPING,
+            _BELIEF_CLIP)
     n, n_opt = option_probs.shape
     rows, cols = np.nonzero(option_cell >= 0)
     q = option_probs.copy()
@@ -534,6 +560,10 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     row's part in a detected cell whose posterior share of its track is at least
     ``split_share`` becomes a component of its own (the Gaussian truncated to the cell),
     the rest of the row stays one moment-matched component.
+
+    With the compiled backend (:mod:`.grid_backend`) the pairs, the singletons and the
+    moment match run as :mod:`.update_kernels`' passes, with the same numbers bit for
+    bit; the clusters' combinatorics run in numpy either way.
     """
     T = len(w)
     R = len(m)
@@ -543,96 +573,42 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     if T == 0 or len(cells) == 0:
         return GridUpdateResult(w.copy(), m.copy(), P.copy(), 0.0, 0, 0, alp.copy(),
                                 own.copy())
-    K = T
-    s = grid.cell_size
-    U = np.unique(cells)
-    n_u = len(U)
-    gauss_row = uniform_cell < 0
-    gauss = np.ones(T, dtype=bool)
-    gauss[own[~gauss_row]] = False
-
-    # ---- (row, looked cell) pairs
-    sx = np.sqrt(np.maximum(P[:, 0, 0], 0.0))
-    sy = np.sqrt(np.maximum(P[:, 2, 2], 0.0))
-    gr = np.nonzero(gauss_row)[0]  # a uniform row pairs with its own cell only (below)
-    box, pu_g = looked_in_boxes(
-        np.floor((m[gr, 0] - range_sigmas * sx[gr]) / s),
-        np.floor((m[gr, 0] + range_sigmas * sx[gr]) / s),
-        np.floor((m[gr, 2] - range_sigmas * sy[gr]) / s),
-        np.floor((m[gr, 2] + range_sigmas * sy[gr]) / s), U, grid.nx, grid.ny)
-    ri_g = gr[box]
-    x0, x1, y0, y1 = grid.cell_bounds(U[pu_g])
-    # position moments per pair; the velocity parts are lifted per row after summing
-    # (lift_to_state is linear), and per pair only for the components split off
-    mass_g, p1_g, p2_g = rect_position_moments(
-        m[ri_g][:, 0::2], P[ri_g][:, 0::2, 0::2], x0.astype(float), x1.astype(float),
-        y0.astype(float), y1.astype(float))
-    keep = mass_g > 1e-12
-    ri_g, pu_g, mass_g, p1_g, p2_g = ri_g[keep], pu_g[keep], mass_g[keep], p1_g[keep], p2_g[keep]
-    # uniform rows: one pair, mass 1 (their moments are never used)
-    ri_u = np.nonzero(~gauss_row)[0]
-    pu_u = np.searchsorted(U, uniform_cell[ri_u])
-    if np.any(U[np.minimum(pu_u, n_u - 1)] != uniform_cell[ri_u]):
+    kernels = compiled_gpf_kernels()
+    if kernels is None:
+        U = np.unique(cells)
+        hit = np.zeros(len(U), dtype=bool)
+        hit[np.searchsorted(U, cells[returns])] = True
+        pairs = _pairs_and_singletons(w, m, P, uniform_cell, own, alp, U, hit, cells, returns,
+                                      grid, sensor, interaction_threshold, range_sigmas)
+    else:
+        # one pass, and a second for the moment match when no cluster holds two tracks
+        B, resid = position_regression(P)
+        ll_pos, ll_neg = _one_target_ratios(sensor)
+        ints, floats = kernels.grid_update_packed(
+            w, np.ascontiguousarray(m, dtype=float), np.ascontiguousarray(P, dtype=float),
+            np.ascontiguousarray(uniform_cell, dtype=np.int64), np.ascontiguousarray(own),
+            np.ascontiguousarray(alp),
+            np.ascontiguousarray(cells, dtype=np.int64), np.ascontiguousarray(returns, dtype=bool),
+            ll_pos, ll_neg, float(grid.cell_size), grid.nx, grid.ny,
+            float(interaction_threshold), float(range_sigmas), *_gl_table(), B, resid,
+            float(split_share))
+        if ints[6]:
+            raise ValueError("a uniform particle must sit in a looked cell")
+        if ints[7]:
+            n = int(ints[8])
+            return GridUpdateResult(floats[21 * n:], floats[:4 * n].reshape(n, 4),
+                                    floats[4 * n:20 * n].reshape(n, 4, 4), 0.0, 0, 0,
+                                    floats[20 * n:21 * n], ints[kernels.HEADER:])
+        pairs, hit = kernels.unpack_front(ints, floats)
+    (ri_g, pu_g, mass_g, p1_g, p2_g, pi, pu, pair_of, mass, mass_out, logL, LL1, plabel,
+     in_cluster, t_max, w_new, g_out, g_pair, bad_uniform) = pairs
+    if bad_uniform:
         raise ValueError("a uniform particle must sit in a looked cell")
-    # ---- (track, looked cell) pairs: the track's mass sum_r alpha_r m_rc
-    row_pi = np.concatenate([own[ri_g], own[ri_u]])
-    row_pu = np.concatenate([pu_g, pu_u])
-    row_mass = np.concatenate([alp[ri_g] * mass_g, np.ones(len(ri_u))])
-    key, pair_of = np.unique(row_pi * n_u + row_pu, return_inverse=True)
-    pair_of = pair_of.reshape(-1)
-    pi, pu = key // n_u, key % n_u  # sorted by track, then cell
-    mass = np.bincount(pair_of, weights=row_mass, minlength=len(key))
-    mass_in = np.bincount(pi, weights=mass, minlength=K)
-    mass_out = np.clip(1.0 - mass_in, 0.0, 1.0)
-    mass_out[~gauss] = 0.0
-
-    # ---- each track's likelihood as if alone, L = m_out + sum_c m_c l_c(1) (log, given
-    # existence): the singletons' update, and the significance of a pair below
-    _, LL1 = look_log_ratios(sensor, cells, returns, 1)
-    log_terms = np.log(np.maximum(mass, 1e-300)) + LL1[pu, 1]  # per pair, log m_c l_c(1)
-    with np.errstate(divide="ignore"):
-        logL = np.log(mass_out)
-        log_w, log_not_w = np.log(w), np.log1p(-w)
-    np.logaddexp.at(logL, pi, log_terms)
-
-    # ---- clusters: particles linked through a looked cell both occupy significantly
-    # (prior w m_c, or posterior as if alone w m_c l_c / (w L + 1 - w): a track updated
-    # apart credits a detection to itself alone, so at l_c(1) = p_d / p_f = 2.7e4 a tail
-    # of 3e-6 in a neighbour's detected cell took 16% of it; docs/gpf.md section 14)
-    occ = w[pi] * mass
-    with np.errstate(invalid="ignore"):  # a track with no mass at all: nan, not linked
-        occ_alone = np.exp(log_w[pi] + log_terms - np.logaddexp(log_w + logL, log_not_w)[pi])
-    # a uniform particle (birth candidate) always links in a cell that returned a detection,
-    # so that a return an existing particle explains is not also credited to a new target
-    hit = np.zeros(n_u, dtype=bool)
-    hit[np.searchsorted(U, cells[returns])] = True
-    signif = ((np.maximum(occ, occ_alone) > interaction_threshold)
-              | (~gauss[pi] & hit[pu]))
-    signif &= hit[pu]  # members interact only through cells that returned a detection
-    n_sig = np.bincount(pu[signif], minlength=n_u)
-    link = signif & (n_sig[pu] >= 2)
-    plabel = _components(pi[link], pu[link], K)
-    sizes = np.bincount(plabel)
-    in_cluster = sizes[plabel] >= 2
-    t_max = int(sizes[plabel].max()) if K else 1
+    K = T
     # the same table as LL1 when no cluster holds two tracks (the same call)
     LL = LL1 if t_max <= 1 else look_log_ratios(sensor, cells, returns, t_max)[1]
 
-    # ---- per pair: g (posterior/prior density ratio given existence); per particle g_out
-    g_pair = np.zeros(len(pi))
-    g_out = np.zeros(K)
-    w_new = w.copy()
-    # singletons, closed form in log space
-    single = ~in_cluster
-    sp = single[pi]
-    s_idx = np.nonzero(single)[0]
-    with np.errstate(divide="ignore"):
-        logit = np.log(w[s_idx]) + logL[s_idx] - np.log1p(-w[s_idx])
-    w_new[s_idx] = np.where(w[s_idx] >= 1.0, 1.0, 1.0 / (1.0 + np.exp(-logit)))
-    g_out[s_idx] = np.exp(-logL[s_idx])
-    g_pair[sp] = np.exp(LL[pu[sp], 1] - logL[pi[sp]])
-
-    # multi-particle clusters: enumerate combinations
+    # ---- multi-particle clusters: enumerate combinations
     dropped = 0.0
     n_clusters, max_cluster = 0, 0
     mem = np.nonzero(in_cluster)[0]
@@ -692,7 +668,140 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
         g_pair[pidx] = np.where(ok[rows], g[rows, cols], g_pair[pidx])
 
     # ---- moment match each Gaussian row: density prior * g, g piecewise constant (its
-    # track's g per cell); row r's posterior mass within its track is alpha_r Z_r
+    # track's g per cell)
+    gauss_row = uniform_cell < 0
+    if kernels is None:
+        B, resid = position_regression(P)
+        means, covs, new_alpha, out_own = _moment_match(
+            ri_g, pu_g, mass_g, p1_g, p2_g, pair_of, g_pair, g_out, w_new, own, alp,
+            gauss_row, hit, m, P, B, resid, T, split_share)
+    else:
+        means, covs, new_alpha, out_own = kernels.moment_match(
+            ri_g, pu_g, mass_g, p1_g, p2_g, pair_of, g_pair, g_out, w_new, own, alp,
+            gauss_row, hit, np.ascontiguousarray(m, dtype=float),
+            np.ascontiguousarray(P, dtype=float), B, resid, T, float(split_share))
+    return GridUpdateResult(np.clip(w_new, 0.0, 1.0), means, covs, dropped, n_clusters,
+                            max_cluster, new_alpha, out_own)
+
+
+@functools.lru_cache(maxsize=64)
+def _one_target_ratios(sensor: RayleighGridSensor) -> tuple[float, float]:
+    """``log l(1)`` of one look with a return and without, as :func:`.cells.look_log_ratios`
+    computes them (the sensor is immutable)."""
+    ll_pos, ll_neg = sensor.log_likelihood_ratio(np.array([True, False]), np.ones(2))
+    return float(ll_pos), float(ll_neg)
+
+
+def _pairs_and_singletons(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.ndarray,
+                          own: np.ndarray, alp: np.ndarray, U: np.ndarray, hit: np.ndarray,
+                          cells: np.ndarray, returns: np.ndarray, grid: Grid,
+                          sensor: RayleighGridSensor, interaction_threshold: float,
+                          range_sigmas: float) -> tuple:
+    """The first part of :func:`grid_update` (numpy form; the compiled one is
+    :func:`.update_kernels.pairs_and_singletons`, equal bit for bit): the (row, looked
+    cell) pairs and their position moments, the (track, looked cell) pairs and masses,
+    each track's likelihood as if alone, the clusters, and the singletons' closed form.
+    ``U`` the sorted looked cells, ``hit (n_u,)`` those that returned a detection."""
+    T = K = len(w)
+    s = grid.cell_size
+    n_u = len(U)
+    gauss_row = uniform_cell < 0
+    gauss = np.ones(T, dtype=bool)
+    gauss[own[~gauss_row]] = False
+
+    # ---- (row, looked cell) pairs
+    sx = np.sqrt(np.maximum(P[:, 0, 0], 0.0))
+    sy = np.sqrt(np.maximum(P[:, 2, 2], 0.0))
+    gr = np.nonzero(gauss_row)[0]  # a uniform row pairs with its own cell only (below)
+    box, pu_g = looked_in_boxes(
+        np.floor((m[gr, 0] - range_sigmas * sx[gr]) / s),
+        np.floor((m[gr, 0] + range_sigmas * sx[gr]) / s),
+        np.floor((m[gr, 2] - range_sigmas * sy[gr]) / s),
+        np.floor((m[gr, 2] + range_sigmas * sy[gr]) / s), U, grid.nx, grid.ny)
+    ri_g = gr[box]
+    x0, x1, y0, y1 = grid.cell_bounds(U[pu_g])
+    # position moments per pair; the velocity parts are lifted per row after summing
+    # (lift_to_state is linear), and per pair only for the components split off
+    mass_g, p1_g, p2_g = rect_position_moments(
+        m[ri_g][:, 0::2], P[ri_g][:, 0::2, 0::2], x0.astype(float), x1.astype(float),
+        y0.astype(float), y1.astype(float))
+    keep = mass_g > 1e-12
+    ri_g, pu_g, mass_g, p1_g, p2_g = ri_g[keep], pu_g[keep], mass_g[keep], p1_g[keep], p2_g[keep]
+    # uniform rows: one pair, mass 1 (their moments are never used)
+    ri_u = np.nonzero(~gauss_row)[0]
+    pu_u = np.searchsorted(U, uniform_cell[ri_u])
+    if np.any(U[np.minimum(pu_u, n_u - 1)] != uniform_cell[ri_u]):
+        raise ValueError("a uniform particle must sit in a looked cell")
+    # ---- (track, looked cell) pairs: the track's mass sum_r alpha_r m_rc
+    row_pi = np.concatenate([own[ri_g], own[ri_u]])
+    row_pu = np.concatenate([pu_g, pu_u])
+    row_mass = np.concatenate([alp[ri_g] * mass_g, np.ones(len(ri_u))])
+    key, pair_of = np.unique(row_pi * n_u + row_pu, return_inverse=True)
+    pair_of = pair_of.reshape(-1)
+    pi, pu = key // n_u, key % n_u  # sorted by track, then cell
+    mass = np.bincount(pair_of, weights=row_mass, minlength=len(key))
+    mass_in = np.bincount(pi, weights=mass, minlength=K)
+    mass_out = np.clip(1.0 - mass_in, 0.0, 1.0)
+    mass_out[~gauss] = 0.0
+
+    # ---- each track's likelihood as if alone, L = m_out + sum_c m_c l_c(1) (log, given
+    # existence): the singletons' update, and the significance of a pair below
+    _, LL1 = look_log_ratios(sensor, cells, returns, 1)
+    log_terms = np.log(np.maximum(mass, 1e-300)) + LL1[pu, 1]  # per pair, log m_c l_c(1)
+    with np.errstate(divide="ignore"):
+        logL = np.log(mass_out)
+        log_w, log_not_w = np.log(w), np.log1p(-w)
+    np.logaddexp.at(logL, pi, log_terms)
+
+    # ---- clusters: particles linked through a looked cell both occupy significantly
+    # (prior w m_c, or posterior as if alone w m_c l_c / (w L + 1 - w): a track updated
+    # apart credits a detection to itself alone, so at l_c(1) = p_d / p_f = 2.7e4 a tail
+    # of 3e-6 in a neighbour's detected cell took 16% of it; docs/gpf.md section 14)
+    occ = w[pi] * mass
+    with np.errstate(invalid="ignore"):  # a track with no mass at all: nan, not linked
+        occ_alone = np.exp(log_w[pi] + log_terms - np.logaddexp(log_w + logL, log_not_w)[pi])
+    # a uniform particle (birth candidate) always links in a cell that returned a detection,
+    # so that a return an existing particle explains is not also credited to a new target
+    signif = ((np.maximum(occ, occ_alone) > interaction_threshold)
+              | (~gauss[pi] & hit[pu]))
+    signif &= hit[pu]  # members interact only through cells that returned a detection
+    n_sig = np.bincount(pu[signif], minlength=n_u)
+    link = signif & (n_sig[pu] >= 2)
+    plabel = _components(pi[link], pu[link], K)
+    sizes = np.bincount(plabel)
+    in_cluster = sizes[plabel] >= 2
+    t_max = int(sizes[plabel].max()) if K else 1
+
+    # ---- per pair: g (posterior/prior density ratio given existence); per particle g_out
+    g_pair = np.zeros(len(pi))
+    g_out = np.zeros(K)
+    w_new = w.copy()
+    # singletons, closed form in log space
+    single = ~in_cluster
+    sp = single[pi]
+    s_idx = np.nonzero(single)[0]
+    with np.errstate(divide="ignore"):
+        logit = np.log(w[s_idx]) + logL[s_idx] - np.log1p(-w[s_idx])
+    w_new[s_idx] = np.where(w[s_idx] >= 1.0, 1.0, 1.0 / (1.0 + np.exp(-logit)))
+    g_out[s_idx] = np.exp(-logL[s_idx])
+    g_pair[sp] = np.exp(LL1[pu[sp], 1] - logL[pi[sp]])
+
+    return (ri_g, pu_g, mass_g, p1_g, p2_g, pi, pu, pair_of, mass, mass_out, logL, LL1, plabel,
+            in_cluster, t_max, w_new, g_out, g_pair, False)
+
+
+def _moment_match(ri_g: np.ndarray, pu_g: np.ndarray, mass_g: np.ndarray, p1_g: np.ndarray,
+                  p2_g: np.ndarray, pair_of: np.ndarray, g_pair: np.ndarray, g_out: np.ndarray,
+                  w_new: np.ndarray, own: np.ndarray, alp: np.ndarray, gauss_row: np.ndarray,
+                  hit: np.ndarray, m: np.ndarray, P: np.ndarray, B: np.ndarray,
+                  resid: np.ndarray, T: int, split_share: float
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The last part of :func:`grid_update` (numpy form; the compiled one is
+    :func:`.update_kernels.moment_match`, equal bit for bit): each Gaussian row moment
+    matched under its track's ``g`` (row ``r``'s posterior mass within its track is
+    ``alpha_r Z_r``), the split components, the renormalised mixture weights. ``B``,
+    ``resid``: :func:`position_regression` of ``P``. Returns means, covs, alpha, owner."""
+    R = len(m)
     n_gp = len(ri_g)
     gi = pair_of[:n_gp]  # the track pair of each Gaussian row pair
     live = w_new[own[ri_g]] > 0.0
@@ -716,7 +825,6 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
             for v in (p1_g[:, 0], p1_g[:, 1], p2_g[:, 0, 0], p2_g[:, 0, 1], p2_g[:, 1, 1])]
     d1 = np.stack(sums[:2], axis=-1)
     d2 = np.stack([np.stack(sums[2:4], axis=-1), np.stack(sums[3:], axis=-1)], axis=-2)
-    B, resid = position_regression(P)
     d, S2 = lift_to_state(B, resid, Z - go_r, d1, d2)
     S2 += go_r[:, None, None] * P
     new_alpha = alp * np.where(gauss_row, Z, 1.0)
@@ -750,8 +858,7 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
                    if np.any(split) else alp)
     good = tot[out_own] > 0.0
     new_alpha = np.where(good, new_alpha / np.where(good, tot[out_own], 1.0), prior_alpha)
-    return GridUpdateResult(np.clip(w_new, 0.0, 1.0), means, covs, dropped, n_clusters,
-                            max_cluster, new_alpha, out_own)
+    return means, covs, new_alpha, out_own
 
 
 # ------------------------------------------------- Gaussians known to exist (reference)
@@ -939,10 +1046,15 @@ def fold_into_workspace(m: np.ndarray, P: np.ndarray, grid: Grid
     m = np.asarray(m, dtype=float).reshape(-1, 4)
     P = np.asarray(P, dtype=float).reshape(-1, 4, 4)
     width, height = grid.extent
-    sx = RANGE_SIGMAS * np.sqrt(np.maximum(P[:, 0, 0], 0.0))
-    sy = RANGE_SIGMAS * np.sqrt(np.maximum(P[:, 2, 2], 0.0))
-    edge = np.nonzero((m[:, 0] - sx < 0) | (m[:, 0] + sx > width)
-                      | (m[:, 2] - sy < 0) | (m[:, 2] + sy > height))[0]
+    kernels = compiled_gpf_kernels()
+    if kernels is not None:
+        edge = kernels.near_walls(np.ascontiguousarray(m), np.ascontiguousarray(P), RANGE_SIGMAS,
+                                  float(width), float(height))
+    else:
+        sx = RANGE_SIGMAS * np.sqrt(np.maximum(P[:, 0, 0], 0.0))
+        sy = RANGE_SIGMAS * np.sqrt(np.maximum(P[:, 2, 2], 0.0))
+        edge = np.nonzero((m[:, 0] - sx < 0) | (m[:, 0] + sx > width)
+                          | (m[:, 2] - sy < 0) | (m[:, 2] + sy > height))[0]
     means, covs = m.copy(), P.copy()
     if len(edge):
         means[edge], covs[edge] = known_existence_update(

@@ -135,7 +135,7 @@ from ..cells import (
     bernoulli_cell_counts,
     gaussian_cell_mass_sparse,
 )
-from ..grid_backend import compiled_grid_kernels
+from ..grid_backend import GPF_WAIT_S, compiled_gpf_kernels
 from ..params import Budget, Param, Search
 from .grid import fold_into_workspace, grid_update, rect_state_moments
 from .linear import superposition_update
@@ -223,28 +223,35 @@ def _pair_distances(m: np.ndarray, P: np.ndarray, threshold: float,
     ``groups (K,)``: only pairs in the same group get a distance (components of one track).
     """
     K = len(m)
-    iu, ju = _upper_pairs(K)
-    diff = m[iu] - m[ju]  # (n_pairs, 4)
-    S = P[iu] + P[ju]
-    a, b, c = S[:, 0, 0], S[:, 0, 2], S[:, 2, 2]
-    dx, dy = diff[:, 0], diff[:, 2]
-    det = a * c - b * b
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lower = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
-    cand = ~(lower >= threshold)  # NaN (degenerate) pairs go to the exact solve
-    if groups is not None:
-        cand &= groups[iu] == groups[ju]
+    kernels = compiled_gpf_kernels()
+    if kernels is not None:
+        ci, cj, dc, Sc = kernels.pair_screen(
+            np.ascontiguousarray(m, dtype=float), np.ascontiguousarray(P, dtype=float),
+            float(threshold), np.zeros(0, np.int64) if groups is None
+            else np.ascontiguousarray(groups, dtype=np.int64), groups is not None)
+    else:
+        iu, ju = _upper_pairs(K)
+        diff = m[iu] - m[ju]  # (n_pairs, 4)
+        S = P[iu] + P[ju]
+        a, b, c = S[:, 0, 0], S[:, 0, 2], S[:, 2, 2]
+        dx, dy = diff[:, 0], diff[:, 2]
+        det = a * c - b * b
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lower = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
+        cand = ~(lower >= threshold)  # NaN (degenerate) pairs go to the exact solve
+        if groups is not None:
+            cand &= groups[iu] == groups[ju]
+        ci, cj, dc, Sc = iu[cand], ju[cand], diff[cand], S[cand]
     d2 = np.full((K, K), np.inf)
-    if np.any(cand):
-        dc = diff[cand]
-        full = np.einsum("ka,ka->k", dc, np.linalg.solve(S[cand], dc[..., None])[..., 0])
+    if len(ci):
+        full = np.einsum("ka,ka->k", dc, np.linalg.solve(Sc, dc[..., None])[..., 0])
         if metric == "bhattacharyya":
-            ld_s = np.linalg.slogdet(0.5 * S[cand])[1]
-            ld_i = np.linalg.slogdet(P[iu[cand]])[1]
-            ld_j = np.linalg.slogdet(P[ju[cand]])[1]
+            ld_s = np.linalg.slogdet(0.5 * Sc)[1]
+            ld_i = np.linalg.slogdet(P[ci])[1]
+            ld_j = np.linalg.slogdet(P[cj])[1]
             full = full + np.maximum(2.0 * ld_s - ld_i - ld_j, 0.0)
-        d2[iu[cand], ju[cand]] = full
-        d2[ju[cand], iu[cand]] = full
+        d2[ci, cj] = full
+        d2[cj, ci] = full
     return d2
 
 
@@ -279,6 +286,17 @@ def merge_groups(w: np.ndarray, m: np.ndarray, P: np.ndarray, threshold: float,
     w, m, P = w[order], m[order], P[order]
     close = _pair_distances(m, P, threshold, metric,
                             None if groups is None else np.asarray(groups)[order])
+    kernels = compiled_gpf_kernels()
+    if kernels is not None:
+        out_w, label, mean, cov = kernels.greedy_merge(
+            np.ascontiguousarray(w, dtype=float), np.ascontiguousarray(m, dtype=float),
+            np.ascontiguousarray(P, dtype=float), close, float(threshold),
+            rule == "bounded_sum", _SUM_TOL)
+        in_order = np.empty(K, dtype=np.int64)
+        in_order[order] = label
+        if len(out_w) == K:
+            return out_w, m, P, in_order
+        return out_w, mean, cov, in_order
     label = np.full(K, -1)
     out_w = []
     lonely = ~(close < threshold).any(axis=1)  # no partner: a group of its own
@@ -458,7 +476,8 @@ class GaussianParticleFilter(Tracker):
     # weight a (R,) within the track (sums to 1 per track), mean m (R, 4), cov P (R, 4, 4).
     def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
         self.validate_params(self.get_params())  # the declaration above (built directly)
-        compiled_grid_kernels()  # compile or load the grid kernels now, not in a timed step
+        # load the kernels now, not in a timed step (a compile goes on in the background)
+        compiled_gpf_kernels(wait=GPF_WAIT_S)
         self._model = model
         self._rng = rng
         self._F, self._Q = model.dynamics.F, model.dynamics.Q
@@ -657,6 +676,37 @@ class GaussianParticleFilter(Tracker):
             self._w = condition_on_count_bound(self._w, n0)
 
     def _update_grid(self, looks: Looks, sensor: RayleighGridSensor) -> None:
+        kernels = compiled_gpf_kernels()
+        if kernels is None:
+            self._update_grid_numpy(looks, sensor)
+            return
+        T = len(self._w)
+        looked = np.unique(looks.cells)
+        if self.births:
+            u = self._u.at(looked)
+            cand, u_cand = looked[u > 0.0], u[u > 0.0]
+        else:
+            cand, u_cand = looked[:0], np.zeros(0)
+        w, own, alpha, m, P, ucell = kernels.with_candidates(
+            self._w, self._own, self._a, self._m, self._P, cand, u_cand,
+            float(self._grid.cell_size), self._grid.nx,
+            float(self._model.birth_death.birth_velocity_std ** 2))
+        res = grid_update(w, m, P, ucell, looks.cells, looks.returns, self._grid, sensor,
+                          self.epsilon, self.max_combinations, INTERACTION_THRESHOLD,
+                          owner=own, alpha=alpha,
+                          split_share=self.split_share if self.max_components > 1 else 0.0)
+        promote, u_new, w, own, a, m, P = kernels.keep_promoted(
+            res.weights, res.owner, res.alpha, res.means, res.covs, T, cand,
+            np.ascontiguousarray(looks.cells, dtype=np.int64),
+            np.ascontiguousarray(looks.returns, dtype=bool), float(self.prune_threshold))
+        self._u.set(cand, u_new)
+        if self.births and not self._count_bound:
+            self._u.map(lambda u: np.maximum(u, self.birth_floor))
+        self._new_ids(int(promote.sum()))
+        self._set(w, own, a, m, P)
+
+    def _update_grid_numpy(self, looks: Looks, sensor: RayleighGridSensor) -> None:
+        """:meth:`_update_grid` in numpy (the reference of its compiled form)."""
         T, R = len(self._w), len(self._m)
         looked = np.unique(looks.cells)
         cand = looked[self._u.at(looked) > 0.0] if self.births else looked[:0]
@@ -693,12 +743,18 @@ class GaussianParticleFilter(Tracker):
         keeps every member's components), then reduce each track's mixture: merge its
         components by the same rule, drop those below ``_COMPONENT_FLOOR``, and beyond
         ``max_components`` moment-match the lightest into one."""
-        alive = self._w >= self.prune_threshold
-        rows = alive[self._own]
-        idx = np.cumsum(alive) - 1
-        w, own, a = self._w[alive], idx[self._own[rows]], self._a[rows]
-        m, P = self._m[rows], self._P[rows]
-        tid = self._tid[alive]
+        kernels = compiled_gpf_kernels()
+        if kernels is not None:
+            w, own, a, m, P, tid = kernels.prune_tracks(
+                self._w, self._own, self._a, self._m, self._P, self._tid,
+                float(self.prune_threshold))
+        else:
+            alive = self._w >= self.prune_threshold
+            rows = alive[self._own]
+            idx = np.cumsum(alive) - 1
+            w, own, a = self._w[alive], idx[self._own[rows]], self._a[rows]
+            m, P = self._m[rows], self._P[rows]
+            tid = self._tid[alive]
         T = len(w)
         if T > 1 and self.merge_threshold > 0:
             if len(m) == T:
@@ -729,6 +785,10 @@ class GaussianParticleFilter(Tracker):
             w, own, a, m, P = w[top], idx[own[rows]], a[rows], m[rows], P[rows]
             tid = tid[top]
         self._tid = tid
+        if kernels is not None:
+            self._set(w, *kernels.rows_by_track(
+                *(np.ascontiguousarray(x) for x in (own, a, m, P))))
+            return
         order = np.argsort(own, kind="stable")
         self._set(w, own[order], a[order], m[order], P[order])
 

@@ -1,0 +1,243 @@
+"""The GPF's compiled passes (``trackers/gpf/update_kernels.py``) against the numpy forms
+they replace, bit for bit, on random inputs: the grid update's two passes (components,
+birth candidates, splits, clusters, degenerate and far-away Gaussians, existence 0 and
+1), the merge (both weight rules, groups, the Bhattacharyya form, coincident Gaussians),
+the position regression and the wall test. Whole runs: ``tests/test_grid_kernels.py``.
+Each comparison picks the backend with ``use_backend``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mttbench.scenarios.model import Grid, RayleighGridSensor
+from mttbench.trackers import grid_backend
+from mttbench.trackers.gpf import grid as gpf_grid
+from mttbench.trackers.gpf import tracker as gpf_tracker
+from mttbench.trackers.jmpd import use_backend
+
+pytest.importorskip("mttbench.trackers.grid_kernels", reason="numba is not installed")
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _gpf_kernels_loaded():
+    """The GPF's kernels load in a thread (:func:`.grid_backend.compiled_gpf_kernels`);
+    here they must be in before any comparison, or both sides would run numpy."""
+    with use_backend("compiled"):
+        assert grid_backend.compiled_gpf_kernels(wait=None) is not None
+
+
+def _both(f, *args, **kwargs):
+    """``f(*args, **kwargs)`` with the numpy forms, then with the kernels."""
+    out = []
+    for backend in ("numpy", "compiled"):
+        with use_backend(backend):
+            out.append(f(*args, **kwargs))
+    return out
+
+
+def _equal(a, b) -> bool:
+    if isinstance(a, tuple | list):
+        return len(a) == len(b) and all(_equal(x, y) for x, y in zip(a, b, strict=True))
+    if a is None or b is None:
+        return a is b
+    a, b = np.asarray(a), np.asarray(b)
+    # bytes, so that -0.0 and 0.0 (and NaN payloads) count as different
+    return (a.dtype == b.dtype and a.shape == b.shape
+            and np.ascontiguousarray(a).tobytes() == np.ascontiguousarray(b).tobytes())
+
+
+def _states(rng, n: int, extent: float) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` random states and covariances: position sds from 0.02 to 6 cells, position
+    and velocity correlated, some degenerate (zero variance), some far outside."""
+    A = rng.normal(size=(n, 4, 4)) * np.exp(rng.uniform(-4.0, 1.8, (n, 1, 1)))
+    P = A @ np.swapaxes(A, -1, -2) + 1e-9 * np.eye(4)
+    m = np.zeros((n, 4))
+    m[:, [0, 2]] = rng.uniform(-2.0, extent + 2.0, (n, 2))
+    m[:, [1, 3]] = rng.normal(size=(n, 2))
+    if n > 3:
+        P[0, 0, :] = P[0, :, 0] = 0.0  # no x variance
+        m[1, [0, 2]] = -50.0  # far outside the grid
+        P[2, [1, 3], :] = P[2, :, [1, 3]] = 0.0  # no position-velocity correlation
+    return m, P
+
+
+def _update_case(rng):
+    """A grid update's inputs: tracks with 1-3 Gaussian rows, birth candidates on looked
+    cells, looks with repeats and returns."""
+    nx, ny = (int(v) for v in rng.integers(4, 14, 2))
+    grid = Grid(nx, ny, float(rng.choice([1.0, 0.5, 2.0])))
+    sensor = RayleighGridSensor(p_d=float(rng.uniform(0.3, 0.9)), snr=float(rng.uniform(2, 20)))
+    T = int(rng.integers(1, 7))
+    n_rows = rng.integers(1, 4, T)
+    own = np.repeat(np.arange(T), n_rows)
+    m, P = _states(rng, len(own), nx * grid.cell_size)
+    alpha = rng.random(len(own)) + 0.01
+    alpha /= np.bincount(own, weights=alpha)[own]
+    cells = rng.integers(0, nx * ny, int(rng.integers(1, 40)))
+    returns = rng.random(len(cells)) < 0.4
+    # birth candidates: each on a distinct looked cell, alone in its track
+    cand = rng.permutation(np.unique(cells))[: int(rng.integers(0, 6))]
+    w = np.concatenate([rng.uniform(0.0, 1.0, T), rng.uniform(0.0, 0.2, len(cand))])
+    w[rng.random(len(w)) < 0.1] = 1.0
+    w[rng.random(len(w)) < 0.05] = 0.0
+    m = np.concatenate([m, np.zeros((len(cand), 4))])
+    P = np.concatenate([P, np.repeat(np.eye(4)[None], len(cand), axis=0)])
+    own = np.concatenate([own, T + np.arange(len(cand))])
+    alpha = np.concatenate([alpha, np.ones(len(cand))])
+    ucell = np.concatenate([np.full(len(own) - len(cand), -1), cand])
+    return w, m, P, ucell, cells, returns, grid, sensor, own, alpha
+
+
+@pytest.mark.parametrize("split_share", [0.0, 0.05, 0.2])
+def test_grid_update_equals_the_numpy_form(split_share):
+    """The two passes and the combinatorics between them, whole: every output, on 150
+    random updates (clusters, splits and singletons; counted, so that each occurs)."""
+    rng = np.random.default_rng(int(split_share * 10))
+    seen = {"clusters": 0, "splits": 0}
+    for _ in range(150):
+        w, m, P, ucell, cells, returns, grid, sensor, own, alpha = _update_case(rng)
+        got = _both(gpf_grid.grid_update, w, m, P, ucell, cells, returns, grid, sensor,
+                    owner=own, alpha=alpha, split_share=split_share)
+        a, b = got
+        assert _equal([a.weights, a.means, a.covs, a.alpha, a.owner],
+                      [b.weights, b.means, b.covs, b.alpha, b.owner])
+        assert (a.dropped, a.n_clusters, a.max_cluster) == (b.dropped, b.n_clusters,
+                                                             b.max_cluster)
+        seen["clusters"] += a.n_clusters > 0
+        seen["splits"] += len(a.owner) > len(own)
+    assert seen["clusters"] >= 10
+    assert (seen["splits"] >= 5) == (split_share > 0)
+
+
+def test_the_passes_equal_their_numpy_forms():
+    """Each pass's outputs (the intermediate arrays, not only the update's result)."""
+    from mttbench.trackers.gpf import update_kernels as uk
+    rng = np.random.default_rng(11)
+    for _ in range(100):
+        w, m, P, ucell, cells, returns, grid, sensor, own, alpha = _update_case(rng)
+        U = np.unique(cells)
+        hit = np.zeros(len(U), dtype=bool)
+        hit[np.searchsorted(U, cells[returns])] = True
+        want = gpf_grid._pairs_and_singletons(w, m, P, ucell, own, alpha, U, hit, cells,
+                                              returns, grid, sensor, 1e-3, 6.0)
+        ll_pos, ll_neg = gpf_grid._one_target_ratios(sensor)
+        got = uk.pairs_and_singletons(w, m, P, ucell, own, alpha, U, hit, cells, returns,
+                                      ll_pos, ll_neg, grid.cell_size, grid.nx, grid.ny,
+                                      1e-3, 6.0, *gpf_grid._gl_table())
+        # LL1's column 0 (T = 0) is read by nobody; numpy's is exactly zero as well
+        assert _equal(list(want), [*got[:11], got[11], *got[12:]])
+        ri_g, pu_g, mass_g, p1_g, p2_g, pi, pu, pair_of = want[:8]
+        w_new, g_out, g_pair = want[15:18]
+        B, resid = gpf_grid.position_regression(P)
+        for share in (0.0, 0.1):
+            args = (ri_g, pu_g, mass_g, p1_g, p2_g, pair_of, g_pair, g_out, w_new, own,
+                    alpha, ucell < 0, hit, m, P, B, resid, len(w), share)
+            assert _equal(list(gpf_grid._moment_match(*args)), list(uk.moment_match(*args)))
+
+
+def test_a_uniform_row_off_the_looks_is_refused_by_both():
+    rng = np.random.default_rng(5)
+    w, m, P, ucell, cells, returns, grid, sensor, own, alpha = _update_case(rng)
+    ucell = np.concatenate([ucell, [grid.n_cells - 1 if grid.n_cells - 1 not in cells
+                                    else -1]])
+    if ucell[-1] < 0:
+        pytest.skip("every cell looked at")
+    w = np.concatenate([w, [0.1]])
+    m, P = np.concatenate([m, m[:1]]), np.concatenate([P, P[:1]])
+    own, alpha = np.concatenate([own, [len(w) - 1]]), np.concatenate([alpha, [1.0]])
+    for backend in ("numpy", "compiled"):
+        with use_backend(backend), pytest.raises(ValueError, match="uniform particle"):
+            gpf_grid.grid_update(w, m, P, ucell, cells, returns, grid, sensor, owner=own,
+                                 alpha=alpha)
+
+
+@pytest.mark.parametrize("rule", ["bounded_sum", "capped_sum"])
+@pytest.mark.parametrize("metric", ["mahalanobis", "bhattacharyya"])
+def test_merge_equals_the_numpy_form(rule, metric):
+    """Clusters of nearby Gaussians (so that groups form), coincident ones (ties in the
+    distance), weights summing beyond 1, a NaN covariance, and groups of components."""
+    rng = np.random.default_rng(hash((rule, metric)) % 2**32)
+    merged = 0
+    for _ in range(150):
+        K = int(rng.integers(1, 12))
+        m, P = _states(rng, K, 4.0)
+        m[:, [0, 2]] = rng.uniform(0.0, 3.0, (K, 2))
+        if K > 4:
+            m[4], P[4] = m[3], P[3]  # coincident
+        if K > 6 and rng.random() < 0.3:
+            P[6, 0, 0] = np.nan
+        w = rng.uniform(0.0, 1.0, K)
+        groups = rng.integers(0, 3, K) if rng.random() < 0.5 else None
+        threshold = float(rng.choice([1.0, 4.0, 16.0]))
+        a, b = _both(gpf_tracker.merge_groups, w, m, P, threshold, rule, metric, groups)
+        assert _equal(list(a), list(b))
+        merged += len(a[0]) < K
+    assert merged >= 30
+
+
+def test_position_regression_and_the_fold_equal_the_numpy_forms():
+    rng = np.random.default_rng(7)
+    m, P = _states(rng, 500, 10.0)
+    P[3, 0, 0] = P[3, 2, 2] = 0.0  # singular position block
+    assert _equal(*_both(gpf_grid.position_regression, P))
+    # the fold's quadrature needs an x variance (row 0 has none, row 3 a singular block)
+    m, P = np.delete(m, [0, 3], axis=0), np.delete(P, [0, 3], axis=0)
+    grid = Grid(10, 10, 1.0)
+    got = _both(gpf_grid.fold_into_workspace, m, P, grid)
+    assert _equal(*got)
+    assert not np.array_equal(got[0][0], m)  # some Gaussians reached beyond a wall
+
+
+def test_option_beliefs_equal_the_numpy_form():
+    """Large clusters' beliefs: members sharing detected cells, options of probability 0,
+    a member without detected cells, couplings to T = 1, 2 and 5."""
+    rng = np.random.default_rng(13)
+    for _ in range(200):
+        n, n_opt = int(rng.integers(1, 9)), int(rng.integers(3, 8))
+        probs = rng.random((n, n_opt)) * (rng.random((n, n_opt)) < 0.8)
+        probs[:, 0] += 0.01
+        probs /= probs.sum(axis=1, keepdims=True)
+        n_u = int(rng.integers(1, 6))
+        cell = np.where(rng.random((n, n_opt)) < 0.5, rng.integers(0, n_u, (n, n_opt)), -1)
+        cell[:, :2] = -1
+        if n > 1:
+            cell[0] = -1
+        t_max = int(rng.choice([1, 2, 5]))
+        LLc = np.zeros((n_u, t_max + 1))
+        LLc[:, 2:] = rng.normal(-3.0, 3.0, (n_u, t_max - 1))
+        assert _equal(*_both(gpf_grid._option_beliefs, probs, cell, LLc))
+
+
+def test_avoid_coalescence_equals_the_numpy_form():
+    """Many combinations that differ only by which members took which detected cells
+    (so that classes hold several), ties, ``-inf`` and NaN posteriors, padded members."""
+    rng = np.random.default_rng(17)
+    for _ in range(300):
+        C, S, n_u = int(rng.integers(1, 60)), int(rng.integers(1, 6)), int(rng.integers(1, 5))
+        cluster = np.sort(rng.integers(0, 3, C))
+        choice = rng.integers(0, 4, (C, S))
+        cell = np.where(rng.random((C, S)) < 0.6, rng.integers(0, n_u, (C, S)), -1)
+        pad = rng.random((C, S)) < 0.1
+        choice[pad], cell[pad] = -2, -2
+        detected = rng.random(n_u) < 0.6
+        log_post = np.round(rng.normal(size=C), 1)  # ties
+        log_post[rng.random(C) < 0.1] = -np.inf
+        log_post[rng.random(C) < 0.05] = np.nan
+        got = _both(gpf_grid.avoid_coalescence, cluster, choice, cell, detected, log_post)
+        assert _equal(*got)
+
+
+def test_rect_state_moments_equal_the_numpy_form():
+    """Rectangles of several Gaussians (owners repeated, unsorted), cells and the
+    workspace, for the GPF's fold and truncation and pmb's update."""
+    rng = np.random.default_rng(19)
+    m, P = _states(rng, 60, 8.0)
+    m, P = m[3:], P[3:]  # rows with an x variance and a regular position block
+    owner = rng.integers(0, len(m), 400)
+    x0, y0 = np.floor(rng.uniform(-2.0, 9.0, (2, 400)))
+    assert _equal(*_both(gpf_grid.rect_state_moments, m, P, x0, x0 + 1.0, y0, y0 + 1.0,
+                         owner))
+    zero, wide = np.zeros(len(m)), np.full(len(m), 8.0)
+    assert _equal(*_both(gpf_grid.rect_state_moments, m, P, zero, wide, zero, wide))

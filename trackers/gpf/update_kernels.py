@@ -1,0 +1,951 @@
+"""The GPF's grid update (:func:`.grid.grid_update`) as two compiled (numba) passes,
+equal bit for bit to its numpy forms :func:`.grid._pairs_and_singletons` and
+:func:`.grid._moment_match`; the clusters' combinatorics between them stay numpy.
+
+Why: on a small grid the update is a few hundred numpy calls on arrays of a few dozen
+pairs, so its time is the interpreter's (docs/speed.md, "GPF: the update in two passes").
+
+Exactness: each pass performs the numpy form's IEEE operations in the same order.
+``bincount`` and ``ufunc.at`` add sequentially in index order from 0; ``np.unique``'s
+keys are sorted by a stable sort, so that equal keys keep their index order;
+``np.logaddexp`` is numpy's ``npy_logaddexp`` (:func:`_logaddexp`); the 2x2 ``einsum``
+contractions of :func:`.grid.lift_to_state` are ``0 + a_0 b_0 + a_1 b_1`` (the one
+exception, ``matmul`` in :func:`.grid.position_regression`, stays numpy: its regression
+``B`` and residual are inputs here); ``exp``, ``log``, ``log1p`` are the C library's, as
+numpy's are for doubles without AVX-512; a division by zero gives numpy's inf or NaN
+(``error_model="numpy"``), not an exception. ``tests/test_gpf_kernels.py`` compares each
+pass with its numpy form; ``tests/test_grid_kernels.py`` compares whole runs.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..grid_kernels import looked_in_boxes, rect_position_moments
+from ..numba_exact import np_sum
+
+_LOGE2 = math.log(2.0)
+
+
+@njit(cache=True, error_model="numpy")
+def _nan_max(a: float, b: float) -> float:
+    """``np.maximum`` of two doubles (a NaN wins)."""
+    if a != a:
+        return a
+    if b != b:
+        return b
+    return a if a >= b else b
+
+
+@njit(cache=True, error_model="numpy")
+def _nan_min(a: float, b: float) -> float:
+    """``np.minimum`` of two doubles (a NaN wins)."""
+    if a != a:
+        return a
+    if b != b:
+        return b
+    return a if a <= b else b
+
+
+@njit(cache=True, error_model="numpy")
+def _logaddexp(x: float, y: float) -> float:
+    """``np.logaddexp`` for doubles (numpy's ``npy_logaddexp``)."""
+    if x == y:
+        return x + _LOGE2
+    tmp = x - y
+    if tmp > 0:
+        return x + np.log1p(np.exp(-tmp))
+    if tmp <= 0:
+        return y + np.log1p(np.exp(tmp))
+    return tmp
+
+
+@njit(cache=True, error_model="numpy")
+def _search(a: np.ndarray, v: int) -> int:
+    """``np.searchsorted(a, v)`` (side left) on a sorted int array."""
+    lo, hi = 0, len(a)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if a[mid] < v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, error_model="numpy")
+def _find(parent: np.ndarray, i: int) -> int:
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True, error_model="numpy")
+def pairs_and_singletons(w, m, P, uniform_cell, own, alp, U, hit, cells, returns, ll_pos,
+                         ll_neg, s, nx, ny, threshold, range_sigmas, bounds, n_nodes, first,
+                         nodes, weights):
+    """:func:`.grid._pairs_and_singletons`; ``ll_pos``, ``ll_neg``: one look's ``log l(1)``
+    for a return and for none (``LL1`` sums them per looked cell in look order). The
+    clusters are the connected components by union-find, each labelled by its smallest
+    track, as the numpy form's minimum-label propagation labels them. The last output is
+    True when a uniform row's cell was not looked at (the caller raises)."""
+    T = len(w)
+    R = m.shape[0]
+    n_u = len(U)
+    # the looks' log l(1) per looked cell, column 1 of look_log_ratios(..., 1)
+    LL1 = np.zeros((n_u, 2))
+    for j in range(len(cells)):
+        LL1[_search(U, cells[j]), 1] += ll_pos if returns[j] else ll_neg
+    gauss = np.ones(T, np.bool_)
+    n_gr = 0
+    for r in range(R):
+        if uniform_cell[r] < 0:
+            n_gr += 1
+        else:
+            gauss[own[r]] = False
+    gr = np.empty(n_gr, np.int64)
+    lo_x = np.empty(n_gr)
+    hi_x = np.empty(n_gr)
+    lo_y = np.empty(n_gr)
+    hi_y = np.empty(n_gr)
+    i = 0
+    for r in range(R):
+        if uniform_cell[r] < 0:
+            sx = np.sqrt(_nan_max(P[r, 0, 0], 0.0))
+            sy = np.sqrt(_nan_max(P[r, 2, 2], 0.0))
+            gr[i] = r
+            lo_x[i] = np.floor((m[r, 0] - range_sigmas * sx) / s)
+            hi_x[i] = np.floor((m[r, 0] + range_sigmas * sx) / s)
+            lo_y[i] = np.floor((m[r, 2] - range_sigmas * sy) / s)
+            hi_y[i] = np.floor((m[r, 2] + range_sigmas * sy) / s)
+            i += 1
+    box, pu0 = looked_in_boxes(lo_x, hi_x, lo_y, hi_y, U, nx, ny)
+    n0 = len(box)
+    mean_xy = np.empty((n0, 2))
+    cov_xy = np.empty((n0, 2, 2))
+    x0 = np.empty(n0)
+    x1 = np.empty(n0)
+    y0 = np.empty(n0)
+    y1 = np.empty(n0)
+    for p in range(n0):
+        r = gr[box[p]]
+        mean_xy[p, 0], mean_xy[p, 1] = m[r, 0], m[r, 2]
+        cov_xy[p, 0, 0], cov_xy[p, 0, 1] = P[r, 0, 0], P[r, 0, 2]
+        cov_xy[p, 1, 0], cov_xy[p, 1, 1] = P[r, 2, 0], P[r, 2, 2]
+        c = U[pu0[p]]
+        ix, iy = c % nx, c // nx
+        x0[p], x1[p] = ix * s, (ix + 1) * s
+        y0[p], y1[p] = iy * s, (iy + 1) * s
+    mass0, m10, m20 = rect_position_moments(mean_xy, cov_xy, x0, x1, y0, y1, bounds,
+                                            n_nodes, first, nodes, weights)
+    n_g = 0
+    for p in range(n0):
+        if mass0[p] > 1e-12:
+            n_g += 1
+    ri_g = np.empty(n_g, np.int64)
+    pu_g = np.empty(n_g, np.int64)
+    mass_g = np.empty(n_g)
+    p1_g = np.empty((n_g, 2))
+    p2_g = np.empty((n_g, 2, 2))
+    i = 0
+    for p in range(n0):
+        if mass0[p] > 1e-12:
+            ri_g[i], pu_g[i], mass_g[i] = gr[box[p]], pu0[p], mass0[p]
+            p1_g[i] = m10[p]
+            p2_g[i] = m20[p]
+            i += 1
+    # uniform rows: one pair each, mass 1
+    n_rows = n_g + R - n_gr
+    row_key = np.empty(n_rows, np.int64)
+    row_mass = np.empty(n_rows)
+    for p in range(n_g):
+        row_key[p] = own[ri_g[p]] * n_u + pu_g[p]
+        row_mass[p] = alp[ri_g[p]] * mass_g[p]
+    bad = False
+    i = n_g
+    for r in range(R):
+        if uniform_cell[r] >= 0:
+            pos = min(_search(U, uniform_cell[r]), n_u - 1)
+            if U[pos] != uniform_cell[r]:
+                bad = True  # the caller raises; pos stays a valid index meanwhile
+            row_key[i] = own[r] * n_u + pos
+            row_mass[i] = 1.0
+            i += 1
+    # (track, looked cell) pairs: np.unique(row_key, return_inverse=True), bincount
+    order = np.argsort(row_key, kind="mergesort")
+    pair_of = np.empty(n_rows, np.int64)
+    n_p = 0
+    for j in range(n_rows):
+        if j == 0 or row_key[order[j]] != row_key[order[j - 1]]:
+            n_p += 1
+        pair_of[order[j]] = n_p - 1
+    pi = np.empty(n_p, np.int64)
+    pu = np.empty(n_p, np.int64)
+    mass = np.zeros(n_p)
+    for j in range(n_rows):
+        k = pair_of[order[j]]
+        pi[k] = row_key[order[j]] // n_u
+        pu[k] = row_key[order[j]] % n_u
+    for j in range(n_rows):
+        mass[pair_of[j]] += row_mass[j]
+    mass_in = np.zeros(T)
+    for k in range(n_p):
+        mass_in[pi[k]] += mass[k]
+    mass_out = np.empty(T)
+    logL = np.empty(T)
+    log_w = np.empty(T)
+    log_not_w = np.empty(T)
+    for t in range(T):
+        mass_out[t] = _nan_min(_nan_max(1.0 - mass_in[t], 0.0), 1.0) if gauss[t] else 0.0
+        logL[t] = np.log(mass_out[t])
+        log_w[t] = np.log(w[t])
+        log_not_w[t] = np.log1p(-w[t])
+    # each track's likelihood as if alone, log L = log(m_out + sum_c m_c l_c(1))
+    log_terms = np.empty(n_p)
+    for k in range(n_p):
+        log_terms[k] = np.log(_nan_max(mass[k], 1e-300)) + LL1[pu[k], 1]
+        logL[pi[k]] = _logaddexp(logL[pi[k]], log_terms[k])
+    # significant pairs in detected cells, and the clusters they link
+    lae = np.empty(T)
+    for t in range(T):
+        lae[t] = _logaddexp(log_w[t] + logL[t], log_not_w[t])
+    signif = np.zeros(n_p, np.bool_)
+    n_sig = np.zeros(n_u, np.int64)
+    for k in range(n_p):
+        t, u = pi[k], pu[k]
+        occ = w[t] * mass[k]
+        occ_alone = np.exp(log_w[t] + log_terms[k] - lae[t])
+        sig = (_nan_max(occ, occ_alone) > threshold) or ((not gauss[t]) and hit[u])
+        if sig and hit[u]:
+            signif[k] = True
+            n_sig[u] += 1
+    parent = np.arange(T)
+    cell_first = np.full(n_u, -1, np.int64)
+    for k in range(n_p):
+        if signif[k] and n_sig[pu[k]] >= 2:
+            u = pu[k]
+            if cell_first[u] < 0:
+                cell_first[u] = pi[k]
+            else:
+                a, b = _find(parent, cell_first[u]), _find(parent, pi[k])
+                if a < b:
+                    parent[b] = a
+                elif b < a:
+                    parent[a] = b
+    plabel = np.empty(T, np.int64)
+    sizes = np.zeros(T, np.int64)
+    for t in range(T):
+        plabel[t] = _find(parent, t)
+        sizes[plabel[t]] += 1
+    in_cluster = np.empty(T, np.bool_)
+    t_max = 1
+    for t in range(T):
+        in_cluster[t] = sizes[plabel[t]] >= 2
+        t_max = max(t_max, sizes[plabel[t]])
+    # singletons, closed form in log space
+    w_new = w.copy()
+    g_out = np.zeros(T)
+    g_pair = np.zeros(n_p)
+    for t in range(T):
+        if not in_cluster[t]:
+            logit = np.log(w[t]) + logL[t] - np.log1p(-w[t])
+            w_new[t] = 1.0 if w[t] >= 1.0 else 1.0 / (1.0 + np.exp(-logit))
+            g_out[t] = np.exp(-logL[t])
+    for k in range(n_p):
+        if not in_cluster[pi[k]]:
+            g_pair[k] = np.exp(LL1[pu[k], 1] - logL[pi[k]])
+    return (ri_g, pu_g, mass_g, p1_g, p2_g, pi, pu, pair_of, mass, mass_out, logL, LL1,
+            plabel, in_cluster, t_max, w_new, g_out, g_pair, bad)
+
+
+#: the header of :func:`grid_update_packed`'s integer output
+HEADER = 10
+
+
+@njit(cache=True, error_model="numpy")
+def grid_update_packed(w, m, P, uniform_cell, own, alp, cells, returns, ll_pos, ll_neg, s,
+                       nx, ny, threshold, range_sigmas, bounds, n_nodes, first, nodes,
+                       weights, B, resid, split_share):
+    """:func:`pairs_and_singletons` and, when no cluster holds two tracks, :func:`
+    moment_match`, with the looked cells and detected ones found here, everything
+    returned in one integer and one float array (numba boxes each returned array at a
+    cost of microseconds; :func:`.grid.grid_update` unpacks them). ``ints[:HEADER]``:
+    ``n_g, n_p, n_rows, T, n_u, t_max, bad, done, rows out``; ``done``: the update is
+    complete (ints: owner; floats: means, covs, alpha, clipped ``w``), else ints hold
+    ``ri_g, pu_g, pi, pu, pair_of, plabel, in_cluster, hit`` and floats ``mass_g, p1_g,
+    p2_g, mass, mass_out, logL, LL1, w_new, g_out, g_pair`` (flattened, in that order)."""
+    U = np.unique(cells)
+    n_u = len(U)
+    hit = np.zeros(n_u, np.bool_)
+    for j in range(len(cells)):
+        if returns[j]:
+            hit[_search(U, cells[j])] = True
+    (ri_g, pu_g, mass_g, p1_g, p2_g, pi, pu, pair_of, mass, mass_out, logL, LL1, plabel,
+     in_cluster, t_max, w_new, g_out, g_pair, bad) = pairs_and_singletons(
+        w, m, P, uniform_cell, own, alp, U, hit, cells, returns, ll_pos, ll_neg, s, nx, ny,
+        threshold, range_sigmas, bounds, n_nodes, first, nodes, weights)
+    T = len(w)
+    n_g, n_p, n_rows = len(ri_g), len(pi), len(pair_of)
+    head = np.array([n_g, n_p, n_rows, T, n_u, t_max, int(bad), 0, 0, 0], np.int64)
+    if not bad and t_max <= 1:
+        gauss_row = uniform_cell < 0
+        means, covs, alpha, out_own = moment_match(
+            ri_g, pu_g, mass_g, p1_g, p2_g, pair_of, g_pair, g_out, w_new, own, alp,
+            gauss_row, hit, m, P, B, resid, T, split_share)
+        n_out = len(out_own)
+        head[7], head[8] = 1, n_out
+        ints = np.empty(HEADER + n_out, np.int64)
+        ints[:HEADER] = head
+        ints[HEADER:] = out_own
+        floats = np.empty(21 * n_out + T)
+        floats[:4 * n_out] = means.ravel()
+        floats[4 * n_out:20 * n_out] = covs.ravel()
+        floats[20 * n_out:21 * n_out] = alpha
+        for t in range(T):
+            floats[21 * n_out + t] = _nan_min(_nan_max(w_new[t], 0.0), 1.0)
+        return ints, floats
+    ints = np.empty(HEADER + 2 * n_g + 2 * n_p + n_rows + 2 * T + n_u, np.int64)
+    ints[:HEADER] = head
+    o = HEADER
+    for part in (ri_g, pu_g, pi, pu, pair_of, plabel):
+        ints[o:o + len(part)] = part
+        o += len(part)
+    for t in range(T):
+        ints[o + t] = in_cluster[t]
+    o += T
+    for u in range(n_u):
+        ints[o + u] = hit[u]
+    floats = np.empty(7 * n_g + 2 * n_p + 5 * T + 2 * n_u)
+    o = 0
+    for part in (mass_g, p1_g.ravel(), p2_g.ravel(), mass, mass_out, logL, LL1.ravel(),
+                 w_new, g_out, g_pair):
+        floats[o:o + len(part)] = part
+        o += len(part)
+    return ints, floats
+
+
+def unpack_front(ints: np.ndarray, floats: np.ndarray) -> tuple:
+    """:func:`grid_update_packed`'s output when it stopped before the moment match: the
+    tuple of :func:`.grid._pairs_and_singletons` (views), then ``hit``."""
+    n_g, n_p, n_rows, T, n_u, t_max, bad = (int(v) for v in ints[:7])
+    cuts = np.cumsum([HEADER, n_g, n_g, n_p, n_p, n_rows, T, T, n_u])
+    ri_g, pu_g, pi, pu, pair_of, plabel, in_cluster, hit = (
+        ints[a:b] for a, b in zip(cuts[:-1], cuts[1:], strict=True))
+    cuts = np.cumsum([0, n_g, 2 * n_g, 4 * n_g, n_p, T, T, 2 * n_u, T, T, n_p])
+    (mass_g, p1_g, p2_g, mass, mass_out, logL, LL1, w_new, g_out, g_pair) = (
+        floats[a:b] for a, b in zip(cuts[:-1], cuts[1:], strict=True))
+    return (ri_g, pu_g, mass_g, p1_g.reshape(n_g, 2), p2_g.reshape(n_g, 2, 2), pi, pu,
+            pair_of, mass, mass_out, logL, LL1.reshape(n_u, 2), plabel,
+            in_cluster.astype(bool), t_max, w_new, g_out, g_pair, bool(bad)), hit.astype(bool)
+
+
+@njit(cache=True, error_model="numpy")
+def _lift(B, resid, r, mass, a0, a1, b00, b01, b11, M1, M2, o):
+    """:func:`.grid.lift_to_state` of one row: position moments ``mass``, ``(a0, a1)``,
+    ``[[b00, b01], [b01, b11]]`` of row ``r``'s Gaussian into ``M1[o]``, ``M2[o]``."""
+    m1 = (a0, a1)
+    m2 = ((b00, b01), (b01, b11))
+    for i in range(2):
+        M1[o, 2 * i] = m1[i]
+        M1[o, 2 * i + 1] = (0.0 + B[r, i, 0] * m1[0]) + B[r, i, 1] * m1[1]
+    pv = np.empty((2, 2))
+    for i in range(2):
+        for k in range(2):
+            pv[i, k] = (0.0 + m2[i][0] * B[r, k, 0]) + m2[i][1] * B[r, k, 1]
+    for i in range(2):
+        for k in range(2):
+            M2[o, 2 * i, 2 * k] = m2[i][k]
+            M2[o, 2 * i, 2 * k + 1] = pv[i, k]
+            M2[o, 2 * i + 1, 2 * k] = pv[k, i]
+            M2[o, 2 * i + 1, 2 * k + 1] = (((0.0 + B[r, i, 0] * pv[0, k])
+                                            + B[r, i, 1] * pv[1, k]) + mass * resid[r, i, k])
+
+
+@njit(cache=True, error_model="numpy")
+def state_moments(means, covs, owner, x0, x1, y0, y1, B, resid, bounds, n_nodes, first,
+                  nodes, weights):
+    """:func:`.grid.rect_state_moments` after its regression (``B``, ``resid`` of
+    ``covs``): the rectangles' position moments and each lifted to the full state."""
+    n = len(owner)
+    mean_xy = np.empty((n, 2))
+    cov_xy = np.empty((n, 2, 2))
+    for p in range(n):
+        r = owner[p]
+        mean_xy[p, 0], mean_xy[p, 1] = means[r, 0], means[r, 2]
+        cov_xy[p, 0, 0], cov_xy[p, 0, 1] = covs[r, 0, 0], covs[r, 0, 2]
+        cov_xy[p, 1, 0], cov_xy[p, 1, 1] = covs[r, 2, 0], covs[r, 2, 2]
+    mass, m1, m2 = rect_position_moments(mean_xy, cov_xy, x0, x1, y0, y1, bounds, n_nodes,
+                                         first, nodes, weights)
+    M1 = np.empty((n, 4))
+    M2 = np.empty((n, 4, 4))
+    for p in range(n):
+        _lift(B, resid, owner[p], mass[p], m1[p, 0], m1[p, 1], m2[p, 0, 0], m2[p, 0, 1],
+              m2[p, 1, 1], M1, M2, p)
+    return mass, M1, M2
+
+
+@njit(cache=True, error_model="numpy")
+def moment_match(ri_g, pu_g, mass_g, p1_g, p2_g, pair_of, g_pair, g_out, w_new, own, alp,
+                 gauss_row, hit, m, P, B, resid, T, split_share):
+    """:func:`.grid._moment_match`: the rows' sums over their pairs in pair order, the
+    lift to the full state, the split components appended after the kept rows."""
+    R = m.shape[0]
+    n_gp = len(ri_g)
+    g_rp = np.empty(n_gp)
+    live = np.empty(n_gp, np.bool_)
+    coef = np.empty(n_gp)
+    go_r = np.empty(R)
+    for r in range(R):
+        go_r[r] = g_out[own[r]]
+    acc = np.zeros(R)
+    for p in range(n_gp):
+        r = ri_g[p]
+        live[p] = w_new[own[r]] > 0.0
+        g_rp[p] = g_pair[pair_of[p]] if live[p] else 0.0
+        coef[p] = g_rp[p] - go_r[r]
+        acc[r] += coef[p] * mass_g[p]
+    Z_full = go_r + acc
+    split = np.zeros(n_gp, np.bool_)
+    any_split = False
+    if split_share > 0.0:
+        full_alpha = np.empty(R)
+        tot = np.zeros(T)
+        for r in range(R):
+            full_alpha[r] = alp[r] * (Z_full[r] if gauss_row[r] else 1.0)
+            tot[own[r]] += full_alpha[r]
+        for p in range(n_gp):
+            r = ri_g[p]
+            part = alp[r] * g_rp[p] * mass_g[p]
+            share = part / _nan_max(tot[own[r]], 1e-300)
+            split[p] = (hit[pu_g[p]] and share >= split_share and live[p]
+                        and part < (1.0 - split_share) * full_alpha[r])
+            any_split |= split[p]
+    # the rest of each row: sums over its pairs of coef * (mass, m1, m2), lifted once
+    sums = np.zeros((6, R))
+    for p in range(n_gp):
+        r = ri_g[p]
+        c = coef[p] - g_rp[p] if split[p] else coef[p]
+        sums[0, r] += c * mass_g[p]
+        sums[1, r] += c * p1_g[p, 0]
+        sums[2, r] += c * p1_g[p, 1]
+        sums[3, r] += c * p2_g[p, 0, 0]
+        sums[4, r] += c * p2_g[p, 0, 1]
+        sums[5, r] += c * p2_g[p, 1, 1]
+    Z = go_r + sums[0] if any_split else Z_full
+    d = np.empty((R, 4))
+    S2 = np.empty((R, 4, 4))
+    means = m.copy()
+    covs = P.copy()
+    new_alpha = np.empty(R)
+    upd = np.empty(R, np.bool_)
+    dd = np.empty(4)
+    for r in range(R):
+        _lift(B, resid, r, Z[r] - go_r[r], sums[1, r], sums[2, r], sums[3, r], sums[4, r],
+              sums[5, r], d, S2, r)
+        for i in range(4):
+            for j in range(4):
+                S2[r, i, j] = S2[r, i, j] + go_r[r] * P[r, i, j]
+        new_alpha[r] = alp[r] * (Z[r] if gauss_row[r] else 1.0)
+        upd[r] = gauss_row[r] and w_new[own[r]] > 0.0 and Z[r] > 0.0
+        if upd[r]:
+            for i in range(4):
+                dd[i] = d[r, i] / Z[r]
+                means[r, i] = m[r, i] + dd[i]
+            for i in range(4):
+                for j in range(4):
+                    cij = S2[r, i, j] / Z[r] - dd[i] * dd[j]
+                    cji = S2[r, j, i] / Z[r] - dd[j] * dd[i]
+                    covs[r, i, j] = 0.5 * (cij + cji)
+    if not any_split:
+        out_own = own.copy()
+        prior_alpha = alp
+    else:
+        # a split row's remainder is dropped when negligible or its moments degenerate
+        was_split = np.zeros(R, np.bool_)
+        n_s = 0
+        for p in range(n_gp):
+            if split[p]:
+                was_split[ri_g[p]] = True
+                n_s += 1
+        rest_ok = np.empty(R, np.bool_)
+        n_rest = 0
+        for r in range(R):
+            sane = covs[r, 0, 0] > 0.0 and covs[r, 2, 2] > 0.0
+            rest_ok[r] = (not was_split[r]) or (upd[r] and Z[r] > 1e-6 * Z_full[r] and sane)
+            n_rest += rest_ok[r]
+        n_out = n_rest + n_s
+        out_m = np.empty((n_out, 4))
+        out_P = np.empty((n_out, 4, 4))
+        out_alpha = np.empty(n_out)
+        out_own = np.empty(n_out, np.int64)
+        prior_alpha = np.empty(n_out)
+        o = 0
+        for r in range(R):
+            if rest_ok[r]:
+                out_m[o] = means[r]
+                out_P[o] = covs[r]
+                out_alpha[o] = new_alpha[r]
+                out_own[o] = own[r]
+                prior_alpha[o] = alp[r]
+                o += 1
+        M1 = np.empty((1, 4))
+        M2 = np.empty((1, 4, 4))
+        sd = np.empty(4)
+        for p in range(n_gp):
+            if not split[p]:
+                continue
+            r, sm = ri_g[p], mass_g[p]
+            _lift(B, resid, r, sm, p1_g[p, 0], p1_g[p, 1], p2_g[p, 0, 0], p2_g[p, 0, 1],
+                  p2_g[p, 1, 1], M1, M2, 0)
+            for i in range(4):
+                sd[i] = M1[0, i] / sm
+                out_m[o, i] = m[r, i] + sd[i]
+            for i in range(4):
+                for j in range(4):
+                    cij = M2[0, i, j] / sm - sd[i] * sd[j]
+                    cji = M2[0, j, i] / sm - sd[j] * sd[i]
+                    out_P[o, i, j] = 0.5 * (cij + cji)
+            out_alpha[o] = alp[r] * g_rp[p] * sm
+            out_own[o] = own[r]
+            prior_alpha[o] = alp[r] * 0.0
+            o += 1
+        means, covs, new_alpha = out_m, out_P, out_alpha
+    # renormalise the mixture weights within each track (a track with no posterior mass
+    # keeps its prior weights)
+    tot = np.zeros(T)
+    for o in range(len(out_own)):
+        tot[out_own[o]] += new_alpha[o]
+    alpha = np.empty(len(out_own))
+    for o in range(len(out_own)):
+        t = tot[out_own[o]]
+        alpha[o] = new_alpha[o] / t if t > 0.0 else prior_alpha[o]
+    return means, covs, alpha, out_own
+
+
+@njit(cache=True, error_model="numpy")
+def with_candidates(w, own, a, m, P, cand, u_cand, s, nx, vs):
+    """The tracks followed by one birth candidate per cell of ``cand`` (existence
+    ``u_cand``, at rest at the cell's centre, covariance ``diag(s^2/12, vs, s^2/12, vs)``):
+    ``w``, ``owner``, ``alpha``, ``means``, ``covs`` and ``uniform_cell`` as
+    :meth:`.tracker.GaussianParticleFilter._update_grid` builds them with numpy."""
+    T, R, n_c = len(w), m.shape[0], len(cand)
+    w2 = np.empty(T + n_c)
+    w2[:T] = w
+    w2[T:] = u_cand
+    own2 = np.empty(R + n_c, np.int64)
+    a2 = np.ones(R + n_c)
+    ucell = np.full(R + n_c, -1, np.int64)
+    m2 = np.zeros((R + n_c, 4))
+    P2 = np.zeros((R + n_c, 4, 4))
+    own2[:R] = own
+    a2[:R] = a
+    m2[:R] = m
+    P2[:R] = P
+    pv = s * s / 12.0
+    for j in range(n_c):
+        r = R + j
+        own2[r] = T + j
+        ucell[r] = cand[j]
+        m2[r, 0] = (cand[j] % nx + 0.5) * s
+        m2[r, 2] = (cand[j] // nx + 0.5) * s
+        P2[r, 0, 0], P2[r, 1, 1], P2[r, 2, 2], P2[r, 3, 3] = pv, vs, pv, vs
+    return w2, own2, a2, m2, P2, ucell
+
+
+@njit(cache=True, error_model="numpy")
+def keep_promoted(weights, owner, alpha, means, covs, T, cand, cells, returns, prune):
+    """After the update with birth candidates (tracks ``T..``): a candidate whose cell
+    returned a detection and whose weight exceeds ``prune`` becomes a track; returns that
+    mask, the candidates' new field values (0 where promoted, else their weight) and the
+    kept tracks' ``w``, rows' ``owner`` (renumbered), ``alpha``, ``means``, ``covs``."""
+    n_c = len(cand)
+    det = np.sort(cells[returns])
+    keep_track = np.ones(T + n_c, np.bool_)
+    promote = np.zeros(n_c, np.bool_)
+    u_new = np.empty(n_c)
+    for j in range(n_c):
+        wc = weights[T + j]
+        pos = _search(det, cand[j])
+        promote[j] = pos < len(det) and det[pos] == cand[j] and wc > prune
+        u_new[j] = 0.0 if promote[j] else wc
+        keep_track[T + j] = promote[j]
+    new_index = np.cumsum(keep_track) - 1
+    n_t = 0
+    for t in range(T + n_c):
+        n_t += keep_track[t]
+    w = np.empty(n_t)
+    for t in range(T + n_c):
+        if keep_track[t]:
+            w[new_index[t]] = weights[t]
+    n_r = 0
+    for r in range(len(owner)):
+        n_r += keep_track[owner[r]]
+    own = np.empty(n_r, np.int64)
+    a = np.empty(n_r)
+    m = np.empty((n_r, 4))
+    P = np.empty((n_r, 4, 4))
+    o = 0
+    for r in range(len(owner)):
+        if keep_track[owner[r]]:
+            own[o] = new_index[owner[r]]
+            a[o] = alpha[r]
+            m[o] = means[r]
+            P[o] = covs[r]
+            o += 1
+    return promote, u_new, w, own, a, m, P
+
+
+@njit(cache=True, error_model="numpy")
+def pair_screen(m, P, threshold, groups, use_groups):
+    """:func:`.tracker._pair_distances`' screen: the pairs ``i < j`` (in
+    ``np.triu_indices`` order) whose position-only lower bound is not ``>= threshold``
+    (NaN passes), in the same group when ``use_groups``; returns them with ``m_i - m_j``
+    and ``P_i + P_j`` for the exact solve."""
+    K = m.shape[0]
+    n = 0
+    ci = np.empty(K * (K - 1) // 2, np.int64)
+    cj = np.empty(K * (K - 1) // 2, np.int64)
+    for i in range(K):
+        for j in range(i + 1, K):
+            if use_groups and groups[i] != groups[j]:
+                continue
+            a = P[i, 0, 0] + P[j, 0, 0]
+            b = P[i, 0, 2] + P[j, 0, 2]
+            c = P[i, 2, 2] + P[j, 2, 2]
+            dx = m[i, 0] - m[j, 0]
+            dy = m[i, 2] - m[j, 2]
+            det = a * c - b * b
+            lower = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
+            if not lower >= threshold:
+                ci[n], cj[n] = i, j
+                n += 1
+    dc = np.empty((n, 4))
+    Sc = np.empty((n, 4, 4))
+    for k in range(n):
+        i, j = ci[k], cj[k]
+        for x in range(4):
+            dc[k, x] = m[i, x] - m[j, x]
+            for y in range(4):
+                Sc[k, x, y] = P[i, x, y] + P[j, x, y]
+    return ci[:n], cj[:n], dc, Sc
+
+
+@njit(cache=True, error_model="numpy")
+def greedy_merge(w, m, P, close, threshold, bounded, sum_tol):
+    """:func:`.tracker.merge_groups` after its sort by decreasing weight and its
+    distances ``close``: the groups, greedily from the heaviest (``bounded``: members by
+    increasing distance while the sum stays ``<= 1 + sum_tol``), each group's weight
+    (``min(1, sum)``, numpy's pairwise sum in index order), and its ``w``-weighted moment
+    match (sequential sums in index order, as ``np.add.at``). Returns the weights, the
+    label of each input and the merged means and covariances."""
+    K = len(w)
+    label = np.full(K, -1, np.int64)
+    out_w = np.empty(K)
+    n_g = 0
+    buf = np.empty(K)
+    for i in range(K):
+        if label[i] >= 0:
+            continue
+        g = n_g
+        n_g += 1
+        label[i] = g
+        lonely = True
+        for j in range(K):
+            if close[i, j] < threshold:
+                lonely = False
+        if lonely:
+            out_w[g] = 1.0 if 1.0 < w[i] else w[i]  # Python's min(w, 1.0)
+            continue
+        grp = np.empty(K, np.int64)
+        n = 0
+        for j in range(K):
+            if close[i, j] < threshold and label[j] < 0:
+                grp[n] = j
+                n += 1
+        if bounded:
+            tot = w[i]
+            order = np.argsort(close[i, grp[:n]], kind="mergesort")
+            for q in range(n):
+                j = grp[order[q]]
+                if tot + w[j] <= 1.0 + sum_tol:
+                    label[j] = g
+                    tot += w[j]
+            out_w[g] = 1.0 if 1.0 < tot else tot  # Python's min(tot, 1.0)
+        else:
+            for q in range(n):
+                label[grp[q]] = g
+            nb = 0
+            for j in range(K):
+                if label[j] == g:
+                    buf[nb] = w[j]
+                    nb += 1
+            tot = np_sum(buf, nb)
+            out_w[g] = tot if tot < 1.0 else 1.0  # Python's min(1.0, tot)
+    mean = np.zeros((n_g, 4))
+    cov = np.zeros((n_g, 4, 4))
+    if n_g == K:
+        return out_w[:n_g], label, mean, cov
+    tot_w = np.zeros(n_g)
+    head = np.full(n_g, -1, np.int64)
+    for j in range(K):
+        tot_w[label[j]] += w[j]
+        if head[label[j]] < 0:
+            head[label[j]] = j
+    wn = np.empty(K)
+    for j in range(K):
+        g = label[j]
+        if tot_w[g] > 0.0:
+            wn[j] = w[j] / tot_w[g]
+        else:
+            wn[j] = 1.0 if j == head[g] else 0.0
+        for x in range(4):
+            mean[g, x] += wn[j] * m[j, x]
+    for j in range(K):
+        g = label[j]
+        for x in range(4):
+            dx = m[j, x] - mean[g, x]
+            for y in range(4):
+                cov[g, x, y] += wn[j] * (P[j, x, y] + dx * (m[j, y] - mean[g, y]))
+    return out_w[:n_g], label, mean, cov
+
+
+@njit(cache=True, error_model="numpy")
+def option_beliefs(option_probs, option_cell, LLc, iterations, damping, clip):
+    """:func:`.grid._option_beliefs`: the damped fixed-point iteration, with each
+    detected cell's sums over its options in (row, column) order (``bincount``'s) and each
+    row's normaliser numpy's pairwise sum."""
+    n, n_opt = option_probs.shape
+    q = option_probs.copy()
+    n_e = 0
+    for i in range(n):
+        for j in range(n_opt):
+            n_e += option_cell[i, j] >= 0
+    if n_e == 0:
+        return q
+    rows = np.empty(n_e, np.int64)
+    cols = np.empty(n_e, np.int64)
+    cell = np.empty(n_e, np.int64)
+    e = 0
+    for i in range(n):
+        for j in range(n_opt):
+            if option_cell[i, j] >= 0:
+                rows[e], cols[e], cell[e] = i, j, option_cell[i, j]
+                e += 1
+    # np.unique(cell, return_inverse=True)
+    order = np.argsort(cell, kind="mergesort")
+    cidx = np.empty(n_e, np.int64)
+    n_c = 0
+    for k in range(n_e):
+        if k == 0 or cell[order[k]] != cell[order[k - 1]]:
+            n_c += 1
+        cidx[order[k]] = n_c - 1
+    cells = np.empty(n_c, np.int64)
+    for k in range(n_e):
+        cells[cidx[k]] = cell[k]
+    # exp(LLc[c, T + 1] - LLc[c, T]) for T = 0, 1, 2 (the last difference repeated)
+    n_d = LLc.shape[1] - 1
+    steps = np.empty((n_c, 3))
+    for c in range(n_c):
+        for k in range(3):
+            d = min(k, n_d - 1)
+            steps[c, k] = np.exp(LLc[cells[c], d + 1] - LLc[cells[c], d])
+    log_free = np.empty(n_e)
+    odds = np.empty(n_e)
+    new = np.empty((n, n_opt))
+    for _ in range(iterations):
+        sum_free = np.zeros(n_c)
+        sum_odds = np.zeros(n_c)
+        for k in range(n_e):
+            b = _nan_min(q[rows[k], cols[k]], 1.0 - clip)
+            log_free[k] = np.log1p(-b)
+            odds[k] = b / (1.0 - b)
+            sum_free[cidx[k]] += log_free[k]
+            sum_odds[cidx[k]] += odds[k]
+        new[:] = option_probs
+        for k in range(n_e):
+            c = cidx[k]
+            p0 = np.exp(sum_free[c] - log_free[k])
+            p1 = p0 * _nan_max(sum_odds[c] - odds[k], 0.0)
+            p1 = _nan_min(p1, 1.0 - p0)
+            factor = p0 * steps[c, 0] + p1 * steps[c, 1] + (1.0 - p0 - p1) * steps[c, 2]
+            new[rows[k], cols[k]] *= factor
+        for i in range(n):
+            tot = np_sum(new[i], n_opt)
+            for j in range(n_opt):
+                q[i, j] = (1.0 - damping) * q[i, j] + damping * (new[i, j] / tot)
+    return q
+
+
+@njit(cache=True, error_model="numpy")
+def _same_key(key, a, b):
+    for j in range(key.shape[1]):
+        if key[a, j] != key[b, j]:
+            return False
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _better(log_post, a, b):
+    """Row ``a`` precedes row ``b`` in ``np.lexsort((index, -log_post))`` (NaN last)."""
+    x, y = -log_post[a], -log_post[b]
+    if x != x:
+        return y != y and a < b
+    if y != y or x < y:
+        return True
+    return x == y and a < b
+
+
+@njit(cache=True, error_model="numpy")
+def avoid_coalescence(cluster, choice, cell, detected, log_post):
+    """:func:`.grid.avoid_coalescence`: the same classes of combinations (rows of equal
+    key: cluster, the choices of the members that took no detected cell, the sorted
+    detected cells taken), found by a hash of each key and an exact comparison within
+    equal hashes instead of numpy's sort of the keys' rows; in each class the row first
+    in ``np.lexsort((index, -log_post))`` keeps its value. Only that choice reaches the
+    output, so the result is numpy's exactly."""
+    C, S = choice.shape
+    key = np.empty((C, 1 + 2 * S), np.int64)
+    taken = np.empty(S, np.int64)
+    h = np.empty(C, np.uint64)
+    for r in range(C):
+        key[r, 0] = cluster[r]
+        for j in range(S):
+            took = cell[r, j] >= 0 and detected[cell[r, j]]
+            key[r, 1 + j] = -1 if took else choice[r, j]
+            taken[j] = cell[r, j] if took else -1
+        taken.sort()
+        for j in range(S):
+            key[r, 1 + S + j] = taken[j]
+        v = np.uint64(14695981039346656037)
+        for j in range(1 + 2 * S):
+            v = (v ^ np.uint64(key[r, j] & 0xFFFFFFFFFFFF)) * np.uint64(1099511628211)
+        h[r] = v
+    order = np.argsort(h, kind="mergesort")
+    out = np.full(C, -np.inf)
+    best = np.empty(C, np.int64)  # per class in the current run of equal hashes
+    reps = np.empty(C, np.int64)
+    start = 0
+    while start < C:
+        stop = start + 1
+        while stop < C and h[order[stop]] == h[order[start]]:
+            stop += 1
+        n_cls = 0
+        for q in range(start, stop):
+            r = order[q]
+            k = 0
+            while k < n_cls and not _same_key(key, reps[k], r):
+                k += 1
+            if k == n_cls:
+                reps[k], best[k] = r, r
+                n_cls += 1
+            elif _better(log_post, r, best[k]):
+                best[k] = r
+        for k in range(n_cls):
+            out[best[k]] = log_post[best[k]]
+        start = stop
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def prune_tracks(w, own, a, m, P, tid, threshold):
+    """The tracks with ``w >= threshold`` (NaN goes), their rows, owners renumbered."""
+    T, R = len(w), len(own)
+    idx = np.empty(T, np.int64)
+    n_t = 0
+    for t in range(T):
+        idx[t] = n_t
+        n_t += w[t] >= threshold
+    w2 = np.empty(n_t)
+    tid2 = np.empty(n_t, np.int64)
+    for t in range(T):
+        if w[t] >= threshold:
+            w2[idx[t]], tid2[idx[t]] = w[t], tid[t]
+    n_r = 0
+    for r in range(R):
+        n_r += w[own[r]] >= threshold
+    own2 = np.empty(n_r, np.int64)
+    a2 = np.empty(n_r)
+    m2 = np.empty((n_r, 4))
+    P2 = np.empty((n_r, 4, 4))
+    o = 0
+    for r in range(R):
+        if w[own[r]] >= threshold:
+            own2[o], a2[o] = idx[own[r]], a[r]
+            m2[o] = m[r]
+            P2[o] = P[r]
+            o += 1
+    return w2, own2, a2, m2, P2, tid2
+
+
+@njit(cache=True, error_model="numpy")
+def rows_by_track(own, a, m, P):
+    """The rows in a stable order of their track."""
+    order = np.argsort(own, kind="mergesort")
+    return own[order], a[order], m[order], P[order]
+
+
+@njit(cache=True, error_model="numpy")
+def position_inverse(P):
+    """:func:`.kalman.inverse` of each position block ``P[:, 0::2, 0::2]`` (closed form)."""
+    R = P.shape[0]
+    out = np.empty((R, 2, 2))
+    for r in range(R):
+        a, b, c, d = P[r, 0, 0], P[r, 0, 2], P[r, 2, 0], P[r, 2, 2]
+        det = a * d - b * c
+        out[r, 0, 0], out[r, 0, 1] = d / det, -b / det
+        out[r, 1, 0], out[r, 1, 1] = -c / det, a / det
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def near_walls(m, P, range_sigmas, width, height):
+    """The rows whose ``range_sigmas`` box reaches beyond the workspace
+    (:func:`.grid.fold_into_workspace`'s test)."""
+    R = m.shape[0]
+    out = np.empty(R, np.int64)
+    n = 0
+    for r in range(R):
+        sx = range_sigmas * np.sqrt(_nan_max(P[r, 0, 0], 0.0))
+        sy = range_sigmas * np.sqrt(_nan_max(P[r, 2, 2], 0.0))
+        if (m[r, 0] - sx < 0 or m[r, 0] + sx > width or m[r, 2] - sy < 0
+                or m[r, 2] + sy > height):
+            out[n] = r
+            n += 1
+    return out[:n]
+
+
+def warm_up() -> None:
+    """Compile (or load from the disk cache) every kernel the GPF calls, on tiny inputs of
+    the argument types it passes (about 50 s of CPU the first time after an edit, 0.2 s
+    from the cache; docs/speed.md). Cheap after the first time in a process."""
+    if getattr(warm_up, "done", False):
+        return
+    f, i, b = np.ones(1), np.zeros(1, np.int64), np.zeros(1, np.bool_)
+    m, P = np.zeros((1, 4)), np.eye(4)[None]
+    # pairs_and_singletons is compiled into grid_update_packed (alone: tests only);
+    # moment_match alone serves the updates with clusters
+    moment_match(i, i, f, np.zeros((1, 2)), np.zeros((1, 2, 2)), i, f, f, f, i, f, b | True, b,
+                 m, P, np.zeros((1, 2, 2)), np.zeros((1, 2, 2)), 1, 0.1)
+    grid_update_packed(0.5 * f, m, P, i - 1, i, f, i, b, 0.5, -0.1, 1.0, 1, 1, 1e-3, 6.0,
+                       np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2),
+                       np.zeros((1, 2, 2)), np.zeros((1, 2, 2)), 0.1)
+    w2, own2, a2, m2, P2, ucell = with_candidates(f, i, f, m, P, i, f, 1.0, 1, 1.0)
+    keep_promoted(w2, own2, a2, m2, P2, 1, i, i, b, 1e-3)
+    ci, cj, dc, Sc = pair_screen(m2, P2, 4.0, i, False)
+    for bounded in (False, True):
+        greedy_merge(w2, m2, P2, np.zeros((2, 2)), 4.0, bounded, 1e-9)
+    position_inverse(P2)
+    prune_tracks(w2, own2, a2, m2, P2, own2, 1e-3)
+    rows_by_track(own2, a2, m2, P2)
+    avoid_coalescence(i, np.zeros((1, 2), np.int64), np.zeros((1, 2), np.int64),
+                      np.ones(1, np.bool_), np.zeros(1))
+    option_beliefs(np.full((2, 3), 1.0 / 3.0), np.array([[-1, -1, 0], [-1, -1, 0]]),
+                   np.zeros((1, 3)), 20, 0.5, 1e-12)
+    near_walls(m2, P2, 6.0, 1.0, 1.0)
+    state_moments(m2, P2, i, f, f + 1.0, f, f + 1.0, np.zeros((2, 2, 2)), np.zeros((2, 2, 2)),
+                  np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2))
+    warm_up.done = True
