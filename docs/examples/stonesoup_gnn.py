@@ -2,41 +2,44 @@
 
 Written from docs/world_format.md and the model card, as a check of the in-process
 ``ss-gnn``: Stone Soup's ``KalmanPredictor`` / ``KalmanUpdater``, a ``PDAHypothesiser`` per
-track, ``GNNWith2DAssignment``, ``SimpleMeasurementInitiator`` and
-``CovarianceBasedDeleter``; the track management around them is an existence probability
-per track (IPDA, Musicki, Evans & Stankovic 1994), every number from the model card.
+track (prediction, measurement prediction, gate), ``GNNWith2DAssignment``,
+``SimpleMeasurementInitiator`` and ``CovarianceBasedDeleter``. Around them an existence
+probability ``r`` per track (IPDA-style; Musicki, Evans & Stankovic 1994), every number from
+the model card. Per step ``k`` of ``steps.csv`` (every step, those without a positive look
+included):
 
-Per step ``k`` of ``steps.csv`` (every step, those without a positive look included):
-
-* detections: one per positive cell, at its centre, ``R = cell_size^2 / 12 I``;
-  clutter density ``kappa = p_f / cell_size^2``;
-* a track's detection probability is ``P_D = sum_c m_c (1 - (1 - P)^n_c)`` over the cells
-  looked at this step (``n_c`` looks; ``P = (p_d - p_f) / (1 - p_f)``, the target's share of
-  a positive look with clutter modelled apart), ``m_c`` the predicted position Gaussian's
-  mass in cell ``c`` (a product of the per-axis masses: the x-y covariance is dropped,
-  zero when ``F``, ``Q`` and ``R`` act per axis). So a track not looked at has ``P_D = 0``
-  and keeps its existence, and a look that finds nothing lowers it;
-* association: ``GNNWith2DAssignment`` maximises the product of the ``PDAHypothesiser``
-  weights with ``prob_detect = r P_D``: ``1 - r P_D P_G`` for a miss, ``r P_D g(z) /
-  kappa`` for detection ``z`` in the gate (``P_G``, ``--gate``); ``g`` the predicted
-  measurement density;
-* existence (IPDA with the assigned detection only): ``r+ = r (1 - d) / (1 - r d)``,
-  ``d = P_D P_G - P_D g(z) / kappa`` with a detection, ``d = P_D P_G`` without; survival
-  ``r <- p_s r`` at the prediction;
+* detections: one per positive cell, at its centre, ``R = cell_size^2 / 12 I`` (the
+  Kalman update's quantisation noise);
+* the looks' likelihood ratio of a track present against absent, from the cell sensor:
+  ``L = 1 + sum_c m_c (l_c - 1)``, ``m_c`` the predicted position Gaussian's mass in cell
+  ``c`` (a product of per-axis masses: the x-y covariance is dropped, zero when ``F``,
+  ``Q`` and ``R`` act per axis; under a ``reflect`` boundary conditioned on the
+  workspace), ``l_c = ((1 - p_d) / (1 - p_f))^n_c`` for a cell looked at ``n_c`` times
+  with no positive look, ``q1 / q0`` for the track's assigned detection's cell (``q1 = 1 -
+  (1 - p_d)^n_c``, ``q0 = 1 - (1 - p_f)^n_c``: the cell positive with a target and
+  without), 1 elsewhere (cells not looked at, and positive cells the track did not take).
+  So a track not looked at keeps its existence, and a look that finds nothing lowers it;
+* association: ``GNNWith2DAssignment`` maximises the product of the hypotheses' weights,
+  relative to every detection being clutter: a miss ``1 - r + r L``, detection ``z`` in
+  cell ``c`` (within the hypothesiser's gate ``P_G``, ``--gate``) ``(1 - r + r L_z) /
+  (1 + u_c (q1 / q0 - 1))``, the denominator the weight of leaving ``z`` to clutter or a
+  new target (``u_c`` below). This replaces the ``PDAHypothesiser``'s own weights, ``r
+  P_D g(z) / kappa`` with ``g`` the Gaussian density of the cell centre: that treats the
+  quantisation as Gaussian noise with thin tails, so a target crossing into the next cell
+  costs its track most of its existence (docs/stonesoup.md);
+* existence: ``r <- p_s r`` at the prediction, ``r <- r L / (1 - r + r L)`` at the update;
 * a detection no track takes starts a track (``SimpleMeasurementInitiator``: position at
   the detection with covariance ``R``, velocity 0 with the model's birth sd) of existence
   ``r0 = u q1 / (u q1 + (1 - u) q0)``: the probability that the positive cell holds a new
-  target rather than only clutter, ``u = 1 - exp(-mu_c)`` for ``mu_c`` untracked targets
-  expected in the cell, ``q1 = 1 - (1 - p_d)^n_c`` and ``q0 = 1 - (1 - p_f)^n_c`` the
-  chances its looks fire with and without one;
-* ``mu_c``: an undetected intensity per cell, the initial count spread over the grid,
-  ``p_s mu + birth_rate / n`` per step, ``(1 - P)^n_c`` after the looks at the cell, plus
-  the existence of each deleted track at its cell; on a model without arrivals the
-  prior also gets the model's expected count ``p_s^k n0`` that neither the tracks nor
-  ``mu`` hold, spread over the grid (as the GM-PHD example's births);
+  target rather than only clutter, ``u_c = 1 - exp(-mu_c)``, ``mu_c`` the untracked
+  targets expected in the cell: the initial count spread over the grid, ``p_s mu +
+  birth_rate / n`` per step, ``(1 - P)^n_c`` after the looks at the cell (``P = (p_d -
+  p_f) / (1 - p_f)``), plus the existence of each deleted track at its cell; on a model
+  without arrivals also the model's expected count ``p_s^k n0`` that neither the tracks
+  nor ``mu`` hold, spread over the grid (as the GM-PHD example's births);
 * deleted: ``r < --prune``, a position sd over ``--max-sd`` cells (Stone Soup's
   ``CovarianceBasedDeleter`` on the position trace), and under a ``die`` boundary a
-  predicted mean outside the workspace. ``reflect`` is not modelled.
+  predicted mean outside the workspace.
 
 Estimate: the tracks with ``r >= 0.5`` (labelled by track), the count ``sum r``. Nothing is
 read from the truth files, and the declared initial states are not used (only their
@@ -69,6 +72,8 @@ from stonesoup.models.measurement.linear import LinearGaussian
 from stonesoup.models.transition.linear import LinearGaussianTimeInvariantTransitionModel
 from stonesoup.predictor.kalman import KalmanPredictor
 from stonesoup.types.detection import Detection
+from stonesoup.types.multihypothesis import MultipleHypothesis
+from stonesoup.types.numeric import Probability
 from stonesoup.types.state import GaussianState
 from stonesoup.types.track import Track
 from stonesoup.updater.kalman import KalmanUpdater
@@ -77,20 +82,32 @@ EPOCH = datetime.datetime(1970, 1, 1)  # the files' time: seconds after the Unix
 OUT_NAME = "stonesoup_gnn.csv"
 
 
-class PerTrackPDA(Hypothesiser):
-    """A ``PDAHypothesiser`` whose ``prob_detect`` is the track's own ``r P_D``."""
+class CellPDA(Hypothesiser):
+    """Stone Soup's ``PDAHypothesiser`` (prediction, measurement prediction, gate ``P_G``)
+    with each hypothesis weighed by the cell sensor's likelihood (module docstring)."""
 
     predictor: KalmanPredictor = Property()
     updater: KalmanUpdater = Property()
-    clutter_spatial_density: float = Property()
     prob_gate: float = Property()
-    prob_detect: dict = Property(doc="track -> r P_D for this step")
+    weights: dict = Property(doc="track -> (r, L of the negative looks, cell masses)")
+    step: dict = Property(doc="this step's cell_of (detection id -> cell), pos_excess, "
+                              "new_or_clutter (per cell)")
 
     def hypothesise(self, track, detections, timestamp, **kwargs):
-        return PDAHypothesiser(
-            self.predictor, self.updater, clutter_spatial_density=self.clutter_spatial_density,
-            prob_detect=self.prob_detect[track], prob_gate=self.prob_gate,
+        r, base, mass = self.weights[track]
+        cell_of, excess, alone = (self.step[k] for k in ("cell_of", "pos_excess",
+                                                         "new_or_clutter"))
+        gated = PDAHypothesiser(
+            self.predictor, self.updater, clutter_spatial_density=1.0, prob_detect=0.5,
+            prob_gate=self.prob_gate, normalise=False,
         ).hypothesise(track, detections, timestamp, **kwargs)
+        for h in gated:
+            if h:  # detection in cell c, against leaving it to clutter or a new target
+                c = cell_of[id(h.measurement)]
+                h.probability = Probability((1 - r + r * (base + mass[c] * excess[c])) / alone[c])
+            else:
+                h.probability = Probability(1 - r + r * base)
+        return MultipleHypothesis(list(gated), normalise=False)
 
 
 def by_step(path: Path) -> dict[int, pd.DataFrame]:
@@ -115,7 +132,6 @@ def run_world(world: Path, gate: float = 0.99, prune: float = 1e-2,
     F, Q = np.array(card["dynamics"]["F"]), np.array(card["dynamics"]["Q"])
     p_d, p_f = sensor["p_d"], sensor["p_f"]
     P = (p_d - p_f) / (1 - p_f)
-    kappa = p_f / (s * s)
     p_s, b = targets["survival_probability"], targets["birth_rate"]
     n0 = len(targets["initial_states"]) + targets["n_random_initial"]
     sv = targets["birth_velocity_std"]
@@ -125,8 +141,9 @@ def run_world(world: Path, gate: float = 0.99, prune: float = 1e-2,
     predictor = KalmanPredictor(LinearGaussianTimeInvariantTransitionModel(
         transition_matrix=F, covariance_matrix=Q))
     updater = KalmanUpdater(measurement)
-    prob_detect: dict[Track, float] = {}
-    associator = GNNWith2DAssignment(PerTrackPDA(predictor, updater, kappa, gate, prob_detect))
+    weights: dict[Track, tuple] = {}
+    step_context: dict = {}
+    associator = GNNWith2DAssignment(CellPDA(predictor, updater, gate, weights, step_context))
     initiator = SimpleMeasurementInitiator(
         GaussianState(np.zeros((4, 1)), np.diag([0.0, sv * sv, 0.0, sv * sv])), measurement)
     too_wide = CovarianceBasedDeleter(covar_trace_thresh=2 * (max_sd * s) ** 2, mapping=[0, 2])
@@ -150,62 +167,76 @@ def run_world(world: Path, gate: float = 0.99, prune: float = 1e-2,
         for table in (pos, neg):
             if table is not None:
                 np.add.at(looks, table["cell"].to_numpy(int), 1)
-        p_cell = (1 - (1 - P) ** looks).reshape(ny, nx)
+        positive = np.zeros(n, bool)
+        if pos is not None:
+            positive[pos["cell"].to_numpy(int)] = True
+        q1, q0 = 1 - (1 - p_d) ** looks, 1 - (1 - p_f) ** looks  # a cell positive: target, none
+        with np.errstate(invalid="ignore", divide="ignore"):
+            pos_excess = np.where(positive, q1 / q0 - 1, 0.0)
+        neg_excess = np.where((looks > 0) & ~positive, ((1 - p_d) / (1 - p_f)) ** looks - 1, 0.0)
 
         # predict; survival; a mean leaving a `die` workspace is a target gone
-        kept_t, kept_r, kept_l, predicted = [], [], [], []
+        kept_t, kept_r, kept_l, masses = [], [], [], []
         for track, ri, lab in zip(tracks, r, labels, strict=True):
             pred = predictor.predict(track, timestamp=t)
             m = np.asarray(pred.state_vector, float).ravel()
             if die and not (0 <= m[0] < nx * s and 0 <= m[2] < ny * s):
                 continue
+            mass = cell_masses(m, np.asarray(pred.covar, float), s, nx, ny).ravel()
+            if not die and mass.sum() > 0:
+                mass /= mass.sum()  # reflected targets stay in the workspace
             kept_t.append(track)
             kept_r.append(p_s * ri)
             kept_l.append(lab)
-            predicted.append(pred)
+            masses.append(mass)
         tracks, r, labels = kept_t, kept_r, kept_l
-        p_det = [float((cell_masses(np.asarray(pr.state_vector, float).ravel(),
-                                    np.asarray(pr.covar, float), s, nx, ny) * p_cell).sum())
-                 for pr in predicted]
 
-        detections = []
+        # the prior of a new target at each positive cell: untracked targets expected there
+        spare = max(0.0, expected - sum(r) - mu.sum()) / n if b == 0 else 0.0
+        u = 1 - np.exp(-(mu + spare))
+        new_or_clutter = 1 + u * pos_excess  # a detection left to no track, against clutter
+        detections, cell_of = [], {}
         if pos is not None:
-            for x, y in pos.drop_duplicates("cell")[["x", "y"]].itertuples(index=False):
-                detections.append(Detection(np.array([[x], [y]]), timestamp=t,
-                                            measurement_model=measurement))
-        looked = [i for i, pd_i in enumerate(p_det) if pd_i > 0]
-        prob_detect.clear()
-        for i in looked:
-            prob_detect[tracks[i]] = r[i] * p_det[i]
-        hyps = associator.associate([tracks[i] for i in looked], detections, t) if looked else {}
+            for cell, x, y in pos.drop_duplicates("cell")[["cell", "x", "y"]].itertuples(
+                    index=False):
+                det = Detection(np.array([[x], [y]]), timestamp=t, measurement_model=measurement)
+                detections.append(det)
+                cell_of[id(det)] = int(cell)
+        weights.clear()
+        step_context.update(cell_of=cell_of, pos_excess=pos_excess,
+                            new_or_clutter=new_or_clutter)
+        base = {}
+        for track, ri, mass in zip(tracks, r, masses, strict=True):
+            if mass[looks > 0].sum() <= 1e-12:
+                continue  # not looked at: no evidence, kept out of the association
+            base[id(track)] = 1 + float(mass @ neg_excess)
+            weights[track] = (ri, base[id(track)], mass)
+        looked = [track for track in tracks if track in weights]
+        hyps = associator.associate(looked, detections, t) if looked and detections else {}
         taken = set()
-        for i, (track, pred) in enumerate(zip(tracks, predicted, strict=True)):
-            h = hyps.get(track)
-            if h is None:  # not looked at: the prediction
-                track.append(pred)
+        for i, (track, mass) in enumerate(zip(tracks, masses, strict=True)):
+            if id(track) not in base:  # not looked at: the prediction
+                track.append(predictor.predict(track, timestamp=t))
                 continue
-            d = p_det[i] * gate
+            h = hyps.get(track)
+            lik = base[id(track)]  # L: the looks' likelihood ratio, target present vs absent
             if h:  # assigned a detection
+                c = cell_of[id(h.measurement)]
                 taken.add(id(h.measurement))
-                g_over_kappa = float(h.probability) / (r[i] * p_det[i])  # r P_D g / kappa
-                d -= p_det[i] * g_over_kappa
+                lik += mass[c] * pos_excess[c]
                 track.append(updater.update(h))
             else:
-                track.append(h.prediction)
-            r[i] = r[i] * (1 - d) / (1 - r[i] * d)
+                track.append(predictor.predict(track, timestamp=t))
+            r[i] = r[i] * lik / (1 - r[i] + r[i] * lik)
 
         # new tracks from the detections no track took
-        spare = max(0.0, expected - sum(r) - mu.sum()) / n if b == 0 else 0.0
         for det in detections:
             if id(det) in taken:
                 continue
-            x, y = np.asarray(det.state_vector, float).ravel()
-            cell = int(min(y // s, ny - 1) * nx + min(x // s, nx - 1))
-            u = 1 - np.exp(-(mu[cell] + spare))
-            q1, q0 = 1 - (1 - p_d) ** looks[cell], 1 - (1 - p_f) ** looks[cell]
+            c = cell_of[id(det)]
             (track,) = initiator.initiate({det}, t)
             tracks.append(track)
-            r.append(u * q1 / (u * q1 + (1 - u) * q0))
+            r.append(u[c] * q1[c] / (u[c] * q1[c] + (1 - u[c]) * q0[c]))
             labels.append(next_label)
             next_label += 1
         mu *= (1 - P) ** looks
