@@ -131,7 +131,7 @@ def test_bad_value_refused_naming_owner_parameter_value_and_allowed_set(text):
 
 @pytest.mark.parametrize(("text", "shown"), [
     ("jmpd:initial_count=6,t_max=5", "initial_count=6 with t_max=5"),
-    ("jmpd-ip:initial_count=6", "initial_count=6 with t_max=5"),  # against the default t_max
+    ("jmpd-ip:initial_count=8,t_max=7", "initial_count=8 with t_max=7"),
 ])
 def test_inconsistent_combinations_refused(text, shown):
     with pytest.raises(ConfigError) as err:

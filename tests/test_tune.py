@@ -158,7 +158,7 @@ def test_a_tracker_without_search_space_is_refused_in_one_line(tmp_path):
     assert "\n" not in str(info.value)
     assert cli.main(["tune", "null", "--out", str(tmp_path / "o2")]) == 2
     # a scenario the tracker cannot run is refused before the folder is touched
-    assert cli.main(["tune", "jmpd-ip", "--scenarios", "large", "--out",
+    assert cli.main(["tune", "jmpd-ip:t_max=5", "--scenarios", "large", "--out",
                      str(tmp_path / "o3")]) == 2
     assert not (tmp_path / "o2").exists() and not (tmp_path / "o3").exists()
 
