@@ -7,6 +7,7 @@ get ``tests/`` on ``PYTHONPATH``.
 from __future__ import annotations
 
 import os
+import signal
 import time
 from pathlib import Path
 from typing import ClassVar
@@ -141,3 +142,11 @@ class Guess(_Nothing):
         x = (10.0 * self.level + (1.0 if self.shift == "far" else 0.0)) * self._cell
         states = np.tile([x, 0.0, x, 0.0], (self.count, 1)).astype(float)
         return Estimate(float(self.count), states)
+
+
+def shell_like_signals() -> None:
+    """``preexec_fn`` of a command a test interrupts: Ctrl-C as a shell's child gets it
+    (default disposition, not blocked), whatever the test process has inherited from the
+    tests that ran before it in the same worker."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})

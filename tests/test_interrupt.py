@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 import pandas as pd
-from crashing_tracker import SLOW_GATE_ENV
+from crashing_tracker import SLOW_GATE_ENV, shell_like_signals
 
 from mttbench.benchmarks.app.cli import EXIT_INTERRUPTED, main
 
@@ -52,6 +52,7 @@ def test_ctrl_c_then_the_printed_command_finishes_the_same_report(monkeypatch, t
     gate = tmp_path / "gate"  # the slow runs wait for it: the sweep cannot finish first
     proc = subprocess.Popen([sys.executable, "-m", "mttbench", *ARGS], cwd=tmp_path,
                             env={**_env(), SLOW_GATE_ENV: str(gate)},
+                            preexec_fn=shell_like_signals,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + START_TIMEOUT_S
     parts: list[Path] = []

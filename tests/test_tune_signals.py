@@ -22,6 +22,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from crashing_tracker import shell_like_signals
 
 from mttbench.benchmarks.app.cli import EXIT_INTERRUPTED
 
@@ -100,7 +101,7 @@ def _drive(cases: list[dict], tmp: Path) -> tuple[subprocess.CompletedProcess, d
     path = os.pathsep.join(p for p in (str(TESTS), os.environ.get("PYTHONPATH", "")) if p)
     proc = subprocess.run([sys.executable, "-c", DRIVER, json.dumps(cases)], cwd=tmp,
                           env={**os.environ, "PYTHONPATH": path}, capture_output=True,
-                          text=True, timeout=TIMEOUT_S)
+                          text=True, timeout=TIMEOUT_S, preexec_fn=shell_like_signals)
     report = json.loads(proc.stdout) if proc.returncode == 0 else {}
     return proc, report
 
