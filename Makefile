@@ -14,9 +14,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev,stonesoup,dask]'
 	# compile the numba kernels into their on-disk cache once here (about 80 s), so that no
 	# sweep's workers compile them side by side inside their first timed runs
-	$(BIN)/python -c "from mttbench.trackers.jmpd import ap_kernels, kernels; \
-	  from mttbench.trackers import grid_kernels; from mttbench.trackers.gpf import update_kernels; \
-	  ap_kernels.warm_up(); kernels.warm_up(); grid_kernels.warm_up(); update_kernels.warm_up()"
+	$(BIN)/python -m mttbench.trackers.compiled
 	touch $(STAMP)
 
 test: $(STAMP)

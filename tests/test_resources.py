@@ -775,6 +775,7 @@ def test_every_sweep_of_the_app_has_a_run_timeout(monkeypatch, tmp_path):
 
     seen = {}
     monkeypatch.setattr(sweep, "run_sweep", lambda jobs, out, **kw: seen.update(kw))
+    monkeypatch.setattr(resources, "cold_modules", lambda: [])  # a warmed install
     jobs = [Job(scenarios.get("large"), TrackerSpec("gpf")),
             Job(scenarios.get("default"), TrackerSpec("null"))]
     progress.run_sweep(jobs, tmp_path, progress=False)
@@ -795,7 +796,13 @@ def test_default_run_timeout_is_ten_times_the_slowest_estimate_with_a_floor(monk
         return type("Estimate", (), {"seconds": seconds[job]})()
 
     monkeypatch.setattr(resources, "estimate_job", fake_estimate)
+    monkeypatch.setattr(resources, "cold_modules", lambda: [])
     assert resources.default_run_timeout(["fast", "slow"]) == 300.0
     assert resources.default_run_timeout(["fast"]) == 60.0
     assert resources.default_run_timeout(["broken", "slow"]) == 300.0
     assert resources.default_run_timeout([]) == 60.0
+    # a cold kernel cache: a worker's first run compiles, so the floor is 600 s
+    monkeypatch.setattr(resources, "cold_modules", lambda: ["mttbench.trackers.grid_kernels"])
+    assert resources.default_run_timeout(["fast", "slow"]) == 600.0
+    seconds["slow"] = 90.0
+    assert resources.default_run_timeout(["slow"]) == 900.0

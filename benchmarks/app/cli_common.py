@@ -285,7 +285,9 @@ def add_run_timeout(p: argparse.ArgumentParser, then: str = "gets an error row")
     """``--run-timeout``: the wall-time limit of one run (every command that runs)."""
     p.add_argument("--run-timeout", type=float, default=None, metavar="SECONDS",
                    help=f"wall-time limit of one run: a run still going is ended and {then} "
-                        "(default: 10x the slowest run's estimate, at least 60 s)")
+                        "(default: 10x the slowest run's estimate, at least 60 s; at least 600 "
+                        "s while the compiled kernels' disk cache is cold, as after a "
+                        "plain pip install: a worker's first run compiles them)")
 
 
 def add_metric_options(p: argparse.ArgumentParser) -> None:

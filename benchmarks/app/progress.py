@@ -20,8 +20,8 @@ def run_sweep(jobs: Sequence[Job], out_dir: str | Path, *, progress: bool = True
     """:func:`~mttbench.benchmarks.engine.sweep.run_sweep` with a tqdm bar on stderr
     (``progress=False``: none); ``options`` go to it unchanged, except that a missing or
     None ``run_timeout`` becomes :func:`~.resources.default_run_timeout` of the jobs (10x
-    the slowest run's estimate, at least 60 s): run, compare, tune and reproduce all end a
-    hung run with an error row."""
+    the slowest run's estimate, at least 60 s, or 600 s while the compiled kernels' disk
+    cache is cold): run, compare, tune and reproduce all end a hung run with an error row."""
     if options.get("run_timeout") is None:
         options["run_timeout"] = default_run_timeout(jobs)
     if not progress:

@@ -84,6 +84,7 @@ from typing import Any
 
 from ...scenarios.model import RayleighGridSensor
 from ...trackers.base import Tracker
+from ...trackers.compiled import cold_modules
 from ..engine.policies import Policy
 from .usage import UsageError
 
@@ -353,13 +354,21 @@ def check_jobs(jobs: list[Any], workers: int, available: float | None = None) ->
 #: sweep's slowest estimated run (:func:`default_run_timeout`)
 RUN_TIMEOUT_FLOOR_S = 60.0
 RUN_TIMEOUT_FACTOR = 10.0
+#: the least default limit while the compiled kernels' disk cache is cold: a worker's
+#: first run then compiles the kernels it uses (all of them: about 80 s of CPU on a quiet
+#: 2-core machine, several times that on a loaded one, both workers at once)
+RUN_TIMEOUT_COLD_FLOOR_S = 600.0
 
 
 def default_run_timeout(jobs: Sequence[Any]) -> float:
     """The default wall-time limit of one run (``--run-timeout``; tune and reproduce
-    always): 10x the slowest run's time estimate (:func:`estimate_job`), at least 60 s."""
+    always): 10x the slowest run's time estimate (:func:`estimate_job`), at least 60 s,
+    or at least 600 s while a compiled kernel module has nothing in numba's disk cache
+    (:func:`mttbench.trackers.compiled.cold_modules`: a fresh install not warmed by
+    ``make``). A limit given on the command line is used as given."""
     slowest = 0.0
     for job in jobs:
         with contextlib.suppress(Exception):  # no estimate: the floor
             slowest = max(slowest, float(estimate_job(job).seconds))
-    return max(RUN_TIMEOUT_FLOOR_S, RUN_TIMEOUT_FACTOR * slowest)
+    floor = RUN_TIMEOUT_COLD_FLOOR_S if cold_modules() else RUN_TIMEOUT_FLOOR_S
+    return max(floor, RUN_TIMEOUT_FACTOR * slowest)

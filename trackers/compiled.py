@@ -1,0 +1,67 @@
+"""The tracker layer's numba-compiled kernel modules, and whether their disk cache is warm.
+
+Each module below compiles its kernels (numba, cached on disk) the first time they run in
+a process and keeps them in numba's disk cache (an index ``<module>.<function>-<line>.
+pyXY.nbi`` per kernel in ``__pycache__`` next to the module, or under
+``NUMBA_CACHE_DIR``); a later process loads them in milliseconds. With a cold cache the
+first runs of a sweep compile them, each worker process its own (about 80 s of CPU for
+all of them on a 2-core x86-64 machine). ``make``'s install step pays that once
+(``python -m mttbench.trackers.compiled``); the sweep's default wall-time limit of a run
+allows for it while the cache is cold (``mttbench.benchmarks.app.resources``).
+
+:func:`cold_modules` looks for the index files only: it imports neither numba nor the
+modules, so asking costs a few file-system lookups.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import os
+from pathlib import Path
+
+#: the modules with disk-cached kernels, each with a ``warm_up()`` that compiles (or
+#: loads) every kernel for the argument types its callers pass
+MODULES = (
+    "mttbench.trackers.grid_kernels",
+    "mttbench.trackers.gpf.update_kernels",
+    "mttbench.trackers.jmpd.ap_kernels",
+    "mttbench.trackers.jmpd.kernels",
+)
+#: disk-cached kernels that only the modules above call (compiled through their warm-up)
+HELPERS = ("mttbench.trackers.numba_exact",)
+
+
+def _has_index(origin: Path, cache_dir: str | None) -> bool:
+    """Whether numba's disk cache holds an index for a kernel of the module at ``origin``."""
+    pattern = f"{origin.stem}.*.nbi"
+    if any((origin.parent / "__pycache__").glob(pattern)):
+        return True
+    # a cache directory of the user's: numba keeps a sub-folder per source folder there
+    return bool(cache_dir) and any(Path(cache_dir).rglob(pattern))
+
+
+def cold_modules(modules: tuple[str, ...] = MODULES + HELPERS) -> list[str]:
+    """The modules of ``modules`` with no kernel in numba's disk cache yet (their first use
+    in a process compiles them). None with ``MTTBENCH_NO_NUMBA=1`` (nothing compiles)."""
+    if os.environ.get("MTTBENCH_NO_NUMBA"):
+        return []
+    cache_dir = os.environ.get("NUMBA_CACHE_DIR")
+    cold = []
+    for name in modules:
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.origin is None:
+            raise ModuleNotFoundError(f"no module named {name!r}")
+        if not _has_index(Path(spec.origin), cache_dir):
+            cold.append(name)
+    return cold
+
+
+def warm_up(modules: tuple[str, ...] = MODULES) -> None:
+    """Compile (or load from the disk cache) every kernel of ``modules``."""
+    for name in modules:
+        importlib.import_module(name).warm_up()
+
+
+if __name__ == "__main__":  # make's install step
+    warm_up()
