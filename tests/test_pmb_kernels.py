@@ -326,6 +326,30 @@ def test_tracker_update_equals_the_numpy_form(uk):
         assert _equal(*states)
 
 
+def test_estimate_equals_the_numpy_form(uk):
+    """The ``round_sum`` selection: ties in existence and in row weights (index order),
+    every track's heaviest row."""
+    rng = np.random.default_rng(8)
+    model = _model(rng)
+    for _ in range(200):
+        T = int(rng.integers(0, 8))
+        own = np.sort(np.concatenate([np.arange(T), rng.integers(0, max(T, 1), 6)]))[
+            : T + (6 if T else 0)]
+        r = np.round(rng.random(T), 1)
+        a = np.round(rng.random(len(own)), 1)
+        m, P = _states(rng, len(own), 5.0)
+        got = []
+        for backend in ("numpy", "compiled"):
+            with use_backend(backend):
+                tr = PMBTracker()
+                tr.reset(model, np.random.default_rng(0))
+                tr._r, tr._own, tr._a, tr._m, tr._P = r, own, a, m, P
+                tr._tid = 10 + np.arange(T)
+                est = tr.estimate()
+                got.append([np.array([est.count]), est.states, est.covariances, est.labels])
+        assert _equal(*got)
+
+
 def _digests(scenario: str, spec: str, steps: int, all_cells: bool) -> list[str]:
     out = []
     tracker = TrackerSpec.parse(spec).make()

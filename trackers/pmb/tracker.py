@@ -343,12 +343,11 @@ class PMBTracker(Tracker):
         head = ints[:kernels.HEADER].tolist()
         T2, R2, n_out, J, E, n_f, iterations, converged, n_pairs, next_tid, weak = head[:11]
         T = len(self._r)
-        i_parts = np.split(ints, np.cumsum([kernels.HEADER, R2, T2, n_f, n_out, n_out, J]))
-        own, tid, cells, out_own, hyp, meas_cells, cluster = i_parts[1:]
-        f_parts = np.split(floats, np.cumsum([T2, R2, 4 * R2, 16 * R2, n_f, T, n_out,
-                                              4 * n_out, 16 * n_out, J, T, E]))
+        own, tid, cells, out_own, hyp, meas_cells, cluster = _cut(
+            ints, kernels.HEADER, (R2, T2, n_f, n_out, n_out, J, E))
         (r, a, m, P, values, r_post, alpha_post, means, covs, r_new, p_missed, p_edge,
-         p_unused) = f_parts
+         p_unused) = _cut(floats, 0, (T2, R2, 4 * R2, 16 * R2, n_f, T, n_out, 4 * n_out,
+                                      16 * n_out, J, T, E, J))
         self._r, self._own, self._a, self._tid = r, own, a, tid
         self._m, self._P = m.reshape(R2, 4), P.reshape(R2, 4, 4)
         self._next_tid = next_tid
@@ -405,15 +404,24 @@ class PMBTracker(Tracker):
     def estimate(self) -> Estimate:
         """The tracks with ``r > extraction_threshold`` (or the ``round(sum r)`` most
         likely), each by its heaviest Gaussian row; the count ``sum r``."""
+        count = float(self._r.sum())
         if self.extraction == "round_sum":
-            n = min(int(round(float(self._r.sum()))), len(self._r))
+            n = min(int(round(count)), len(self._r))
+            kernels = compiled_pmb_kernels()
+            if kernels is not None:  # the same selection, one compiled pass
+                c = np.ascontiguousarray
+                rows, labels = kernels.estimate_rows(
+                    c(self._r, float), c(self._own, np.int64), c(self._a, float),
+                    c(self._m, float), c(self._P, float), c(self._tid, np.int64), n)
+                return Estimate(count, rows[:4 * n].reshape(n, 4),
+                                rows[4 * n:].reshape(n, 4, 4), labels)
             sel = np.sort(np.argsort(-self._r, kind="stable")[:n])
         else:
             sel = np.nonzero(self._r > self.extraction_threshold)[0]
         order = np.lexsort((-self._a, self._own))  # each track's rows, heaviest first
         first = np.searchsorted(self._own[order], sel)
         rows = order[first]
-        return Estimate(float(self._r.sum()), self._m[rows].copy(), self._P[rows].copy(),
+        return Estimate(count, self._m[rows].copy(), self._P[rows].copy(),
                         self._tid[sel].copy())
 
     @classmethod
@@ -434,6 +442,15 @@ class PMBTracker(Tracker):
             target_seconds=TARGET_S, update_seconds=pairs * PAIR_S,
             looked_cell_seconds=LOOKED_CELL_S, prediction_entries=present * BOX_CELLS,
             prediction_counts=max(2.0, param_number(params, "n_counts", 4)))
+
+
+def _cut(packed: np.ndarray, start: int, sizes: tuple[int, ...]) -> list[np.ndarray]:
+    """Consecutive views of ``packed`` from ``start``, of the given sizes."""
+    out = []
+    for n in sizes:
+        out.append(packed[start:start + n])
+        start += n
+    return out
 
 
 def reduce_rows(own: np.ndarray, a: np.ndarray, m: np.ndarray, P: np.ndarray,

@@ -716,4 +716,36 @@ def warm_up() -> None:
     gl = (np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2))
     step_update(0.5 * f, i, f, m, P, i, 1, zero22, zero22, i, b, 0.5, -0.1, -0.1, 700.0,
                 0.01, i, f, 1.0, 1, 1, 6.0, 1e-12, 500, 4, 0.02, 0.01, 200, np.eye(4), *gl)
+    estimate_rows(f, i, f, m, P, i, 1)
     warm_up.done = True
+
+
+# ------------------------------------------------------------------------- estimate
+@njit(cache=True, error_model="numpy")
+def estimate_rows(r, own, a, m, P, tid, n):
+    """:meth:`.tracker.PMBTracker.estimate`'s selection for ``round_sum``: the ``n``
+    tracks of largest existence (``np.argsort(-r, kind="stable")``: ties by index; no
+    NaN, whose sum the caller cannot round), ascending, each by its heaviest row
+    (``np.lexsort((-a, own))``'s first of the track). Returns the rows' means ``(n, 4)``
+    then covariances ``(n, 4, 4)``, flattened in one array, and the tracks' labels."""
+    sel = np.argsort(-r, kind="mergesort")[:n]
+    sel.sort()
+    rows = _by_track_heaviest_first(own, a)
+    out = np.empty(20 * n)
+    labels = np.empty(n, np.int64)
+    for k in range(n):
+        t = sel[k]
+        lo, hi = 0, len(rows)  # np.searchsorted(own[rows], t)
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if own[rows[mid]] < t:
+                lo = mid + 1
+            else:
+                hi = mid
+        if lo == len(rows):
+            raise IndexError("a track without a Gaussian row")
+        q = rows[lo]
+        out[4 * k:4 * k + 4] = m[q]
+        out[4 * n + 16 * k:4 * n + 16 * k + 16] = P[q].ravel()
+        labels[k] = tid[t]
+    return out, labels
