@@ -12,11 +12,13 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev,stonesoup,dask]'
-	# compile the numba kernels into their on-disk cache once here (about 80 s), so that no
+	# compile the numba kernels into their on-disk cache once here (about 130 s), so that no
 	# sweep's workers compile them side by side inside their first timed runs
 	$(BIN)/python -c "from mttbench.trackers.jmpd import ap_kernels, kernels; \
 	  from mttbench.trackers import grid_kernels; from mttbench.trackers.gpf import update_kernels; \
-	  ap_kernels.warm_up(); kernels.warm_up(); grid_kernels.warm_up(); update_kernels.warm_up()"
+	  from mttbench.trackers.pmb import update_kernels as pmb_kernels; \
+	  ap_kernels.warm_up(); kernels.warm_up(); grid_kernels.warm_up(); update_kernels.warm_up(); \
+	  pmb_kernels.warm_up()"
 	touch $(STAMP)
 
 test: $(STAMP)
