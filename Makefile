@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev,stonesoup,dask]'
-	# compile the numba kernels into their on-disk cache once here (about 80 s), so that no
+	# compile the numba kernels into their on-disk cache once here (about 130 s), so that no
 	# sweep's workers compile them side by side inside their first timed runs
 	$(BIN)/python -m mttbench.trackers.compiled
 	touch $(STAMP)

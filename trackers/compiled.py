@@ -4,7 +4,7 @@ Each module below compiles its kernels (numba, cached on disk) the first time th
 a process and keeps them in numba's disk cache (an index ``<module>.<function>-<line>.
 pyXY.nbi`` per kernel in ``__pycache__`` next to the module, or under
 ``NUMBA_CACHE_DIR``); a later process loads them in milliseconds. With a cold cache the
-first runs of a sweep compile them, each worker process its own (about 80 s of CPU for
+first runs of a sweep compile them, each worker process its own (about 130 s of CPU for
 all of them on a 2-core x86-64 machine). ``make``'s install step pays that once
 (``python -m mttbench.trackers.compiled``); the sweep's default wall-time limit of a run
 allows for it while the cache is cold (``mttbench.benchmarks.app.resources``).
@@ -27,6 +27,7 @@ MODULES = (
     "mttbench.trackers.gpf.update_kernels",
     "mttbench.trackers.jmpd.ap_kernels",
     "mttbench.trackers.jmpd.kernels",
+    "mttbench.trackers.pmb.update_kernels",
 )
 #: disk-cached kernels that only the modules above call (compiled through their warm-up)
 HELPERS = ("mttbench.trackers.numba_exact",)

@@ -355,7 +355,7 @@ def check_jobs(jobs: list[Any], workers: int, available: float | None = None) ->
 RUN_TIMEOUT_FLOOR_S = 60.0
 RUN_TIMEOUT_FACTOR = 10.0
 #: the least default limit while the compiled kernels' disk cache is cold: a worker's
-#: first run then compiles the kernels it uses (all of them: about 80 s of CPU on a quiet
+#: first run then compiles the kernels it uses (all of them: about 130 s of CPU on a quiet
 #: 2-core machine, several times that on a loaded one, both workers at once)
 RUN_TIMEOUT_COLD_FLOOR_S = 600.0
 

@@ -91,12 +91,14 @@ from ..cells import (
     gaussian_cell_mass_sparse,
     untracked_probabilities,
 )
-from ..gpf.grid import fold_into_workspace
+from ..gpf.grid import _gl_table, fold_into_workspace, position_regression
 from ..gpf.tracker import collapse, merge_groups, truncate_to_workspace
 from ..grid_backend import compiled_grid_kernels
 from ..params import Budget, Param, Search
+from .backend import WAIT_S, compiled_pmb_kernels
+from .lbp import LBP_MAX_ITER, LBP_TOL, Marginals
 from .ppp import add_intensity, predict_intensity, recycle
-from .update import cell_ratios, pmb_update
+from .update import MAX_LOG, RANGE_SIGMAS, PMBUpdate, cell_ratios, one_look_ratios, pmb_update
 
 #: per-step death floor on models with arrivals (``death_probability=None``)
 DEFAULT_DEATH_FLOOR = 0.003
@@ -181,6 +183,7 @@ class PMBTracker(Tracker):
     def reset(self, model: TrackingModel, rng: np.random.Generator) -> None:
         self.validate_params(self.get_params())
         compiled_grid_kernels()  # compile or load the grid kernels now, not in a timed step
+        compiled_pmb_kernels(wait=WAIT_S)  # and the update's (or numpy until they are in)
         self._model = model
         self._grid = model.grid
         self._F, self._Q = model.dynamics.F, model.dynamics.Q
@@ -283,6 +286,20 @@ class PMBTracker(Tracker):
     def update(self, looks: Looks) -> None:
         if not len(looks):
             return
+        kernels = compiled_pmb_kernels()
+        if kernels is None:
+            self._update_numpy(looks)
+            weak = True
+        else:
+            weak = self._update_compiled(kernels, looks)
+        if self.merge_threshold > 0.0 and len(self._r) > 1:
+            self._merge()
+            weak = True
+        if weak:
+            self._recycle()
+
+    def _update_numpy(self, looks: Looks) -> None:
+        """The update up to the merge and recycling (numpy form, the reference)."""
         ratios = cell_ratios(self._model.sensor, looks.cells, looks.returns)
         lam_meas = self._ppp.at(ratios.cells[ratios.positive])
         res = pmb_update(self._r, self._m, self._P, ratios, lam_meas, self._grid,
@@ -306,9 +323,41 @@ class PMBTracker(Tracker):
         self._tid = np.concatenate([self._tid, self._next_tid + np.arange(n_new,
                                                                           dtype=np.int64)])
         self._next_tid += n_new
-        if self.merge_threshold > 0.0 and len(self._r) > 1:
-            self._merge()
-        self._recycle()
+
+    def _update_compiled(self, kernels, looks: Looks) -> bool:
+        """:meth:`_update_numpy` in one compiled pass (:func:`.update_kernels.step_update`,
+        the same numbers bit for bit); the position regression's matmuls stay numpy.
+        Returns whether some track is to be recycled."""
+        c = np.ascontiguousarray
+        B, resid = position_regression(self._P)
+        ll_pos, ll_neg, ll_miss = one_look_ratios(self._model.sensor)
+        ppp, grid = self._ppp, self._grid
+        ints, floats = kernels.step_update(
+            c(self._r, float), c(self._own, np.int64), c(self._a, float), c(self._m, float),
+            c(self._P, float), c(self._tid, np.int64), int(self._next_tid), B, resid,
+            c(looks.cells, np.int64), c(looks.returns, bool), ll_pos, ll_neg, ll_miss,
+            MAX_LOG, float(ppp.default), c(ppp.cells, np.int64), c(ppp.values, float),
+            float(grid.cell_size), int(grid.nx), int(grid.ny), RANGE_SIGMAS, LBP_TOL,
+            LBP_MAX_ITER, int(self.max_components), COMPONENT_FLOOR,
+            float(self.recycle_threshold), int(self.max_tracks), self._P_new, *_gl_table())
+        head = ints[:kernels.HEADER].tolist()
+        T2, R2, n_out, J, E, n_f, iterations, converged, n_pairs, next_tid, weak = head[:11]
+        T = len(self._r)
+        own, tid, cells, out_own, hyp, meas_cells, cluster = _cut(
+            ints, kernels.HEADER, (R2, T2, n_f, n_out, n_out, J, E))
+        (r, a, m, P, values, r_post, alpha_post, means, covs, r_new, p_missed, p_edge,
+         p_unused) = _cut(floats, 0, (T2, R2, 4 * R2, 16 * R2, n_f, T, n_out, 4 * n_out,
+                                      16 * n_out, J, T, E, J))
+        self._r, self._own, self._a, self._tid = r, own, a, tid
+        self._m, self._P = m.reshape(R2, 4), P.reshape(R2, 4, 4)
+        self._next_tid = next_tid
+        ppp.cells, ppp.values = cells, values
+        self._last_update = PMBUpdate(
+            r_post, out_own, alpha_post, means.reshape(n_out, 4), covs.reshape(n_out, 4, 4),
+            hyp, meas_cells, r_new,
+            Marginals(p_missed, p_edge, p_unused, iterations, bool(converged), cluster),
+            n_pairs)
+        return bool(weak)
 
     def _merge(self) -> None:
         """Tracks whose moment-matched Gaussians are closer than ``merge_threshold``
@@ -355,15 +404,24 @@ class PMBTracker(Tracker):
     def estimate(self) -> Estimate:
         """The tracks with ``r > extraction_threshold`` (or the ``round(sum r)`` most
         likely), each by its heaviest Gaussian row; the count ``sum r``."""
+        count = float(self._r.sum())
         if self.extraction == "round_sum":
-            n = min(int(round(float(self._r.sum()))), len(self._r))
+            n = min(int(round(count)), len(self._r))
+            kernels = compiled_pmb_kernels()
+            if kernels is not None:  # the same selection, one compiled pass
+                c = np.ascontiguousarray
+                rows, labels = kernels.estimate_rows(
+                    c(self._r, float), c(self._own, np.int64), c(self._a, float),
+                    c(self._m, float), c(self._P, float), c(self._tid, np.int64), n)
+                return Estimate(count, rows[:4 * n].reshape(n, 4),
+                                rows[4 * n:].reshape(n, 4, 4), labels)
             sel = np.sort(np.argsort(-self._r, kind="stable")[:n])
         else:
             sel = np.nonzero(self._r > self.extraction_threshold)[0]
         order = np.lexsort((-self._a, self._own))  # each track's rows, heaviest first
         first = np.searchsorted(self._own[order], sel)
         rows = order[first]
-        return Estimate(float(self._r.sum()), self._m[rows].copy(), self._P[rows].copy(),
+        return Estimate(count, self._m[rows].copy(), self._P[rows].copy(),
                         self._tid[sel].copy())
 
     @classmethod
@@ -384,6 +442,15 @@ class PMBTracker(Tracker):
             target_seconds=TARGET_S, update_seconds=pairs * PAIR_S,
             looked_cell_seconds=LOOKED_CELL_S, prediction_entries=present * BOX_CELLS,
             prediction_counts=max(2.0, param_number(params, "n_counts", 4)))
+
+
+def _cut(packed: np.ndarray, start: int, sizes: tuple[int, ...]) -> list[np.ndarray]:
+    """Consecutive views of ``packed`` from ``start``, of the given sizes."""
+    out = []
+    for n in sizes:
+        out.append(packed[start:start + n])
+        start += n
+    return out
 
 
 def reduce_rows(own: np.ndarray, a: np.ndarray, m: np.ndarray, P: np.ndarray,

@@ -63,6 +63,7 @@ mild pull apart, like the point-measurement PMB); docs/pmb.md gives the measured
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -77,7 +78,7 @@ from .lbp import Marginals, association_marginals
 #: (mass below 2e-9 per axis)
 RANGE_SIGMAS = 6.0
 #: log-ratios are clipped here (many positive repeats at one cell stay finite)
-_MAX_LOG = 700.0
+MAX_LOG = 700.0
 
 
 @dataclass(frozen=True)
@@ -92,6 +93,18 @@ class CellRatios:
     positive: np.ndarray
 
 
+@functools.lru_cache(maxsize=64)
+def one_look_ratios(sensor: RayleighGridSensor) -> tuple[float, float, float]:
+    """``log l(1)`` of one look with a return and without, as :func:`.cells.
+    look_log_ratios` computes them (column 1 of its per-look array), and the miss factor's
+    ``log l(0)`` as :func:`cell_ratios` computes it: the compiled update's inputs (the
+    sensor is immutable)."""
+    pos, neg = sensor.log_likelihood_ratio(np.array([True, False])[:, None],
+                                           np.arange(2)[None, :])[:, 1]
+    miss = sensor.log_likelihood_ratio(np.array(False), np.array(1))
+    return float(pos), float(neg), float(miss)
+
+
 def cell_ratios(sensor: RayleighGridSensor, cells: np.ndarray, returns: np.ndarray
                 ) -> CellRatios:
     """:class:`CellRatios` of the looks ``cells (L,)``, ``returns (L,)`` (repeats multiply)."""
@@ -102,8 +115,8 @@ def cell_ratios(sensor: RayleighGridSensor, cells: np.ndarray, returns: np.ndarr
     n = np.bincount(inv, minlength=len(U)).astype(float)
     k = np.bincount(inv, weights=returns.astype(float), minlength=len(U))
     ll_miss = float(sensor.log_likelihood_ratio(np.array(False), np.array(1)))
-    L = np.exp(np.minimum(LL[:, 1], _MAX_LOG))
-    M = np.exp(np.minimum(n * ll_miss, _MAX_LOG))
+    L = np.exp(np.minimum(LL[:, 1], MAX_LOG))
+    M = np.exp(np.minimum(n * ll_miss, MAX_LOG))
     positive = k > 0
     S = np.where(positive, np.maximum(L - M, 0.0), 0.0)
     return CellRatios(U, L, np.where(positive, M, L), S, positive)
