@@ -1,7 +1,9 @@
 """Stone Soup's trackers as peers, registered as ``ss-gnn``, ``ss-gmphd`` and ``ss-jpda``.
 
 Modules: :mod:`.peers` (the adapter shared by the peers, :class:`StoneSoupGNN` and
-:class:`StoneSoupGMPHD`) and :mod:`.jpda` (:class:`StoneSoupJPDA`). Stone Soup is an
+:class:`StoneSoupGMPHD`), :mod:`.gnn_cells` (what ``ss-gnn`` reads from the cell geometry:
+the gate's distance to a detection's cell, labels that follow a target) and :mod:`.jpda`
+(:class:`StoneSoupJPDA`). Stone Soup is an
 optional extra (``pip install 'mttbench[stonesoup]'``): this package imports without it,
 and the peers import Stone Soup on their first reset.
 """

@@ -54,8 +54,13 @@ Determinism
     different hash seeds and requires identical outputs.
 
 ``ss-gnn``
-    ``GNNWith2DAssignment`` over a ``DistanceHypothesiser`` (``Mahalanobis`` distance,
-    ``missed_distance = gate``), ``KalmanPredictor``/``KalmanUpdater``, a
+    ``GNNWith2DAssignment`` over a ``DistanceHypothesiser`` (``missed_distance = gate``)
+    whose measure is the Mahalanobis distance from the predicted position to the nearest
+    point of the detection's cell under the predicted position covariance ``S - R``
+    (``gate_to="cell"``, :func:`~mttbench.trackers.stonesoup.gnn_cells.cell_mahalanobis`:
+    a positive look puts the target anywhere in the cell, so a target crossing into the
+    next cell stays in its track's gate; ``"centre"``: Stone Soup's ``Mahalanobis`` to the
+    cell centre under ``S``), ``KalmanPredictor``/``KalmanUpdater``, a
     ``MultiMeasurementInitiator`` (``min_points`` updates confirm a holding track; its
     ``SimpleMeasurementInitiator`` puts the position at the detection with covariance
     ``R`` and the velocity at 0 with sd ``velocity_scale`` times the model's birth
@@ -96,7 +101,12 @@ Determinism
     Estimate: the ``round(sum r)`` tracks of largest ``r``, confirmed or holding (count
     ``sum r``), as KF-NN and pmb (Stone Soup's own output, the confirmed tracks, reports
     nothing where a detection is worth too little to confirm within the run;
-    docs/stonesoup.md).
+    docs/stonesoup.md). Labels follow the target (``labels="target"``,
+    :class:`~mttbench.trackers.stonesoup.gnn_cells.LabelKeeper`): a track no longer
+    reported releases its label, and a track reported for the first time takes the
+    released label whose predicted position lies nearest within the gate (position
+    Mahalanobis distance under the summed covariances), for ``max_steps_without_update``
+    steps; ``"track"``: one label per Stone Soup track.
     ``P_c(t)``: each track is a target in its predicted position Gaussian, present with
     probability ``r``, plus KF-NN's undetected Poisson intensity per cell for targets
     not yet tracked (a :class:`~mttbench.trackers.cells.CellField`), to which a deleted
@@ -198,6 +208,7 @@ from ..cells import (
 )
 from ..params import Budget, Param, Search
 from ..pmb.ppp import recycle
+from .gnn_cells import LabelKeeper, cell_mahalanobis
 
 #: the one-line reason when Stone Soup is missing (run rows, ``mttbench trackers``)
 EXTRA_HINT = "needs the stonesoup extra: pip install 'mttbench[stonesoup]'"
@@ -245,6 +256,7 @@ def missing_extra() -> str | None:
 
 def _import_stonesoup() -> SimpleNamespace:
     """Stone Soup's classes used here, and :class:`OrderedGNN` (built on them)."""
+    from stonesoup.base import Property
     from stonesoup.dataassociator.neighbour import GNNWith2DAssignment
     from stonesoup.deleter.base import Deleter
     from stonesoup.deleter.multi import CompositeDeleter
@@ -252,7 +264,7 @@ def _import_stonesoup() -> SimpleNamespace:
     from stonesoup.hypothesiser.distance import DistanceHypothesiser
     from stonesoup.hypothesiser.gaussianmixture import GaussianMixtureHypothesiser
     from stonesoup.initiator.simple import MultiMeasurementInitiator
-    from stonesoup.measures import Mahalanobis
+    from stonesoup.measures import Mahalanobis, Measure
     from stonesoup.mixturereducer.gaussianmixture import GaussianMixtureReducer
     from stonesoup.models.measurement.linear import LinearGaussian
     from stonesoup.models.transition.linear import LinearGaussianTimeInvariantTransitionModel
@@ -272,6 +284,22 @@ def _import_stonesoup() -> SimpleNamespace:
             return super().associate(sorted(tracks, key=track_key),
                                      sorted(detections, key=detection_key), timestamp,
                                      **kwargs)
+
+    class CellMahalanobis(Measure):
+        """The Mahalanobis distance from a track's predicted position to the nearest point
+        of the detection's cell, under the predicted position covariance ``S - R``
+        (:func:`~mttbench.trackers.stonesoup.gnn_cells.cell_mahalanobis`): the detection
+        stands for the whole cell, whose quantisation ``R`` is then not added again."""
+
+        cell_size: float = Property(doc="the grid's cell side")
+        noise_var: float = Property(doc="R's diagonal, cell_size^2 / 12")
+
+        def __call__(self, state1, state2):
+            mu = np.asarray(state1.state_vector, dtype=float).reshape(2)
+            P = np.asarray(state1.covar, dtype=float) - self.noise_var * np.eye(2)
+            z = np.asarray(state2.state_vector, dtype=float).reshape(2)
+            half = 0.5 * self.cell_size
+            return cell_mahalanobis(mu, P, z - half, z + half)
 
     class ScoreDeleter(Deleter):
         """A track-score deleter on Stone Soup's interface (Blackman and Popoli 1999, ch.
@@ -328,7 +356,7 @@ def _import_stonesoup() -> SimpleNamespace:
     return SimpleNamespace(
         GNNWith2DAssignment=GNNWith2DAssignment, UpdateTimeStepsDeleter=UpdateTimeStepsDeleter,
         ScoreDeleter=ScoreDeleter, CompositeDeleter=CompositeDeleter,
-        DistanceHypothesiser=DistanceHypothesiser,
+        DistanceHypothesiser=DistanceHypothesiser, CellMahalanobis=CellMahalanobis,
         GaussianMixtureHypothesiser=GaussianMixtureHypothesiser,
         MultiMeasurementInitiator=MultiMeasurementInitiator, Mahalanobis=Mahalanobis,
         GaussianMixtureReducer=GaussianMixtureReducer, LinearGaussian=LinearGaussian,
@@ -492,6 +520,14 @@ class StoneSoupGNN(_StoneSoupPeer):
         "gate": Param(float, 0, low_open=True, search=Search(1.5, 6.0),
                       doc="Mahalanobis distance (not squared) beyond which a detection is "
                           "not a hypothesis (Stone Soup's missed_distance)"),
+        "gate_to": Param(choices=("cell", "centre"), search=Search(choices=("cell", "centre")),
+                         doc="the gate's distance: to the detection's cell under the "
+                             "predicted position covariance, or to its centre under S "
+                             "(Stone Soup's Mahalanobis)"),
+        "labels": Param(choices=("target", "track"), search=Search(choices=("target", "track")),
+                        doc="a reported label follows the target (a track reported for "
+                            "the first time takes a released label within the gate) or "
+                            "the Stone Soup track"),
         "false_track_probability": Param(
             float, 0, 1, low_open=True, high_open=True, search=Search(1e-6, 0.1, log=True),
             doc="alpha: min_points is the fewest detections that make the posterior "
@@ -507,9 +543,12 @@ class StoneSoupGNN(_StoneSoupPeer):
     #: no budget: one track per target, nothing to trade
     budget: ClassVar[dict[str, Budget]] = {}
 
-    def __init__(self, gate: float = 3.0, false_track_probability: float = 0.1,
-                 lost_track_probability: float = 0.1, velocity_scale: float = 1.0) -> None:
+    def __init__(self, gate: float = 3.0, gate_to: str = "cell", labels: str = "target",
+                 false_track_probability: float = 0.1, lost_track_probability: float = 0.1,
+                 velocity_scale: float = 1.0) -> None:
         self.gate = gate
+        self.gate_to = gate_to
+        self.labels = labels
         self.false_track_probability = false_track_probability
         self.lost_track_probability = lost_track_probability
         self.velocity_scale = velocity_scale
@@ -518,9 +557,10 @@ class StoneSoupGNN(_StoneSoupPeer):
         """Stone Soup's components; no tracks; KF-NN's undetected intensity."""
         ss = self._reset_common(model)
         self._rng = rng  # unused: the tracker is deterministic
+        measure = (ss.CellMahalanobis(cell_size=model.grid.cell_size, noise_var=self._r_var)
+                   if self.gate_to == "cell" else ss.Mahalanobis())
         hypothesiser = ss.DistanceHypothesiser(self._predictor, self._updater,
-                                               measure=ss.Mahalanobis(),
-                                               missed_distance=self.gate)
+                                               measure=measure, missed_distance=self.gate)
         self._associator = ss.OrderedGNN(hypothesiser)
         sensor = model.sensor
         self._looked_share = [min(1.0, sensor.looks_per_step / model.grid.n_cells)]
@@ -545,7 +585,9 @@ class StoneSoupGNN(_StoneSoupPeer):
         self._tracks: list[Any] = []  # confirmed, in track_key order
         #: a track's label (the estimate's), by its Stone Soup id: numbered in the order
         #: the tracks are first reported (so deterministic), kept for the track's life
+        #: (labels="track"); with labels="target" the LabelKeeper's
         self._track_labels: dict[str, int] = {}
+        self._label_keeper = LabelKeeper(self._F, self._Q, self.gate)
         bd = model.birth_death
         n = model.grid.n_cells
         self._p_s, self._birth_per_cell = bd.survival_probability, bd.birth_rate / n
@@ -625,6 +667,7 @@ class StoneSoupGNN(_StoneSoupPeer):
         self._looked_share.append(len(looked) / self._grid.n_cells)
         self._time_deleter.time_steps_since_update = self.steps_without_update(
             float(np.mean(self._looked_share)))
+        self._label_keeper.horizon = self._time_deleter.time_steps_since_update
         used = set()
         dropped: list[Any] = []  # deleted inside the workspace: recycled
         if self._tracks:
@@ -698,8 +741,9 @@ class StoneSoupGNN(_StoneSoupPeer):
 
     def estimate(self) -> Estimate:
         """The ``round(sum r)`` tracks of largest existence ``r``, confirmed or holding:
-        count ``sum r``, states ``(n, 4)``, covariances ``(n, 4, 4)`` and a
-        persistent label per track."""
+        count ``sum r``, states ``(n, 4)``, covariances ``(n, 4, 4)`` and labels: per
+        target (:class:`~mttbench.trackers.stonesoup.gnn_cells.LabelKeeper`, the default)
+        or per Stone Soup track."""
         tracks = self._tracks + sorted(self._initiator.holding_tracks, key=track_key)
         r = self._existence(tracks)
         total = float(r.sum())
@@ -711,6 +755,8 @@ class StoneSoupGNN(_StoneSoupPeer):
         for i, tr in enumerate(tracks):
             m[i], P[i] = _mean_cov(tr.state)
             labels[i] = self._track_labels.setdefault(tr.id, len(self._track_labels))
+        if self.labels == "target":
+            labels = self._label_keeper.labels([tr.id for tr in tracks], m, P)
         return Estimate(total, m, P, labels)
 
     @classmethod
