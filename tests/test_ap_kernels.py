@@ -139,20 +139,23 @@ def test_windows_and_draws_equal_the_numpy_forms():
     means = np.r_[rng.uniform(-2, 14, 400), 0.0, 12.0, 5.5, 5.0, -40.0, 60.0]
     sds = np.r_[10.0 ** rng.uniform(-2.5, 1, 400), 0.03, 0.03, 1e-3, 2.0, 0.5, 0.5]
     index, mass, inside = axis_window(means, sds, n, cell, 0, width=width)
-    idx, m, start = np.empty(width, np.int64), np.empty(width), np.empty(width)
+    idx, m, start = np.empty((2, width), np.int64), np.empty((2, width)), np.empty((2, width))
+    side = np.zeros((2, width), bool)
     scratch = (np.empty(width + 1), np.empty(width + 1))
     for i, (mu, sd) in enumerate(zip(means, sds, strict=True)):
         got_inside = ap_kernels._axis_window(mu, sd, n, cell, width, True, idx, m, start,
-                                             *scratch)
-        assert np.array_equal(idx, index[i])
-        assert np.array_equal(m, mass[i]) and got_inside == inside[i]
+                                             side, 1, *scratch)
+        assert np.array_equal(idx[1], index[i])
+        assert np.array_equal(m[1], mass[i]) and got_inside == inside[i]
         u = rng.random(width)
-        lo = idx * cell
+        lo = idx[1] * cell
         expected = truncated_normal(np.full(width, mu), np.full(width, sd), lo, lo + cell, u)
         upper = (lo - mu) / sd > 0.0
+        ok = idx[1] >= 0
+        assert np.array_equal(side[1][ok], upper[ok])
         for k in range(width):
-            x = ap_kernels._draw_in_cell(mu, sd, lo[k], lo[k] + cell, u[k], start[k], m[k],
-                                         upper[k])
+            x = ap_kernels._draw_in_cell(mu, sd, lo[k], lo[k] + cell, u[k], start[1, k],
+                                         m[1, k], upper[k])
             assert x == expected[k]
             assert x == ap_kernels._truncated_normal(mu, sd, lo[k], lo[k] + cell, u[k])
 
@@ -185,7 +188,7 @@ def test_slot_log_likelihood_equals_the_numpy_form():
 def test_sort_and_sums_equal_the_numpy_forms():
     """One K-means sweep over a cluster of 4 slots, and the per-slot sums, holders and
     extents, against :func:`.partitions.sort_slots` and numpy's reductions."""
-    from mttbench.trackers.jmpd.partitions import permutations, sort_slots
+    from mttbench.trackers.jmpd.partitions import sort_slots
     rng = np.random.default_rng(9)
     N, T = 800, 6
     pos = rng.normal(5.0, 2.0, (N, T, 2))
@@ -204,8 +207,81 @@ def test_sort_and_sums_equal_the_numpy_forms():
     assert np.array_equal(boxes, _boxes(pos, valid))
     means = sums[slots] / np.maximum(held[slots], 1)[:, None]
     got = [a.copy() for a in (pos, vel, vvar, valid)]
-    moved = ap_kernels.sort_cluster(*got, slots, permutations(len(slots)), means,
-                                    held[slots])
+    new_held, new_sums = np.empty(len(slots), np.int64), np.empty((len(slots), 2))
+    moved = ap_kernels.sort_cluster(*got, slots, means, held[slots], new_held, new_sums)
     assert moved > 0
     for a, b in zip(got, arrays, strict=True):
         assert np.array_equal(a, b)
+    ap_kernels.slot_sums(got[0], got[1], got[3], False, held, sums, vel_sums, boxes)
+    assert np.array_equal(new_held, held[slots]) and np.array_equal(new_sums, sums[slots])
+
+
+@pytest.mark.parametrize("h", [2, 3, 4, 5])
+@pytest.mark.parametrize("sweeps", [1, 2])
+def test_sort_sweeps_equal_the_numpy_form_with_ties(h, sweeps):
+    """Sweeps per cluster size up to ``SORT_MAX``, on particles whose slots hold the
+    same positions (equal costs: the first least permutation must win), positions on a
+    coarse lattice (many equal costs between particles) and slots held nowhere."""
+    from mttbench.trackers.jmpd.partitions import sort_slots
+    rng = np.random.default_rng(10 + h)
+    N, T = 600, h + 2
+    pos = rng.integers(0, 4, (N, T, 2)).astype(float) * 0.5
+    pos[:100, 1] = pos[:100, 2]  # ties within a particle
+    vel, vvar = rng.normal(size=(N, T, 2)), rng.random((N, T, 2))
+    valid = rng.random((N, T)) < 0.7
+    slots = np.arange(1, h + 1)
+    valid[:, slots[-1]] &= h < 4  # a slot held nowhere for the larger clusters
+    arrays = [a.copy() for a in (pos, vel, vvar, valid)]
+    sort_slots(arrays[0], arrays[3], [slots], arrays, iterations=sweeps)
+    got = [a.copy() for a in (pos, vel, vvar, valid)]
+    held, sums = np.empty(T, np.int64), np.empty((T, 2))
+    ap_kernels.slot_sums(got[0], got[1], got[3], False, held, sums, np.empty((T, 2)),
+                         np.empty((T, 4)))
+    new_held, new_sums = np.empty(h, np.int64), np.empty((h, 2))
+    for _ in range(sweeps):
+        means = sums[slots] / np.maximum(held[slots], 1)[:, None]
+        ap_kernels.sort_cluster(*got, slots, means, held[slots], new_held, new_sums)
+        held[slots], sums[slots] = new_held, new_sums
+    for a, b in zip(got, arrays, strict=True):
+        assert np.array_equal(a, b)
+
+
+def test_least_permutation_is_the_first_least_of_a_full_scan():
+    """The pruned depth-first search against ``argmin`` over every permutation's sum,
+    on random costs, costs with many ties and zero rows."""
+    from mttbench.trackers.jmpd.partitions import permutations
+    rng = np.random.default_rng(11)
+    for h in range(1, 6):
+        perms = permutations(h)
+        scratch = (np.empty(h, np.int64), np.empty(h, bool), np.empty(h + 1, np.int64),
+                   np.empty(h + 1))
+        best = np.empty(h, np.int64)
+        for trial in range(300):
+            D = rng.random((h, h)) if trial % 3 == 0 else rng.integers(0, 3, (h, h)) * 0.1
+            if trial % 5 == 0:
+                D[rng.integers(h)] = 0.0
+            costs = np.zeros(len(perms))
+            for j in range(h):
+                costs = costs + D[j, perms[:, j]]
+            ap_kernels._least_permutation(D, h, best, *scratch)
+            assert np.array_equal(best, perms[np.argmin(costs)])
+
+
+def test_ndtr_shortcuts_equal_scipy():
+    """The window's CDF shortcuts: ``ndtr`` is exactly 0 below ``NDTR_ZERO``, and
+    ``ndtr(x) == 1 - ndtr(-x)`` bit for bit for ``x >= 1`` (scipy's ``erfc`` branch);
+    both forms against scipy on dense samples around the thresholds and far beyond."""
+    from scipy.special import ndtr
+    rng = np.random.default_rng(12)
+    below = np.r_[np.nextafter(ap_kernels.NDTR_ZERO, -np.inf), -37.70000001, -38.0, -1e300,
+                  -np.inf, ap_kernels.NDTR_ZERO - rng.exponential(5.0, 20000)]
+    above = np.r_[1.0, np.nextafter(1.0, 2.0), 37.0, 38.0, 1e300, np.inf,
+                  1.0 + rng.exponential(3.0, 200000), rng.uniform(1.0, 1.001, 20000)]
+    lower = np.r_[np.nextafter(ap_kernels.NDTR_ZERO, 0.0), -37.6, -1.0, -0.5, 0.0,
+                  -rng.uniform(0.0, 37.7, 20000)]
+    assert (ndtr(below) == 0.0).all()
+    assert np.array_equal(ndtr(above), 1.0 - ndtr(-above))
+    for x in np.r_[below, lower]:
+        assert ap_kernels._ndtr_lower(x) == ndtr(x)
+    for x in np.r_[above[:40000], rng.uniform(0.0, 1.0, 5000), 5e-324]:
+        assert ap_kernels._ndtr_upper(x, ndtr(-x)) == ndtr(x)

@@ -125,14 +125,7 @@ from .backend import compiled_ap_kernels
 from .cell_proposal import axis_window, truncated_normal
 from .estimation import cell_count_distribution_from
 from .likelihood import grid_log_likelihood, grid_log_likelihood_tables
-from .partitions import (
-    SORT_MAX,
-    cluster_slots,
-    coupled_slots,
-    merge_slots,
-    permutations,
-    sort_slots,
-)
+from .partitions import SORT_MAX, cluster_slots, coupled_slots, merge_slots, sort_slots
 from .resampling import effective_sample_size, systematic_resample
 from .sparse import CellTable
 from .state import fold
@@ -579,7 +572,11 @@ class JMPDAPTracker(Tracker):
 
         # K-means partition sorting within clusters (after resampling, before estimation)
         if self.sort_iterations > 0:
-            held, mean_pos, boxes = self._slot_means(self.pos)
+            if self._kernels is None:
+                held, mean_pos, boxes = self._slot_means(self.pos)
+            else:
+                held, sums, _, boxes = self._slot_sums(self.pos)
+                mean_pos = sums / np.maximum(held, 1)[:, None]
             now = cluster_slots(mean_pos, held > 0, self.cluster_distance * grid.cell_size,
                                 boxes)
             arrays = [self.pos, self.vel, self.vvar, self.valid]
@@ -587,8 +584,7 @@ class JMPDAPTracker(Tracker):
                 sort_slots(self.pos, self.valid, now, arrays, self.sort_iterations)
                 merge_slots(self.pos, self.valid, arrays, self.merge_distance * grid.cell_size)
             else:
-                self._sort_compiled(now)
-                held, sums, _, _ = self._slot_sums(self.pos)
+                self._sort_compiled(now, held, sums)
                 merge_slots(self.pos, self.valid, arrays, self.merge_distance * grid.cell_size,
                             slot_sums=(held, sums))
 
@@ -648,24 +644,28 @@ class JMPDAPTracker(Tracker):
         means = (pos * self.valid[..., None]).sum(axis=0) / np.maximum(held, 1)[:, None]
         return held, means, _boxes(pos, self.valid)
 
-    def _sort_compiled(self, clusters: list[np.ndarray]) -> None:
+    def _sort_compiled(self, clusters: list[np.ndarray], held: np.ndarray,
+                       sums: np.ndarray) -> None:
         """:func:`.partitions.sort_slots` on the four slot arrays by
         :func:`.ap_kernels.sort_cluster`, sweep by sweep (the same means, costs and
-        permutations)."""
+        permutations). ``held (T,)`` and ``sums (T, 2)``: :meth:`_slot_sums`' holders and
+        position sums of the arrays, kept current in place (each sweep returns its
+        cluster's)."""
         for slots in clusters:
             slots = np.asarray(slots, dtype=np.int64)
             h = len(slots)
             if h < 2 or h > SORT_MAX:
                 continue
-            perms = permutations(h)
+            new_held, new_sums = np.empty(h, np.int64), np.empty((h, 2))
             for _ in range(self.sort_iterations):
-                held, sums, _, _ = self._slot_sums(self.pos)
-                held = held[slots]
-                if (held == 0).all():
+                if (held[slots] == 0).all():
                     break
-                means = sums[slots] / np.maximum(held, 1)[:, None]
-                if not self._kernels.sort_cluster(self.pos, self.vel, self.vvar, self.valid,
-                                                  slots, perms, means, held):
+                means = sums[slots] / np.maximum(held[slots], 1)[:, None]
+                moved = self._kernels.sort_cluster(self.pos, self.vel, self.vvar, self.valid,
+                                                   slots, means, held[slots], new_held,
+                                                   new_sums)
+                held[slots], sums[slots] = new_held, new_sums
+                if not moved:
                     break
 
     def _rescale_shares(self) -> None:

@@ -176,17 +176,42 @@ def max_held_sd(sd: np.ndarray, valid: np.ndarray, slots: np.ndarray) -> float:
 
 
 # ------------------------------------------------------------ the proposal
+#: scipy's ``ndtr(x)`` is exactly 0 for ``x < NDTR_ZERO`` (its ``erfc(-x / sqrt 2)``
+#: underflows to 0 once ``x^2 / 2`` exceeds the largest ``log`` of a double, from
+#: about -37.677; the tests check it)
+NDTR_ZERO = -37.7
+
+
+@njit(cache=True)
+def _ndtr_lower(x: float) -> float:
+    """``ndtr(x)`` for ``x <= 0``, without the call where it is exactly 0."""
+    if x < NDTR_ZERO:
+        return 0.0
+    return _ndtr(x, 0)
+
+
+@njit(cache=True)
+def _ndtr_upper(x: float, lower: float) -> float:
+    """``ndtr(x)`` for ``x > 0`` given ``lower = ndtr(-x)``: scipy computes ``ndtr(x)``
+    for ``x >= 1`` as ``1 - ndtr(-x)`` (``1 - erfc(x / sqrt 2) / 2``), bit for bit (the
+    tests check it); below 1 it takes ``erf`` and is called."""
+    if x >= 1.0:
+        return 1.0 - lower
+    return _ndtr(x, 0)
+
 @njit(cache=True)
 def _axis_window(mean: float, sd: float, n: int, cell_size: float, width: int,
                  with_inside: bool, index: np.ndarray, mass: np.ndarray, start: np.ndarray,
-                 cdf: np.ndarray, zs: np.ndarray) -> float:
-    """:func:`.cell_proposal.axis_window` (the ``width`` form) for one mean: fills
-    ``index`` and ``mass`` (``width`` entries) and returns the in-grid mass (0 unless
-    ``with_inside``). Each cell's mass is a difference of normal CDFs in the tail that
-    keeps its precision: ``pb - pa``, ``pa = start[k]`` (:func:`_truncated_normal`'s
-    ``pa`` for the cell, so that a draw in the cell needs no CDF again). Only the CDF
-    values these differences use are computed (``cdf`` and ``zs``: scratch of ``width +
-    1``)."""
+                 side: np.ndarray, j: int, cdf: np.ndarray, zs: np.ndarray) -> float:
+    """:func:`.cell_proposal.axis_window` (the ``width`` form) for one mean: fills row
+    ``j`` of ``index`` and ``mass`` (``width`` entries) and returns the in-grid mass (0
+    unless ``with_inside``). Each cell's mass is a difference of normal CDFs in the tail
+    that keeps its precision: ``pb - pa``, ``pa = start[j, k]`` (:func:`_truncated_normal`'s
+    ``pa`` for the cell, so that a draw in the cell needs no CDF again) and ``side[j,
+    k]`` its ``upper`` (row ``j`` of 2-d arrays: a row view would cost reference
+    counting per call). Only the CDF values these differences use are computed
+    (``cdf`` and ``zs``: scratch of ``width + 1``); :func:`_ndtr_lower` and
+    :func:`_ndtr_upper` skip the calls whose value is known exactly."""
     f = np.floor((mean - 4.0 * sd) / cell_size)
     top = float(max(n - width, 0))
     if f < 0.0:
@@ -199,35 +224,37 @@ def _axis_window(mean: float, sd: float, n: int, cell_size: float, width: int,
     for k in range(width):
         i = first + k
         if i >= 0 and i < n:
-            index[k] = i
+            index[j, k] = i
         else:
-            index[k] = -1
+            index[j, k] = -1
     # the lower-tail CDF at each edge: ndtr(z) below the mean, ndtr(-z) above it; a
     # cell's side is its left edge's, so the edge where the side changes needs both
+    # (the edges increase: above the mean, every later edge is too)
     for k in range(width + 1):
         upper = zs[k] > 0.0
-        cdf[k] = _ndtr(-zs[k], 0) if upper else _ndtr(zs[k], 0)
+        cdf[k] = _ndtr_lower(-zs[k]) if upper else _ndtr_lower(zs[k])
         if k == 0:
             continue
-        if index[k - 1] < 0:
-            mass[k - 1] = 0.0
-            start[k - 1] = 0.0
+        if index[j, k - 1] < 0:
+            mass[j, k - 1] = 0.0
+            start[j, k - 1] = 0.0
             continue
+        side[j, k - 1] = zs[k - 1] > 0.0
         if zs[k - 1] > 0.0:  # above the mean: ndtr(-z_left) - ndtr(-z_right)
-            right = cdf[k] if upper else _ndtr(-zs[k], 0)
-            mass[k - 1] = cdf[k - 1] - right
-            start[k - 1] = right
+            right = cdf[k]
+            mass[j, k - 1] = cdf[k - 1] - right
+            start[j, k - 1] = right
         else:  # ndtr(z_right) - ndtr(z_left)
-            right = _ndtr(zs[k], 0) if upper else cdf[k]
-            mass[k - 1] = right - cdf[k - 1]
-            start[k - 1] = cdf[k - 1]
+            right = _ndtr_upper(zs[k], cdf[k]) if upper else cdf[k]
+            mass[j, k - 1] = right - cdf[k - 1]
+            start[j, k - 1] = cdf[k - 1]
     if not with_inside:
         return 0.0
     za = (0.0 - mean) / sd
     zb = (n * cell_size - mean) / sd
     if za > 0.0:
-        return _ndtr(-za, 0) - _ndtr(-zb, 0)
-    return _ndtr(zb, 0) - _ndtr(za, 0)
+        return _ndtr_lower(-za) - _ndtr_lower(-zb)
+    return _ndtr(zb, 0) - _ndtr_lower(za)
 
 
 @njit(cache=True)
@@ -286,6 +313,8 @@ def propose(rhohat: np.ndarray, sd: np.ndarray, valid: np.ndarray, slots: np.nda
     gy = np.empty((S, wy))
     sx_ = np.empty((S, wx))
     sy_ = np.empty((S, wy))
+    side_x = np.zeros((S, wx), np.bool_)
+    side_y = np.zeros((S, wy), np.bool_)
     cdf = np.empty(w_max + 1)
     zs = np.empty(w_max + 1)
     gamma = np.empty((S, W))
@@ -304,10 +333,10 @@ def propose(rhohat: np.ndarray, sd: np.ndarray, valid: np.ndarray, slots: np.nda
             if not valid[p, t]:
                 continue
             mx, my = rhohat[p, t, 0], rhohat[p, t, 1]
-            in_x = _axis_window(mx, sd[p, t, 0], nx, cell_size, wx, not reflect, ix[j],
-                                gx[j], sx_[j], cdf, zs)
-            in_y = _axis_window(my, sd[p, t, 1], ny, cell_size, wy, not reflect, iy[j],
-                                gy[j], sy_[j], cdf, zs)
+            in_x = _axis_window(mx, sd[p, t, 0], nx, cell_size, wx, not reflect, ix, gx,
+                                sx_, side_x, j, cdf, zs)
+            in_y = _axis_window(my, sd[p, t, 1], ny, cell_size, wy, not reflect, iy, gy,
+                                sy_, side_y, j, cdf, zs)
             g = gamma[j]
             for a in range(wy):
                 for b in range(wx):
@@ -348,14 +377,13 @@ def propose(rhohat: np.ndarray, sd: np.ndarray, valid: np.ndarray, slots: np.nda
                     new_cell[p, j] = 0
                     new_valid[p, j] = False
                     continue
-                g, cells, wr = gamma[j], wcell[j], wrow[j]
                 for k in range(W):
                     nb = 0
                     for q in range(i):
-                        nb += placed[q] == cells[k]
+                        nb += placed[q] == wcell[j, k]
                     nb = min(nb, n_counts - 2)
                     cell_nb[k] = nb
-                    weights[k] = one_beta * g[k] * step_exp[wr[k], nb]
+                    weights[k] = one_beta * gamma[j, k] * step_exp[wrow[j, k], nb]
                 d = dead[j]
                 z = d + np_sum(weights, W)
                 cum[0] = d
@@ -370,9 +398,9 @@ def propose(rhohat: np.ndarray, sd: np.ndarray, valid: np.ndarray, slots: np.nda
                 choice = min(choice, W)
                 alive = choice > 0
                 w_idx = max(choice - 1, 0)
-                cell = cells[w_idx]
+                cell = wcell[j, w_idx]
                 log_z[p, c] += np.log(z)
-                log_pi[p, c] += step_log[wr[w_idx], cell_nb[w_idx]] if alive else 0.0
+                log_pi[p, c] += step_log[wrow[j, w_idx], cell_nb[w_idx]] if alive else 0.0
                 placed[i] = cell if alive else -1
                 new_cell[p, j] = cell
                 new_valid[p, j] = alive
@@ -380,18 +408,10 @@ def propose(rhohat: np.ndarray, sd: np.ndarray, valid: np.ndarray, slots: np.nda
                 if ix[j, b] >= 0 and iy[j, a] >= 0:
                     cdf_start[p, j, 0], cdf_start[p, j, 1] = sx_[j, b], sy_[j, a]
                     cdf_mass[p, j, 0], cdf_mass[p, j, 1] = gx[j, b], gy[j, a]
-                    cdf_upper[p, j, 0] = 1 if zs_side(ix[j, b], rhohat[p, t, 0],
-                                                      sd[p, t, 0], cell_size) else 0
-                    cdf_upper[p, j, 1] = 1 if zs_side(iy[j, a], rhohat[p, t, 1],
-                                                      sd[p, t, 1], cell_size) else 0
+                    cdf_upper[p, j, 0] = 1 if side_x[j, b] else 0
+                    cdf_upper[p, j, 1] = 1 if side_y[j, a] else 0
                 else:
                     cdf_upper[p, j, 0] = cdf_upper[p, j, 1] = -1
-
-
-@njit(cache=True)
-def zs_side(i: int, mean: float, sd: float, cell_size: float) -> bool:
-    """Whether cell ``i``'s left edge is above the mean (``za > 0``, the upper tail)."""
-    return (i * cell_size - mean) / sd > 0.0
 
 
 @njit(cache=True)
@@ -471,22 +491,79 @@ def place(anc: np.ndarray, cluster_of: np.ndarray, slots: np.ndarray,
 
 # ------------------------------------------------------------------ sorting
 @njit(cache=True)
+def _least_permutation(D: np.ndarray, h: int, best: np.ndarray, path: np.ndarray,
+                       used: np.ndarray, nxt: np.ndarray, partial: np.ndarray) -> None:
+    """The first permutation ``perm`` (lexicographic order, as ``itertools``) of least
+    ``sum_j D[j, perm_j]``, summed from 0 in ``j`` order, into ``best (h,)``.
+
+    Depth-first over the permutations in that order: a prefix's partial sum is shared by
+    all its completions (the same additions in the same order as the full sums), and a
+    prefix whose partial sum is already at least the least complete sum so far is
+    skipped: ``D >= 0`` and ``fl(a + b) >= a`` for ``b >= 0``, so none of its
+    completions is strictly less, and the first least is the one a full scan finds.
+    ``path``, ``used``, ``nxt``, ``partial``: scratch of ``h``, ``h``, ``h + 1``, ``h +
+    1``."""
+    best_cost = np.inf
+    for k in range(h):
+        used[k] = False
+    d = 0
+    nxt[0] = 0
+    partial[0] = 0.0
+    while d >= 0:
+        if d == h:  # a complete permutation
+            if partial[h] < best_cost:
+                best_cost = partial[h]
+                for j in range(h):
+                    best[j] = path[j]
+            d -= 1
+            used[path[d]] = False
+            continue
+        k = nxt[d]
+        while k < h and used[k]:
+            k += 1
+        if k == h:  # every choice at depth d tried
+            d -= 1
+            if d >= 0:
+                used[path[d]] = False
+            continue
+        nxt[d] = k + 1
+        c = partial[d] + D[d, k]
+        if c >= best_cost:
+            continue
+        path[d] = k
+        used[k] = True
+        partial[d + 1] = c
+        d += 1
+        nxt[d] = 0
+
+
+@njit(cache=True)
 def sort_cluster(pos: np.ndarray, vel: np.ndarray, vvar: np.ndarray, valid: np.ndarray,
-                 slots: np.ndarray, perms: np.ndarray, means: np.ndarray,
-                 held: np.ndarray) -> int:
+                 slots: np.ndarray, means: np.ndarray, held: np.ndarray,
+                 new_held: np.ndarray, new_sums: np.ndarray) -> int:
     """One K-means sweep of :func:`.partitions.sort_slots` over one cluster ``slots
-    (h,)``: every particle takes the permutation ``perms (P, h)`` (row 0 the identity)
-    of least ``sum_j valid |pos[slots[perm_j]] - means_j|^2`` (terms of slots held
-    nowhere, ``held (h,)``, count 0; the first least, as ``argmin``), applied in place to
-    all four arrays. Returns the particles moved."""
+    (h,)``: every particle takes the permutation of ``range(h)`` of least ``sum_j valid
+    |pos[slots[perm_j]] - means_j|^2`` (terms of slots held nowhere, ``held (h,)``,
+    count 0; the first least in ``itertools`` order, as ``argmin`` over
+    :func:`.partitions.permutations`: :func:`_least_permutation`), applied in place to
+    all four arrays. Also the cluster's holders ``new_held (h,)`` and position sums
+    ``new_sums (h, 2)`` after the sweep (:func:`slot_sums`' numbers, summed in particle
+    order). Returns the particles moved."""
     N = pos.shape[0]
-    P, h = perms.shape
+    h = slots.shape[0]
     D = np.empty((h, h))
+    best = np.empty(h, np.int64)
+    path = np.empty(h, np.int64)
+    used = np.empty(h, np.bool_)
+    nxt = np.empty(h + 1, np.int64)
+    partial = np.empty(h + 1)
     src = np.empty(h, np.int64)
     tp = np.empty((h, 2))
     tv = np.empty((h, 2))
     tw = np.empty((h, 2))
     tb = np.empty(h, np.bool_)
+    new_held[:] = 0
+    new_sums[:] = 0.0
     moved = 0
     for p in range(N):
         for j in range(h):
@@ -498,30 +575,33 @@ def sort_cluster(pos: np.ndarray, vel: np.ndarray, vvar: np.ndarray, valid: np.n
                     D[j, k] = dx * dx + dy * dy
                 else:
                     D[j, k] = 0.0
-        best, best_cost = 0, np.inf
-        for q in range(P):
-            cost = 0.0
+        _least_permutation(D, h, best, path, used, nxt, partial)
+        identity = True
+        for j in range(h):
+            identity = identity and best[j] == j
+        if not identity:
+            moved += 1
             for j in range(h):
-                cost += D[j, perms[q, j]]
-            if cost < best_cost:
-                best, best_cost = q, cost
-        if best == 0:
-            continue
-        moved += 1
-        for j in range(h):
-            src[j] = slots[perms[best, j]]
-        for j in range(h):
-            s = src[j]
-            tp[j, 0], tp[j, 1] = pos[p, s, 0], pos[p, s, 1]
-            tv[j, 0], tv[j, 1] = vel[p, s, 0], vel[p, s, 1]
-            tw[j, 0], tw[j, 1] = vvar[p, s, 0], vvar[p, s, 1]
-            tb[j] = valid[p, s]
-        for j in range(h):
+                src[j] = slots[best[j]]
+            for j in range(h):
+                s = src[j]
+                tp[j, 0], tp[j, 1] = pos[p, s, 0], pos[p, s, 1]
+                tv[j, 0], tv[j, 1] = vel[p, s, 0], vel[p, s, 1]
+                tw[j, 0], tw[j, 1] = vvar[p, s, 0], vvar[p, s, 1]
+                tb[j] = valid[p, s]
+            for j in range(h):
+                t = slots[j]
+                pos[p, t, 0], pos[p, t, 1] = tp[j, 0], tp[j, 1]
+                vel[p, t, 0], vel[p, t, 1] = tv[j, 0], tv[j, 1]
+                vvar[p, t, 0], vvar[p, t, 1] = tw[j, 0], tw[j, 1]
+                valid[p, t] = tb[j]
+        for j in range(h):  # slot_sums' terms for this particle, in particle order
             t = slots[j]
-            pos[p, t, 0], pos[p, t, 1] = tp[j, 0], tp[j, 1]
-            vel[p, t, 0], vel[p, t, 1] = tv[j, 0], tv[j, 1]
-            vvar[p, t, 0], vvar[p, t, 1] = tw[j, 0], tw[j, 1]
-            valid[p, t] = tb[j]
+            f = 1.0 if valid[p, t] else 0.0
+            new_sums[j, 0] += pos[p, t, 0] * f
+            new_sums[j, 1] += pos[p, t, 1] * f
+            if valid[p, t]:
+                new_held[j] += 1
     return moved
 
 
@@ -559,8 +639,8 @@ def warm_up() -> None:
           masses, sides, rh, ps, ps,
           np.full((N, T, 2), 0.5), 1, 1.0, 1.0, np.zeros(2), np.zeros(2), pos.copy(),
           pos.copy(), pos.copy(), pos.copy(), pos.copy(), valid.copy())
-    sort_cluster(pos.copy(), pos.copy(), pos.copy(), valid.copy(), slots,
-                 np.array([[0, 1], [1, 0]], np.int64), np.zeros((T, 2)), held)
+    sort_cluster(pos.copy(), pos.copy(), pos.copy(), valid.copy(), slots, np.zeros((T, 2)),
+                 held, held.copy(), sums.copy())
     for direct in (True, False):
         slot_log_likelihood(pos, valid, 1, 1, 1.0, 1, direct, np.zeros(2, np.int32),
                             np.zeros(1, np.int64), table, np.zeros(N))
