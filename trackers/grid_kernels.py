@@ -25,30 +25,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .numba_exact import nan_max as _nan_max
+from .numba_exact import nan_min as _nan_min
 from .numba_exact import ndtr as _ndtr
 from .numba_exact import np_sum
+from .numba_exact import search_left as _search
 
 _INV_SQRT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
-
-
-@njit(cache=True, inline="always")
-def _nan_max(a: float, b: float) -> float:
-    """``np.maximum`` of two doubles (a NaN wins)."""
-    if a != a:
-        return a
-    if b != b:
-        return b
-    return a if a >= b else b
-
-
-@njit(cache=True, inline="always")
-def _nan_min(a: float, b: float) -> float:
-    """``np.minimum`` of two doubles (a NaN wins)."""
-    if a != a:
-        return a
-    if b != b:
-        return b
-    return a if a <= b else b
 
 
 @njit(cache=True)
@@ -140,19 +123,6 @@ def rect_position_moments(mean_xy: np.ndarray, cov_xy: np.ndarray, x0: np.ndarra
         m1[p, 1] = _einsum_row(wq, ey, Q)
         mass[p] = np_sum(wi, Q)
     return mass, m1, m2
-
-
-@njit(cache=True)
-def _search(a: np.ndarray, v: int) -> int:
-    """``np.searchsorted(a, v)`` (side left) on a sorted int array."""
-    lo, hi = 0, len(a)
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if a[mid] < v:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
 
 
 @njit(cache=True)

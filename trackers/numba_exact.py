@@ -105,3 +105,46 @@ def _pairwise(a: np.ndarray, lo: int, n: int) -> float:
 def np_sum(a: np.ndarray, n: int) -> float:
     """``a[:n].sum()`` as numpy computes it (0 plus the pairwise sum)."""
     return 0.0 + _pairwise(a, 0, n)
+
+
+# --------------------------------------------- small exact forms the kernels share
+@njit(cache=True, inline="always")
+def nan_max(a: float, b: float) -> float:
+    """``np.maximum`` of two doubles (a NaN wins; on a tie the first)."""
+    if a != a:
+        return a
+    if b != b:
+        return b
+    return a if a >= b else b
+
+
+@njit(cache=True, inline="always")
+def nan_min(a: float, b: float) -> float:
+    """``np.minimum`` of two doubles (a NaN wins; on a tie the first)."""
+    if a != a:
+        return a
+    if b != b:
+        return b
+    return a if a <= b else b
+
+
+@njit(cache=True)
+def search_left(a: np.ndarray, v: int) -> int:
+    """``np.searchsorted(a, v)`` (side left) on a sorted int array."""
+    lo, hi = 0, len(a)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if a[mid] < v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True)
+def find_root(parent: np.ndarray, i: int) -> int:
+    """The root of ``i`` in a union-find forest, halving the path on the way."""
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i

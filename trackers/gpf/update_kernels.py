@@ -25,29 +25,13 @@ import numpy as np
 from numba import njit
 
 from ..grid_kernels import looked_in_boxes, rect_position_moments
+from ..numba_exact import find_root as _find
+from ..numba_exact import nan_max as _nan_max
+from ..numba_exact import nan_min as _nan_min
 from ..numba_exact import np_sum
+from ..numba_exact import search_left as _search
 
 _LOGE2 = math.log(2.0)
-
-
-@njit(cache=True, error_model="numpy")
-def _nan_max(a: float, b: float) -> float:
-    """``np.maximum`` of two doubles (a NaN wins)."""
-    if a != a:
-        return a
-    if b != b:
-        return b
-    return a if a >= b else b
-
-
-@njit(cache=True, error_model="numpy")
-def _nan_min(a: float, b: float) -> float:
-    """``np.minimum`` of two doubles (a NaN wins)."""
-    if a != a:
-        return a
-    if b != b:
-        return b
-    return a if a <= b else b
 
 
 @njit(cache=True, error_model="numpy")
@@ -61,27 +45,6 @@ def _logaddexp(x: float, y: float) -> float:
     if tmp <= 0:
         return y + np.log1p(np.exp(tmp))
     return tmp
-
-
-@njit(cache=True, error_model="numpy")
-def _search(a: np.ndarray, v: int) -> int:
-    """``np.searchsorted(a, v)`` (side left) on a sorted int array."""
-    lo, hi = 0, len(a)
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if a[mid] < v:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
-
-
-@njit(cache=True, error_model="numpy")
-def _find(parent: np.ndarray, i: int) -> int:
-    while parent[i] != i:
-        parent[i] = parent[parent[i]]
-        i = parent[i]
-    return i
 
 
 @njit(cache=True, error_model="numpy")

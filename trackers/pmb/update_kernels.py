@@ -32,6 +32,8 @@ from numba import njit
 
 from ..gpf.update_kernels import state_moments
 from ..grid_kernels import looked_in_boxes
+from ..numba_exact import find_root as _find
+from ..numba_exact import search_left as _search
 
 
 @njit(cache=True, error_model="numpy")
@@ -66,19 +68,6 @@ def _clip(x: float, lo: float, hi: float) -> float:
     if x > hi:
         return hi
     return x
-
-
-@njit(cache=True, error_model="numpy")
-def _search(a: np.ndarray, v: int) -> int:
-    """``np.searchsorted(a, v)`` (side left) on a sorted int array."""
-    lo, hi = 0, len(a)
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if a[mid] < v:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
 
 
 @njit(cache=True, error_model="numpy")
@@ -128,14 +117,6 @@ def cell_ratios(cells, returns, ll_pos, ll_neg, ll_miss, max_log):
 
 
 # ------------------------------------------------------ association marginals (LBP)
-@njit(cache=True, error_model="numpy")
-def _find(parent: np.ndarray, i: int) -> int:
-    while parent[i] != i:
-        parent[i] = parent[parent[i]]
-        i = parent[i]
-    return i
-
-
 @njit(cache=True, error_model="numpy")
 def edge_clusters(ei, ej, n_tracks, n_meas):
     """:func:`.lbp.edge_clusters`: each edge's connected component, labelled as scipy's
