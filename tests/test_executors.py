@@ -1,6 +1,8 @@
 """Executors (benchmarks/engine/executors.py): the local pool and a real Dask LocalCluster give the
 same tables; a worker killed mid-sweep loses nothing; an interrupted Dask sweep resumes;
-the command-line wiring and its one-line errors.
+a run over its time limit ends, even one that freezes its worker; a cluster without
+workers ends the sweep with error rows and its finished runs kept (dask_watch.py); the
+command-line wiring and its one-line errors.
 
 The trackers that kill their own worker process (:class:`KillOnce`, :class:`KillAlways`)
 are named by class path (``test_executors:KillOnce``): Dask's worker processes and the
@@ -11,22 +13,33 @@ process itself.
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
+import ctypes
 import dataclasses
 import errno
+import logging
 import os
 import signal
 import sys
 import time
 from pathlib import Path
 
+import faulty_tracker
 import pandas as pd
 import pytest
+from crashing_tracker import COUNT_LIMIT_ENV, COUNT_LOG_ENV, SLOW_GATE_ENV
 
 from mttbench import scenarios
 from mttbench.benchmarks.app.cli import main
 from mttbench.benchmarks.engine import executors
 from mttbench.benchmarks.engine import sweep as harness
+from mttbench.benchmarks.engine.dask_watch import (
+    NO_WORKER_FLOOR_S,
+    SILENCE_FLOOR_S,
+    RunWatch,
+    no_worker_limit,
+)
 from mttbench.benchmarks.engine.errors import ConfigError
 from mttbench.benchmarks.engine.executors import (
     MISSING_DASK,
@@ -47,6 +60,9 @@ KILL_SPARE_ENV = "MTTBENCH_TEST_KILL_SPARE_PID"
 KILL_STEP = 2
 #: how long to wait for the cluster to release cancelled tasks
 SETTLE_S = 30.0
+#: a safety net for a sweep run beside the test: far beyond what it takes when the
+#: executor works; its value decides nothing else
+SWEEP_SAFETY_S = 180.0
 
 
 class KillOnce(KFNNTracker):
@@ -78,6 +94,21 @@ class KillOnce(KFNNTracker):
 class KillAlways(KillOnce):
     name = "test-kill-always"
     deaths = sys.maxsize
+
+
+class HoldTheGIL(faulty_tracker.Hang):
+    """Hangs at step 1 inside a C call that keeps the GIL (as a compiled loop that never
+    returns would): its process's other threads, a Dask worker's event loop among them,
+    stop. Capped at :data:`GIL_HOLD_S` so that a failing test ends."""
+
+    name = "test-hold-the-gil"
+
+    def fault(self):
+        ctypes.PyDLL(None).sleep(ctypes.c_uint(GIL_HOLD_S))
+
+
+#: how long :class:`HoldTheGIL` holds the GIL (seconds)
+GIL_HOLD_S = 90
 
 
 def short(name: str, n_steps: int) -> scenarios.Scenario:
@@ -228,11 +259,176 @@ def test_a_hung_run_gets_its_error_row_on_dask(tmp_path):
         hung = out[out["tracker"] == "faulty_tracker:Hang"]
         assert len(hung) == 1 and hung["status"].iloc[0] == "error"
         assert "timed out" in hung["error"].iloc[0] and "--run-timeout" in hung["error"].iloc[0]
-        assert (out[out["tracker"] == "null"]["status"] == "ok").all()
+        assert (out[out["tracker"] == "null"]["status"] == "ok").all(), list(out["error"])
         # the restarted worker imports everything again on its first run: the limit here
         # only needs to let the cluster show it has its workers back
         again = run_sweep(jobs[1:], tmp_path / "again", executor=executor, run_timeout=60.0)
         assert (again["status"] == "ok").all()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="libc's sleep through ctypes")
+def test_a_run_that_freezes_its_worker_is_ended_at_its_time_limit_on_dask(tmp_path):
+    """A run holding the GIL freezes its Dask worker (no heartbeat, no answer to a call):
+    its limit still holds (the scheduler's view, dask_watch.py), it gets its error row,
+    and the other runs finish on the restarted worker. One worker and three runs: the
+    scheduler gives the worker one run at a time, so no other run waits on it."""
+    pytest.importorskip("distributed", reason="distributed is not installed (mttbench[dask])")
+    jobs = jobs_of(short("default", 6), [("test_executors:HoldTheGIL", [0]), ("null", [0, 1])])
+    with DaskExecutor(workers=1) as executor:
+        started = time.monotonic()
+        out = run_sweep(jobs, tmp_path / "out", executor=executor, run_timeout=5.0)
+        took = time.monotonic() - started
+    frozen = out[out["tracker"] == "test_executors:HoldTheGIL"]
+    assert len(frozen) == 1 and frozen["status"].iloc[0] == "error", took
+    assert "timed out" in frozen["error"].iloc[0] and "--run-timeout" in frozen["error"].iloc[0]
+    assert (out[out["tracker"] == "null"]["status"] == "ok").all()
+    assert took < GIL_HOLD_S  # ended by the limit, not by the end of the frozen call
+
+
+# ------------------------------------------------------- a cluster without workers
+def _counted_env(folder: Path, limit: int) -> dict[str, str]:
+    """crashing_tracker:Counted's variables: its log, and after ``limit`` runs the gate
+    (never opened here: the run waits there until its worker is killed)."""
+    return {COUNT_LOG_ENV: str(folder / "log"), COUNT_LIMIT_ENV: str(limit),
+            SLOW_GATE_ENV: str(folder / "gate")}
+
+
+def _logged(folder: Path) -> list[int]:
+    log = folder / "log"
+    return [int(x) for x in log.read_text().split()] if log.exists() else []
+
+
+def _wait_until(condition, what: str, sweep: concurrent.futures.Future) -> None:
+    deadline = time.monotonic() + SWEEP_SAFETY_S  # a safety net: see SWEEP_SAFETY_S
+    while not condition():
+        if sweep.done():
+            sweep.result()  # its error, if it failed
+            raise AssertionError(f"the sweep ended before {what}")
+        assert time.monotonic() < deadline, f"no {what}"
+        time.sleep(0.02)
+
+
+def test_a_dask_cluster_that_lost_its_workers_ends_the_sweep_and_resume_finishes(
+        tmp_path, monkeypatch):
+    """The worker of a one-worker cluster is killed mid-run and its nanny does not
+    restart it (as when the restart fails on a loaded machine): the sweep ends after the
+    no-worker limit, the runs still waiting get error rows that say why, the finished
+    runs keep their parts (the rows of an uninterrupted local-pool sweep), and --resume
+    runs only the missing ones."""
+    distributed = pytest.importorskip("distributed",
+                                      reason="distributed is not installed (mttbench[dask])")
+    for name, value in _counted_env(tmp_path, limit=2).items():
+        monkeypatch.setenv(name, value)  # before the workers start: they inherit them
+    jobs = jobs_of(short("default", 3), [("crashing_tracker:Counted", [0, 1, 2, 3])])
+    out = tmp_path / "out"
+    with contextlib.ExitStack() as stack:
+        cluster = stack.enter_context(distributed.LocalCluster(
+            n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None,
+            silence_logs=logging.CRITICAL))
+        client = stack.enter_context(distributed.Client(cluster, set_as_default=False))
+        executor = DaskExecutor(client=client, no_worker_timeout=1.0)
+        pool = stack.enter_context(concurrent.futures.ThreadPoolExecutor(1))
+        sweep = pool.submit(run_sweep, jobs, out, executor=executor)
+        # two runs finish (one at a time: four runs on one thread), the third waits at
+        # the gate; then its worker dies and its nanny lets it go
+        _wait_until(lambda: len(_logged(tmp_path)) == 3
+                    and len(list((out / "parts").glob("*.parquet"))) == 2,
+                    "third run waiting after two finished", sweep)
+        (nanny,) = cluster.workers.values()
+        nanny.close_gracefully()  # the nanny does not restart the worker it loses
+        os.kill(_logged(tmp_path)[-1], signal.SIGKILL)
+        first = sweep.result(timeout=SWEEP_SAFETY_S)
+        assert client.nthreads() == {}
+    done = {p: p.stat().st_mtime_ns for p in (out / "parts").glob("*.parquet")}
+    assert len(done) == 2
+    ok = first[first["status"] == "ok"]
+    failed = first[first["status"] == "error"]
+    assert ok["seed"].nunique() == 2 and len(failed) == 2 and (failed["step"] == -1).all()
+    assert set(ok["seed"]) | set(failed["seed"]) == {0, 1, 2, 3}
+    assert failed["error"].str.contains(
+        "the Dask cluster had no worker for 1 s (--no-worker-timeout); --resume",
+        regex=False).all(), list(failed["error"])
+    # the finished runs' rows are those of an uninterrupted local-pool sweep of them
+    monkeypatch.setenv(COUNT_LIMIT_ENV, "0")  # from here on no run waits at the gate
+    finished = [job for job in jobs if job.seed in set(ok["seed"])]
+    pd.testing.assert_frame_equal(strip(ok), strip(reference(finished, tmp_path / "ref")))
+    # --resume runs the two missing runs only, and the table is the uninterrupted one
+    logged = len(_logged(tmp_path))
+    again = run_sweep(jobs, out, executor=LocalExecutor(1), resume=True)
+    assert len(_logged(tmp_path)) == logged + 2
+    assert {p: p.stat().st_mtime_ns for p in done} == done
+    pd.testing.assert_frame_equal(strip(again), strip(reference(jobs, tmp_path / "whole")))
+
+
+def test_a_scheduler_without_workers_ends_the_run_command_then_resume_finishes(
+        tmp_path, capsys):
+    """``mttbench run --executor dask --scheduler ...`` on a scheduler that has no worker:
+    exit status 1 and every run an error row after --no-worker-timeout, with the resume
+    advice; once a worker joins, the printed --resume finishes the sweep on it."""
+    distributed = pytest.importorskip("distributed",
+                                      reason="distributed is not installed (mttbench[dask])")
+    args = ["run", "--scenarios", "default", "--trackers", "null", "kfnn", "--seeds", "2",
+            "--steps", "4", "--no-progress", "--out", str(tmp_path / "dask"), "--executor",
+            "dask", "--no-worker-timeout", "0.5"]
+    with (distributed.LocalCluster(n_workers=0, threads_per_worker=1, processes=True,
+                                   dashboard_address=None,
+                                   silence_logs=logging.CRITICAL) as cluster,
+          distributed.Client(cluster, set_as_default=False) as client):
+        address = ["--scheduler", cluster.scheduler_address]
+        assert main([*args, *address]) == 1
+        err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
+        assert err[-1].startswith("4 of 4 runs failed; first error: "), err
+        assert ("the Dask cluster had no worker for 0.5 s (--no-worker-timeout); --resume "
+                "runs this run again") in err[-1], err
+        table = pd.read_parquet(tmp_path / "dask" / "results.parquet")
+        assert len(table) == 4 and (table["status"] == "error").all()
+        assert not list((tmp_path / "dask" / "parts").glob("*.parquet"))
+        cluster.scale(1)
+        client.wait_for_workers(1, timeout=SWEEP_SAFETY_S)  # a safety net
+        assert main([*args, *address, "--resume"]) == 0, capsys.readouterr().err
+    assert main([*args[:-6], "--out", str(tmp_path / "local"), "--workers", "1"]) == 0
+    pd.testing.assert_frame_equal(
+        strip(pd.read_parquet(tmp_path / "dask" / "results.parquet")),
+        strip(pd.read_parquet(tmp_path / "local" / "results.parquet")))
+
+
+def test_the_watch_ages_runs_and_counts_the_time_without_workers():
+    """dask_watch.RunWatch on made-up views of the scheduler (worker, seconds executing
+    at its last heartbeat or None, seconds since that heartbeat)."""
+    watch = RunWatch(run_timeout=5.0, no_worker_s=3.0)
+    a, b = "mttbench-run-t-0", "mttbench-run-t-1"
+    # a executing on w1 from t=0; b held by w2 (queued there, or frozen before a report)
+    assert watch.check((2, {a: ("w1", 0.1, 0.2), b: ("w2", None, 0.3)}), {a, b}, 0.0) == (
+        [], False)
+    assert watch.check((2, {a: ("w1", 4.0, 0.2), b: ("w2", None, 4.0)}), {a, b}, 4.9)[0] == []
+    over, _ = watch.check((2, {a: ("w1", 5.0, 0.2), b: ("w2", None, 5.2)}), {a, b}, 5.1)
+    assert [(key, worker) for key, worker, _ in over] == [(a, "w1")]
+    assert "ended after 5 s of wall time (--run-timeout)" in over[0][2]
+    # a worker silent since before it reported b: over once past the silence floor too
+    quiet = {b: ("w2", None, SILENCE_FLOOR_S + 0.5)}
+    assert watch.check((2, quiet), {b}, SILENCE_FLOOR_S - 0.1)[0] == []
+    over, _ = watch.check((2, quiet), {b}, SILENCE_FLOOR_S + 0.2)
+    assert [key for key, _, _ in over] == [b] and "sent no heartbeat" in over[0][2]
+    # a run moved to another worker (its first died) counts from its new start there
+    moved = RunWatch(run_timeout=5.0, no_worker_s=3.0)
+    moved.check((2, {a: ("w1", 1.0, 0.1)}), {a}, 0.0)
+    moved.check((1, {}), {a}, 4.0)  # back in the scheduler's queue
+    moved.check((1, {a: ("w2", 0.5, 0.1)}), {a}, 4.5)
+    assert moved.check((1, {a: ("w2", 6.0, 0.1)}), {a}, 9.4)[0] == []
+    assert moved.check((1, {a: ("w2", 6.0, 0.1)}), {a}, 9.6)[0] != []
+    # no worker: the runs end after no_worker_s without one, counted from the first view
+    # without; a worker seen meanwhile starts the count again
+    empty = RunWatch(run_timeout=None, no_worker_s=3.0)
+    assert empty.check((0, {}), {a}, 10.0) == ([], False)
+    assert empty.check((1, {}), {a}, 12.0) == ([], False)
+    assert empty.check((0, {}), {a}, 12.5) == ([], False)
+    assert empty.check((0, {}), {a}, 15.4) == ([], False)
+    assert empty.check((0, {}), {a}, 15.5) == ([], True)
+    assert empty.check((0, {}), set(), 20.0) == ([], False)  # nothing waits: nothing ends
+    # the default limit: the run's limit, at least the floor
+    assert no_worker_limit(None, None) == NO_WORKER_FLOOR_S
+    assert no_worker_limit(None, 3 * NO_WORKER_FLOOR_S) == 3 * NO_WORKER_FLOOR_S
+    assert no_worker_limit(2.5, 3 * NO_WORKER_FLOOR_S) == 2.5
 
 
 def test_an_interrupted_dask_sweep_resumes(dask_two, tmp_path):
@@ -380,6 +576,10 @@ def test_missing_distributed_is_one_line(monkeypatch, tmp_path, capsys):
     (["--retries", "-1"], "--retries -1 is not allowed"),
     (["--executor", "dask", "--scheduler", "tcp://127.0.0.1:8786", "--workers", "2"],
      "give one of them"),
+    (["--no-worker-timeout", "30"], "--no-worker-timeout needs --executor dask"),
+    (["--executor", "dask", "--no-worker-timeout", "0"], "--no-worker-timeout 0.0 is not allowed"),
+    (["--executor", "dask", "--no-worker-timeout", "nan"],
+     "--no-worker-timeout nan is not allowed"),
 ])
 def test_bad_executor_options_are_refused(extra, message, tmp_path, capsys):
     if "dask" in extra:
@@ -403,7 +603,8 @@ def test_every_sweep_command_takes_the_executor_options():
     assert {"run", "compare", "reproduce"} <= sweeps
     for name in sorted(sweeps):
         options = {o for a in commands.choices[name]._actions for o in a.option_strings}
-        assert {"--executor", "--scheduler", "--retries", "--workers"} <= options, name
+        assert {"--executor", "--scheduler", "--retries", "--workers",
+                "--no-worker-timeout"} <= options, name
     args = parser.parse_args(["compare", "--executor", "dask", "--scheduler", "tcp://h:1",
                               "--retries", "5"])
     assert (args.executor, args.scheduler, args.retries) == ("dask", "tcp://h:1", 5)

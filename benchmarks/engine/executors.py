@@ -32,8 +32,14 @@ table bit for bit, timing and memory columns aside.
   ``Client.submit``; :func:`~mttbench.benchmarks.engine.loop.run_job` itself turns a
   tracker's failure into rows, so this is for e.g. a worker that cannot load the job).
   A run executing on its worker for longer than its wall-time limit (``--run-timeout``,
-  timed from when a worker reports it executing, not from its queueing) is cancelled
-  and its worker restarted by its nanny, which ends the run: its error row, no retry.
+  timed from its start on the worker, not from its queueing; a worker that stops
+  answering, e.g. frozen in a compiled loop that holds the GIL, ages its runs by its
+  silence) is cancelled and its worker restarted by its nanny, which ends the run: its
+  error row, no retry. If the cluster has no worker able to run for ``no_worker_timeout``
+  seconds while runs wait (``--no-worker-timeout``; default the run's limit, at least
+  60 s: all workers killed and their nannies unable to restart them, or a scheduler that
+  never gets one), every waiting run gets its error row and the sweep ends with its
+  finished parts (:mod:`.dask_watch`).
 
 A "job" here may be a batch of runs (:class:`~mttbench.benchmarks.engine.sweep.Batch`,
 the dataset layout of docs/result_store.md): the executors treat it as one run (one
@@ -57,6 +63,7 @@ import contextlib
 import ctypes
 import hashlib
 import logging
+import math
 import multiprocessing
 import os
 import signal
@@ -72,6 +79,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from .dask_watch import RunWatch, make_scheduler_view, no_worker_limit, no_worker_message
 from .errors import ConfigError
 
 if TYPE_CHECKING:
@@ -214,8 +222,11 @@ def _drain(started: Any) -> set[int]:
     return set(out)
 
 
-#: how often (seconds) the local pool looks for a run over its time limit
+#: how often (seconds) the local pool looks for a run over its time limit, and the Dask
+#: executor for a finished run
 _POLL_S = 0.2
+#: how often (seconds) the Dask executor asks its scheduler about the runs it holds
+_WATCH_S = 0.5
 
 
 #: how long (seconds) a worker ended with SIGTERM may take to die before SIGKILL
@@ -396,12 +407,6 @@ def dask_setup(worker: Any) -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _executing_keys(dask_worker: Any) -> list[str]:
-    """Run on each Dask worker: the keys of the tasks its threads are executing now (not
-    those queued on it, which the scheduler's ``processing`` includes)."""
-    return [str(ts.key) for ts in dask_worker.state.executing]
-
-
 def _worker_identity() -> tuple[str, str]:
     """Run on each Dask worker: its mttbench version and :func:`source_digest`."""
     import mttbench
@@ -415,7 +420,10 @@ class DaskExecutor(Executor):
     e.g. of a dask-jobqueue or dask-kubernetes cluster), or neither: a ``LocalCluster``
     of ``workers`` processes (default: the number of CPUs) with one thread each, started
     at the first sweep and ended by :meth:`close`. ``connect_timeout`` (seconds) None
-    means Dask's ``distributed.comm.timeouts.connect``.
+    means Dask's ``distributed.comm.timeouts.connect``. ``no_worker_timeout`` (seconds):
+    how long the cluster may have no worker while runs wait before they get their
+    error rows; None: the run's wall-time limit, at least
+    :data:`~.dask_watch.NO_WORKER_FLOOR_S`.
 
     An existing cluster's workers are checked at connection: each must import the same
     mttbench (version and :func:`source_digest`), else :class:`ConfigError`.
@@ -423,7 +431,8 @@ class DaskExecutor(Executor):
 
     def __init__(self, scheduler: str | None = None, workers: int | None = None,
                  retries: int = DEFAULT_RETRIES, client: Any = None,
-                 connect_timeout: float | None = None) -> None:
+                 connect_timeout: float | None = None,
+                 no_worker_timeout: float | None = None) -> None:
         import_distributed()
         if scheduler and workers:
             raise ConfigError("--workers starts a LocalCluster and --scheduler names an "
@@ -435,6 +444,7 @@ class DaskExecutor(Executor):
             workers or os.cpu_count() or 1)
         self.retries = check_retries(retries)
         self.connect_timeout = connect_timeout
+        self.no_worker_timeout = check_no_worker_timeout(no_worker_timeout)
         self._client = client
         self._own_client = client is None
         self._checked = False
@@ -525,10 +535,11 @@ class DaskExecutor(Executor):
         futures = client.map(work.encoded, [job for job, _ in todo], key=keys, pure=False,
                              retries=self.retries)
         index = {fut.key: i for i, fut in enumerate(futures)}
-        #: when a run was first seen executing on a worker: the start of its wall-time
-        #: limit; a run over it is cancelled and its worker restarted
-        #: (the nanny brings it back), which ends the run: its error row, no retry
-        seen: dict[str, float] = {}
+        # the runs over their wall-time limit and a cluster without workers, as the
+        # scheduler sees them (dask_watch); checked every _WATCH_S seconds
+        watch = RunWatch(work.timeout, no_worker_limit(self.no_worker_timeout, work.timeout))
+        view = make_scheduler_view()
+        next_watch = time.monotonic() + _WATCH_S
         timed_out: set[str] = set()
         pending = set(futures)
         ready = distributed.as_completed(futures, loop=client.loop)
@@ -551,9 +562,10 @@ class DaskExecutor(Executor):
                     fut.release()
                     work.write_bytes(todo[i][1], data)  # an OSError stops the sweep
                     yield i, None
-                if work.timeout is not None and pending:
-                    yield from self._end_overdue(client, pending, index, seen, timed_out,
-                                                 work.timeout)
+                if pending and time.monotonic() >= next_watch:
+                    yield from self._watch(client, view, f"{TASK_PREFIX}-{token}-", watch,
+                                           pending, index, timed_out)
+                    next_watch = time.monotonic() + _WATCH_S
         finally:
             waiting = [fut for fut in futures if not fut.done()]
             if waiting:
@@ -561,26 +573,33 @@ class DaskExecutor(Executor):
                     client.cancel(waiting)
 
     @staticmethod
-    def _end_overdue(client: Any, pending: set, index: dict, seen: dict, timed_out: set,
-                     timeout: float) -> Iterator[Outcome]:
-        """Cancel the pending runs on a worker for longer than ``timeout`` seconds and
-        restart their workers; yield their error rows (and drop them from ``pending``)."""
-        now = time.monotonic()
+    def _watch(client: Any, view: Callable, prefix: str, watch: RunWatch, pending: set,
+               index: dict, timed_out: set) -> Iterator[Outcome]:
+        """One look at the scheduler (:class:`~.dask_watch.RunWatch`): a run over its limit
+        is cancelled and its worker restarted (its nanny ends the run); if the cluster
+        has had no worker for too long, every pending run ends. Yields their error rows
+        and drops them from ``pending``."""
+        try:
+            seen = client.run_on_scheduler(view, prefix)
+        except Exception:  # noqa: BLE001 - a scheduler that cannot say now: look again later
+            return
         mine = {fut.key: fut for fut in pending}
-        with contextlib.suppress(Exception):  # workers that cannot say: no limit now
-            for worker, keys in client.run(_executing_keys).items():
-                for key in keys:
-                    if key not in mine or key in timed_out:
-                        continue
-                    if now - seen.setdefault(key, now) <= timeout:
-                        continue
-                    timed_out.add(key)
-                    pending.discard(mine[key])
-                    client.cancel([mine[key]])
-                    with contextlib.suppress(Exception):
-                        client.restart_workers([worker], raise_for_error=False)
-                    yield index[key], (f"timed out: ended after {timeout:g} s of wall "
-                                       "time (--run-timeout)")
+        overdue, empty = watch.check(seen, mine, time.monotonic())
+        for key, _, _ in overdue:
+            timed_out.add(key)
+            pending.discard(mine[key])
+            with contextlib.suppress(Exception):
+                client.cancel([mine[key]])
+        for worker in sorted({worker for _, worker, _ in overdue}):
+            with contextlib.suppress(Exception):  # a worker without a nanny stays
+                client.restart_workers([worker], raise_for_error=False)
+        for key, _, message in overdue:
+            yield index[key], message
+        if empty:
+            message = no_worker_message(watch.no_worker_s)
+            for fut in sorted(pending, key=lambda f: index[f.key]):
+                yield index[fut.key], message
+            pending.clear()
 
     def close(self) -> None:
         client, cluster = self._client, self._cluster
@@ -617,6 +636,16 @@ def use_executor(executor: Executor) -> Iterator[Executor]:
     finally:
         _CURRENT.reset(token)
         executor.close()
+
+
+def check_no_worker_timeout(seconds: float | None) -> float | None:
+    """``--no-worker-timeout``: None, or seconds > 0 (finite)."""
+    if seconds is None:
+        return None
+    value = float(seconds)
+    if not (math.isfinite(value) and value > 0):
+        raise ConfigError(f"--no-worker-timeout {seconds} is not allowed: expected seconds > 0")
+    return value
 
 
 def check_retries(retries: int) -> int:
