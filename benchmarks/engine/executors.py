@@ -32,10 +32,10 @@ table bit for bit, timing and memory columns aside.
   ``Client.submit``; :func:`~mttbench.benchmarks.engine.loop.run_job` itself turns a
   tracker's failure into rows, so this is for e.g. a worker that cannot load the job).
   A run executing on its worker for longer than its wall-time limit (``--run-timeout``,
-  timed from its start on the worker, not from its queueing; a worker that stops
-  answering, e.g. frozen in a compiled loop that holds the GIL, ages its runs by its
-  silence) is cancelled and its worker restarted by its nanny, which ends the run: its
-  error row, no retry. If the cluster has no worker able to run for ``no_worker_timeout``
+  timed from when the scheduler first shows it executing, not from its queueing; a
+  worker that stops sending heartbeats, e.g. frozen in a compiled loop that holds the
+  GIL, ages the runs it holds by its silence) is cancelled and its worker restarted by
+  its nanny, which ends the run: its error row, no retry. If the cluster has no worker able to run for ``no_worker_timeout``
   seconds while runs wait (``--no-worker-timeout``; default the run's limit, at least
   60 s: all workers killed and their nannies unable to restart them, or a scheduler that
   never gets one), every waiting run gets its error row and the sweep ends with its
