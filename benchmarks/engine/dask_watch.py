@@ -18,8 +18,9 @@ from typing import Any
 
 #: the shortest time (seconds) a cluster may have no worker while runs wait, whatever
 #: the run limit: a worker restarted on a loaded machine starts a process and imports
-#: numpy, pandas and mttbench before it registers again
-NO_WORKER_FLOOR_S = 60.0
+#: numpy, pandas and mttbench before it registers again (seen: 45 s at load 18 on 2
+#: cores, docs/dask.md)
+NO_WORKER_FLOOR_S = 180.0
 
 #: one run as the scheduler sees it: (its worker's address, seconds it had been
 #: executing at the worker's last heartbeat or None if not reported executing then,
@@ -71,10 +72,10 @@ def make_scheduler_view() -> Callable[[str, Any], tuple[int, dict[str, RunView]]
 
 
 #: a worker that has sent no heartbeat for this long (seconds) is frozen, not slow: a
-#: worker sends one every 0.5-1 s (every few seconds on a cluster of hundreds), and a
-#: fresh worker's first run, importing its tracker on a loaded machine, silences it
-#: for a few seconds at most
-SILENCE_FLOOR_S = 10.0
+#: worker sends one every 0.5-1 s (every few seconds on a cluster of hundreds); a fresh
+#: worker's first run importing numba on a loaded machine silenced it for over 10 s
+#: (our LocalCluster's workers import it before their first run: dask_setup)
+SILENCE_FLOOR_S = 20.0
 
 
 @dataclass

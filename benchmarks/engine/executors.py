@@ -35,10 +35,11 @@ table bit for bit, timing and memory columns aside.
   timed from when the scheduler first shows it executing, not from its queueing; a
   worker that stops sending heartbeats, e.g. frozen in a compiled loop that holds the
   GIL, ages the runs it holds by its silence) is cancelled and its worker restarted by
-  its nanny, which ends the run: its error row, no retry. If the cluster has no worker able to run for ``no_worker_timeout``
-  seconds while runs wait (``--no-worker-timeout``; default the run's limit, at least
-  60 s: all workers killed and their nannies unable to restart them, or a scheduler that
-  never gets one), every waiting run gets its error row and the sweep ends with its
+  its nanny, which ends the run: its error row, no retry. If the cluster has no worker
+  able to run for ``no_worker_timeout`` seconds while runs wait
+  (``--no-worker-timeout``; default the run's limit, at least 180 s: all workers killed
+  and their nannies unable to restart them, or a scheduler that never gets one), every
+  waiting run gets its error row and the sweep ends with its
   finished parts (:mod:`.dask_watch`).
 
 A "job" here may be a batch of runs (:class:`~mttbench.benchmarks.engine.sweep.Batch`,
@@ -402,9 +403,14 @@ def _sigint_ignored() -> Iterator[None]:
 
 
 def dask_setup(worker: Any) -> None:
-    """Preload of our LocalCluster's worker processes: Ctrl-C is the client's to handle."""
+    """Preload of our LocalCluster's worker processes: Ctrl-C is the client's to handle,
+    and the modules every run needs (pandas, pyarrow, numba: some 600) are imported
+    before the worker takes a run. Else a fresh worker's first run pays for them in its
+    wall time, and numba's initialisation, holding the GIL, silences the worker's
+    heartbeats for seconds on a loaded machine (the run limit reads them)."""
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+    from . import loop, sweep  # noqa: F401
 
 
 def _worker_identity() -> tuple[str, str]:
