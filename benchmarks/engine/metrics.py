@@ -723,17 +723,26 @@ def run_level_metrics(run: RunData) -> dict[str, float]:
     return out
 
 
+def _dense(run: RunData) -> tuple:
+    """The run's truth and estimates as :func:`~.track_metrics.dense_pair` gives them,
+    converted once for all its track scores."""
+    if "dense" not in run.cache:
+        run.cache["dense"] = track_metrics.dense_pair(run.truth, run.truth_ids,
+                                                      run.estimate, run.labels)
+    return run.cache["dense"]
+
+
 def _clear_mot(run: RunData, gate: float) -> track_metrics.ClearMOT:
     key = ("clear_mot", float(gate))
     if key not in run.cache:
         run.cache[key] = track_metrics.clear_mot(run.truth, run.truth_ids, run.estimate,
-                                                 run.labels, gate=gate)
+                                                 run.labels, gate=gate, dense=_dense(run))
     return run.cache[key]
 
 
 def _tgospa_columns(run: RunData, gamma: float) -> dict[str, float]:
     g = track_metrics.trajectory_gospa(run.truth, run.truth_ids, run.estimate, run.labels,
-                                       c=run.c, p=run.p, gamma=gamma)
+                                       c=run.c, p=run.p, gamma=gamma, dense=_dense(run))
     return {"tgospa": g.total, "tgospa_loc": g.localisation, "tgospa_missed": g.missed,
             "tgospa_false": g.false, "tgospa_switch": g.switch}
 
@@ -745,7 +754,7 @@ def ospa2_of(run: RunData, window: float) -> track_metrics.OSPA2:
     if key not in run.cache:
         run.cache[key] = track_metrics.ospa2(run.truth, run.truth_ids, run.estimate,
                                              run.labels, c=run.c, p=run.p,
-                                             window=int(window))
+                                             window=int(window), dense=_dense(run))
     return run.cache[key]
 
 

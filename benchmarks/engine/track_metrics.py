@@ -10,7 +10,9 @@ functions score a whole run, given per step ``k = 0..T-1``::
 
 A *trajectory* is everything with one id (truth) or one label (estimate): its position at
 the steps where it is present. Ids and labels need not be contiguous in time. Distances
-are Euclidean; ``c`` is the cut-off and ``p`` the order.
+are Euclidean; ``c`` is the cut-off and ``p`` the order. The scores take the run as
+:func:`dense_pair` gives it too (``dense=``), so that several scores of one run convert
+it once.
 
 * :func:`trajectory_gospa` -- Garcia-Fernandez, Rahmathullah & Svensson, "A metric on the
   space of finite sets of trajectories for evaluation of multi-target tracking
@@ -47,6 +49,7 @@ __all__ = [
     "OSPA2",
     "TrajectoryGOSPA",
     "as_dense",
+    "dense_pair",
     "clear_mot",
     "crossings",
     "ospa2",
@@ -123,9 +126,9 @@ class TrajectoryGOSPA:
     solver: str
 
 
-def _dense_pair(truth, truth_ids, estimate, labels):
+def dense_pair(truth, truth_ids, estimate, labels):
     """:func:`as_dense` of the truth and of the estimates, which must have as many steps:
-    ``(X, ax, Y, ay)``."""
+    ``(X, ax, Y, ay)`` (the scores below take it as ``dense=`` when a caller has it)."""
     X, ax = as_dense(truth, truth_ids)
     Y, ay = as_dense(estimate, labels)
     if len(X) != len(Y):
@@ -135,8 +138,8 @@ def _dense_pair(truth, truth_ids, estimate, labels):
 
 def trajectory_gospa(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
                      estimate: Sequence[np.ndarray], labels: Sequence[np.ndarray],
-                     c: float = 2.0, p: float = 2.0, gamma: float = 2.0
-                     ) -> TrajectoryGOSPA:
+                     c: float = 2.0, p: float = 2.0, gamma: float = 2.0, *,
+                     dense: tuple | None = None) -> TrajectoryGOSPA:
     """Trajectory metric of Garcia-Fernandez, Rahmathullah & Svensson (2020), alpha = 2.
 
     With truth trajectories ``i = 1..nx``, estimated trajectories ``j = 1..ny`` and, per
@@ -201,7 +204,7 @@ def trajectory_gospa(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray
     _check(c, p)
     if not (np.isfinite(gamma) and gamma > 0):
         raise ValueError(f"switching cost gamma must be positive and finite, got {gamma}")
-    X, ax, Y, ay = _dense_pair(truth, truth_ids, estimate, labels)
+    X, ax, Y, ay = dense or dense_pair(truth, truth_ids, estimate, labels)
     T = len(X)
     half = c**p / 2
     const = half * (ax.sum() + ay.sum())
@@ -267,10 +270,10 @@ def _tgospa_dp(coef: np.ndarray, read: np.ndarray, qi: np.ndarray, qj: np.ndarra
                g: float, tol: float) -> np.ndarray | None:
     """An optimal integer assignment ``W (T, Q)`` bool of the reduced program of
     :func:`trajectory_gospa` by dynamic programming per component of pairs, or None when
-    a component has more than :data:`_DP_MAX_STATES` matchings or the optimal ``W`` are not all equal where ``read (T,
-    Q)`` is True (some state within ``tol`` of the optimum differs there from the best
-    one). ``coef (T, Q)``: the pairs' coefficients; ``g = gamma**p / 2`` per unit
-    change of one ``w_q``.
+    a component has more than :data:`_DP_MAX_STATES` matchings or the optimal ``W`` are
+    not all equal where ``read (T, Q)`` is True (some state within ``tol`` of the
+    optimum differs there from the best one). ``coef (T, Q)``: the pairs'
+    coefficients; ``g = gamma**p / 2`` per unit change of one ``w_q``.
 
     Components with the same number ``S`` of matchings go through the recursions
     together: ``cost (T, C, S)`` and ``h (C, S, S)``, one numpy step per time step.
@@ -392,7 +395,8 @@ class OSPA2:
 
 def ospa2(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
           estimate: Sequence[np.ndarray], labels: Sequence[np.ndarray],
-          c: float = 2.0, p: float = 2.0, window: int | None = 10) -> OSPA2:
+          c: float = 2.0, p: float = 2.0, window: int | None = 10, *,
+          dense: tuple | None = None) -> OSPA2:
     """OSPA(2) of Beard, Vo & Vo (2020), over sliding windows.
 
     For the window ``K = {k - window + 1, ..., k}`` (clipped at 0; ``window=None`` means
@@ -414,7 +418,7 @@ def ospa2(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
     (and of its parts); ``per_step`` holds OSPA2(k).
     """
     _check(c, p)
-    X, ax, Y, ay = _dense_pair(truth, truth_ids, estimate, labels)
+    X, ax, Y, ay = dense or dense_pair(truth, truth_ids, estimate, labels)
     T = len(X)
     if T == 0:
         return OSPA2(0.0, 0.0, 0.0, np.zeros(0))
@@ -442,8 +446,8 @@ def ospa2(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
         if min(m, n) == 0:
             tot[k] = card[k] = c
             continue
-        cs = (csum[k + 1] - csum[lo])[np.ix_(ix, iy)]
-        ns = (nsum[k + 1] - nsum[lo])[np.ix_(ix, iy)]
+        cs = (csum[k + 1] - csum[lo])[ix[:, None], iy]
+        ns = (nsum[k + 1] - nsum[lo])[ix[:, None], iy]
         base = np.minimum(cs / ns, c) ** p
         r, s = linear_sum_assignment(base)
         big = max(m, n)
@@ -476,7 +480,8 @@ class ClearMOT:
 
 def clear_mot(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
               estimate: Sequence[np.ndarray], labels: Sequence[np.ndarray],
-              gate: float = 1.0, mt: float = 0.8, ml: float = 0.2) -> ClearMOT:
+              gate: float = 1.0, mt: float = 0.8, ml: float = 0.2, *,
+              dense: tuple | None = None) -> ClearMOT:
     """Correspondences per step as in Bernardin & Stiefelhagen (2008), with the gate
     ``||x - y|| < gate``:
 
@@ -499,7 +504,7 @@ def clear_mot(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
     """
     if not (np.isfinite(gate) and gate > 0):
         raise ValueError(f"the CLEAR-MOT gate must be positive and finite, got {gate}")
-    X, ax, Y, ay = _dense_pair(truth, truth_ids, estimate, labels)
+    X, ax, Y, ay = dense or dense_pair(truth, truth_ids, estimate, labels)
     T, nx = ax.shape
     last = np.full(nx, -1)
     tracked = np.zeros((T, nx), dtype=bool)
