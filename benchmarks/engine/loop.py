@@ -18,7 +18,8 @@ of the runtime benchmarks and the conformance kit all come from it); it yields a
         looks = run.look(k, cells)      # or run.measure(k) for the superposition sensor
         tracker.update(looks)                               # timed (tracker)
         est = tracker.estimate()                            # timed (tracker)
-        metrics(truth positions, est.states[:, [0, 2]])     # untimed
+        metrics(truth positions, est.states[:, [0, 2]])     # untimed (the built-ins for
+                                                            # the whole run at its end)
 
 The policy's generator does not depend on the tracker, so a random policy looks
 at the same cells for every tracker of a run (common random numbers). The
