@@ -19,6 +19,7 @@ from mttbench.benchmarks.engine.metrics import (
     GOSPA,
     OSPA,
     assigned_rmse,
+    builtin_run_columns,
     count_error,
     gospa,
     ospa,
@@ -265,3 +266,75 @@ def test_step_metrics_empty():
 def test_invalid_inputs_raise(call):
     with pytest.raises(ValueError):
         call()
+
+
+def _separate_columns(x, y, n_est, c, p) -> dict[str, float]:
+    """The built-in columns from the metrics' own functions, one call each."""
+    o, g = ospa(x, y, c=c, p=p), gospa(x, y, c=c, p=p)
+    return {"count_error": count_error(len(y), len(x)),
+            "own_count_error": count_error(n_est, len(x)),
+            "ospa": o.total, "ospa_loc": o.localisation, "ospa_card": o.cardinality,
+            "gospa": g.total, "gospa_loc": g.localisation, "gospa_missed": g.missed,
+            "gospa_false": g.false, "rmse": assigned_rmse(x, y)}
+
+
+def _step_case(rng, kind: str) -> tuple[np.ndarray, np.ndarray]:
+    """A step's truth and estimate: random, with exact duplicates, on integer points
+    (exact ties of distances), or far apart (every pair cut off)."""
+    n, m = int(rng.integers(0, 8)), int(rng.integers(0, 8))
+    x, y = rng.uniform(0, 6, (n, 2)), rng.uniform(0, 6, (m, 2))
+    if kind == "duplicates" and n and m:
+        y[: m // 2] = x[rng.integers(0, n, m // 2)]
+        y[m // 2:] = y[0]
+    elif kind == "integer":
+        x, y = np.round(x), np.round(y)
+    elif kind == "far":
+        y += 100.0
+    return x, y
+
+
+@pytest.mark.parametrize("kind", ["random", "duplicates", "integer", "far"])
+@pytest.mark.parametrize("p", ORDERS)
+def test_step_metrics_equal_the_separate_functions_bit_for_bit(kind, p):
+    """step_metrics' shared assignment gives exactly the numbers of ospa(), gospa(),
+    assigned_rmse() and count_error(), including sizes 0 and 1 and exact ties."""
+    rng = np.random.default_rng([7, int(p), len(kind)])
+    for _ in range(150):
+        x, y = _step_case(rng, kind)
+        c = float(rng.choice(CUTOFFS))
+        n_est = float(rng.uniform(0, 8))
+        row = step_metrics(x, y, n_est, c=c, p=p)
+        expected = _separate_columns(x, y, n_est, c, p)
+        for col, value in expected.items():
+            assert row[col] == value or (math.isnan(value) and math.isnan(row[col])), (
+                col, row[col], value, x, y, c)
+
+
+def test_vectorised_distances_equal_cdist_bit_for_bit():
+    """builtin_run_columns' distances: sqrt(dx*dx + dy*dy) and dx*dx + dy*dy are cdist's
+    euclidean and sqeuclidean numbers exactly (and cdist(y, x) is cdist(x, y).T)."""
+    rng = np.random.default_rng(11)
+    for scale in (1.0, 50.0, 1e4):
+        x, y = rng.uniform(-scale, scale, (300, 2)), rng.uniform(-scale, scale, (200, 2))
+        dx = x[:, None, 0] - y[None, :, 0]
+        dy = x[:, None, 1] - y[None, :, 1]
+        assert np.array_equal(np.sqrt(dx * dx + dy * dy), cdist(x, y))
+        assert np.array_equal(dx * dx + dy * dy, cdist(x, y, "sqeuclidean"))
+        assert np.array_equal(cdist(y, x), cdist(x, y).T)
+
+
+@pytest.mark.parametrize("kind", ["random", "duplicates", "integer", "far"])
+def test_builtin_run_columns_equal_the_separate_functions_per_step(kind):
+    """A whole run's columns at once are, step by step, the metrics' own numbers."""
+    rng = np.random.default_rng([12, len(kind)])
+    for p in ORDERS:
+        steps = [_step_case(rng, kind) for _ in range(40)]
+        counts = rng.uniform(0, 8, len(steps))
+        c = float(rng.choice(CUTOFFS))
+        cols = builtin_run_columns([s[0] for s in steps], [s[1] for s in steps], counts,
+                                   c=c, p=p)
+        for k, (x, y) in enumerate(steps):
+            for col, value in _separate_columns(x, y, counts[k], c, p).items():
+                got = cols[col][k]
+                assert got == value or (math.isnan(value) and math.isnan(got)), (
+                    col, k, got, value)

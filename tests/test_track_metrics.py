@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from mttbench.benchmarks.engine import track_metrics
 from mttbench.benchmarks.engine.track_metrics import clear_mot, ospa2, trajectory_gospa
 
 
@@ -79,6 +80,72 @@ def test_tgospa_equals_brute_force(seed):
     assert g.total == pytest.approx(_brute_tgospa(tpos, tids, epos, elab, c, p, gamma),
                                     abs=1e-9)
     assert g.localisation + g.missed + g.false + g.switch == pytest.approx(g.total**p)
+
+
+def _tgospa_fields(g):
+    return (g.total, g.localisation, g.missed, g.false, g.switch, g.switches)
+
+
+def _tgospa_by_highs(monkeypatch, *args, **kwargs):
+    """trajectory_gospa with the dynamic programme turned off (HiGHS throughout)."""
+    with monkeypatch.context() as mp:
+        mp.setattr(track_metrics, "_tgospa_dp", lambda *a, **k: None)
+        return track_metrics.trajectory_gospa(*args, **kwargs)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_tgospa_dynamic_programme_equals_highs_bit_for_bit(seed, monkeypatch):
+    """Where the optimum is unique the dynamic programme finds the W that HiGHS finds, so
+    every part is the same number; it settles most random runs (components of one pair
+    and of several: shared truths, crossing tracks, gaps)."""
+    rng = np.random.default_rng(200 + seed)
+    settled = 0
+    for _ in range(10):
+        nx, ny, T = int(rng.integers(1, 6)), int(rng.integers(1, 7)), int(rng.integers(5, 60))
+        tpos, tids = _random_run(rng, nx, T, spread=float(rng.uniform(2, 8)))
+        epos, elab = _random_run(rng, ny, T, spread=float(rng.uniform(2, 8)), id0=10)
+        c, p, gamma = float(rng.choice([1.0, 2.0])), float(rng.choice([1.0, 2.0])), \
+            float(rng.choice([0.5, 1.0, 2.0]))
+        g = trajectory_gospa(tpos, tids, epos, elab, c=c, p=p, gamma=gamma)
+        ref = _tgospa_by_highs(monkeypatch, tpos, tids, epos, elab, c=c, p=p, gamma=gamma)
+        assert ref.solver in ("lp", "milp", "none")
+        assert _tgospa_fields(g) == _tgospa_fields(ref), (g, ref)
+        settled += g.solver == "dp"
+    assert settled >= 5
+
+
+def test_tgospa_tie_goes_to_highs():
+    """One truth followed by track A at 0.5, except at step 2 where A is absent and track
+    B sits exactly on the truth. With p = 1, c = 2, gamma = 1, going over to B for that
+    step gains c**p = 2 and costs four changes of gamma**p / 2: a tie, so the optimal W
+    is not unique and HiGHS decides."""
+    T = 5
+    tpos = [np.array([[0.0, 0.0]])] * T
+    tids = [np.array([1])] * T
+    epos = [np.array([[0.0, 0.0]]) if k == 2 else np.array([[0.5, 0.0]]) for k in range(T)]
+    elab = [np.array([5]) if k == 2 else np.array([4]) for k in range(T)]
+    run = (tpos, tids, epos, elab)
+    g = trajectory_gospa(*run, c=2.0, p=1.0, gamma=1.0)
+    assert g.solver in ("lp", "milp")
+    assert g.total == pytest.approx(_brute_tgospa(*run, 2.0, 1.0, 1.0), abs=1e-12)
+    # off the tie the programme settles it: B is worth it when switching is cheaper
+    g = trajectory_gospa(*run, c=2.0, p=1.0, gamma=0.9)
+    assert g.solver == "dp" and g.switches == 2.0 and g.localisation == 2.0
+    g = trajectory_gospa(*run, c=2.0, p=1.0, gamma=1.1)
+    assert g.solver == "dp" and g.switches == 0.0 and g.missed == 1.0 and g.false == 1.0
+
+
+def test_tgospa_large_component_goes_to_highs(monkeypatch):
+    """A component with more matchings than the programme enumerates is left to HiGHS."""
+    n = track_metrics._DP_MAX_STATES  # one truth near n tracks: n + 1 matchings
+    T = 4
+    tpos = [np.array([[0.0, 0.0]])] * T
+    tids = [np.array([0])] * T
+    epos = [np.column_stack([np.linspace(0.0, 0.5, n), np.zeros(n)])] * T
+    elab = [np.arange(n)] * T
+    g = trajectory_gospa(tpos, tids, epos, elab, c=2.0, p=2.0, gamma=2.0)
+    assert g.solver in ("lp", "milp")
+    assert g.localisation == 0.0 and g.false == pytest.approx(2.0 * (n - 1) * T)
 
 
 def _props(dist, runs):

@@ -14,6 +14,14 @@ so that what is timed is the harness's own overhead, and KF-NN's step beside it.
   ``default`` after 50 raster steps of world 0, timed on 24 raster looks, as
   ``bench_trackers.py::test_tracker_step`` times it (the conftest's ``Warm``): the
   yardstick of the goal: harness per step below KF-NN's step.
+* ``test_step_metrics_of_run``: the built-in per-step metrics (OSPA, GOSPA, RMSE, counts)
+  of a whole finished run at once (:func:`~mttbench.benchmarks.engine.metrics.
+  builtin_run_columns`, as ``run_job`` computes them), on KF-NN's 100 steps of
+  ``default``, world 0.
+* ``test_track_scores_of_run``: the run-level track scores and their per-step series of
+  the same run (:func:`~mttbench.benchmarks.engine.metrics.run_level_metrics` and
+  :func:`~mttbench.benchmarks.engine.track_series.series_values`: trajectory GOSPA,
+  OSPA(2), CLEAR-MOT, crossings), on a fresh ``RunData`` each round (no cached parts).
 
 Run: ``pytest benchmarks/bench/bench_harness.py --benchmark-only``; docs/result_store.md
 has the figures.
@@ -25,6 +33,8 @@ import pytest
 
 from mttbench import scenarios
 from mttbench.benchmarks.engine.loop import Job, play, run_job
+from mttbench.benchmarks.engine.metrics import RunData, builtin_run_columns, run_level_metrics
+from mttbench.benchmarks.engine.track_series import series_values
 from mttbench.benchmarks.engine.specs import TrackerSpec
 from mttbench.trackers.kfnn import KFNNTracker
 from mttbench.trackers.null import NullTracker
@@ -74,3 +84,33 @@ def test_kfnn_step(benchmark, warm_up, name):
     result = benchmark.pedantic(step, setup=setup, rounds=STEP_ROUNDS, warmup_rounds=1)
     # the timed step gives the same estimate as the probe (same state, same random numbers)
     assert float(result.count) == float(est.count)
+
+
+@pytest.fixture(scope="module")
+def kfnn_run():
+    """KF-NN's 100 steps of ``default``, world 0: per step the true positions and ids,
+    the estimated positions, labels and count."""
+    steps = [(rec.truth[:, [0, 2]], rec.truth_ids, rec.estimate.states[:, [0, 2]],
+              rec.estimate.labels, float(rec.estimate.count))
+             for rec in play(scenarios.get("default"), KFNNTracker(), 0)]
+    return [list(column) for column in zip(*steps, strict=True)]
+
+
+def test_step_metrics_of_run(benchmark, kfnn_run):
+    truth, _, estimate, _, counts = kfnn_run
+    benchmark.extra_info.update(scenario="default", tracker="kfnn", steps=len(truth))
+    cols = benchmark.pedantic(builtin_run_columns, args=(truth, estimate, counts),
+                              rounds=ROUNDS, warmup_rounds=WARMUP_ROUNDS)
+    assert len(cols["ospa"]) == len(truth)
+
+
+def test_track_scores_of_run(benchmark, kfnn_run):
+    truth, ids, estimate, labels, _ = kfnn_run
+
+    def scores():
+        run = RunData(truth, ids, estimate, labels, c=2.0, p=2.0)
+        return run_level_metrics(run), series_values(run)
+
+    benchmark.extra_info.update(scenario="default", tracker="kfnn", steps=len(truth))
+    values, series = benchmark.pedantic(scores, rounds=ROUNDS, warmup_rounds=WARMUP_ROUNDS)
+    assert values["tgospa"] > 0 and len(series["ospa2_window"]) == len(truth)

@@ -18,7 +18,8 @@ of the runtime benchmarks and the conformance kit all come from it); it yields a
         looks = run.look(k, cells)      # or run.measure(k) for the superposition sensor
         tracker.update(looks)                               # timed (tracker)
         est = tracker.estimate()                            # timed (tracker)
-        metrics(truth positions, est.states[:, [0, 2]])     # untimed
+        metrics(truth positions, est.states[:, [0, 2]])     # untimed (the built-ins for
+                                                            # the whole run at its end)
 
 The policy's generator does not depend on the tracker, so a random policy looks
 at the same cells for every tracker of a run (common random numbers). The
@@ -121,6 +122,8 @@ from ...trackers.cells import CellCounts
 from .metrics import (
     BUILTIN_METRICS,
     RunData,
+    _check_order_cutoff,
+    builtin_run_columns,
     cutoff,
     metric_columns,
     metric_names,
@@ -542,6 +545,10 @@ def run_job(job: Job, c: float | None = None, p: float = 2.0) -> pd.DataFrame:
     def finish() -> pd.DataFrame:
         rss = _peak_rss_mb()
         n_ok = len(step_cols.get("step", ()))
+        if n_ok:  # the built-in metrics of the ok steps, for the whole run at once
+            cols = builtin_run_columns(track_run[0][:n_ok], track_run[2][:n_ok],
+                                       step_cols["est_count"], c=c, p=p)
+            step_cols.update((k, v.tolist()) for k, v in cols.items())
         table: dict[str, list[Any]] = {k: [v] * n_ok for k, v in base.items()} if n_ok else {}
         table.update(step_cols)
         for r in rows:  # the special row: unsupported, or the step that failed
@@ -574,15 +581,21 @@ def run_job(job: Job, c: float | None = None, p: float = 2.0) -> pd.DataFrame:
                         looks_per_step=job.looks_per_step, tracker_label=job.tracker.label,
                         policy_label=job.policy_label)
         m_cols = metric_columns()  # the registry does not change during a run
+        # the built-ins' columns are filled in by finish; the others' step by step
         step_cols.update((k, []) for k in (
             "step", "true_count", "est_count", *m_cols, "n_looks", "n_positive",
             *TIMING_COLUMNS, "status", "error"))
+        extra_cols = [name for name in m_cols if name not in METRIC_COLUMNS]
         col = step_cols
         for rec in playback:
             est = rec.estimate
             states = np.asarray(est.states, dtype=float).reshape(-1, 4)
             _check_estimate(est.count, states)
-            m = step_metrics(rec.truth[:, [0, 2]], states[:, [0, 2]], float(est.count), c=c, p=p)
+            if rec.k == 0:  # a bad c or p fails the first step, as the metrics would
+                _check_order_cutoff(c, p)
+            if extra_cols:
+                m = step_metrics(rec.truth[:, [0, 2]], states[:, [0, 2]], float(est.count),
+                                 c=c, p=p, builtins=False)
             labels = _labels_of(est, len(states))
             labelled = labelled and labels is not None
             for acc, v in zip(track_run, (rec.truth[:, [0, 2]], rec.truth_ids, states[:, [0, 2]],
@@ -591,7 +604,7 @@ def run_job(job: Job, c: float | None = None, p: float = 2.0) -> pd.DataFrame:
             col["step"].append(rec.k)
             col["true_count"].append(float(len(rec.truth)))
             col["est_count"].append(float(est.count))
-            for name in m_cols:
+            for name in extra_cols:
                 col[name].append(float(m[name]))
             col["n_looks"].append(len(rec.looks.cells))
             col["n_positive"].append(int(np.count_nonzero(rec.looks.returns)))

@@ -66,6 +66,7 @@ __all__ = [
     "RunData",
     "RunMetric",
     "assigned_rmse",
+    "builtin_run_columns",
     "column_label",
     "count_error",
     "display_metrics",
@@ -522,16 +523,123 @@ BUILTIN_METRICS: tuple[str, ...] = tuple(register_metric(m).name for m in (
 ))
 
 
+def _builtin_step_columns(x: np.ndarray, y: np.ndarray, estimated_count: float, c: float,
+                          p: float) -> dict[str, float]:
+    """The columns of the built-in per-step metrics of one step (:func:`builtin_run_columns`
+    of a one-step run), as floats."""
+    cols = builtin_run_columns([x], [y], [estimated_count], c, p)
+    return {name: float(v[0]) for name, v in cols.items()}
+
+
+def builtin_run_columns(truth: Sequence[np.ndarray], estimate: Sequence[np.ndarray],
+                        estimated_count: Sequence[float], c: float = 2.0, p: float = 2.0
+                        ) -> dict[str, np.ndarray]:
+    """The built-in per-step metrics' columns of a whole run at once: ``{column: (T,)
+    float64}`` with, at ``k``, exactly the number :func:`step_metrics` gives for
+    ``truth[k] (n_k, 2)``, ``estimate[k] (m_k, 2)`` and ``estimated_count[k]``
+    (positions already checked: finite, two columns).
+
+    The numbers of :func:`count_error`, :func:`ospa`, :func:`gospa` and
+    :func:`assigned_rmse`, with the work they would repeat done once:
+
+    * the distances of every step come from one vectorised pass over all the run's
+      ``sum_k n_k m_k`` pairs, ``d = sqrt(dx*dx + dy*dy)`` and ``d**2 = dx*dx + dy*dy``,
+      the floating-point operations of ``cdist``'s ``euclidean`` and ``sqeuclidean``
+      (tests/test_metrics.py checks them equal);
+    * OSPA and GOSPA minimise the same cost ``min(d, c) ** p``, so one assignment
+      (``linear_sum_assignment`` on the truth x estimate matrix) serves both; OSPA's sum
+      runs over the pairs in the order of the smaller set, as :func:`ospa` takes it (the
+      estimates' order when ``n > m``);
+    * with one point on a side (``min(n, m) == 1``) the assignment is the cheapest pair,
+      ``argmin`` (any cheapest pair gives the same numbers);
+    * RMSE assigns on the squared distances, as :func:`assigned_rmse`.
+    """
+    _check_order_cutoff(c, p)
+    T = len(truth)
+    n = np.fromiter((len(x) for x in truth), np.int64, T)
+    m = np.fromiter((len(y) for y in estimate), np.int64, T)
+    counts = np.asarray(estimated_count, dtype=np.float64)
+    names = ("ospa", "ospa_loc", "ospa_card", "gospa", "gospa_loc", "gospa_missed",
+             "gospa_false", "rmse")
+    out = {name: np.empty(T) for name in names}
+    out["count_error"] = np.abs(m.astype(np.float64) - n.astype(np.float64))
+    out["own_count_error"] = np.abs(counts - n.astype(np.float64))
+    cp = c**p
+    # every step's pairs (i, j), truth-major, in one flat array
+    nm = n * m
+    start = np.concatenate([[0], np.cumsum(nm)])
+    if start[-1]:
+        X = np.concatenate([np.asarray(x, dtype=np.float64).reshape(-1, 2) for x in truth])
+        Y = np.concatenate([np.asarray(y, dtype=np.float64).reshape(-1, 2) for y in estimate])
+        step = np.repeat(np.arange(T), nm)
+        r = np.arange(start[-1]) - start[step]
+        xi = (np.cumsum(n) - n)[step] + r // m[step]
+        yj = (np.cumsum(m) - m)[step] + r % m[step]
+        dx = X[xi, 0] - Y[yj, 0]
+        dy = X[xi, 1] - Y[yj, 1]
+        sq_all = dx * dx + dy * dy
+        d_all = np.sqrt(sq_all)
+        cost_all = np.minimum(d_all, c) ** p
+    for k in range(T):
+        nk, mk = int(n[k]), int(m[k])
+        small, big = min(nk, mk), max(nk, mk)
+        if small == 0:
+            card_p = cp * (big - small) / big if big else 0.0
+            values = (card_p ** (1.0 / p), 0.0, card_p ** (1.0 / p),
+                      (0.0 + cp / 2 * nk + cp / 2 * mk) ** (1.0 / p), 0.0, cp / 2 * nk,
+                      cp / 2 * mk, math.nan)
+        else:
+            a, b = start[k], start[k + 1]
+            d = d_all[a:b].reshape(nk, mk)
+            cost = cost_all[a:b].reshape(nk, mk)
+            sq = sq_all[a:b].reshape(nk, mk)
+            if small == 1:
+                if nk == 1:
+                    rows, cols = np.zeros(1, np.intp), np.array([np.argmin(cost[0])])
+                    rr, rc = rows, np.array([np.argmin(sq[0])])
+                else:
+                    rows, cols = np.array([np.argmin(cost[:, 0])]), np.zeros(1, np.intp)
+                    rr, rc = np.array([np.argmin(sq[:, 0])]), cols
+            else:
+                rows, cols = linear_sum_assignment(cost)
+                rr, rc = linear_sum_assignment(sq)
+            pair_cost = cost[rows, cols]
+            if nk > mk:
+                pair_cost = pair_cost[np.argsort(cols)]
+            loc_p = float(pair_cost.sum()) / big
+            card_p = cp * (big - small) / big
+            pair_d = d[rows, cols]
+            kept = pair_d < c
+            n_assigned = int(kept.sum())
+            loc = float(np.sum(pair_d[kept] ** p))
+            missed = cp / 2 * (nk - n_assigned)
+            false = cp / 2 * (mk - n_assigned)
+            values = ((loc_p + card_p) ** (1.0 / p), loc_p ** (1.0 / p), card_p ** (1.0 / p),
+                      (loc + missed + false) ** (1.0 / p), loc, missed, false,
+                      float(np.sqrt(np.mean(sq[rr, rc]))))
+        for name, v in zip(names, values, strict=True):
+            out[name][k] = v
+    return out
+
+
+#: the built-in metrics' functions, whose columns :func:`_builtin_step_columns` computes
+_BUILTIN_FNS = frozenset((_count_error_columns, _own_count_error_columns, _ospa_columns,
+                          _gospa_columns, _rmse_columns))
+
+
 def step_metrics(
     truth: np.ndarray,
     estimate: np.ndarray,
     estimated_count: float,
     c: float = 2.0,
     p: float = 2.0,
+    *,
+    builtins: bool = True,
 ) -> dict[str, float]:
     """All per-step metrics as one flat dict (the metric columns of one row of the results
     table): the columns of every registered metric (:func:`registered_metrics`), then
-    :data:`STEP_COUNTS`.
+    :data:`STEP_COUNTS`. ``builtins=False`` leaves out the built-ins' columns (a caller
+    that takes them for a whole run from :func:`builtin_run_columns`).
 
     ``estimated_count`` is the tracker's count estimate (may be fractional, e.g. a
     posterior mean), which may differ from the number of estimated positions ``m``.
@@ -542,13 +650,23 @@ def step_metrics(
     more states than it counts, and only the states are scored.
 
     Keys of the built-ins: ``count_error, ospa, ospa_loc, ospa_card, gospa, gospa_loc,
-    gospa_missed, gospa_false, rmse, own_count_error, true_count, n_estimated``.
+    gospa_missed, gospa_false, rmse, own_count_error, true_count, n_estimated``. The
+    built-ins' columns come from one shared computation (:func:`builtin_run_columns`,
+    the same numbers as their functions).
     """
     _check_order_cutoff(c, p)
     x = _as_positions(truth, "truth")
     y = _as_positions(estimate, "estimate")
     row: dict[str, float] = {}
+    builtin: dict[str, float] | None = None
     for metric in _REGISTRY.values():
+        if metric.fn in _BUILTIN_FNS:
+            if not builtins:
+                continue
+            if builtin is None:
+                builtin = _builtin_step_columns(x, y, float(estimated_count), c, p)
+            row.update((col, builtin[col]) for col in metric.columns)
+            continue
         values = metric.fn(x, y, estimated_count, c, p)
         if set(values) != set(metric.columns):
             raise ValueError(f"metric {metric.name!r} returned the columns {sorted(values)}, "
@@ -605,17 +723,26 @@ def run_level_metrics(run: RunData) -> dict[str, float]:
     return out
 
 
+def _dense(run: RunData) -> tuple:
+    """The run's truth and estimates as :func:`~.track_metrics.dense_pair` gives them,
+    converted once for all its track scores."""
+    if "dense" not in run.cache:
+        run.cache["dense"] = track_metrics.dense_pair(run.truth, run.truth_ids,
+                                                      run.estimate, run.labels)
+    return run.cache["dense"]
+
+
 def _clear_mot(run: RunData, gate: float) -> track_metrics.ClearMOT:
     key = ("clear_mot", float(gate))
     if key not in run.cache:
         run.cache[key] = track_metrics.clear_mot(run.truth, run.truth_ids, run.estimate,
-                                                 run.labels, gate=gate)
+                                                 run.labels, gate=gate, dense=_dense(run))
     return run.cache[key]
 
 
 def _tgospa_columns(run: RunData, gamma: float) -> dict[str, float]:
     g = track_metrics.trajectory_gospa(run.truth, run.truth_ids, run.estimate, run.labels,
-                                       c=run.c, p=run.p, gamma=gamma)
+                                       c=run.c, p=run.p, gamma=gamma, dense=_dense(run))
     return {"tgospa": g.total, "tgospa_loc": g.localisation, "tgospa_missed": g.missed,
             "tgospa_false": g.false, "tgospa_switch": g.switch}
 
@@ -627,7 +754,7 @@ def ospa2_of(run: RunData, window: float) -> track_metrics.OSPA2:
     if key not in run.cache:
         run.cache[key] = track_metrics.ospa2(run.truth, run.truth_ids, run.estimate,
                                              run.labels, c=run.c, p=run.p,
-                                             window=int(window))
+                                             window=int(window), dense=_dense(run))
     return run.cache[key]
 
 

@@ -10,7 +10,9 @@ functions score a whole run, given per step ``k = 0..T-1``::
 
 A *trajectory* is everything with one id (truth) or one label (estimate): its position at
 the steps where it is present. Ids and labels need not be contiguous in time. Distances
-are Euclidean; ``c`` is the cut-off and ``p`` the order.
+are Euclidean; ``c`` is the cut-off and ``p`` the order. The scores take the run as
+:func:`dense_pair` gives it too (``dense=``), so that several scores of one run convert
+it once.
 
 * :func:`trajectory_gospa` -- Garcia-Fernandez, Rahmathullah & Svensson, "A metric on the
   space of finite sets of trajectories for evaluation of multi-target tracking
@@ -38,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 from scipy.optimize import linear_sum_assignment, linprog
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial.distance import cdist
 
 __all__ = [
@@ -46,6 +49,7 @@ __all__ = [
     "OSPA2",
     "TrajectoryGOSPA",
     "as_dense",
+    "dense_pair",
     "clear_mot",
     "crossings",
     "ospa2",
@@ -107,8 +111,10 @@ class TrajectoryGOSPA:
     ``switch`` are costs in the p-th-power domain summed over the run, so that
     ``localisation + missed + false + switch == total ** p``. ``switches`` is the number
     of switches (a change between two tracks counts 1, a change between a track and
-    none 1/2), ``switch == gamma ** p * switches``. ``integral`` says whether the
-    relaxation was already integral (else the integer program was solved).
+    none 1/2), ``switch == gamma ** p * switches``. ``solver`` says how the optimal
+    assignments were found: ``"none"`` (no pair is ever within ``c``), ``"dp"`` (dynamic
+    programming over the steps, a unique optimum), ``"lp"`` (HiGHS, the relaxation
+    integral) or ``"milp"`` (HiGHS, the integer program).
     """
 
     total: float
@@ -117,12 +123,12 @@ class TrajectoryGOSPA:
     false: float
     switch: float
     switches: float
-    integral: bool
+    solver: str
 
 
-def _dense_pair(truth, truth_ids, estimate, labels):
+def dense_pair(truth, truth_ids, estimate, labels):
     """:func:`as_dense` of the truth and of the estimates, which must have as many steps:
-    ``(X, ax, Y, ay)``."""
+    ``(X, ax, Y, ay)`` (the scores below take it as ``dense=`` when a caller has it)."""
     X, ax = as_dense(truth, truth_ids)
     Y, ay = as_dense(estimate, labels)
     if len(X) != len(Y):
@@ -132,8 +138,8 @@ def _dense_pair(truth, truth_ids, estimate, labels):
 
 def trajectory_gospa(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
                      estimate: Sequence[np.ndarray], labels: Sequence[np.ndarray],
-                     c: float = 2.0, p: float = 2.0, gamma: float = 2.0
-                     ) -> TrajectoryGOSPA:
+                     c: float = 2.0, p: float = 2.0, gamma: float = 2.0, *,
+                     dense: tuple | None = None) -> TrajectoryGOSPA:
     """Trajectory metric of Garcia-Fernandez, Rahmathullah & Svensson (2020), alpha = 2.
 
     With truth trajectories ``i = 1..nx``, estimated trajectories ``j = 1..ny`` and, per
@@ -152,18 +158,43 @@ def trajectory_gospa(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray
 
     An integer ``W`` gives the metric (switching a truth between two tracks costs
     ``gamma**p``, between a track and none ``gamma**p / 2``); its relaxation is the LP
-    metric. The LP is solved with HiGHS; if its optimum is not integral the integer
-    program (same LP, ``W`` integer) is solved, so the value is the metric itself.
+    metric. The value returned is the metric with integer assignments.
 
-    The program is reduced before solving, without changing its value: a pair
-    ``(i, j)`` that is never present together within distance ``< c`` can be left
-    unassigned throughout (assigning it costs exactly what leaving both unassigned
-    costs, and switch costs can only fall), so only the other pairs get variables
-    ``w^k_q`` (one per step), and the "unassigned" entries are eliminated through the
-    row and column sums; ``|.|`` is linearised with one ``e^k_q >= +-(w^k_q -
-    w^{k+1}_q)`` each. Cost: ``2 T Q`` variables for ``Q`` such pairs (a tracker's
-    false tracks far from every target add nothing); 100 steps with 30 targets and
-    ~100 candidate pairs solve in well under a second.
+    The program is reduced without changing its value: a pair ``(i, j)`` that is never
+    present together within distance ``< c`` can be left unassigned throughout
+    (assigning it costs exactly what leaving both unassigned costs, and switch costs can
+    only fall), so only the other pairs ``q`` get variables ``w^k_q`` (one per step),
+    with the coefficient ``D^k[i,j] - D^k[i,ny+1] - D^k[nx+1,j]`` relative to leaving
+    both unassigned (``d**p - c**p`` when both are present, else 0).
+
+    It is then solved in one of two exact ways:
+
+    1. **Dynamic programming** (:func:`_tgospa_dp`). The pairs fall into connected
+       components (two pairs are joined when they share a truth or a track); the
+       program is a sum of independent programs, one per component, whose state at step
+       ``k`` is a matching ``s`` of the component's pairs. With ``a_k(s) = sum_{q in s}
+       coef^k_q`` and ``h(s, s') = gamma**p / 2 * |s xor s'|`` the forward and backward
+       recursions::
+
+           F_0(s) = a_0(s),      F_k(s) = min_s' [F_{k-1}(s') + h(s', s)] + a_k(s)
+           B_{T-1}(s) = 0,       B_k(s) = min_s' [h(s, s') + a_{k+1}(s') + B_{k+1}(s')]
+
+       give the optimum ``min_s F_{T-1}(s)`` over integer assignments, and ``F_k(s) +
+       B_k(s)`` is the best total through state ``s`` at step ``k``. The parts below
+       read ``W`` only where a pair is present together within ``c`` (elsewhere its
+       coefficient is 0, so two optimal ``W`` that agree there have the same cost and
+       hence the same number of switches). So when, at every step, every state whose
+       total is within ``1e-6 * max(c**p, gamma**p)`` of the optimum agrees there with
+       the best state, every optimal ``W`` (the integer program's included) gives the
+       same parts, and the best states are taken. (Many optima differ only where this
+       does not matter: a truth passed from one track to the next can switch at any
+       step between them.) A component with more than :data:`_DP_MAX_STATES` matchings
+       is not tried.
+    2. **HiGHS** (:func:`_tgospa_highs`), when some component is not settled so: the
+       whole reduced program as an LP (``scipy.optimize.linprog``), the "unassigned"
+       entries eliminated through the row and column sums and ``|.|`` linearised with one
+       ``e^k_q >= +-(w^k_q - w^{k+1}_q)`` each; if its optimum is not integral the
+       integer program (same LP, ``W`` integer) is solved.
 
     Parts (from the optimal integer ``W``): ``localisation`` sums ``d**p`` over the
     assigned pairs present together within ``d < c``; every other present truth (or
@@ -173,13 +204,13 @@ def trajectory_gospa(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray
     _check(c, p)
     if not (np.isfinite(gamma) and gamma > 0):
         raise ValueError(f"switching cost gamma must be positive and finite, got {gamma}")
-    X, ax, Y, ay = _dense_pair(truth, truth_ids, estimate, labels)
+    X, ax, Y, ay = dense or dense_pair(truth, truth_ids, estimate, labels)
     T = len(X)
     half = c**p / 2
     const = half * (ax.sum() + ay.sum())
     if T == 0 or X.shape[1] == 0 or Y.shape[1] == 0:
         return TrajectoryGOSPA(float(const) ** (1 / p), 0.0, half * float(ax.sum()),
-                               half * float(ay.sum()), 0.0, 0.0, True)
+                               half * float(ay.sum()), 0.0, 0.0, "none")
     # distances (T, nx, ny); NaN where either is absent
     d = np.sqrt(((X[:, :, None, :] - Y[:, None, :, :]) ** 2).sum(-1))
     both = ax[:, :, None] & ay[:, None, :]
@@ -188,21 +219,142 @@ def trajectory_gospa(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray
     Q = len(qi)
     if Q == 0:
         return TrajectoryGOSPA(float(const) ** (1 / p), 0.0, half * float(ax.sum()),
-                               half * float(ay.sum()), 0.0, 0.0, True)
+                               half * float(ay.sum()), 0.0, 0.0, "none")
     # coefficient of w^k_q relative to leaving i and j unassigned at k
     dq = d[:, qi, qj]
     bq = both[:, qi, qj]
     coef = np.where(bq, np.minimum(np.nan_to_num(dq, nan=c), c) ** p - 2 * half, 0.0)
+    W = _tgospa_dp(coef, bq & (dq < c), qi, qj, gamma**p / 2, 1e-6 * max(c**p, gamma**p))
+    solver = "dp"
+    if W is None:
+        W, solver = _tgospa_highs(coef, qi, qj, X.shape[1], Y.shape[1], gamma**p / 2)
+    hit = W & bq & (dq < c)
+    loc = float(np.sum(dq[hit] ** p))
+    n_hit = int(hit.sum())
+    missed = half * (float(ax.sum()) - n_hit)
+    false = half * (float(ay.sum()) - n_hit)
+    switches = float(np.abs(np.diff(W.astype(float), axis=0)).sum()) / 2
+    switch = gamma**p * switches
+    return TrajectoryGOSPA((loc + missed + false + switch) ** (1 / p), loc, missed, false,
+                           switch, switches, solver)
+
+
+#: the most matchings a component may have for :func:`_tgospa_dp` (its recursions cost
+#: ``S**2`` per step; beyond this HiGHS is faster)
+_DP_MAX_STATES = 100
+
+
+def _component_matchings(qi: np.ndarray, qj: np.ndarray, limit: int) -> np.ndarray | None:
+    """``(S, len(qi))`` bool: every matching of the pairs ``(qi[q], qj[q])`` (no truth and
+    no track twice), the empty one first; None if there are more than ``limit``."""
+    _, ti = np.unique(qi, return_inverse=True)
+    _, tj = np.unique(qj, return_inverse=True)
+    chosen = np.zeros((1, len(qi)), dtype=bool)
+    used_i = np.zeros((1, ti.max() + 1), dtype=bool)
+    used_j = np.zeros((1, tj.max() + 1), dtype=bool)
+    for q in range(len(qi)):  # each matching so far, with pair q added where it fits
+        fits = ~used_i[:, ti[q]] & ~used_j[:, tj[q]]
+        if len(chosen) + np.count_nonzero(fits) > limit:
+            return None
+        add = chosen[fits]
+        add[:, q] = True
+        ui, uj = used_i[fits], used_j[fits]
+        ui[:, ti[q]] = True
+        uj[:, tj[q]] = True
+        chosen = np.concatenate([chosen, add])
+        used_i, used_j = np.concatenate([used_i, ui]), np.concatenate([used_j, uj])
+    return chosen
+
+
+def _tgospa_dp(coef: np.ndarray, read: np.ndarray, qi: np.ndarray, qj: np.ndarray,
+               g: float, tol: float) -> np.ndarray | None:
+    """An optimal integer assignment ``W (T, Q)`` bool of the reduced program of
+    :func:`trajectory_gospa` by dynamic programming per component of pairs, or None when
+    a component has more than :data:`_DP_MAX_STATES` matchings or the optimal ``W`` are
+    not all equal where ``read (T, Q)`` is True (some state within ``tol`` of the
+    optimum differs there from the best one). ``coef (T, Q)``: the pairs'
+    coefficients; ``g = gamma**p / 2`` per unit change of one ``w_q``.
+
+    Components with the same number ``S`` of matchings go through the recursions
+    together: ``cost (T, C, S)`` and ``h (C, S, S)``, one numpy step per time step.
+    """
+    T, Q = coef.shape
+    n_truth = int(qi.max()) + 1
+    _, comp = connected_components(
+        sparse.csr_matrix((np.ones(Q), (qi, n_truth + qj)),
+                          shape=(n_truth + int(qj.max()) + 1,) * 2), directed=False)
+    comp = comp[qi]
+    groups: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+    for label in np.unique(comp):
+        members = np.nonzero(comp == label)[0]
+        states = _component_matchings(qi[members], qj[members], _DP_MAX_STATES)
+        if states is None:
+            return None
+        groups.setdefault(len(states), []).append((members, states))
+    W = np.zeros((T, Q), dtype=bool)
+    for comps in groups.values():
+        # the group's components padded to its widest one (absent pairs: never chosen)
+        C, S = len(comps), len(comps[0][1])
+        width = max(len(members) for members, _ in comps)
+        cols = np.zeros((C, width), dtype=np.int64)
+        real = np.zeros((C, width), dtype=bool)
+        M = np.zeros((C, S, width), dtype=bool)
+        for a, (members, states) in enumerate(comps):
+            cols[a, :len(members)] = members
+            real[a, :len(members)] = True
+            M[a, :, :len(members)] = states
+        Mf = M.astype(np.float64)
+        cost = np.einsum("tcn,csn->tcs", coef[:, cols] * real, Mf)  # a_k(s)
+        h = g * np.abs(Mf[:, :, None, :] - Mf[:, None, :, :]).sum(-1)  # (C, S, S)
+        best, near = _viterbi(cost, h, tol)
+        chosen = M[np.arange(C)[None, :], best]  # (T, C, width)
+        # a near-optimal state that differs from the best one where the parts read W
+        watched = read[:, cols] & real  # (T, C, width)
+        differs = ((M[None] != chosen[:, :, None, :]) & watched[:, :, None, :]).any(-1)
+        if np.any(near & differs):
+            return None
+        for a, (members, _) in enumerate(comps):
+            W[:, members] = chosen[:, a, :len(members)]
+    return W
+
+
+def _viterbi(cost: np.ndarray, h: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Min-sum paths of ``C`` independent chains: ``cost (T, C, S)`` per step and state,
+    ``h (C, S, S)`` per transition ``s -> s'``. Returns the states of one optimal path per
+    chain ``(T, C)`` int (traced back from the forward totals) and ``(T, C, S)`` bool:
+    the states through which some path is within ``tol`` of the optimum."""
+    T = len(cost)
+    F = np.empty_like(cost)
+    B = np.zeros_like(cost)
+    F[0] = cost[0]
+    for k in range(1, T):
+        F[k] = (F[k - 1][:, :, None] + h).min(axis=1) + cost[k]
+    for k in range(T - 2, -1, -1):
+        B[k] = (h + (cost[k + 1] + B[k + 1])[:, None, :]).min(axis=2)
+    V = F + B
+    # back along one optimal path (per-step minima of V may mix several optimal paths)
+    best = np.empty((T, cost.shape[1]), dtype=np.int64)
+    chain = np.arange(cost.shape[1])
+    best[-1] = F[-1].argmin(axis=1)
+    for k in range(T - 2, -1, -1):
+        best[k] = (F[k] + h[chain, :, best[k + 1]]).argmin(axis=1)
+    return best, V <= V.min(axis=2, keepdims=True) + tol
+
+
+def _tgospa_highs(coef: np.ndarray, qi: np.ndarray, qj: np.ndarray, nx: int, ny: int,
+                  g: float) -> tuple[np.ndarray, str]:
+    """The optimal integer assignment ``W (T, Q)`` bool of the reduced program of
+    :func:`trajectory_gospa` with HiGHS: the LP, then the integer program if the LP's
+    optimum is not integral. Returns ``(W, "lp" or "milp")``."""
+    T, Q = coef.shape
     nw, ne = T * Q, (T - 1) * Q
-    cost = np.concatenate([coef.ravel(), np.full(ne, gamma**p / 2)])
+    cost = np.concatenate([coef.ravel(), np.full(ne, g)])
     # at most one track per truth and one truth per track, per step
-    rows_i = np.repeat(np.arange(T)[:, None] * X.shape[1], Q, 1) + qi[None, :]
-    rows_j = np.repeat(np.arange(T)[:, None] * Y.shape[1], Q, 1) + qj[None, :]
+    rows_i = np.repeat(np.arange(T)[:, None] * nx, Q, 1) + qi[None, :]
+    rows_j = np.repeat(np.arange(T)[:, None] * ny, Q, 1) + qj[None, :]
     var = np.arange(nw)
-    A_i = sparse.csr_matrix((np.ones(nw), (rows_i.ravel(), var)),
-                            shape=(T * X.shape[1], nw + ne))
-    A_j = sparse.csr_matrix((np.ones(nw), (rows_j.ravel(), var)),
-                            shape=(T * Y.shape[1], nw + ne))
+    A_i = sparse.csr_matrix((np.ones(nw), (rows_i.ravel(), var)), shape=(T * nx, nw + ne))
+    A_j = sparse.csr_matrix((np.ones(nw), (rows_j.ravel(), var)), shape=(T * ny, nw + ne))
     # +-(w^k - w^{k+1}) - e^k <= 0
     r = np.arange(ne)
     e_col = nw + r
@@ -218,23 +370,15 @@ def trajectory_gospa(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray
     if res.status != 0:
         raise RuntimeError(f"trajectory GOSPA: HiGHS failed ({res.message})")
     w = res.x[:nw]
-    integral = bool(np.all(np.abs(w - np.round(w)) <= 1e-7))
-    if not integral:
+    solver = "lp"
+    if not np.all(np.abs(w - np.round(w)) <= 1e-7):
         res = linprog(cost, A_ub=A, b_ub=b, bounds=bounds, method="highs",
                       integrality=np.concatenate([np.ones(nw), np.zeros(ne)]))
         if res.status != 0:
             raise RuntimeError(f"trajectory GOSPA: HiGHS failed ({res.message})")
         w = res.x[:nw]
-    W = np.round(w).reshape(T, Q).astype(bool)
-    hit = W & bq & (dq < c)
-    loc = float(np.sum(dq[hit] ** p))
-    n_hit = int(hit.sum())
-    missed = half * (float(ax.sum()) - n_hit)
-    false = half * (float(ay.sum()) - n_hit)
-    switches = float(np.abs(np.diff(W.astype(float), axis=0)).sum()) / 2
-    switch = gamma**p * switches
-    return TrajectoryGOSPA((loc + missed + false + switch) ** (1 / p), loc, missed, false,
-                           switch, switches, integral)
+        solver = "milp"
+    return np.round(w).reshape(T, Q).astype(bool), solver
 
 
 # ------------------------------------------------------------------------ OSPA(2)
@@ -251,7 +395,8 @@ class OSPA2:
 
 def ospa2(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
           estimate: Sequence[np.ndarray], labels: Sequence[np.ndarray],
-          c: float = 2.0, p: float = 2.0, window: int | None = 10) -> OSPA2:
+          c: float = 2.0, p: float = 2.0, window: int | None = 10, *,
+          dense: tuple | None = None) -> OSPA2:
     """OSPA(2) of Beard, Vo & Vo (2020), over sliding windows.
 
     For the window ``K = {k - window + 1, ..., k}`` (clipped at 0; ``window=None`` means
@@ -273,7 +418,7 @@ def ospa2(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
     (and of its parts); ``per_step`` holds OSPA2(k).
     """
     _check(c, p)
-    X, ax, Y, ay = _dense_pair(truth, truth_ids, estimate, labels)
+    X, ax, Y, ay = dense or dense_pair(truth, truth_ids, estimate, labels)
     T = len(X)
     if T == 0:
         return OSPA2(0.0, 0.0, 0.0, np.zeros(0))
@@ -301,8 +446,8 @@ def ospa2(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
         if min(m, n) == 0:
             tot[k] = card[k] = c
             continue
-        cs = (csum[k + 1] - csum[lo])[np.ix_(ix, iy)]
-        ns = (nsum[k + 1] - nsum[lo])[np.ix_(ix, iy)]
+        cs = (csum[k + 1] - csum[lo])[ix[:, None], iy]
+        ns = (nsum[k + 1] - nsum[lo])[ix[:, None], iy]
         base = np.minimum(cs / ns, c) ** p
         r, s = linear_sum_assignment(base)
         big = max(m, n)
@@ -335,7 +480,8 @@ class ClearMOT:
 
 def clear_mot(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
               estimate: Sequence[np.ndarray], labels: Sequence[np.ndarray],
-              gate: float = 1.0, mt: float = 0.8, ml: float = 0.2) -> ClearMOT:
+              gate: float = 1.0, mt: float = 0.8, ml: float = 0.2, *,
+              dense: tuple | None = None) -> ClearMOT:
     """Correspondences per step as in Bernardin & Stiefelhagen (2008), with the gate
     ``||x - y|| < gate``:
 
@@ -358,7 +504,7 @@ def clear_mot(truth: Sequence[np.ndarray], truth_ids: Sequence[np.ndarray],
     """
     if not (np.isfinite(gate) and gate > 0):
         raise ValueError(f"the CLEAR-MOT gate must be positive and finite, got {gate}")
-    X, ax, Y, ay = _dense_pair(truth, truth_ids, estimate, labels)
+    X, ax, Y, ay = dense or dense_pair(truth, truth_ids, estimate, labels)
     T, nx = ax.shape
     last = np.full(nx, -1)
     tracked = np.zeros((T, nx), dtype=bool)
