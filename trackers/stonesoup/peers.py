@@ -54,6 +54,9 @@ Determinism
     different hash seeds and requires identical outputs.
 
 ``ss-gnn``
+    By default (``association="existence"``) the tracks carry their existence and the
+    hypotheses are weighed by it (the paragraph after this one); ``association="distance"``
+    is Stone Soup's distance GNN with an initiator and deleters, as follows.
     ``GNNWith2DAssignment`` over a ``DistanceHypothesiser`` (``missed_distance = gate``)
     whose measure is the Mahalanobis distance from the predicted position to the nearest
     point of the detection's cell under the predicted position covariance ``S - R``
@@ -566,8 +569,9 @@ class StoneSoupGNN(_StoneSoupPeer):
     """Stone Soup's GNN tracker (module docstring)."""
 
     name = "ss-gnn"
-    summary = ("Stone Soup's GNN (2-D assignment, Kalman, multi-measurement initiator, "
-               "time-based and track-score deleters) on cell detections; optional extra")
+    summary = ("Stone Soup's GNN (2-D assignment over hypotheses weighed by existence and "
+               "the cell likelihood, Kalman, deletion by existence) on cell detections; "
+               "optional extra")
     parameters: ClassVar[dict[str, Param]] = {
         "gate": Param(float, 0, low_open=True, search=Search(1.5, 6.0),
                       doc="Mahalanobis distance (not squared) beyond which a detection is "
@@ -607,7 +611,7 @@ class StoneSoupGNN(_StoneSoupPeer):
 
     def __init__(self, gate: float = 3.0, gate_to: str = "cell", labels: str = "target",
                  false_track_probability: float = 0.1, lost_track_probability: float = 0.1,
-                 velocity_scale: float = 1.0, association: str = "distance",
+                 velocity_scale: float = 1.0, association: str = "existence",
                  existence_threshold: float = 0.01) -> None:
         self.association = association
         self.existence_threshold = existence_threshold
