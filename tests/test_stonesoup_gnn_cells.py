@@ -97,7 +97,8 @@ def test_the_gate_reads_the_detections_cell(stonesoup_installed):
     assert hyp.distance == pytest.approx(want, abs=TOL) and want < cell.gate
     d = z - mu
     assert np.sqrt(d @ np.linalg.solve(S, d)) > cell.gate  # the centre under S: gated out
-    hyp, _ = _hypothesis_beside(trackers.make("ss-gnn", association="distance", gate_to="centre"), model)
+    centre = trackers.make("ss-gnn", association="distance", gate_to="centre")
+    hyp, _ = _hypothesis_beside(centre, model)
     assert hyp is None
 
 

@@ -222,7 +222,8 @@ def test_gnn_on_one_target_is_a_filterpy_kalman_filter(stonesoup_installed, q):
             tau=1.0, q_matrix=((2e-3, 1e-4, 0, 0), (1e-4, 5e-4, 0, 0),
                                (0, 0, 3e-3, 0), (0, 0, 0, 7e-4))))
     grid = model.grid
-    tracker = trackers.make("ss-gnn", association="distance", gate=10.0, velocity_scale=2.0)  # sd 0.2
+    tracker = trackers.make("ss-gnn", association="distance", gate=10.0,
+                            velocity_scale=2.0)  # sd 0.2
     tracker.reset(model, np.random.default_rng(0))
     steps = 30
     px = 2.5 + 0.17 * np.arange(steps)
