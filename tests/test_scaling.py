@@ -323,12 +323,15 @@ def _stonesoup():
     pytest.importorskip("stonesoup")
 
 
-def test_ss_gnn_counts_equal_the_dense_computation(monkeypatch):
+# by existence at a threshold of 0.5, so that tracks are deleted (recycled) within 30 steps
+@pytest.mark.parametrize("params", [{"association": "distance"},
+                                    {"association": "existence", "existence_threshold": 0.5}])
+def test_ss_gnn_counts_equal_the_dense_computation(monkeypatch, params):
     _stonesoup()
     from mttbench.trackers.stonesoup.peers import track_key
 
     sc = _scenario("births", 30)
-    tr = trackers.make("ss-gnn")
+    tr = trackers.make("ss-gnn", **params)
     tracks = 0
     for lam, recycled in _steps_with_dense_intensity(sc, tr, 4, 30, monkeypatch):  # noqa: B007
         holding = sorted(tr._initiator.holding_tracks, key=track_key)

@@ -71,7 +71,7 @@ def test_gnn_track_prior_is_the_untracked_intensity_at_its_birth():
     model = get_scenario("default").model
     grid, sensor, bd = model.grid, model.sensor, model.birth_death
     n, n0 = grid.n_cells, bd.initial_count_mean
-    tracker = trackers.make("ss-gnn")
+    tracker = trackers.make("ss-gnn", association="distance")
     tracker.reset(model, np.random.default_rng(0))
     every = np.arange(n)
     l0 = (1 - sensor.p_d) / (1 - sensor.p_f)

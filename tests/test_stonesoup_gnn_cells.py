@@ -85,7 +85,7 @@ def test_the_gate_reads_the_detections_cell(stonesoup_installed):
     Soup's Mahalanobis, ``gate_to="centre"``: gated out at 3); its nearest point lies 2.0
     away under ``S - R``, the distance recomputed here with scipy's minimiser."""
     model = get_scenario("default").model
-    cell = trackers.make("ss-gnn")
+    cell = trackers.make("ss-gnn", association="distance")
     hyp, det = _hypothesis_beside(cell, model)
     assert hyp is not None
     mp = hyp.measurement_prediction
@@ -97,7 +97,8 @@ def test_the_gate_reads_the_detections_cell(stonesoup_installed):
     assert hyp.distance == pytest.approx(want, abs=TOL) and want < cell.gate
     d = z - mu
     assert np.sqrt(d @ np.linalg.solve(S, d)) > cell.gate  # the centre under S: gated out
-    hyp, _ = _hypothesis_beside(trackers.make("ss-gnn", gate_to="centre"), model)
+    centre = trackers.make("ss-gnn", association="distance", gate_to="centre")
+    hyp, _ = _hypothesis_beside(centre, model)
     assert hyp is None
 
 
