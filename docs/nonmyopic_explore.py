@@ -28,18 +28,56 @@ import numpy as np
 from scipy import stats
 
 from mttbench import scenarios
+from mttbench.benchmarks.engine.information import expected_gain
 from mttbench.benchmarks.engine.loop import play
 from mttbench.benchmarks.engine.metrics import ospa
-from mttbench.benchmarks.engine.policies import make_policy
+from mttbench.benchmarks.engine.policies import Policy, make_policy
 from mttbench.benchmarks.engine.specs import PolicySpec, TrackerSpec
 from mttbench.scenarios.model import Occlusion, Visibility
 from mttbench.trackers import make as make_tracker
+from mttbench.trackers.cells import CellCounts
 
 BURN_IN = 10
 #: further targets for ``--targets``, ~0.1 cell/step, one per quadrant in turn
 EXTRA_TARGETS = ((2.5, 0.06, 8.5, -0.08), (4.5, 0.05, 1.5, 0.08), (9.5, -0.07, 7.5, 0.05),
                  (10.5, -0.06, 4.5, -0.05), (1.5, 0.08, 10.5, -0.04), (3.5, -0.05, 4.5, 0.06),
                  (7.5, 0.07, 10.5, -0.05), (7.5, -0.04, 1.5, 0.07), (4.5, 0.05, 7.5, 0.05))
+
+
+class RefreshOracle(Policy):
+    """REFERENCE ONLY -- USES THE TRUTH (not registered). The looks ``renyi`` would make,
+    except that the cells of the true targets that are visible now and blind at the
+    next step come first (at most ``M``, at random if more): what a perfect "look at
+    the target before it disappears" can gain over ``renyi``, an upper bound for any
+    visibility value-to-go that only moves looks onto targets about to go blind."""
+
+    name = "refresh-oracle"
+    uses_truth = True
+    uses_prediction = True
+
+    def select(self, k, counts=None, truth_cells=None):
+        P = counts.dense() if isinstance(counts, CellCounts) else np.asarray(counts, float)
+        gain = expected_gain(P, self._model.sensor.detection_probability(
+            np.arange(P.shape[1])), 0.5)
+        gain[self.blocked_cells(k)] = -np.inf
+        truth = np.unique(np.asarray(truth_cells, dtype=np.int64))
+        truth = truth[(truth >= 0) & np.isin(truth, self._model.blocked_cells(k + 1))
+                      & ~np.isin(truth, self.blocked_cells(k))]
+        first = self._rng.permutation(truth)[:self._n_looks]
+        gain[first] = np.inf
+        return np.sort(np.argsort(-gain, kind="stable")[:self._n_looks]).astype(np.int64)
+
+
+def make(policy_spec: PolicySpec) -> Policy:
+    if policy_spec.name == RefreshOracle.name:
+        return RefreshOracle()
+    return make_policy(policy_spec.name, **policy_spec.params)
+
+
+def parse(text: str) -> PolicySpec:
+    if text == RefreshOracle.name:
+        return PolicySpec(text, {})
+    return PolicySpec.parse(text).validated()
 
 
 def run_error(sc, tracker_spec: TrackerSpec, policy_spec: PolicySpec,
@@ -49,7 +87,7 @@ def run_error(sc, tracker_spec: TrackerSpec, policy_spec: PolicySpec,
     the next (``chances``), those in which a look was made at the target's cell
     (``refreshed``). The truth is read here to diagnose, never by the policy."""
     tracker = make_tracker(tracker_spec.name, **tracker_spec.params)
-    policy = make_policy(policy_spec.name, **policy_spec.params)
+    policy = make(policy_spec)
     errors, refreshed, chances = [], 0, 0
     for rec in play(sc, tracker, seed, policy=policy):
         est = rec.estimate.states
@@ -98,7 +136,7 @@ def main() -> None:
     first, _, last = a.seeds.partition(":")
     seeds = range(int(first), int(last))
     tracker = TrackerSpec.parse(a.tracker).validated()
-    specs = [PolicySpec.parse(p).validated() for p in a.policies]
+    specs = [parse(p) for p in a.policies]
     runs = {p.label: [run_error(sc, tracker, p, s) for s in seeds] for p in specs}
     errors = {label: np.array([r[0] for r in rs]) for label, rs in runs.items()}
     blind = {o.steps[1] - o.steps[0] + 1 for o in model.visibility.occlusions}
