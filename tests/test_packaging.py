@@ -242,8 +242,8 @@ def test_installed_reproduce_reduced_check_passes(installed_site, empty_cwd, tmp
     install's own __pycache__, as for a user). One worker: with two, each would compile
     the same cold kernels side by side (docs/suite_time.md)."""
     proc = ok(run_python(["-m", "mttbench", "reproduce", "paper", "--reduced", "--check",
-                          "--workers", "1", "--no-progress", "--out", str(tmp_path / "repro"), "--cache-dir",
-                          str(tmp_path / "cache")], empty_cwd, [installed_site]))
+                          "--workers", "1", "--no-progress", "--out", str(tmp_path / "repro"),
+                          "--cache-dir", str(tmp_path / "cache")], empty_cwd, [installed_site]))
     assert "check passed" in proc.stdout, proc.stdout + proc.stderr
     assert not list(empty_cwd.iterdir()), "reproduce wrote into the working directory"
 

@@ -34,8 +34,8 @@ import pytest
 from mttbench import scenarios
 from mttbench.benchmarks.engine.loop import Job, play, run_job
 from mttbench.benchmarks.engine.metrics import RunData, builtin_run_columns, run_level_metrics
-from mttbench.benchmarks.engine.track_series import series_values
 from mttbench.benchmarks.engine.specs import TrackerSpec
+from mttbench.benchmarks.engine.track_series import series_values
 from mttbench.trackers.kfnn import KFNNTracker
 from mttbench.trackers.null import NullTracker
 
