@@ -410,7 +410,12 @@ def dask_setup(worker: Any) -> None:
     heartbeats for seconds on a loaded machine (the run limit reads them)."""
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-    from . import loop, sweep  # noqa: F401
+    import importlib
+
+    # by name: a warm-up of what a run imports, not a dependency of this module (the sweep
+    # imports the executors)
+    for name in ("loop", "sweep"):
+        importlib.import_module(f"{__package__}.{name}")
 
 
 def _worker_identity() -> tuple[str, str]:
