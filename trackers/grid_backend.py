@@ -9,6 +9,7 @@ speed only; the numpy forms are the reference the tests compare against.
 
 from __future__ import annotations
 
+import importlib
 import subprocess
 import sys
 import threading
@@ -20,8 +21,6 @@ from . import cells
 from .jmpd.backend import compiled_kernels
 
 _KERNELS: ModuleType | None = None
-_GPF_KERNELS: ModuleType | None = None
-_GPF_THREAD: threading.Thread | None = None
 #: how long the GPF's ``reset`` waits for its kernels (about 2 s when they are cached; a
 #: compile goes on in the background meanwhile)
 GPF_WAIT_S = 15.0
@@ -44,42 +43,54 @@ def compiled_grid_kernels() -> ModuleType | None:
     return _KERNELS
 
 
+class BackgroundKernels:
+    """A compiled kernels' module loaded off the caller's thread: the first :meth:`get`
+    starts a thread that has a child process compile the module's kernels into numba's
+    disk cache (about a minute of CPU after an install or an edit, 2-5 s when cached: the
+    child's imports), then imports and warms them here (0.2 s). So a run in a fresh
+    install is not held up by the compile, and a compile does not hold numba's compiler
+    lock in this process; a failed compile leaves the numpy forms (same numbers)."""
+
+    def __init__(self, module: str) -> None:
+        self.module = module  # absolute name; the module has ``warm_up()``
+        self._loaded: ModuleType | None = None
+        self._thread: threading.Thread | None = None
+
+    def get(self, wait: float | None = 0.0) -> ModuleType | None:
+        """The module once loaded, when the compiled backend is on; else None.
+        ``wait``: seconds to wait for it (None: until done)."""
+        if compiled_grid_kernels() is None:
+            return None
+        if self._loaded is None:
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._load, daemon=True,
+                                                name=f"mttbench-{self.module}")
+                self._thread.start()
+            if wait is None or wait > 0:
+                self._thread.join(wait)
+        return self._loaded
+
+    def _load(self) -> None:
+        child = subprocess.run(
+            [sys.executable, "-c", f"import {self.module} as k; k.warm_up()"],
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            check=False)
+        if child.returncode != 0:
+            return
+        module = importlib.import_module(self.module)
+        module.warm_up()
+        self._loaded = module
+
+
+_GPF = BackgroundKernels(f"{__package__}.gpf.update_kernels")
+
+
 def compiled_gpf_kernels(wait: float | None = 0.0) -> ModuleType | None:
-    """:mod:`.gpf.update_kernels` (the GPF's step in compiled passes) once they are
-    loaded, when the compiled backend is on; else None, and the GPF runs the numpy forms,
-    which give the same numbers bit for bit. The first call starts a thread that has a
-    child process compile them into numba's disk cache (about 50 s of CPU after an
-    install or an edit, docs/speed.md; 2 s when they are cached) and then loads them
-    here (0.2 s): so a run in a fresh install is not held up by the compile, and a
-    compile does not hold numba's compiler lock in this process. ``wait``: seconds to
-    wait for them (None: until done). The GPF's ``reset`` waits :data:`GPF_WAIT_S`, the
-    tests that compare the forms until done."""
-    global _GPF_THREAD
-    if compiled_grid_kernels() is None:
-        return None
-    if _GPF_KERNELS is None:
-        if _GPF_THREAD is None:
-            _GPF_THREAD = threading.Thread(target=_load_gpf_kernels, daemon=True,
-                                           name="mttbench-gpf-kernels")
-            _GPF_THREAD.start()
-        if wait is None or wait > 0:
-            _GPF_THREAD.join(wait)
-    return _GPF_KERNELS
-
-
-def _load_gpf_kernels() -> None:
-    global _GPF_KERNELS
-    # the compile in a child process (same interpreter and environment); a failure
-    # leaves the numpy forms
-    child = subprocess.run(
-        [sys.executable, "-c", f"import {__package__}.gpf.update_kernels as k; k.warm_up()"],
-        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-        check=False)
-    if child.returncode != 0:
-        return
-    from .gpf import update_kernels
-    update_kernels.warm_up()
-    _GPF_KERNELS = update_kernels
+    """:mod:`.gpf.update_kernels` (the GPF's step in compiled passes) once loaded in the
+    background (:class:`BackgroundKernels`), when the compiled backend is on; else None,
+    and the GPF runs the numpy forms, which give the same numbers bit for bit. The GPF's
+    ``reset`` waits :data:`GPF_WAIT_S`, the tests that compare the forms until done."""
+    return _GPF.get(wait)
 
 
 def looked_in_boxes(ix_lo: np.ndarray, ix_hi: np.ndarray, iy_lo: np.ndarray,
