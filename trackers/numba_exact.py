@@ -148,3 +148,20 @@ def find_root(parent: np.ndarray, i: int) -> int:
         parent[i] = parent[parent[i]]
         i = parent[i]
     return i
+
+
+@njit(cache=True)
+def unique_inverse(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(key, return_inverse=True)`` of an int array."""
+    n = len(key)
+    order = np.argsort(key, kind="mergesort")
+    inv = np.empty(n, np.int64)
+    n_k = 0
+    for j in range(n):
+        if j == 0 or key[order[j]] != key[order[j - 1]]:
+            n_k += 1
+        inv[order[j]] = n_k - 1
+    uniq = np.empty(n_k, np.int64)
+    for j in range(n):
+        uniq[inv[j]] = key[j]
+    return uniq, inv

@@ -30,6 +30,7 @@ from ..numba_exact import nan_max as _nan_max
 from ..numba_exact import nan_min as _nan_min
 from ..numba_exact import np_sum
 from ..numba_exact import search_left as _search
+from ..numba_exact import unique_inverse as _unique_inverse
 
 _LOGE2 = math.log(2.0)
 
@@ -698,17 +699,8 @@ def option_beliefs(option_probs, option_cell, LLc, iterations, damping, clip):
             if option_cell[i, j] >= 0:
                 rows[e], cols[e], cell[e] = i, j, option_cell[i, j]
                 e += 1
-    # np.unique(cell, return_inverse=True)
-    order = np.argsort(cell, kind="mergesort")
-    cidx = np.empty(n_e, np.int64)
-    n_c = 0
-    for k in range(n_e):
-        if k == 0 or cell[order[k]] != cell[order[k - 1]]:
-            n_c += 1
-        cidx[order[k]] = n_c - 1
-    cells = np.empty(n_c, np.int64)
-    for k in range(n_e):
-        cells[cidx[k]] = cell[k]
+    cells, cidx = _unique_inverse(cell)
+    n_c = len(cells)
     # exp(LLc[c, T + 1] - LLc[c, T]) for T = 0, 1, 2 (the last difference repeated)
     n_d = LLc.shape[1] - 1
     steps = np.empty((n_c, 3))

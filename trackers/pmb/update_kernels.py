@@ -34,6 +34,7 @@ from ..gpf.update_kernels import state_moments
 from ..grid_kernels import looked_in_boxes
 from ..numba_exact import find_root as _find
 from ..numba_exact import search_left as _search
+from ..numba_exact import unique_inverse as _unique_inverse
 
 
 @njit(cache=True, error_model="numpy")
@@ -68,23 +69,6 @@ def _clip(x: float, lo: float, hi: float) -> float:
     if x > hi:
         return hi
     return x
-
-
-@njit(cache=True, error_model="numpy")
-def _unique_inverse(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``np.unique(key, return_inverse=True)`` of an int array."""
-    n = len(key)
-    order = np.argsort(key, kind="mergesort")
-    inv = np.empty(n, np.int64)
-    n_k = 0
-    for j in range(n):
-        if j == 0 or key[order[j]] != key[order[j - 1]]:
-            n_k += 1
-        inv[order[j]] = n_k - 1
-    uniq = np.empty(n_k, np.int64)
-    for j in range(n):
-        uniq[inv[j]] = key[j]
-    return uniq, inv
 
 
 # ----------------------------------------------------------------------- cell ratios
