@@ -140,20 +140,11 @@ def pairs_and_singletons(w, m, P, uniform_cell, own, alp, U, hit, cells, returns
             row_mass[i] = 1.0
             i += 1
     # (track, looked cell) pairs: np.unique(row_key, return_inverse=True), bincount
-    order = np.argsort(row_key, kind="mergesort")
-    pair_of = np.empty(n_rows, np.int64)
-    n_p = 0
-    for j in range(n_rows):
-        if j == 0 or row_key[order[j]] != row_key[order[j - 1]]:
-            n_p += 1
-        pair_of[order[j]] = n_p - 1
-    pi = np.empty(n_p, np.int64)
-    pu = np.empty(n_p, np.int64)
+    pair_key, pair_of = _unique_inverse(row_key)
+    n_p = len(pair_key)
+    pi = pair_key // n_u
+    pu = pair_key % n_u
     mass = np.zeros(n_p)
-    for j in range(n_rows):
-        k = pair_of[order[j]]
-        pi[k] = row_key[order[j]] // n_u
-        pu[k] = row_key[order[j]] % n_u
     for j in range(n_rows):
         mass[pair_of[j]] += row_mass[j]
     mass_in = np.zeros(T)
