@@ -186,13 +186,28 @@ def _die_with_parent(parent: int, signal_ok: bool) -> None:
     threading.Thread(target=watch, name="mttbench-parent-watchdog", daemon=True).start()
 
 
+def one_blas_thread() -> None:
+    """Limit this process's BLAS to one thread. A sweep runs one worker per core, so a
+    worker's BLAS helper threads only compete with the other workers; and OpenBLAS's
+    helpers spin after each call, CPU time that the run's timing counts (jmpd-ap at
+    16,000 particles on ``default``: a third of its CPU time, docs/speed.md). The
+    trackers' BLAS calls (small matmuls, a dot of the weights) give the same numbers
+    with one thread (docs/speed.md, "BLAS threads in the workers")."""
+    import numpy  # noqa: F401  (loads the BLAS that the limit applies to)
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1, user_api="blas")
+
+
 def _init_worker(started: Any, parent: int | None = None, signal_ok: bool = False) -> None:
     """Pool worker initializer: Ctrl-C is the main process's to handle (it stops the
     pool); runs report their start on ``started`` (which runs a dead worker held); the
-    worker ends with its parent (:func:`_die_with_parent`) and holds none of its folder
-    locks (:func:`~.store.release_inherited_locks`)."""
+    worker ends with its parent (:func:`_die_with_parent`), holds none of its folder
+    locks (:func:`~.store.release_inherited_locks`) and runs BLAS on one thread
+    (:func:`one_blas_thread`)."""
     global _STARTED
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    one_blas_thread()
     _STARTED = started
     from .store import release_inherited_locks
 
@@ -407,9 +422,11 @@ def dask_setup(worker: Any) -> None:
     and the modules every run needs (pandas, pyarrow, numba: some 600) are imported
     before the worker takes a run. Else a fresh worker's first run pays for them in its
     wall time, and numba's initialisation, holding the GIL, silences the worker's
-    heartbeats for seconds on a loaded machine (the run limit reads them)."""
+    heartbeats for seconds on a loaded machine (the run limit reads them). BLAS runs on
+    one thread, as in the local pool's workers (:func:`one_blas_thread`)."""
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+    one_blas_thread()
     import importlib
 
     # by name: a warm-up of what a run imports, not a dependency of this module (the sweep
