@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import ast
 import fcntl
+import filecmp
 import json
 import os
 import shutil
@@ -102,7 +103,35 @@ def _build_and_install(site: Path, work: Path) -> float:
          "--target", str(site), str(src)],
         cwd=work, capture_output=True, text=True, timeout=900, check=False)
     assert proc.returncode == 0, f"pip install failed:\n{proc.stdout}\n{proc.stderr}"
+    _copy_numba_cache(site / "mttbench")
     return time.perf_counter() - t0
+
+
+def _copy_numba_cache(package: Path) -> int:
+    """Copy the checkout's numba disk cache (``__pycache__/*.nbi`` indexes, ``*.nbc``
+    data) next to each module of the installed ``package`` whose source is byte for byte
+    the checkout's; returns the number of files copied.
+
+    Numba loads a cached kernel only when the index's source stamp and the entry's key
+    (bytecode hash, signature, CPU) match, else it compiles; so the install's kernels are
+    the checkout's compiled code for the same source, and a module left uncopied (or a
+    checkout never warmed by ``make``) compiles cold into the install as for a user."""
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return 0  # the cache lives outside both trees: nothing next to the sources
+    roots = {REPO / "mttbench": package, **{REPO / layer: package / layer for layer in LAYERS}}
+    copied = 0
+    for src_root, dst_root in roots.items():
+        for cache in sorted(src_root.rglob("__pycache__")):
+            target = dst_root / cache.parent.relative_to(src_root)
+            for file in sorted(cache.glob("*.nb[ic]")):
+                source = file.name.split(".")[0] + ".py"
+                if not ((target / source).is_file() and filecmp.cmp(
+                        cache.parent / source, target / source, shallow=False)):
+                    continue  # not installed (benchmarks/bench), or not the same source
+                (target / "__pycache__").mkdir(exist_ok=True)
+                shutil.copy2(file, target / "__pycache__" / file.name)
+                copied += 1
+    return copied
 
 
 @pytest.fixture(scope="module")
@@ -238,9 +267,12 @@ def test_installed_compare_writes_report_and_results(installed_site, empty_cwd, 
 def test_installed_reproduce_reduced_check_passes(installed_site, empty_cwd, tmp_path):
     """The reference numbers ship as package data, so the check works from a plain install.
 
-    Numba stays as the environment says (by default on: the kernels compile into the
-    install's own __pycache__, as for a user). One worker: with two, each would compile
-    the same cold kernels side by side (docs/suite_time.md)."""
+    Numba stays as the environment says (by default on). The install holds a copy of the
+    checkout's numba disk cache (:func:`_copy_numba_cache`): kernels whose source matches
+    the checkout's load from it, any other compiles cold into the install's __pycache__
+    (the numbers are the same: the compiled and numpy forms agree bit for bit). One
+    worker: with two, each would compile any cold kernel side by side
+    (docs/suite_time.md)."""
     proc = ok(run_python(["-m", "mttbench", "reproduce", "paper", "--reduced", "--check",
                           "--workers", "1", "--no-progress", "--out", str(tmp_path / "repro"),
                           "--cache-dir", str(tmp_path / "cache")], empty_cwd, [installed_site]))
