@@ -137,7 +137,7 @@ from ..cells import (
 )
 from ..grid_backend import GPF_WAIT_S, compiled_gpf_kernels
 from ..params import Budget, Param, Search
-from .grid import fold_into_workspace, grid_update, rect_state_moments
+from .grid import RANGE_SIGMAS, fold_into_workspace, grid_update, rect_state_moments
 from .linear import superposition_update
 
 #: merged weight rules of :func:`merge_groups` (module docstring, "Merge")
@@ -560,6 +560,8 @@ class GaussianParticleFilter(Tracker):
     def _new_ids(self, n: int, fresh: bool = False) -> None:
         """Append ``n`` new track ids (``fresh``: replace all, for a new particle set)."""
         start = getattr(self, "_next_tid", 0)
+        if n == 0 and not fresh and hasattr(self, "_next_tid"):
+            return
         if fresh:
             self._tid = np.zeros(0, dtype=np.int64)
         self._tid = np.concatenate([self._tid, start + np.arange(n, dtype=np.int64)])
@@ -589,9 +591,14 @@ class GaussianParticleFilter(Tracker):
         self._m, self._P = kalman.predict(self._m, self._P, self._F, self._Q)
         self._w = self._w * self._survival
         width, height = self._grid.extent
+        kernels = compiled_gpf_kernels()
         if len(self._m) and bd.boundary == "reflect":
-            # no probability outside: the mass beyond a wall is reflected back
-            self._m, self._P = fold_into_workspace(self._m, self._P, self._grid)
+            # no probability outside: the mass beyond a wall is reflected back (the fold
+            # returns copies when no row reaches a wall; the predicted arrays are new)
+            if kernels is None or len(kernels.near_walls(
+                    np.ascontiguousarray(self._m), np.ascontiguousarray(self._P),
+                    RANGE_SIGMAS, float(width), float(height))):
+                self._m, self._P = fold_into_workspace(self._m, self._P, self._grid)
         elif len(self._m):
             # the mass that left is death; what stays is the Gaussian inside
             mass, self._m, self._P = truncate_to_workspace(self._m, self._P, width, height)
@@ -602,6 +609,15 @@ class GaussianParticleFilter(Tracker):
         if self._model.is_grid:
             b = bd.birth_rate / n_cells
             p_s = self._survival
+            if kernels is not None:
+                # the same maps and rejoins in one pass (step_kernels.field_predict)
+                missing = self._missing() if self._count_bound else 0.0
+                u = self._u
+                u.default, u.cells, u.values = kernels.field_predict(
+                    u.default, u.cells, u.values, p_s, b,
+                    kernels.RESPREAD if self._count_bound else kernels.FLOOR,
+                    float(self.birth_floor), missing, n_cells)
+                return
             self._u.map(lambda u: 1.0 - (1.0 - p_s * u) * (1.0 - b))
             if self._count_bound:
                 self._respread_missing()
@@ -619,13 +635,7 @@ class GaussianParticleFilter(Tracker):
         Without it a fixed-count model's field decays to its floor under misses and a
         target a track lost can only be taken by that track (paper: the GPF held 1 of 3
         targets)."""
-        bd = self._model.birth_death
-        self._k += 1
-        p_s, b = bd.survival_probability, bd.birth_rate
-        keep = p_s ** self._k
-        expected = bd.initial_count_mean * keep + (
-            b * self._k if p_s == 1.0 else b * (1.0 - keep) / (1.0 - p_s))
-        missing = max(expected - float(self._w.sum()), 0.0)
+        missing = self._missing()
         total = self._u.total()
         if missing < total:  # no more undetected targets than the count leaves
             self._u.map(lambda u: u * (missing / total))
@@ -633,6 +643,16 @@ class GaussianParticleFilter(Tracker):
             self._u.map(lambda u: np.minimum(missing * (u / total), 0.5))
         else:
             self._u = CellField(self._u.n_cells, min(missing * (1.0 / self._u.n_cells), 0.5))
+
+    def _missing(self) -> float:
+        """The next step's ``max(m(k) - sum w, 0)`` (:meth:`_respread_missing`)."""
+        bd = self._model.birth_death
+        self._k += 1
+        p_s, b = bd.survival_probability, bd.birth_rate
+        keep = p_s ** self._k
+        expected = bd.initial_count_mean * keep + (
+            b * self._k if p_s == 1.0 else b * (1.0 - keep) / (1.0 - p_s))
+        return max(expected - float(self._w.sum()), 0.0)
 
     # ------------------------------------------------------- count distribution
     def cell_count_distribution(self) -> CellCounts:
@@ -681,14 +701,11 @@ class GaussianParticleFilter(Tracker):
             self._update_grid_numpy(looks, sensor)
             return
         T = len(self._w)
-        looked = np.unique(looks.cells)
-        if self.births:
-            u = self._u.at(looked)
-            cand, u_cand = looked[u > 0.0], u[u > 0.0]
-        else:
-            cand, u_cand = looked[:0], np.zeros(0)
-        w, own, alpha, m, P, ucell = kernels.with_candidates(
-            self._w, self._own, self._a, self._m, self._P, cand, u_cand,
+        look_cells = np.ascontiguousarray(looks.cells, dtype=np.int64)
+        field = self._u
+        cand, u_cand, w, own, alpha, m, P, ucell = kernels.candidates(
+            look_cells, self.births, field.default, field.cells, field.values,
+            self._w, self._own, self._a, self._m, self._P,
             float(self._grid.cell_size), self._grid.nx,
             float(self._model.birth_death.birth_velocity_std ** 2))
         res = grid_update(w, m, P, ucell, looks.cells, looks.returns, self._grid, sensor,
@@ -696,12 +713,12 @@ class GaussianParticleFilter(Tracker):
                           owner=own, alpha=alpha,
                           split_share=self.split_share if self.max_components > 1 else 0.0)
         promote, u_new, w, own, a, m, P = kernels.keep_promoted(
-            res.weights, res.owner, res.alpha, res.means, res.covs, T, cand,
-            np.ascontiguousarray(looks.cells, dtype=np.int64),
+            res.weights, res.owner, res.alpha, res.means, res.covs, T, cand, look_cells,
             np.ascontiguousarray(looks.returns, dtype=bool), float(self.prune_threshold))
-        self._u.set(cand, u_new)
-        if self.births and not self._count_bound:
-            self._u.map(lambda u: np.maximum(u, self.birth_floor))
+        # CellField.set(cand, u_new), then the floor's map with births and arrivals
+        field.default, field.cells, field.values = kernels.field_set(
+            field.default, field.cells, field.values, cand, u_new, float(self.birth_floor),
+            self.births and not self._count_bound)
         self._new_ids(int(promote.sum()))
         self._set(w, own, a, m, P)
 
@@ -758,11 +775,18 @@ class GaussianParticleFilter(Tracker):
         T = len(w)
         if T > 1 and self.merge_threshold > 0:
             if len(m) == T:
-                cm, cP = m[np.argsort(own)], P[np.argsort(own)]
+                # (the screen below does not depend on the order of the Gaussians)
+                cm, cP = (m, P) if kernels is not None else (m[np.argsort(own)],
+                                                             P[np.argsort(own)])
             else:
                 cm, cP = collapse(a, m, P, own, T)
-            mw, _, _, label = merge_groups(w, cm, cP, self.merge_threshold, self._merge_rule,
-                                           "mahalanobis")
+            if kernels is None or kernels.any_close(cm, cP, float(self.merge_threshold)):
+                if len(m) == T and kernels is not None:
+                    cm, cP = m[np.argsort(own)], P[np.argsort(own)]
+                mw, _, _, label = merge_groups(w, cm, cP, self.merge_threshold,
+                                               self._merge_rule, "mahalanobis")
+            else:  # no pair passes the merge's screen: the merge would change nothing
+                mw = w
             if len(mw) < T:
                 # each merged track keeps the id of its heaviest member
                 by_weight = np.argsort(-w, kind="stable")

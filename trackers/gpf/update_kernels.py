@@ -31,6 +31,9 @@ from ..numba_exact import nan_min as _nan_min
 from ..numba_exact import np_sum
 from ..numba_exact import search_left as _search
 from ..numba_exact import unique_inverse as _unique_inverse
+from . import step_kernels
+from .step_kernels import (  # noqa: F401  (the GPF reaches them through this module)
+    FLOOR, RESPREAD, any_close, candidates, field_predict, field_set)
 
 _LOGE2 = math.log(2.0)
 
@@ -894,4 +897,5 @@ def warm_up() -> None:
     near_walls(m2, P2, 6.0, 1.0, 1.0)
     state_moments(m2, P2, i, f, f + 1.0, f, f + 1.0, np.zeros((2, 2, 2)), np.zeros((2, 2, 2)),
                   np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2))
+    step_kernels.warm_up()
     warm_up.done = True
