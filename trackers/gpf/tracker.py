@@ -682,24 +682,27 @@ class GaussianParticleFilter(Tracker):
     # ----------------------------------------------------------------- update
     def update(self, looks: Looks) -> None:
         sensor = self._model.sensor
+        pruned = False  # by the compiled grid update's last pass
         if isinstance(sensor, RayleighGridSensor):
             if len(looks):
-                self._update_grid(looks, sensor)
+                pruned = self._update_grid(looks, sensor)
         elif looks.z is not None:  # one Gaussian per track on this sensor
             res = superposition_update(self._w, self._m, self._P, np.asarray(looks.z, float),
                                        sensor.H, sensor.R, self.epsilon, self.max_combinations)
             self.set_particles(res.weights, res.means, res.covs)
-        self._merge_and_prune()
+        self._merge_and_prune(pruned)
         if self._count_bound and len(self._w):
             # no arrivals: never more targets than the model started with
             n0 = int(round(self._model.birth_death.initial_count_mean))
             self._w = condition_on_count_bound(self._w, n0)
 
-    def _update_grid(self, looks: Looks, sensor: RayleighGridSensor) -> None:
+    def _update_grid(self, looks: Looks, sensor: RayleighGridSensor) -> bool:
+        """The grid update with its birth candidates; True when it also pruned the
+        tracks (the compiled form; the numpy form leaves that to the merge's prune)."""
         kernels = compiled_gpf_kernels()
         if kernels is None:
             self._update_grid_numpy(looks, sensor)
-            return
+            return False
         T = len(self._w)
         look_cells = np.ascontiguousarray(looks.cells, dtype=np.int64)
         field = self._u
@@ -712,15 +715,17 @@ class GaussianParticleFilter(Tracker):
                           self.epsilon, self.max_combinations, INTERACTION_THRESHOLD,
                           owner=own, alpha=alpha,
                           split_share=self.split_share if self.max_components > 1 else 0.0)
-        promote, u_new, w, own, a, m, P = kernels.keep_promoted(
-            res.weights, res.owner, res.alpha, res.means, res.covs, T, cand, look_cells,
-            np.ascontiguousarray(looks.returns, dtype=bool), float(self.prune_threshold))
-        # CellField.set(cand, u_new), then the floor's map with births and arrivals
-        field.default, field.cells, field.values = kernels.field_set(
-            field.default, field.cells, field.values, cand, u_new, float(self.birth_floor),
-            self.births and not self._count_bound)
-        self._new_ids(int(promote.sum()))
+        # the promoted candidates, the field's set (then the floor with births and
+        # arrivals), their ids, and the merge's prune, in one pass
+        n_new, field.default, field.cells, field.values, w, own, a, m, P, tid = (
+            kernels.keep_and_prune(
+                res.weights, res.owner, res.alpha, res.means, res.covs, T, cand, look_cells,
+                np.ascontiguousarray(looks.returns, dtype=bool), float(self.prune_threshold),
+                self._tid, self._next_tid, field.default, field.cells, field.values,
+                float(self.birth_floor), self.births and not self._count_bound))
+        self._tid, self._next_tid = tid, self._next_tid + n_new
         self._set(w, own, a, m, P)
+        return True
 
     def _update_grid_numpy(self, looks: Looks, sensor: RayleighGridSensor) -> None:
         """:meth:`_update_grid` in numpy (the reference of its compiled form)."""
@@ -755,13 +760,16 @@ class GaussianParticleFilter(Tracker):
         self._set(res.weights[keep_track], new_index[res.owner[keep_row]],
                   res.alpha[keep_row], res.means[keep_row], res.covs[keep_row])
 
-    def _merge_and_prune(self) -> None:
-        """Prune tracks, merge tracks (on their moment-matched Gaussians; the merged track
-        keeps every member's components), then reduce each track's mixture: merge its
-        components by the same rule, drop those below ``_COMPONENT_FLOOR``, and beyond
-        ``max_components`` moment-match the lightest into one."""
+    def _merge_and_prune(self, pruned: bool = False) -> None:
+        """Prune tracks (unless ``pruned`` already), merge tracks (on their moment-matched
+        Gaussians; the merged track keeps every member's components), then reduce each
+        track's mixture: merge its components by the same rule, drop those below
+        ``_COMPONENT_FLOOR``, and beyond ``max_components`` moment-match the lightest into
+        one."""
         kernels = compiled_gpf_kernels()
-        if kernels is not None:
+        if pruned:
+            w, own, a, m, P, tid = self._w, self._own, self._a, self._m, self._P, self._tid
+        elif kernels is not None:
             w, own, a, m, P, tid = kernels.prune_tracks(
                 self._w, self._own, self._a, self._m, self._P, self._tid,
                 float(self.prune_threshold))
@@ -865,9 +873,8 @@ class GaussianParticleFilter(Tracker):
             sel = np.argsort(-self._w, kind="stable")[:n]
         else:
             sel = np.nonzero(self._w > self.extraction_threshold)[0]
-        if len(self._m) == len(self._w):
-            return Estimate(count, self._m[sel].copy(), self._P[sel].copy(),
-                            self._tid[sel].copy())
+        if len(self._m) == len(self._w):  # (indexing by an index array copies)
+            return Estimate(count, self._m[sel], self._P[sel], self._tid[sel])
         # the peak height of each component, a / sqrt(det Sigma_pos)
         pos = self._P[:, 0::2, 0::2]
         score = self._a / np.sqrt(np.maximum(np.linalg.det(pos), 1e-300))
