@@ -370,3 +370,21 @@ def test_the_candidates_and_the_screen_equal_the_numpy_forms():
         assert K.any_close(m[perm].copy(), P[perm].copy(), thr) is want_close
         passed += want_close
     assert 30 <= passed <= 270
+
+
+def test_the_estimates_rows_equal_the_numpy_form():
+    """``heaviest``: the ``round_sum`` estimate's rows, ``argsort(-w, stable)[:n]``, with
+    ties (equal weights, 0 and -0), NaN and every ``n``."""
+    K = grid_backend.compiled_gpf_kernels()
+    rng = np.random.default_rng(31)
+    for _ in range(300):
+        T = int(rng.integers(0, 40))
+        w = np.round(rng.uniform(0.0, 1.0, T), int(rng.integers(1, 4)))
+        w[rng.random(T) < 0.1] = -0.0
+        w[rng.random(T) < 0.05] = np.nan
+        m, P = rng.normal(size=(T, 4)), rng.normal(size=(T, 4, 4))
+        tid = rng.permutation(T).astype(np.int64)
+        n = int(rng.integers(0, T + 1))
+        sel = np.argsort(-w, kind="stable")[:n]
+        assert _equal(list(K.step_kernels.heaviest(w, n, m, P, tid)),
+                      [m[sel], P[sel], tid[sel]])

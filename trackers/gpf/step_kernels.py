@@ -197,6 +197,31 @@ def any_close(m, P, threshold):
     return False
 
 
+@njit(cache=True, error_model="numpy")
+def heaviest(w, n, m, P, tid):
+    """The ``round_sum`` estimate's rows: ``sel = np.argsort(-w, kind="stable")[:n]``
+    (a stable insertion sort with numpy's order, NaN last), and ``m[sel]``, ``P[sel]``,
+    ``tid[sel]`` (one Gaussian per track). ``O(T^2)`` at worst, for ``T`` up to
+    ``max_particles``."""
+    T = len(w)
+    key = -w
+    order = np.arange(T)
+    for i in range(1, T):
+        j, k = i, order[i]
+        x = key[k]
+        # move left past the entries that x sorts before (numpy's less: NaN is largest)
+        while j > 0:
+            y = key[order[j - 1]]
+            if x < y or (y != y and x == x):
+                order[j] = order[j - 1]
+                j -= 1
+            else:
+                break
+        order[j] = k
+    sel = order[:n]
+    return m[sel], P[sel], tid[sel]
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) these kernels on tiny inputs of the argument
     types the GPF passes."""
@@ -207,3 +232,4 @@ def warm_up() -> None:
     candidates(i, True, 0.1, i, f, f, i, f, m, P, 1.0, 1, 1.0)
     field_set(0.1, i, f, i, f, 1e-4, True)
     any_close(m, P, 4.0)
+    heaviest(f, 1, m, P, i)

@@ -870,6 +870,10 @@ class GaussianParticleFilter(Tracker):
         count = float(self._w.sum())
         if self.extraction == "round_sum":
             n = min(int(round(count)), len(self._w))
+            kernels = compiled_gpf_kernels()
+            if kernels is not None and len(self._m) == len(self._w):
+                return Estimate(count, *kernels.step_kernels.heaviest(
+                    self._w, n, self._m, self._P, self._tid))
             sel = np.argsort(-self._w, kind="stable")[:n]
         else:
             sel = np.nonzero(self._w > self.extraction_threshold)[0]
