@@ -2,8 +2,9 @@
 they replace, bit for bit, on random inputs: the grid update's two passes (components,
 birth candidates, splits, clusters, degenerate and far-away Gaussians, existence 0 and
 1), the merge (both weight rules, groups, the Bhattacharyya form, coincident Gaussians),
-the position regression and the wall test. Whole runs: ``tests/test_grid_kernels.py``.
-Each comparison picks the backend with ``use_backend``.
+the position regression and the wall test, the undetected field's passes, the birth
+candidates and the merge's screen (``step_kernels.py``). Whole runs:
+``tests/test_grid_kernels.py``. Each comparison picks the backend with ``use_backend``.
 """
 
 from __future__ import annotations
@@ -12,7 +13,8 @@ import numpy as np
 import pytest
 
 from mttbench.scenarios.model import Grid, RayleighGridSensor
-from mttbench.trackers import grid_backend
+from mttbench.trackers import grid_backend, kalman
+from mttbench.trackers.cells import CellField
 from mttbench.trackers.gpf import grid as gpf_grid
 from mttbench.trackers.gpf import tracker as gpf_tracker
 from mttbench.trackers.jmpd import use_backend
@@ -241,3 +243,148 @@ def test_rect_state_moments_equal_the_numpy_form():
                          owner))
     zero, wide = np.zeros(len(m)), np.full(len(m), 8.0)
     assert _equal(*_both(gpf_grid.rect_state_moments, m, P, zero, wide, zero, wide))
+
+
+def _random_field(rng, n_cells: int) -> CellField:
+    """A field with a default and some listed cells: values from 0 to 0.6, some equal to
+    the default (they rejoin it after a map), exact zeros, now and then a NaN."""
+    f = CellField(n_cells, float(rng.choice([0.0, 1e-4, rng.uniform(0.0, 0.3)])))
+    k = int(rng.integers(0, min(n_cells, 40)))
+    cells = np.sort(rng.choice(n_cells, k, replace=False))
+    values = rng.uniform(0.0, 0.6, k)
+    values[rng.random(k) < 0.2] = f.default
+    values[rng.random(k) < 0.1] = 0.0
+    if rng.random() < 0.05 and k:
+        values[0] = np.nan
+    f.cells, f.values = cells.astype(np.int64), values
+    return f
+
+
+def _field_equal(a: CellField, default: float, cells: np.ndarray, values: np.ndarray) -> bool:
+    return (np.float64(a.default).tobytes() == np.float64(default).tobytes()
+            and _equal(a.cells, cells) and _equal(a.values, values))
+
+
+def test_the_fields_passes_equal_the_cellfield_forms():
+    """``field_predict`` (the floor, the count bound's three cases) and ``field_set`` (with
+    and without the floor, an empty set) against :class:`.CellField`'s maps and set, as
+    the GPF's numpy form calls them."""
+    K = grid_backend.compiled_gpf_kernels()
+    rng = np.random.default_rng(23)
+    cases = {"floor": 0, "scaled down": 0, "scaled up": 0, "uniform": 0}
+    for _ in range(600):
+        n_cells = int(rng.integers(1, 200))
+        f = _random_field(rng, n_cells)
+        p_s, b = float(rng.uniform(0.9, 1.0)), float(rng.choice([0.0, 1e-3 / n_cells]))
+        floor = float(rng.choice([0.0, 1e-4, 0.05]))
+        ref = f.copy()
+        ref.map(lambda u, p_s=p_s, b=b: 1.0 - (1.0 - p_s * u) * (1.0 - b))
+        if rng.random() < 0.5:
+            ref.map(lambda u, floor=floor: np.maximum(u, floor))
+            got = K.field_predict(f.default, f.cells, f.values, p_s, b, K.FLOOR, floor, 0.0,
+                                  n_cells)
+            cases["floor"] += 1
+        else:
+            total = ref.total()
+            missing = float(rng.choice([0.0, total * rng.uniform(0.0, 2.0), 0.7]))
+            if rng.random() < 0.1:  # an empty field: the uniform case
+                f, ref = CellField(n_cells, 0.0), CellField(n_cells, 0.0)
+                total = 0.0
+            if missing < total:
+                ref.map(lambda u, f=missing / total: u * f)
+                cases["scaled down"] += 1
+            elif total > 0:
+                ref.map(lambda u, x=missing, t=total: np.minimum(x * (u / t), 0.5))
+                cases["scaled up"] += 1
+            else:
+                ref = CellField(n_cells, min(missing * (1.0 / n_cells), 0.5))
+                cases["uniform"] += 1
+            got = K.field_predict(f.default, f.cells, f.values, p_s, b, K.RESPREAD, floor,
+                                  missing, n_cells)
+        assert _field_equal(ref, *got)
+        # the update's set of the candidates' cells, then the floor (with arrivals)
+        f = _random_field(rng, n_cells)
+        n_s = int(rng.integers(0, min(n_cells, 12) + 1))
+        set_cells = np.sort(rng.choice(n_cells, n_s, replace=False)).astype(np.int64)
+        set_values = np.where(rng.random(n_s) < 0.3, 0.0, rng.uniform(0.0, 0.4, n_s))
+        set_values[rng.random(n_s) < 0.2] = f.default
+        apply_floor = bool(rng.random() < 0.5)
+        ref = f.copy()
+        ref.set(set_cells, set_values)
+        if apply_floor:
+            ref.map(lambda u, floor=floor: np.maximum(u, floor))
+        got = K.field_set(f.default, f.cells, f.values, set_cells, set_values, floor,
+                          apply_floor)
+        assert _field_equal(ref, *got)
+    assert min(cases.values()) >= 10, cases
+
+
+def test_the_candidates_and_the_screen_equal_the_numpy_forms():
+    """``candidates``: the distinct looked cells (repeats, unsorted), the field there, the
+    birth candidates where it is above 0 and the tracks followed by them, as
+    ``_update_grid_numpy`` builds them; ``any_close``: the merge's screen, in any order of
+    the Gaussians."""
+    K = grid_backend.compiled_gpf_kernels()
+    rng = np.random.default_rng(29)
+    grid = Grid(9, 7, 1.5)
+    passed = 0
+    for _ in range(300):
+        f = _random_field(rng, grid.n_cells)
+        looks = rng.integers(0, grid.n_cells, int(rng.integers(1, 30)))
+        T = int(rng.integers(0, 5))
+        own = np.sort(rng.integers(0, T, int(rng.integers(T, 2 * T + 1)))) if T else \
+            np.zeros(0, np.int64)
+        own[:T] = np.arange(T)  # every track has a row
+        own = np.sort(own)
+        R = len(own)
+        m, P = _states(rng, R, 12.0)
+        w, a = rng.uniform(0.0, 1.0, T), rng.uniform(0.0, 1.0, R)
+        vs = float(rng.uniform(0.1, 2.0))
+        births = bool(rng.random() < 0.8)
+        got = K.candidates(looks, births, f.default, f.cells, f.values, w, own, a, m, P,
+                           grid.cell_size, grid.nx, vs)
+        looked = np.unique(looks)
+        u = f.at(looked)
+        cand = looked[u > 0.0] if births else looked[:0]
+        n_c, s = len(cand), grid.cell_size
+        cm = kalman.at_rest(grid.cell_centers(cand))
+        cP = np.repeat(np.diag([s * s / 12.0, vs, s * s / 12.0, vs])[None], n_c, axis=0)
+        want = (cand, f.at(cand), np.concatenate([w, f.at(cand)]),
+                np.concatenate([own, T + np.arange(n_c)]), np.concatenate([a, np.ones(n_c)]),
+                np.concatenate([m, cm]), np.concatenate([P, cP]),
+                np.concatenate([np.full(R, -1, dtype=np.int64), cand]))
+        assert _equal(list(got), list(want))
+        # the screen, on clustered Gaussians so that some pairs pass
+        k = int(rng.integers(0, 8))
+        m, P = _states(rng, k, 4.0)
+        thr = float(rng.choice([1.0, 4.0, 16.0]))
+        iu, ju = np.triu_indices(k, 1)
+        S, d = P[iu] + P[ju], m[iu] - m[ju]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lower = ((S[:, 2, 2] * d[:, 0] * d[:, 0] - 2.0 * S[:, 0, 2] * d[:, 0] * d[:, 2]
+                      + S[:, 0, 0] * d[:, 2] * d[:, 2]) / (S[:, 0, 0] * S[:, 2, 2]
+                                                          - S[:, 0, 2] * S[:, 0, 2]))
+        want_close = bool(np.any(~(lower >= thr)))
+        perm = rng.permutation(k)
+        assert K.any_close(m, P, thr) is want_close
+        assert K.any_close(m[perm].copy(), P[perm].copy(), thr) is want_close
+        passed += want_close
+    assert 30 <= passed <= 270
+
+
+def test_the_estimates_rows_equal_the_numpy_form():
+    """``heaviest``: the ``round_sum`` estimate's rows, ``argsort(-w, stable)[:n]``, with
+    ties (equal weights, 0 and -0), NaN and every ``n``."""
+    K = grid_backend.compiled_gpf_kernels()
+    rng = np.random.default_rng(31)
+    for _ in range(300):
+        T = int(rng.integers(0, 40))
+        w = np.round(rng.uniform(0.0, 1.0, T), int(rng.integers(1, 4)))
+        w[rng.random(T) < 0.1] = -0.0
+        w[rng.random(T) < 0.05] = np.nan
+        m, P = rng.normal(size=(T, 4)), rng.normal(size=(T, 4, 4))
+        tid = rng.permutation(T).astype(np.int64)
+        n = int(rng.integers(0, T + 1))
+        sel = np.argsort(-w, kind="stable")[:n]
+        assert _equal(list(K.step_kernels.heaviest(w, n, m, P, tid)),
+                      [m[sel], P[sel], tid[sel]])

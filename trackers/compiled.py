@@ -30,7 +30,7 @@ MODULES = (
     "mttbench.trackers.pmb.update_kernels",
 )
 #: disk-cached kernels that only the modules above call (compiled through their warm-up)
-HELPERS = ("mttbench.trackers.numba_exact",)
+HELPERS = ("mttbench.trackers.gpf.step_kernels", "mttbench.trackers.numba_exact")
 
 
 def _has_index(origin: Path, cache_dir: str | None) -> bool:

@@ -567,7 +567,7 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     """
     T = len(w)
     R = len(m)
-    w = np.clip(np.asarray(w, dtype=float), 0.0, 1.0)
+    w = np.asarray(w, dtype=float).clip(0.0, 1.0)  # np.clip's ufunc, without its wrapper
     own = np.arange(R) if owner is None else np.asarray(owner, dtype=np.int64)
     alp = np.ones(R) if alpha is None else np.asarray(alpha, dtype=float)
     if T == 0 or len(cells) == 0:

@@ -137,7 +137,7 @@ from ..cells import (
 )
 from ..grid_backend import GPF_WAIT_S, compiled_gpf_kernels
 from ..params import Budget, Param, Search
-from .grid import fold_into_workspace, grid_update, rect_state_moments
+from .grid import RANGE_SIGMAS, fold_into_workspace, grid_update, rect_state_moments
 from .linear import superposition_update
 
 #: merged weight rules of :func:`merge_groups` (module docstring, "Merge")
@@ -560,6 +560,8 @@ class GaussianParticleFilter(Tracker):
     def _new_ids(self, n: int, fresh: bool = False) -> None:
         """Append ``n`` new track ids (``fresh``: replace all, for a new particle set)."""
         start = getattr(self, "_next_tid", 0)
+        if n == 0 and not fresh and hasattr(self, "_next_tid"):
+            return
         if fresh:
             self._tid = np.zeros(0, dtype=np.int64)
         self._tid = np.concatenate([self._tid, start + np.arange(n, dtype=np.int64)])
@@ -589,9 +591,14 @@ class GaussianParticleFilter(Tracker):
         self._m, self._P = kalman.predict(self._m, self._P, self._F, self._Q)
         self._w = self._w * self._survival
         width, height = self._grid.extent
+        kernels = compiled_gpf_kernels()
         if len(self._m) and bd.boundary == "reflect":
-            # no probability outside: the mass beyond a wall is reflected back
-            self._m, self._P = fold_into_workspace(self._m, self._P, self._grid)
+            # no probability outside: the mass beyond a wall is reflected back (the fold
+            # returns copies when no row reaches a wall; the predicted arrays are new)
+            if kernels is None or len(kernels.near_walls(
+                    np.ascontiguousarray(self._m), np.ascontiguousarray(self._P),
+                    RANGE_SIGMAS, float(width), float(height))):
+                self._m, self._P = fold_into_workspace(self._m, self._P, self._grid)
         elif len(self._m):
             # the mass that left is death; what stays is the Gaussian inside
             mass, self._m, self._P = truncate_to_workspace(self._m, self._P, width, height)
@@ -602,6 +609,15 @@ class GaussianParticleFilter(Tracker):
         if self._model.is_grid:
             b = bd.birth_rate / n_cells
             p_s = self._survival
+            if kernels is not None:
+                # the same maps and rejoins in one pass (step_kernels.field_predict)
+                missing = self._missing() if self._count_bound else 0.0
+                u = self._u
+                u.default, u.cells, u.values = kernels.field_predict(
+                    u.default, u.cells, u.values, p_s, b,
+                    kernels.RESPREAD if self._count_bound else kernels.FLOOR,
+                    float(self.birth_floor), missing, n_cells)
+                return
             self._u.map(lambda u: 1.0 - (1.0 - p_s * u) * (1.0 - b))
             if self._count_bound:
                 self._respread_missing()
@@ -619,13 +635,7 @@ class GaussianParticleFilter(Tracker):
         Without it a fixed-count model's field decays to its floor under misses and a
         target a track lost can only be taken by that track (paper: the GPF held 1 of 3
         targets)."""
-        bd = self._model.birth_death
-        self._k += 1
-        p_s, b = bd.survival_probability, bd.birth_rate
-        keep = p_s ** self._k
-        expected = bd.initial_count_mean * keep + (
-            b * self._k if p_s == 1.0 else b * (1.0 - keep) / (1.0 - p_s))
-        missing = max(expected - float(self._w.sum()), 0.0)
+        missing = self._missing()
         total = self._u.total()
         if missing < total:  # no more undetected targets than the count leaves
             self._u.map(lambda u: u * (missing / total))
@@ -633,6 +643,16 @@ class GaussianParticleFilter(Tracker):
             self._u.map(lambda u: np.minimum(missing * (u / total), 0.5))
         else:
             self._u = CellField(self._u.n_cells, min(missing * (1.0 / self._u.n_cells), 0.5))
+
+    def _missing(self) -> float:
+        """The next step's ``max(m(k) - sum w, 0)`` (:meth:`_respread_missing`)."""
+        bd = self._model.birth_death
+        self._k += 1
+        p_s, b = bd.survival_probability, bd.birth_rate
+        keep = p_s ** self._k
+        expected = bd.initial_count_mean * keep + (
+            b * self._k if p_s == 1.0 else b * (1.0 - keep) / (1.0 - p_s))
+        return max(expected - float(self._w.sum()), 0.0)
 
     # ------------------------------------------------------- count distribution
     def cell_count_distribution(self) -> CellCounts:
@@ -662,48 +682,50 @@ class GaussianParticleFilter(Tracker):
     # ----------------------------------------------------------------- update
     def update(self, looks: Looks) -> None:
         sensor = self._model.sensor
+        pruned = False  # by the compiled grid update's last pass
         if isinstance(sensor, RayleighGridSensor):
             if len(looks):
-                self._update_grid(looks, sensor)
+                pruned = self._update_grid(looks, sensor)
         elif looks.z is not None:  # one Gaussian per track on this sensor
             res = superposition_update(self._w, self._m, self._P, np.asarray(looks.z, float),
                                        sensor.H, sensor.R, self.epsilon, self.max_combinations)
             self.set_particles(res.weights, res.means, res.covs)
-        self._merge_and_prune()
+        self._merge_and_prune(pruned)
         if self._count_bound and len(self._w):
             # no arrivals: never more targets than the model started with
             n0 = int(round(self._model.birth_death.initial_count_mean))
             self._w = condition_on_count_bound(self._w, n0)
 
-    def _update_grid(self, looks: Looks, sensor: RayleighGridSensor) -> None:
+    def _update_grid(self, looks: Looks, sensor: RayleighGridSensor) -> bool:
+        """The grid update with its birth candidates; True when it also pruned the
+        tracks (the compiled form; the numpy form leaves that to the merge's prune)."""
         kernels = compiled_gpf_kernels()
         if kernels is None:
             self._update_grid_numpy(looks, sensor)
-            return
+            return False
         T = len(self._w)
-        looked = np.unique(looks.cells)
-        if self.births:
-            u = self._u.at(looked)
-            cand, u_cand = looked[u > 0.0], u[u > 0.0]
-        else:
-            cand, u_cand = looked[:0], np.zeros(0)
-        w, own, alpha, m, P, ucell = kernels.with_candidates(
-            self._w, self._own, self._a, self._m, self._P, cand, u_cand,
+        look_cells = np.ascontiguousarray(looks.cells, dtype=np.int64)
+        field = self._u
+        cand, u_cand, w, own, alpha, m, P, ucell = kernels.candidates(
+            look_cells, self.births, field.default, field.cells, field.values,
+            self._w, self._own, self._a, self._m, self._P,
             float(self._grid.cell_size), self._grid.nx,
             float(self._model.birth_death.birth_velocity_std ** 2))
         res = grid_update(w, m, P, ucell, looks.cells, looks.returns, self._grid, sensor,
                           self.epsilon, self.max_combinations, INTERACTION_THRESHOLD,
                           owner=own, alpha=alpha,
                           split_share=self.split_share if self.max_components > 1 else 0.0)
-        promote, u_new, w, own, a, m, P = kernels.keep_promoted(
-            res.weights, res.owner, res.alpha, res.means, res.covs, T, cand,
-            np.ascontiguousarray(looks.cells, dtype=np.int64),
-            np.ascontiguousarray(looks.returns, dtype=bool), float(self.prune_threshold))
-        self._u.set(cand, u_new)
-        if self.births and not self._count_bound:
-            self._u.map(lambda u: np.maximum(u, self.birth_floor))
-        self._new_ids(int(promote.sum()))
+        # the promoted candidates, the field's set (then the floor with births and
+        # arrivals), their ids, and the merge's prune, in one pass
+        n_new, field.default, field.cells, field.values, w, own, a, m, P, tid = (
+            kernels.keep_and_prune(
+                res.weights, res.owner, res.alpha, res.means, res.covs, T, cand, look_cells,
+                np.ascontiguousarray(looks.returns, dtype=bool), float(self.prune_threshold),
+                self._tid, self._next_tid, field.default, field.cells, field.values,
+                float(self.birth_floor), self.births and not self._count_bound))
+        self._tid, self._next_tid = tid, self._next_tid + n_new
         self._set(w, own, a, m, P)
+        return True
 
     def _update_grid_numpy(self, looks: Looks, sensor: RayleighGridSensor) -> None:
         """:meth:`_update_grid` in numpy (the reference of its compiled form)."""
@@ -738,13 +760,16 @@ class GaussianParticleFilter(Tracker):
         self._set(res.weights[keep_track], new_index[res.owner[keep_row]],
                   res.alpha[keep_row], res.means[keep_row], res.covs[keep_row])
 
-    def _merge_and_prune(self) -> None:
-        """Prune tracks, merge tracks (on their moment-matched Gaussians; the merged track
-        keeps every member's components), then reduce each track's mixture: merge its
-        components by the same rule, drop those below ``_COMPONENT_FLOOR``, and beyond
-        ``max_components`` moment-match the lightest into one."""
+    def _merge_and_prune(self, pruned: bool = False) -> None:
+        """Prune tracks (unless ``pruned`` already), merge tracks (on their moment-matched
+        Gaussians; the merged track keeps every member's components), then reduce each
+        track's mixture: merge its components by the same rule, drop those below
+        ``_COMPONENT_FLOOR``, and beyond ``max_components`` moment-match the lightest into
+        one."""
         kernels = compiled_gpf_kernels()
-        if kernels is not None:
+        if pruned:
+            w, own, a, m, P, tid = self._w, self._own, self._a, self._m, self._P, self._tid
+        elif kernels is not None:
             w, own, a, m, P, tid = kernels.prune_tracks(
                 self._w, self._own, self._a, self._m, self._P, self._tid,
                 float(self.prune_threshold))
@@ -758,11 +783,18 @@ class GaussianParticleFilter(Tracker):
         T = len(w)
         if T > 1 and self.merge_threshold > 0:
             if len(m) == T:
-                cm, cP = m[np.argsort(own)], P[np.argsort(own)]
+                # (the screen below does not depend on the order of the Gaussians)
+                cm, cP = (m, P) if kernels is not None else (m[np.argsort(own)],
+                                                             P[np.argsort(own)])
             else:
                 cm, cP = collapse(a, m, P, own, T)
-            mw, _, _, label = merge_groups(w, cm, cP, self.merge_threshold, self._merge_rule,
-                                           "mahalanobis")
+            if kernels is None or kernels.any_close(cm, cP, float(self.merge_threshold)):
+                if len(m) == T and kernels is not None:
+                    cm, cP = m[np.argsort(own)], P[np.argsort(own)]
+                mw, _, _, label = merge_groups(w, cm, cP, self.merge_threshold,
+                                               self._merge_rule, "mahalanobis")
+            else:  # no pair passes the merge's screen: the merge would change nothing
+                mw = w
             if len(mw) < T:
                 # each merged track keeps the id of its heaviest member
                 by_weight = np.argsort(-w, kind="stable")
@@ -838,12 +870,15 @@ class GaussianParticleFilter(Tracker):
         count = float(self._w.sum())
         if self.extraction == "round_sum":
             n = min(int(round(count)), len(self._w))
+            kernels = compiled_gpf_kernels()
+            if kernels is not None and len(self._m) == len(self._w):
+                return Estimate(count, *kernels.step_kernels.heaviest(
+                    self._w, n, self._m, self._P, self._tid))
             sel = np.argsort(-self._w, kind="stable")[:n]
         else:
             sel = np.nonzero(self._w > self.extraction_threshold)[0]
-        if len(self._m) == len(self._w):
-            return Estimate(count, self._m[sel].copy(), self._P[sel].copy(),
-                            self._tid[sel].copy())
+        if len(self._m) == len(self._w):  # (indexing by an index array copies)
+            return Estimate(count, self._m[sel], self._P[sel], self._tid[sel])
         # the peak height of each component, a / sqrt(det Sigma_pos)
         pos = self._P[:, 0::2, 0::2]
         score = self._a / np.sqrt(np.maximum(np.linalg.det(pos), 1e-300))

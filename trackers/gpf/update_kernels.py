@@ -31,6 +31,17 @@ from ..numba_exact import nan_min as _nan_min
 from ..numba_exact import np_sum
 from ..numba_exact import search_left as _search
 from ..numba_exact import unique_inverse as _unique_inverse
+from . import step_kernels
+
+# the GPF reaches the step's kernels through this module
+from .step_kernels import (  # noqa: F401
+    FLOOR,
+    RESPREAD,
+    any_close,
+    candidates,
+    field_predict,
+    field_set,
+)
 
 _LOGE2 = math.log(2.0)
 
@@ -555,6 +566,29 @@ def keep_promoted(weights, owner, alpha, means, covs, T, cand, cells, returns, p
 
 
 @njit(cache=True, error_model="numpy")
+def keep_and_prune(weights, owner, alpha, means, covs, T, cand, cells, returns, prune, tid,
+                   next_tid, default, f_cells, f_values, floor, apply_floor):
+    """The update's tail in one pass: :func:`keep_promoted`, the promoted candidates' new
+    track ids (``next_tid`` on), the field's :func:`.step_kernels.field_set` of the
+    candidates' values (then the floor when ``apply_floor``), and :func:`prune_tracks`.
+    Returns the number of new tracks, the field's default, cells and values, and the
+    pruned tracks' ``w``, ``owner``, ``alpha``, ``means``, ``covs`` and ids."""
+    promote, u_new, w, own, a, m, P = keep_promoted(weights, owner, alpha, means, covs, T,
+                                                    cand, cells, returns, prune)
+    n_new = 0
+    for j in range(len(promote)):
+        n_new += promote[j]
+    n_t = len(tid)
+    tid2 = np.empty(n_t + n_new, np.int64)
+    tid2[:n_t] = tid
+    for j in range(n_new):
+        tid2[n_t + j] = next_tid + j
+    d, fc, fv = field_set(default, f_cells, f_values, cand, u_new, floor, apply_floor)
+    w2, own2, a2, m2, P2, tid3 = prune_tracks(w, own, a, m, P, tid2, prune)
+    return n_new, d, fc, fv, w2, own2, a2, m2, P2, tid3
+
+
+@njit(cache=True, error_model="numpy")
 def pair_screen(m, P, threshold, groups, use_groups):
     """:func:`.tracker._pair_distances`' screen: the pairs ``i < j`` (in
     ``np.triu_indices`` order) whose position-only lower bound is not ``>= threshold``
@@ -881,6 +915,7 @@ def warm_up() -> None:
                        np.zeros((1, 2, 2)), np.zeros((1, 2, 2)), 0.1)
     w2, own2, a2, m2, P2, ucell = with_candidates(f, i, f, m, P, i, f, 1.0, 1, 1.0)
     keep_promoted(w2, own2, a2, m2, P2, 1, i, i, b, 1e-3)
+    keep_and_prune(w2, own2, a2, m2, P2, 1, i, i, b, 1e-3, i, 1, 0.1, i, f, 1e-4, True)
     ci, cj, dc, Sc = pair_screen(m2, P2, 4.0, i, False)
     for bounded in (False, True):
         greedy_merge(w2, m2, P2, np.zeros((2, 2)), 4.0, bounded, 1e-9)
@@ -894,4 +929,5 @@ def warm_up() -> None:
     near_walls(m2, P2, 6.0, 1.0, 1.0)
     state_moments(m2, P2, i, f, f + 1.0, f, f + 1.0, np.zeros((2, 2, 2)), np.zeros((2, 2, 2)),
                   np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2))
+    step_kernels.warm_up()
     warm_up.done = True

@@ -1,0 +1,235 @@
+"""The GPF's step around its grid update as compiled (numba) passes: the undetected
+field's operations (:class:`.cells.CellField`'s ``map``, ``set``, ``at``), the looked
+cells and the birth candidates, and the merge's screen. Each equals, bit for bit, the
+numpy operations of :class:`.tracker.GaussianParticleFilter` it replaces (those stay the
+reference, ``MTTBENCH_NO_NUMBA=1``).
+
+Why: on ``default`` a step is about 300 us, and these were 40-odd numpy calls of a few
+microseconds each on arrays of a few dozen entries (docs/speed.md, "GPF: the step's
+edges compiled").
+
+Exactness: the field's maps are the same double operations cell by cell (numba does not
+contract ``a * b + c`` into a fused multiply-add without ``fastmath``), ``np.maximum``
+and ``np.minimum`` keep numpy's NaN rule (:func:`.numba_exact.nan_max`), the field's
+total is numpy's pairwise sum (:func:`.numba_exact.np_sum`), and a cell whose value
+equals the default rejoins it after every map, as :meth:`.CellField._rejoin` does (the
+total depends on which cells are listed). ``np.unique`` of the looked cells is the
+sorted distinct cells, whatever the sort.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..numba_exact import nan_max as _nan_max
+from ..numba_exact import nan_min as _nan_min
+from ..numba_exact import np_sum
+
+#: field_predict's modes: the floor (a model with arrivals), the count bound's respread
+#: (without), or neither (no births)
+FLOOR, RESPREAD, NONE = 0, 1, 2
+
+
+@njit(cache=True, error_model="numpy")
+def _rejoin(default, cells, values, n):
+    """Drops, in place, the first ``n`` entries equal to ``default``; the count kept."""
+    k = 0
+    for j in range(n):
+        if not values[j] == default:
+            cells[k] = cells[j]
+            values[k] = values[j]
+            k += 1
+    return k
+
+
+@njit(cache=True, error_model="numpy")
+def field_predict(default, cells, values, p_s, b, mode, floor, missing, n_cells):
+    """The predict's field: ``u <- 1 - (1 - p_s u)(1 - b)``, rejoin, then by ``mode``
+    ``u <- max(u, floor)`` (FLOOR) or the respread of
+    :meth:`.tracker.GaussianParticleFilter._respread_missing` with its ``missing``
+    (RESPREAD: ``u`` scaled to ``missing`` when the total exceeds it, else scaled up
+    keeping its shape, each cell at most 1/2, uniform when the total is 0), rejoin.
+    Returns the new default, cells and values (new arrays)."""
+    n = len(cells)
+    c = cells.copy()
+    v = np.empty(n)
+    gb = 1.0 - b
+    d = 1.0 - (1.0 - p_s * default) * gb
+    for j in range(n):
+        v[j] = 1.0 - (1.0 - p_s * values[j]) * gb
+    n = _rejoin(d, c, v, n)
+    if mode == FLOOR:
+        d = _nan_max(d, floor)
+        for j in range(n):
+            v[j] = _nan_max(v[j], floor)
+    elif mode == RESPREAD:
+        total = d * (n_cells - n) + np_sum(v, n)
+        if missing < total:
+            f = missing / total
+            d = d * f
+            for j in range(n):
+                v[j] = v[j] * f
+        elif total > 0:
+            d = _nan_min(missing * (d / total), 0.5)
+            for j in range(n):
+                v[j] = _nan_min(missing * (v[j] / total), 0.5)
+        else:
+            d = _nan_min(missing * (1.0 / n_cells), 0.5)
+            n = 0
+    if mode != NONE:
+        n = _rejoin(d, c, v, n)
+    return d, c[:n], v[:n]
+
+
+@njit(cache=True, error_model="numpy")
+def candidates(look_cells, births, default, cells, values, w, own, a, m, P, s, nx, vs):
+    """The update's front: the sorted distinct looked cells, the field ``u`` there
+    (:meth:`.CellField.at`), the birth candidates (those with ``u > 0``, with births), and
+    the tracks followed by one candidate per such cell (existence ``u``, at rest at the
+    cell's centre, covariance ``diag(s^2/12, vs, s^2/12, vs)``). Returns the candidates'
+    cells and ``u``, then ``w``, ``owner``, ``alpha``, ``means``, ``covs`` and
+    ``uniform_cell`` as :meth:`.tracker.GaussianParticleFilter._update_grid_numpy`
+    builds them."""
+    srt = np.sort(look_cells)
+    looked = np.empty(len(srt), np.int64)
+    n_l = 0
+    for j in range(len(srt)):
+        if n_l == 0 or srt[j] != looked[n_l - 1]:
+            looked[n_l] = srt[j]
+            n_l += 1
+    cand = np.empty(n_l if births else 0, np.int64)
+    u_cand = np.empty(len(cand))
+    n_c = 0
+    n_f = len(cells)
+    if births:
+        for j in range(n_l):
+            u = default
+            if n_f:
+                i = min(np.searchsorted(cells, looked[j]), n_f - 1)
+                if cells[i] == looked[j]:
+                    u = values[i]
+            if u > 0.0:
+                cand[n_c] = looked[j]
+                u_cand[n_c] = u
+                n_c += 1
+    T, R = len(w), m.shape[0]
+    w2 = np.empty(T + n_c)
+    w2[:T] = w
+    w2[T:] = u_cand[:n_c]
+    own2 = np.empty(R + n_c, np.int64)
+    a2 = np.ones(R + n_c)
+    ucell = np.full(R + n_c, -1, np.int64)
+    m2 = np.zeros((R + n_c, 4))
+    P2 = np.zeros((R + n_c, 4, 4))
+    own2[:R] = own
+    a2[:R] = a
+    m2[:R] = m
+    P2[:R] = P
+    pv = s * s / 12.0
+    for j in range(n_c):
+        r = R + j
+        own2[r] = T + j
+        ucell[r] = cand[j]
+        m2[r, 0] = (cand[j] % nx + 0.5) * s
+        m2[r, 2] = (cand[j] // nx + 0.5) * s
+        P2[r, 0, 0], P2[r, 1, 1], P2[r, 2, 2], P2[r, 3, 3] = pv, vs, pv, vs
+    return cand[:n_c], u_cand[:n_c], w2, own2, a2, m2, P2, ucell
+
+
+@njit(cache=True, error_model="numpy")
+def field_set(default, cells, values, set_cells, set_values, floor, apply_floor):
+    """:meth:`.CellField.set` of ``set_values`` at the sorted distinct ``set_cells``, then,
+    when ``apply_floor``, ``u <- max(u, floor)`` (:meth:`.CellField.map`). Returns the new
+    default, cells and values."""
+    n_f, n_s = len(cells), len(set_cells)
+    c = np.empty(n_f + n_s, np.int64)
+    v = np.empty(n_f + n_s)
+    n = 0
+    if n_s == 0:  # set() leaves the field as it is (no rejoin)
+        c[:n_f] = cells
+        v[:n_f] = values
+        n = n_f
+    else:
+        # the kept cells and the set ones, both sorted and disjoint: a merge is the
+        # stable sort of their concatenation
+        i = 0
+        for j in range(n_s):
+            while i < n_f and cells[i] < set_cells[j]:
+                c[n], v[n] = cells[i], values[i]
+                n += 1
+                i += 1
+            if i < n_f and cells[i] == set_cells[j]:
+                i += 1
+            c[n], v[n] = set_cells[j], set_values[j]
+            n += 1
+        while i < n_f:
+            c[n], v[n] = cells[i], values[i]
+            n += 1
+            i += 1
+        n = _rejoin(default, c, v, n)
+    if apply_floor:
+        default = _nan_max(default, floor)
+        for j in range(n):
+            v[j] = _nan_max(v[j], floor)
+        n = _rejoin(default, c, v, n)
+    return default, c[:n], v[:n]
+
+
+@njit(cache=True, error_model="numpy")
+def any_close(m, P, threshold):
+    """Whether :func:`.tracker._pair_distances`' position-only screen passes any pair
+    (its lower bound not ``>= threshold``; NaN passes). The bound is the same double for
+    ``(i, j)`` and ``(j, i)`` (negation is exact), so the Gaussians' order does not
+    matter: with no pair passing, the merge changes nothing."""
+    K = m.shape[0]
+    for i in range(K):
+        for j in range(i + 1, K):
+            a = P[i, 0, 0] + P[j, 0, 0]
+            b = P[i, 0, 2] + P[j, 0, 2]
+            c = P[i, 2, 2] + P[j, 2, 2]
+            dx = m[i, 0] - m[j, 0]
+            dy = m[i, 2] - m[j, 2]
+            det = a * c - b * b
+            lower = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
+            if not lower >= threshold:
+                return True
+    return False
+
+
+@njit(cache=True, error_model="numpy")
+def heaviest(w, n, m, P, tid):
+    """The ``round_sum`` estimate's rows: ``sel = np.argsort(-w, kind="stable")[:n]``
+    (a stable insertion sort with numpy's order, NaN last), and ``m[sel]``, ``P[sel]``,
+    ``tid[sel]`` (one Gaussian per track). ``O(T^2)`` at worst, for ``T`` up to
+    ``max_particles``."""
+    T = len(w)
+    key = -w
+    order = np.arange(T)
+    for i in range(1, T):
+        j, k = i, order[i]
+        x = key[k]
+        # move left past the entries that x sorts before (numpy's less: NaN is largest)
+        while j > 0:
+            y = key[order[j - 1]]
+            if x < y or (y != y and x == x):
+                order[j] = order[j - 1]
+                j -= 1
+            else:
+                break
+        order[j] = k
+    sel = order[:n]
+    return m[sel], P[sel], tid[sel]
+
+
+def warm_up() -> None:
+    """Compile (or load from the disk cache) these kernels on tiny inputs of the argument
+    types the GPF passes."""
+    f, i = np.ones(1), np.zeros(1, np.int64)
+    m, P = np.zeros((1, 4)), np.eye(4)[None]
+    for mode in (FLOOR, RESPREAD, NONE):
+        field_predict(0.1, i, f, 0.99, 0.01, mode, 1e-4, 0.5, 10)
+    candidates(i, True, 0.1, i, f, f, i, f, m, P, 1.0, 1, 1.0)
+    field_set(0.1, i, f, i, f, 1e-4, True)
+    any_close(m, P, 4.0)
+    heaviest(f, 1, m, P, i)
