@@ -29,7 +29,10 @@ MODULES = (
     "mttbench.trackers.jmpd.kernels",
     "mttbench.trackers.pmb.update_kernels",
 )
-#: disk-cached kernels that only the modules above call (compiled through their warm-up)
+#: disk-cached kernels that only the modules above call (compiled through their warm-up).
+#: Numba checks a cached kernel against its own file only: after editing one of these,
+#: delete the callers' caches too (``find trackers -name '*.nb[ic]' -delete``), or a
+#: caller keeps the old helper compiled into it
 HELPERS = ("mttbench.trackers.gpf.step_kernels", "mttbench.trackers.numba_exact")
 
 
