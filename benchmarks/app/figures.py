@@ -146,16 +146,20 @@ def runtime_per_step(runs: pd.DataFrame, path: str | Path) -> Path:
     fig, axes = _grid_of_axes(max(len(scen), 1))
     for ax, sc in zip(axes, scen, strict=False):
         g = ok[ok["scenario"] == sc]
+        drawn = False
         for i, lab in enumerate(labels):
             ms = g.loc[g["tracker_label"] == lab, "tracker_wall_s"].to_numpy(float) * 1e3
+            ms = ms[ms > 0]  # NaN: a time not known (a tracker scored outside)
             if ms.size == 0:
                 continue
             jitter = np.linspace(-0.15, 0.15, ms.size) if ms.size > 1 else np.zeros(1)
             ax.scatter(i + jitter, ms, s=12, color=styles[lab][0], marker=styles[lab][1],
                        alpha=0.7)
             ax.hlines(ms.mean(), i - 0.3, i + 0.3, color="k", lw=1.5)
+            drawn = True
         ax.set_xticks(range(len(labels)), labels, rotation=30, ha="right", fontsize=7)
-        ax.set_yscale("log")
+        if drawn:  # a log axis without a positive value cannot be drawn
+            ax.set_yscale("log")
         ax.set_ylabel("ms per step")
         ax.set_title(sc)
         ax.grid(alpha=0.3, axis="y")
