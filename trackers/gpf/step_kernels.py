@@ -83,12 +83,41 @@ def field_predict(default, cells, values, p_s, b, mode, floor, missing, n_cells)
 
 
 @njit(cache=True, error_model="numpy")
+def with_candidates(w, own, a, m, P, cand, u_cand, s, nx, vs):
+    """The tracks followed by one birth candidate per cell of ``cand`` (existence
+    ``u_cand``, at rest at the cell's centre, covariance ``diag(s^2/12, vs, s^2/12, vs)``):
+    ``w``, ``owner``, ``alpha``, ``means``, ``covs`` and ``uniform_cell`` as
+    :meth:`.tracker.GaussianParticleFilter._update_grid` builds them with numpy."""
+    T, R, n_c = len(w), m.shape[0], len(cand)
+    w2 = np.empty(T + n_c)
+    w2[:T] = w
+    w2[T:] = u_cand
+    own2 = np.empty(R + n_c, np.int64)
+    a2 = np.ones(R + n_c)
+    ucell = np.full(R + n_c, -1, np.int64)
+    m2 = np.zeros((R + n_c, 4))
+    P2 = np.zeros((R + n_c, 4, 4))
+    own2[:R] = own
+    a2[:R] = a
+    m2[:R] = m
+    P2[:R] = P
+    pv = s * s / 12.0
+    for j in range(n_c):
+        r = R + j
+        own2[r] = T + j
+        ucell[r] = cand[j]
+        m2[r, 0] = (cand[j] % nx + 0.5) * s
+        m2[r, 2] = (cand[j] // nx + 0.5) * s
+        P2[r, 0, 0], P2[r, 1, 1], P2[r, 2, 2], P2[r, 3, 3] = pv, vs, pv, vs
+    return w2, own2, a2, m2, P2, ucell
+
+
+@njit(cache=True, error_model="numpy")
 def candidates(look_cells, births, default, cells, values, w, own, a, m, P, s, nx, vs):
     """The update's front: the sorted distinct looked cells, the field ``u`` there
     (:meth:`.CellField.at`), the birth candidates (those with ``u > 0``, with births), and
-    the tracks followed by one candidate per such cell (existence ``u``, at rest at the
-    cell's centre, covariance ``diag(s^2/12, vs, s^2/12, vs)``). Returns the candidates'
-    cells and ``u``, then ``w``, ``owner``, ``alpha``, ``means``, ``covs`` and
+    the tracks followed by one candidate per such cell (:func:`with_candidates`). Returns
+    the candidates' cells and ``u``, then ``w``, ``owner``, ``alpha``, ``means``, ``covs`` and
     ``uniform_cell`` as :meth:`.tracker.GaussianParticleFilter._update_grid_numpy`
     builds them."""
     srt = np.sort(look_cells)
@@ -113,27 +142,8 @@ def candidates(look_cells, births, default, cells, values, w, own, a, m, P, s, n
                 cand[n_c] = looked[j]
                 u_cand[n_c] = u
                 n_c += 1
-    T, R = len(w), m.shape[0]
-    w2 = np.empty(T + n_c)
-    w2[:T] = w
-    w2[T:] = u_cand[:n_c]
-    own2 = np.empty(R + n_c, np.int64)
-    a2 = np.ones(R + n_c)
-    ucell = np.full(R + n_c, -1, np.int64)
-    m2 = np.zeros((R + n_c, 4))
-    P2 = np.zeros((R + n_c, 4, 4))
-    own2[:R] = own
-    a2[:R] = a
-    m2[:R] = m
-    P2[:R] = P
-    pv = s * s / 12.0
-    for j in range(n_c):
-        r = R + j
-        own2[r] = T + j
-        ucell[r] = cand[j]
-        m2[r, 0] = (cand[j] % nx + 0.5) * s
-        m2[r, 2] = (cand[j] // nx + 0.5) * s
-        P2[r, 0, 0], P2[r, 1, 1], P2[r, 2, 2], P2[r, 3, 3] = pv, vs, pv, vs
+    w2, own2, a2, m2, P2, ucell = with_candidates(w, own, a, m, P, cand[:n_c], u_cand[:n_c],
+                                                  s, nx, vs)
     return cand[:n_c], u_cand[:n_c], w2, own2, a2, m2, P2, ucell
 
 

@@ -493,36 +493,6 @@ def moment_match(ri_g, pu_g, mass_g, p1_g, p2_g, pair_of, g_pair, g_out, w_new, 
 
 
 @njit(cache=True, error_model="numpy")
-def with_candidates(w, own, a, m, P, cand, u_cand, s, nx, vs):
-    """The tracks followed by one birth candidate per cell of ``cand`` (existence
-    ``u_cand``, at rest at the cell's centre, covariance ``diag(s^2/12, vs, s^2/12, vs)``):
-    ``w``, ``owner``, ``alpha``, ``means``, ``covs`` and ``uniform_cell`` as
-    :meth:`.tracker.GaussianParticleFilter._update_grid` builds them with numpy."""
-    T, R, n_c = len(w), m.shape[0], len(cand)
-    w2 = np.empty(T + n_c)
-    w2[:T] = w
-    w2[T:] = u_cand
-    own2 = np.empty(R + n_c, np.int64)
-    a2 = np.ones(R + n_c)
-    ucell = np.full(R + n_c, -1, np.int64)
-    m2 = np.zeros((R + n_c, 4))
-    P2 = np.zeros((R + n_c, 4, 4))
-    own2[:R] = own
-    a2[:R] = a
-    m2[:R] = m
-    P2[:R] = P
-    pv = s * s / 12.0
-    for j in range(n_c):
-        r = R + j
-        own2[r] = T + j
-        ucell[r] = cand[j]
-        m2[r, 0] = (cand[j] % nx + 0.5) * s
-        m2[r, 2] = (cand[j] // nx + 0.5) * s
-        P2[r, 0, 0], P2[r, 1, 1], P2[r, 2, 2], P2[r, 3, 3] = pv, vs, pv, vs
-    return w2, own2, a2, m2, P2, ucell
-
-
-@njit(cache=True, error_model="numpy")
 def keep_promoted(weights, owner, alpha, means, covs, T, cand, cells, returns, prune):
     """After the update with birth candidates (tracks ``T..``): a candidate whose cell
     returned a detection and whose weight exceeds ``prune`` becomes a track; returns that
@@ -913,7 +883,7 @@ def warm_up() -> None:
     grid_update_packed(0.5 * f, m, P, i - 1, i, f, i, b, 0.5, -0.1, 1.0, 1, 1, 1e-3, 6.0,
                        np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2),
                        np.zeros((1, 2, 2)), np.zeros((1, 2, 2)), 0.1)
-    w2, own2, a2, m2, P2, ucell = with_candidates(f, i, f, m, P, i, f, 1.0, 1, 1.0)
+    w2, own2, a2, m2, P2, ucell = step_kernels.with_candidates(f, i, f, m, P, i, f, 1.0, 1, 1.0)
     keep_promoted(w2, own2, a2, m2, P2, 1, i, i, b, 1e-3)
     keep_and_prune(w2, own2, a2, m2, P2, 1, i, i, b, 1e-3, i, 1, 0.1, i, f, 1e-4, True)
     ci, cj, dc, Sc = pair_screen(m2, P2, 4.0, i, False)
