@@ -48,7 +48,9 @@ def check(mutants: list[dict]) -> list[str]:
     return problems
 
 
-def run(mutants: list[dict], only: set[str]) -> None:
+def run(mutants: list[dict], only: set[str], out_file: Path = OUT) -> None:
+    """Apply, test and restore each mutant of ``mutants`` (those named in ``only``, or
+    all); one JSON line each on stdout and appended to ``out_file``."""
     env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
     for m in mutants:
         if only and m["name"] not in only:
@@ -77,7 +79,7 @@ def run(mutants: list[dict], only: set[str]) -> None:
                "s": round(time.time() - t0, 1), "first": failed[0] if failed else "",
                "tail": out.strip().splitlines()[-3:]}
         print(json.dumps(row), flush=True)
-        with OUT.open("a") as f:
+        with out_file.open("a") as f:
             f.write(json.dumps(row) + "\n")
 
 
