@@ -14,25 +14,13 @@ import time
 from pathlib import Path
 
 import pytest
+from test_orphans import _LEAVE_AN_ORPHAN
 
 from mttbench.benchmarks.engine.store import LOCK_FILE, sweep_lock
 
-#: takes the folder's lock, forks a child that inherits it (prints the child's pid), and
-#: exits; its parent (this test) does not reap it, so it stays a zombie meanwhile
-_HOLDER = """
-import os, sys, time
-from mttbench.benchmarks.engine.store import sweep_lock
-with sweep_lock(sys.argv[1]):
-    pid = os.fork()
-    if pid == 0:
-        null = os.open(os.devnull, os.O_RDWR)
-        for fd in (0, 1, 2):
-            os.dup2(null, fd)
-        time.sleep(120)
-        os._exit(0)
-    print(pid, flush=True)
-    os._exit(0)
-"""
+#: the orphan-leaving holder of test_orphans: its parent (this test) does not reap the
+#: holder it starts, so the holder stays a zombie meanwhile
+_HOLDER = _LEAVE_AN_ORPHAN
 
 
 def _state(pid: int) -> str:
