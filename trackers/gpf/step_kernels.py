@@ -187,6 +187,19 @@ def field_set(default, cells, values, set_cells, set_values, floor, apply_floor)
 
 
 @njit(cache=True, error_model="numpy")
+def screen_bound(m, P, i, j):
+    """The merge screen's position-only lower bound of Gaussians ``i`` and ``j``:
+    ``d^T S^-1 d`` over the positions, ``d = m_i - m_j``, ``S = P_i + P_j``."""
+    a = P[i, 0, 0] + P[j, 0, 0]
+    b = P[i, 0, 2] + P[j, 0, 2]
+    c = P[i, 2, 2] + P[j, 2, 2]
+    dx = m[i, 0] - m[j, 0]
+    dy = m[i, 2] - m[j, 2]
+    det = a * c - b * b
+    return (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
+
+
+@njit(cache=True, error_model="numpy")
 def any_close(m, P, threshold):
     """Whether :func:`.tracker._pair_distances`' position-only screen passes any pair
     (its lower bound not ``>= threshold``; NaN passes). The bound is the same double for
@@ -195,13 +208,7 @@ def any_close(m, P, threshold):
     K = m.shape[0]
     for i in range(K):
         for j in range(i + 1, K):
-            a = P[i, 0, 0] + P[j, 0, 0]
-            b = P[i, 0, 2] + P[j, 0, 2]
-            c = P[i, 2, 2] + P[j, 2, 2]
-            dx = m[i, 0] - m[j, 0]
-            dy = m[i, 2] - m[j, 2]
-            det = a * c - b * b
-            lower = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
+            lower = screen_bound(m, P, i, j)
             if not lower >= threshold:
                 return True
     return False

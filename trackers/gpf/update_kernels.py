@@ -41,6 +41,7 @@ from .step_kernels import (  # noqa: F401
     candidates,
     field_predict,
     field_set,
+    screen_bound,
 )
 
 _LOGE2 = math.log(2.0)
@@ -572,13 +573,7 @@ def pair_screen(m, P, threshold, groups, use_groups):
         for j in range(i + 1, K):
             if use_groups and groups[i] != groups[j]:
                 continue
-            a = P[i, 0, 0] + P[j, 0, 0]
-            b = P[i, 0, 2] + P[j, 0, 2]
-            c = P[i, 2, 2] + P[j, 2, 2]
-            dx = m[i, 0] - m[j, 0]
-            dy = m[i, 2] - m[j, 2]
-            det = a * c - b * b
-            lower = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
+            lower = screen_bound(m, P, i, j)
             if not lower >= threshold:
                 ci[n], cj[n] = i, j
                 n += 1
