@@ -11,43 +11,30 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-import numpy as np
 import optuna
 import pytest
 
-from mttbench import Estimate, Tracker
 from mttbench.benchmarks.app import progress, tune
 from mttbench.benchmarks.engine.specs import TrackerSpec, resolve_scenarios
+from mttbench.trackers.null import NullTracker
 from mttbench.trackers.params import Param, Search
 
 SEEDS = (tune.TUNING_SEED_BASE, tune.TUNING_SEED_BASE + 1)
 
 
-class Still(Tracker):
-    """Reports nothing; one searched parameter, so every trial scores the same."""
+class Still(NullTracker):
+    """Reports nothing (the ``null`` baseline); one searched parameter, so every trial
+    scores the same."""
 
+    name = "test_still"
     summary = "test tracker: reports nothing"
+    baseline = False
     parameters: ClassVar[dict[str, Param]] = {
         "level": Param(float, 0, 1, search=Search(0.0, 1.0)),
     }
 
     def __init__(self, level: float = 0.5) -> None:
         self.level = level
-
-    def reset(self, model, rng):
-        self._n = model.grid.n_cells
-
-    def predict(self):
-        pass
-
-    def cell_count_distribution(self):
-        return np.tile([1.0, 0.0], (self._n, 1))
-
-    def update(self, looks):
-        pass
-
-    def estimate(self):
-        return Estimate.empty()
 
 
 def _settings(name: str = "kfnn", **kw) -> tune.TuneSettings:
