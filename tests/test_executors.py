@@ -251,6 +251,13 @@ class Interrupting(Executor):
                 yield outcome
 
 
+def assert_timed_out(out: pd.DataFrame, tracker: str) -> None:
+    """``tracker``'s one run ended at its wall-time limit: an error row that says so."""
+    rows = out[out["tracker"] == tracker]
+    assert len(rows) == 1 and rows["status"].iloc[0] == "error", list(rows["error"])
+    assert "timed out" in rows["error"].iloc[0] and "--run-timeout" in rows["error"].iloc[0]
+
+
 def test_a_hung_run_gets_its_error_row_on_dask(tmp_path):
     """--run-timeout on Dask: a run on its worker for longer than the limit is cancelled
     and its worker restarted; it gets its error row (no retry), the others finish, and the
@@ -261,9 +268,7 @@ def test_a_hung_run_gets_its_error_row_on_dask(tmp_path):
         # the limit: far above what a null run takes on a loaded machine (a hang exceeds
         # any limit), so that it decides nothing for them
         out = run_sweep(jobs, tmp_path / "out", executor=executor, run_timeout=HANG_LIMIT_S)
-        hung = out[out["tracker"] == "faulty_tracker:Hang"]
-        assert len(hung) == 1 and hung["status"].iloc[0] == "error"
-        assert "timed out" in hung["error"].iloc[0] and "--run-timeout" in hung["error"].iloc[0]
+        assert_timed_out(out, "faulty_tracker:Hang")
         assert (out[out["tracker"] == "null"]["status"] == "ok").all(), list(out["error"])
         # the restarted worker imports everything again on its first run: the limit here
         # only needs to let the cluster show it has its workers back
@@ -281,10 +286,8 @@ def test_a_run_that_freezes_its_worker_is_ended_at_its_time_limit_on_dask(tmp_pa
     jobs = jobs_of(short("default", 6), [("test_executors:HoldTheGIL", [0]), ("null", [0, 1])])
     with DaskExecutor(workers=1) as executor:
         out = run_sweep(jobs, tmp_path / "out", executor=executor, run_timeout=HANG_LIMIT_S)
-    frozen = out[out["tracker"] == "test_executors:HoldTheGIL"]
     # (a call that ended by itself would let the run finish: status ok)
-    assert len(frozen) == 1 and frozen["status"].iloc[0] == "error"
-    assert "timed out" in frozen["error"].iloc[0] and "--run-timeout" in frozen["error"].iloc[0]
+    assert_timed_out(out, "test_executors:HoldTheGIL")
     assert (out[out["tracker"] == "null"]["status"] == "ok").all()
 
 
