@@ -645,7 +645,8 @@ class GaussianParticleFilter(Tracker):
             self._u = CellField(self._u.n_cells, min(missing * (1.0 / self._u.n_cells), 0.5))
 
     def _missing(self) -> float:
-        """The next step's ``max(m(k) - sum w, 0)`` (:meth:`_respread_missing`)."""
+        """Advance the step count ``k`` and return ``max(m(k) - sum w, 0)``, the expected
+        number of targets no track holds (:meth:`_respread_missing`); once per prediction."""
         bd = self._model.birth_death
         self._k += 1
         p_s, b = bd.survival_probability, bd.birth_rate
@@ -872,7 +873,7 @@ class GaussianParticleFilter(Tracker):
             n = min(int(round(count)), len(self._w))
             kernels = compiled_gpf_kernels()
             if kernels is not None and len(self._m) == len(self._w):
-                return Estimate(count, *kernels.step_kernels.heaviest(
+                return Estimate(count, *kernels.heaviest(
                     self._w, n, self._m, self._P, self._tid))
             sel = np.argsort(-self._w, kind="stable")[:n]
         else:

@@ -41,6 +41,7 @@ from .step_kernels import (  # noqa: F401
     candidates,
     field_predict,
     field_set,
+    heaviest,
     screen_bound,
 )
 
