@@ -28,7 +28,7 @@ from pathlib import Path
 import faulty_tracker
 import pandas as pd
 import pytest
-from crashing_tracker import COUNT_LIMIT_ENV, COUNT_LOG_ENV, SLOW_GATE_ENV
+from crashing_tracker import COUNT_LIMIT_ENV, COUNT_LOG_ENV, gate_env
 
 from mttbench import scenarios
 from mttbench.benchmarks.app.cli import main
@@ -63,6 +63,10 @@ SETTLE_S = 30.0
 #: a safety net for a sweep run beside the test: far beyond what it takes when the
 #: executor works; its value decides nothing else
 SWEEP_SAFETY_S = 180.0
+#: Dask's lost-worker-timeout (seconds) in the tests of a worker's restart: shorter than
+#: any restart (a process start and imports: over 3 s of CPU), so a cluster that kept
+#: Dask's setting would lose the restarted worker every time, not only under load
+QUICK_LOSS_S = 0.1
 
 
 class KillOnce(KFNNTracker):
@@ -147,6 +151,8 @@ def kill_dir(tmp_path, monkeypatch):
 def dask_two():
     """A LocalCluster of 2 worker processes (1 thread each), shared by the module."""
     pytest.importorskip("distributed", reason="distributed is not installed (mttbench[dask])")
+    import dask
+
     mp = pytest.MonkeyPatch()
     # the kill tests' markers: the workers read the variables when they start (a
     # restarted worker inherits them too), so they are set before the cluster starts
@@ -154,12 +160,15 @@ def dask_two():
     folder.mkdir(exist_ok=True)
     mp.setenv(KILL_DIR_ENV, str(folder))
     mp.setenv(KILL_SPARE_ENV, str(os.getpid()))
+    # (a worker killed by a test comes back however slow its restart: QUICK_LOSS_S)
+    quick_loss = dask.config.set({"distributed.deploy.lost-worker-timeout": QUICK_LOSS_S})
     executor = DaskExecutor(workers=2)
     assert executor.client is not None  # started now, with the variables
     mp.undo()
     executor.kill_dir = folder
     yield executor
     executor.close()
+    quick_loss.__exit__(None, None, None)
     for marker in folder.iterdir():
         marker.unlink()
     folder.rmdir()
@@ -219,10 +228,16 @@ def test_a_worker_killed_mid_sweep_loses_nothing_on_dask(dask_two, tmp_path):
 
 
 def test_a_run_that_kills_every_retry_gets_its_error_row_on_dask(kill_dir, tmp_path):
+    """The kfnn runs wait for the nanny to restart the killed worker. Dask's own
+    lost-worker-timeout is set far below any restart here: the executor's cluster must
+    not close a nanny whose restart is slower (it would be left without workers)."""
     pytest.importorskip("distributed", reason="distributed is not installed (mttbench[dask])")
+    import dask
+
     jobs = jobs_of(short("default", 6), [("test_executors:KillOnce", [0]), ("kfnn", [0, 1])])
     # no retry: KillOnce's one death is its run's last chance (kfnn runs are untouched)
-    with DaskExecutor(workers=1, retries=0) as executor:
+    with (dask.config.set({"distributed.deploy.lost-worker-timeout": QUICK_LOSS_S}),
+          DaskExecutor(workers=1, retries=0) as executor):
         first = run_sweep(jobs, tmp_path / "out", executor=executor)
         failed = first[first["status"] == "error"]
         assert len(failed) == 1 and failed["tracker"].iloc[0] == "test_executors:KillOnce"
@@ -296,7 +311,7 @@ def _counted_env(folder: Path, limit: int) -> dict[str, str]:
     """crashing_tracker:Counted's variables: its log, and after ``limit`` runs the gate
     (never opened here: the run waits there until its worker is killed)."""
     return {COUNT_LOG_ENV: str(folder / "log"), COUNT_LIMIT_ENV: str(limit),
-            SLOW_GATE_ENV: str(folder / "gate")}
+            **gate_env(folder / "gate")}
 
 
 def _logged(folder: Path) -> list[int]:

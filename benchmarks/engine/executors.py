@@ -94,6 +94,14 @@ MISSING_DASK = ("--executor dask needs the distributed package: "
                 "pip install 'mttbench[dask]'")
 #: a run's task key prefix on a Dask cluster (its task group, in Dask's dashboard)
 TASK_PREFIX = "mttbench-run"
+#: ``distributed.deploy.lost-worker-timeout`` (seconds) while our LocalCluster lives: how
+#: long the cluster waits for a lost worker to register again before it closes its nanny
+#: for good. Dask's default (15 s) is shorter than a restart on a loaded machine (a fresh
+#: worker process imports some 600 modules: 3-4 s of CPU, over 15 s of wall time at load
+#: 8 on 2 cores), so a slow restart cost the cluster that worker for the rest of the
+#: command. A nanny whose restart fails closes itself, and the sweep's watch ends the
+#: runs of a cluster without workers (``no_worker_timeout``): a day is "never" here.
+LOST_WORKER_S = 24 * 3600.0
 
 #: (index of the run in ``todo``, None once its part is written or the error message)
 Outcome = tuple[int, str | None]
@@ -477,6 +485,7 @@ class DaskExecutor(Executor):
         self._own_client = client is None
         self._checked = False
         self._cluster: Any = None
+        self._lost_worker: Any = None  # the dask.config.set to undo at close()
 
     def describe(self, n_runs: int | None = None) -> str:
         if self.workers is not None:
@@ -510,6 +519,10 @@ class DaskExecutor(Executor):
             # after a restart (the preload, dask_setup below)
             # (the workers' setting goes through the nannies' config, which a restarted
             # worker gets too; a dask.config.set here would reach only the first ones)
+            # the cluster reads lost-worker-timeout whenever a worker goes (a nanny's
+            # restart), so it is set until close() rather than around the start
+            self._lost_worker = dask.config.set(
+                {"distributed.deploy.lost-worker-timeout": LOST_WORKER_S})
             with (dask.config.set({"distributed.scheduler.worker-saturation": 1.0}),
                   _sigint_ignored()):
                 self._cluster = distributed.LocalCluster(
@@ -638,6 +651,9 @@ class DaskExecutor(Executor):
         if cluster is not None:
             with contextlib.suppress(Exception):
                 cluster.close()
+        if self._lost_worker is not None:
+            self._lost_worker.__exit__(None, None, None)
+            self._lost_worker = None
 
 
 # ------------------------------------------------------------------ the current one
