@@ -25,8 +25,44 @@ SLOW_STEP_S = 0.05
 #: :class:`Slow` waits at its first step, so a sweep cannot finish before the test that
 #: interrupts it has sent its signal (however slow the machine)
 SLOW_GATE_ENV = "MTTBENCH_TEST_SLOW_GATE"
-#: the longest :class:`Slow` waits for its gate
+#: environment variable: the pid of the test process that opens the gate (:func:`gate_env`)
+GATE_OWNER_ENV = "MTTBENCH_TEST_GATE_OWNER"
+#: the longest a run waits for its gate when no owner is named
 SLOW_GATE_TIMEOUT_S = 120.0
+
+
+def gate_env(gate: Path) -> dict[str, str]:
+    """The variables of a gate file that this process opens: a run waits for the file for
+    as long as this process lives (no wall-clock limit that a loaded machine could reach
+    before the test opens it; a test that dies leaves no run waiting)."""
+    return {SLOW_GATE_ENV: str(gate), GATE_OWNER_ENV: str(os.getpid())}
+
+
+def _owner_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, another user's
+        pass
+    return True
+
+
+def wait_for_gate() -> None:
+    """Wait while the gate of :data:`SLOW_GATE_ENV` is set and its file does not exist: as
+    long as the owner (:data:`GATE_OWNER_ENV`) lives, else at most
+    :data:`SLOW_GATE_TIMEOUT_S`."""
+    gate = os.environ.get(SLOW_GATE_ENV)
+    if not gate:
+        return
+    owner = int(os.environ.get(GATE_OWNER_ENV, "0") or 0)
+    deadline = time.monotonic() + SLOW_GATE_TIMEOUT_S
+    while not Path(gate).exists():
+        if owner > 0 and not _owner_alive(owner):
+            return
+        if owner <= 0 and time.monotonic() >= deadline:
+            return
+        time.sleep(0.01)
 
 
 class _Nothing(Tracker):
@@ -71,11 +107,8 @@ class Slow(_Nothing):
 
     def predict(self):
         super().predict()
-        gate = os.environ.get(SLOW_GATE_ENV)
-        if gate and self._k == 0:
-            deadline = time.monotonic() + SLOW_GATE_TIMEOUT_S
-            while not Path(gate).exists() and time.monotonic() < deadline:
-                time.sleep(0.01)
+        if self._k == 0:
+            wait_for_gate()
         time.sleep(SLOW_STEP_S)
 
 
@@ -111,11 +144,8 @@ class Counted(_Nothing):
         with log.open("a") as f:
             f.write(f"{os.getpid()}\n")
         limit = int(os.environ.get(COUNT_LIMIT_ENV, "0") or 0)
-        gate = os.environ.get(SLOW_GATE_ENV)
-        if limit and gate and len(log.read_text().splitlines()) > limit:
-            deadline = time.monotonic() + SLOW_GATE_TIMEOUT_S
-            while not Path(gate).exists() and time.monotonic() < deadline:
-                time.sleep(0.01)
+        if limit and len(log.read_text().splitlines()) > limit:
+            wait_for_gate()
 
 
 class Guess(_Nothing):

@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 import pandas as pd
-from crashing_tracker import SLOW_GATE_ENV, shell_like_signals
+from crashing_tracker import SLOW_GATE_ENV, gate_env, shell_like_signals
 
 from mttbench.benchmarks.app.cli import EXIT_INTERRUPTED, main
 
@@ -54,7 +54,7 @@ def test_ctrl_c_then_the_printed_command_finishes_the_same_report(monkeypatch, t
     # ---- interrupt: no --out, so the folder is reports/compare-<timestamp> under cwd
     gate = tmp_path / "gate"  # the slow runs wait for it: the sweep cannot finish first
     proc = subprocess.Popen([sys.executable, "-m", "mttbench", *ARGS], cwd=tmp_path,
-                            env={**_env(), SLOW_GATE_ENV: str(gate)},
+                            env={**_env(), **gate_env(gate)},
                             preexec_fn=shell_like_signals,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + START_TIMEOUT_S
@@ -89,7 +89,7 @@ def test_ctrl_c_then_the_printed_command_finishes_the_same_report(monkeypatch, t
     assert words[3:] == [*ARGS, "--out", str(folder), "--resume"]
     # run as printed, in its own process as a user would (not forked from this process,
     # whose other threads could hold a lock at the fork of a worker)
-    again = subprocess.run(words, cwd=tmp_path, env={**_env(), SLOW_GATE_ENV: str(gate)},
+    again = subprocess.run(words, cwd=tmp_path, env={**_env(), **gate_env(gate)},
                            capture_output=True, text=True, timeout=RESUME_TIMEOUT_S)
     assert again.returncode == 0, again.stderr
     assert "Traceback" not in again.stderr

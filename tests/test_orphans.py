@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from crashing_tracker import COUNT_LIMIT_ENV, COUNT_LOG_ENV, SLOW_GATE_ENV
+from crashing_tracker import COUNT_LIMIT_ENV, COUNT_LOG_ENV, gate_env
 
 from mttbench.benchmarks.app.cli import main
 from mttbench.benchmarks.engine.store import LOCK_FILE, load_results
@@ -43,8 +43,7 @@ def _args(out: Path, seeds: int, store: str = "parts", executor: str = "local") 
 def _env(tmp: Path, limit: int) -> dict[str, str]:
     path = os.pathsep.join(p for p in (str(TESTS), os.environ.get("PYTHONPATH", "")) if p)
     return {**os.environ, "PYTHONPATH": path, COUNT_LOG_ENV: str(tmp / "log"),
-            COUNT_LIMIT_ENV: str(limit), SLOW_GATE_ENV: str(tmp / "gate"),
-            CHECKPOINT_ENV: "0"}
+            COUNT_LIMIT_ENV: str(limit), **gate_env(tmp / "gate"), CHECKPOINT_ENV: "0"}
 
 
 def _log(tmp: Path) -> list[int]:
