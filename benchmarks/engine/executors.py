@@ -24,7 +24,9 @@ table bit for bit, timing and memory columns aside.
   each finished run's table comes back to this process (as its part file's Parquet
   bytes, encoded on the worker), which writes the part atomically. A worker that dies
   loses only the run it held (our LocalCluster gives a worker one run at a time:
-  ``worker-saturation`` 1.0); the scheduler runs it again elsewhere until it has been on
+  ``worker-saturation`` 1.0), and its nanny starts a new one, which our LocalCluster
+  waits for however slow the start (:data:`LOST_WORKER_S`); the scheduler runs the
+  lost run again elsewhere until it has been on
   ``1 + retries`` dying workers (the scheduler's
   ``allowed-failures``: set to ``retries`` on our LocalCluster; an existing cluster's
   scheduler keeps its own setting, Dask's default 3), then the run gets its error row
