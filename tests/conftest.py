@@ -8,6 +8,11 @@ class and the check), so the second run repeats the first to the last digit. The
 (passed, or the failure's message) is kept in a folder that the xdist workers of one
 session share, filled under a lock: the first test to need it runs the check, a later
 one reads it and fails with the same message when the check failed.
+
+``MTTBENCH_TEST_TIMES=PREFIX`` (off by default) writes each test's CPU time and wall
+time, setup and teardown included, to ``PREFIX.<xdist worker>.json``: CPU is this
+process's user + system time plus that of the children it waited for (a child killed
+or left running is in no one's account), the measure of docs/suite_time.md.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import time
 from pathlib import Path
 
 import pytest
@@ -70,3 +76,31 @@ def kit(tmp_path_factory) -> SharedKit:
     folder = root / "kit-outcomes"
     folder.mkdir(exist_ok=True)
     return SharedKit(folder)
+
+
+# ------------------------------------------------------------------ MTTBENCH_TEST_TIMES
+_TIMES: list[tuple[str, float, float]] = []  # (node id, CPU s, wall s)
+
+
+def _cpu_s() -> float:
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    if not os.environ.get("MTTBENCH_TEST_TIMES"):
+        return (yield)
+    cpu, wall = _cpu_s(), time.perf_counter()
+    try:
+        return (yield)
+    finally:
+        _TIMES.append((item.nodeid, _cpu_s() - cpu, time.perf_counter() - wall))
+
+
+def pytest_sessionfinish(session):
+    prefix = os.environ.get("MTTBENCH_TEST_TIMES")
+    if prefix and _TIMES:
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        Path(f"{prefix}.{worker}.json").write_text(json.dumps(
+            {"tests": _TIMES, "process_cpu_s": _cpu_s()}))
