@@ -34,8 +34,8 @@ REGISTERED = [trackers.get_class(name) for name in trackers.available()]
 
 
 @parametrize_with_checks(REGISTERED)
-def test_conformance(tracker_class, check):
-    check(tracker_class)
+def test_conformance(tracker_class, check, kit):
+    kit.run(tracker_class, check)  # check(tracker_class), once per session (tests/conftest.py)
 
 
 def test_every_registered_tracker_gets_every_check():
@@ -244,3 +244,33 @@ def test_unknown_check_names_are_refused():
 def test_checks_run_in_the_documented_order():
     assert list(testing.CHECKS)[:2] == ["check_declarations", "check_params"]
     assert list(testing.CHECKS)[-2:] == [f.__name__ for f in TRACKING_CHECKS]
+
+
+# ------------------------------------------------------------------ the session's shared kit
+def test_the_shared_kit_runs_a_check_once_and_repeats_its_failure(kit, tmp_path):
+    """``kit`` (tests/conftest.py): the first run of a (class, check) runs it, a later
+    one reads its outcome: a failure fails again with the same message, a pass passes,
+    and neither runs the check again; another class runs anew."""
+
+    class Counted:
+        def __init__(self, check):
+            self.check, self.name, self.calls = check, check.name, 0
+
+        def __call__(self, cls):
+            self.calls += 1
+            self.check(cls)
+
+    shared = type(kit)(tmp_path)
+    [(_, check)] = [p.values for p in parametrize_with_checks(
+        [KFNNTracker], checks=["check_params"]).args[1]]
+    counted = Counted(check)
+    failed = "broken-params: check_params failed: .*default 0.1 is stored as 0.2"
+    for _ in range(2):
+        with pytest.raises(AssertionError, match=failed):
+            shared.run(ParamChangingKFNN, counted)
+    assert counted.calls == 1
+    for _ in range(2):
+        shared.run(KFNNTracker, counted)
+    assert counted.calls == 2
+    with pytest.raises(AssertionError, match=failed + r".*earlier run of the same check"):
+        shared.check_tracker(ParamChangingKFNN)

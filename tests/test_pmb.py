@@ -24,7 +24,6 @@ from mttbench.scenarios.model import (
     RayleighGridSensor,
     TrackingModel,
 )
-from mttbench.testing import check_tracker
 from mttbench.trackers import make
 from mttbench.trackers.gpf import collapse
 from mttbench.trackers.gpf.grid import known_existence_update
@@ -398,9 +397,9 @@ def test_labels_persist_on_a_held_target():
     assert len({lab[0] for lab in ones}) == 1
 
 
-def test_registered_and_conformant():
+def test_registered_and_conformant(kit):
     assert isinstance(make("pmb"), PMBTracker)
-    assert check_tracker(PMBTracker) == {}
+    assert kit.check_tracker(PMBTracker) == {}  # check_tracker, once per session
 
 
 def test_superposition_sensor_is_refused_with_a_reason():

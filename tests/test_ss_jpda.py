@@ -43,8 +43,8 @@ H = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
 
 
 @testing.parametrize_with_checks([StoneSoupJPDA])
-def test_conformance_kit(tracker_class, check):
-    check(tracker_class)
+def test_conformance_kit(tracker_class, check, kit):
+    kit.run(tracker_class, check)  # check(tracker_class), once per session (tests/conftest.py)
 
 
 # ------------------------------------------------------------------ references

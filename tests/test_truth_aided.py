@@ -15,7 +15,6 @@ from mttbench.benchmarks.engine.metrics import step_metrics
 from mttbench.benchmarks.engine.policies import AllCells
 from mttbench.benchmarks.engine.specs import PolicySpec, TrackerSpec
 from mttbench.scenarios.model import Grid, RayleighGridSensor
-from mttbench.testing import check_tracker
 from mttbench.trackers import make
 from mttbench.trackers.gpf.grid import fold_into_workspace, known_existence_update
 from mttbench.trackers.kfnn import KFNNTracker
@@ -297,8 +296,8 @@ class TruthAidedFirstDetection(TruthAidedTracker):
 
 @pytest.mark.parametrize("cls", [TruthAidedTracker, TruthAidedFirstDetection],
                          ids=["birth", "first_detection"])
-def test_conformance_kit_passes(cls):
-    skipped = check_tracker(cls)
+def test_conformance_kit_passes(cls, kit):
+    skipped = kit.check_tracker(cls)  # check_tracker(cls), once per session (tests/conftest.py)
     assert skipped == {}
 
 
