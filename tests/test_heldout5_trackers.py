@@ -1,6 +1,5 @@
 """Tracker rules checked against independent references: KF-NN's gated pairs on
-elongated innovation covariances (the full K x D Mahalanobis table), PMB's undetected
-intensity after a prediction (the PPP's expected count recursion), jmpd-ap's default slot
+elongated innovation covariances (the full K x D Mahalanobis table), jmpd-ap's default slot
 count (the expected count's recursion iterated to its peak), and the GPF's prior rows on a
 workspace that is not square (the uniform law's variance by a midpoint grid)."""
 
@@ -13,11 +12,9 @@ import numpy as np
 import pytest
 
 from mttbench import scenarios
-from mttbench.trackers.cells import CellField
 from mttbench.trackers.gpf import GaussianParticleFilter
 from mttbench.trackers.jmpd.ap import JMPDAPTracker
 from mttbench.trackers.kfnn import gated_pairs
-from mttbench.trackers.pmb.ppp import predict_intensity
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -41,21 +38,6 @@ def test_gated_pairs_are_every_pair_inside_the_gate_of_an_elongated_covariance(s
     np.testing.assert_array_equal(rows, want_r)
     np.testing.assert_array_equal(cols, want_c)
     np.testing.assert_allclose(got, d2[want_r, want_c], rtol=1e-12)
-
-
-@pytest.mark.parametrize(("survival", "birth_rate"), [(1.0, 0.3), (0.9, 0.05), (0.5, 2.0)])
-def test_the_undetected_intensity_predicts_the_expected_undetected_count(survival, birth_rate):
-    """The PPP's expected number of undetected targets after one step is ``p_s N + b``
-    (survivors plus the birth rate over the whole workspace), and the births spread evenly:
-    a cell untouched so far gains ``b / n_cells``."""
-    n_cells = 40
-    field = CellField(n_cells, 0.02)
-    field.multiply(np.array([3, 7]), np.array([0.5, 0.1]))
-    before = field.dense().copy()
-    predict_intensity(field, survival, birth_rate)
-    after = field.dense()
-    assert after.sum() == pytest.approx(survival * before.sum() + birth_rate, rel=1e-12)
-    assert after[0] == pytest.approx(survival * 0.02 + birth_rate / n_cells, rel=1e-12)
 
 
 def _expected_peak(n0: float, survival: float, birth: float, steps: int = 20_000) -> float:
