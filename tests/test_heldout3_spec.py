@@ -10,7 +10,7 @@ import pytest
 
 from mttbench.scenarios.spec import ScenarioError, loads
 
-WIDE = """
+WIDE_GRID = """
 name = "wide"
 n_steps = 5
 
@@ -30,10 +30,9 @@ snr = 10.0
 looks_per_step = 4
 
 [[occlusion]]
-x = [0, 1]
-y = [0, 1]
-steps = [0, 4]
 """
+#: one occlusion box on ``WIDE_GRID`` (its speed added by each test)
+WIDE = WIDE_GRID + "x = [0, 1]\ny = [0, 1]\nsteps = [0, 4]\n"
 
 
 @pytest.mark.parametrize("vx, vy", list(itertools.product([0.0, 3.5, 9.5, 10.0, -10.0],

@@ -8,33 +8,12 @@ import dataclasses
 import itertools
 
 import pytest
+from test_heldout3_spec import WIDE_GRID as WIDE  # a 10 x 4 grid, an [[occlusion]] opened
 
 from mttbench import scenarios
 from mttbench.scenarios.model import BirthDeath
 from mttbench.scenarios.simulator import simulate
 from mttbench.scenarios.spec import ScenarioError, loads
-
-WIDE = """
-name = "wide"
-n_steps = 5
-
-[grid]
-nx = 10
-ny = 4
-
-[dynamics]
-wna_intensity = 0.001
-
-[targets]
-initial_states = [[1.5, 0.0, 1.5, 0.0]]
-
-[sensor]
-kind = "rayleigh"
-snr = 10.0
-looks_per_step = 4
-
-[[occlusion]]
-"""
 
 
 @pytest.mark.parametrize(("field", "upper"), [("x", 10), ("y", 4), ("steps", 5)])
