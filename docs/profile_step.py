@@ -12,15 +12,11 @@ from __future__ import annotations
 import argparse
 import cProfile
 import pstats
-import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks.bench.conftest import warm_up  # noqa: E402
-from mttbench import scenarios  # noqa: E402
-from mttbench.benchmarks.engine.specs import TrackerSpec  # noqa: E402
+from mttbench import scenarios
+from mttbench.benchmarks.bench.conftest import warm_up
+from mttbench.benchmarks.engine.specs import TrackerSpec
 
 
 def main() -> None:
