@@ -217,25 +217,9 @@ def any_close(m, P, threshold):
 @njit(cache=True, error_model="numpy")
 def heaviest(w, n, m, P, tid):
     """The ``round_sum`` estimate's rows: ``sel = np.argsort(-w, kind="stable")[:n]``
-    (a stable insertion sort with numpy's order, NaN last), and ``m[sel]``, ``P[sel]``,
-    ``tid[sel]`` (one Gaussian per track). ``O(T^2)`` at worst, for ``T`` up to
-    ``max_particles``."""
-    T = len(w)
-    key = -w
-    order = np.arange(T)
-    for i in range(1, T):
-        j, k = i, order[i]
-        x = key[k]
-        # move left past the entries that x sorts before (numpy's less: NaN is largest)
-        while j > 0:
-            y = key[order[j - 1]]
-            if x < y or (y != y and x == x):
-                order[j] = order[j - 1]
-                j -= 1
-            else:
-                break
-        order[j] = k
-    sel = order[:n]
+    (numba's merge sort: stable, NaN last, numpy's order) and ``m[sel]``, ``P[sel]``,
+    ``tid[sel]`` (one Gaussian per track)."""
+    sel = np.argsort(-w, kind="mergesort")[:n]
     return m[sel], P[sel], tid[sel]
 
 

@@ -783,15 +783,13 @@ class GaussianParticleFilter(Tracker):
             tid = self._tid[alive]
         T = len(w)
         if T > 1 and self.merge_threshold > 0:
-            if len(m) == T:
-                # (the screen below does not depend on the order of the Gaussians)
-                cm, cP = (m, P) if kernels is not None else (m[np.argsort(own)],
-                                                             P[np.argsort(own)])
-            else:
-                cm, cP = collapse(a, m, P, own, T)
+            one_each = len(m) == T  # one Gaussian per track, in any order
+            cm, cP = (m, P) if one_each else collapse(a, m, P, own, T)
+            # the screen does not depend on the order of the Gaussians; the merge does
             if kernels is None or kernels.any_close(cm, cP, float(self.merge_threshold)):
-                if len(m) == T and kernels is not None:
-                    cm, cP = m[np.argsort(own)], P[np.argsort(own)]
+                if one_each:
+                    by_track = np.argsort(own)
+                    cm, cP = m[by_track], P[by_track]
                 mw, _, _, label = merge_groups(w, cm, cP, self.merge_threshold,
                                                self._merge_rule, "mahalanobis")
             else:  # no pair passes the merge's screen: the merge would change nothing
