@@ -38,14 +38,19 @@ def gate_env(gate: Path) -> dict[str, str]:
     return {SLOW_GATE_ENV: str(gate), GATE_OWNER_ENV: str(os.getpid())}
 
 
-def _owner_alive(pid: int) -> bool:
+def alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie, dead but not reaped, does not)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:  # alive, another user's
-        pass
-    return True
+        return True
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return True
+    return state not in ("Z", "X")
 
 
 def wait_for_gate() -> None:
@@ -58,7 +63,7 @@ def wait_for_gate() -> None:
     owner = int(os.environ.get(GATE_OWNER_ENV, "0") or 0)
     deadline = time.monotonic() + SLOW_GATE_TIMEOUT_S
     while not Path(gate).exists():
-        if owner > 0 and not _owner_alive(owner):
+        if owner > 0 and not alive(owner):
             return
         if owner <= 0 and time.monotonic() >= deadline:
             return

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from crashing_tracker import COUNT_LIMIT_ENV, COUNT_LOG_ENV, gate_env
+from crashing_tracker import COUNT_LIMIT_ENV, COUNT_LOG_ENV, alive, gate_env
 
 from mttbench.benchmarks.app.cli import main
 from mttbench.benchmarks.engine.store import LOCK_FILE, load_results
@@ -82,19 +82,6 @@ def _wait_for_runs(tmp: Path, n: int, proc: subprocess.Popen) -> int:
     return _log(tmp)[-1]
 
 
-def _alive(pid: int) -> bool:
-    """Whether ``pid`` runs (a zombie, dead but not reaped, does not)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return True
-    return state not in ("Z", "X")
-
-
 def _kill_main_alone(proc: subprocess.Popen, sig: int, worker: int) -> bool:
     """Send ``sig`` to the main process only; whether its worker died with it."""
     proc.send_signal(sig)
@@ -102,9 +89,9 @@ def _kill_main_alone(proc: subprocess.Popen, sig: int, worker: int) -> bool:
     for pipe in (proc.stdout, proc.stderr):
         pipe.close()
     deadline = time.monotonic() + DIE_TIMEOUT_S
-    while _alive(worker) and time.monotonic() < deadline:
+    while alive(worker) and time.monotonic() < deadline:
         time.sleep(0.05)
-    gone = not _alive(worker)
+    gone = not alive(worker)
     if not gone:  # a leftover of the test's own sweep: end it, then fail
         os.kill(worker, signal.SIGKILL)
     return gone
@@ -233,7 +220,7 @@ def test_a_stale_lock_whose_holder_is_gone_is_taken_over(tmp_path, capsys):
                           capture_output=True, text=True, timeout=START_TIMEOUT_S)
     orphan = int(done.stdout.split()[0])
     try:
-        assert _alive(orphan)
+        assert alive(orphan)
         assert main(["run", "--scenarios", "default", "--trackers", "null", "--seeds", "1",
                      "--steps", "3", "--workers", "1", "--no-progress", "--out",
                      str(out)]) == 0
