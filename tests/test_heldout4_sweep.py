@@ -9,15 +9,11 @@ batch sizes, not against another sweep's output.
 
 from __future__ import annotations
 
-import dataclasses
-
 import pytest
+from test_result_store import _jobs  # the runs on default, cut short
 
-from mttbench import scenarios
 from mttbench.benchmarks.engine.errors import ConfigError
 from mttbench.benchmarks.engine.executors import Executor
-from mttbench.benchmarks.engine.loop import build_jobs
-from mttbench.benchmarks.engine.specs import TrackerSpec
 from mttbench.benchmarks.engine.sweep import CHECKPOINT_ENV, checkpoint_interval, run_sweep
 
 N_STEPS = 3
@@ -47,16 +43,11 @@ class InProcess(Executor):
             yield i, None
 
 
-def _jobs(trackers=("null",), seeds=range(2)):
-    sc = dataclasses.replace(scenarios.get("default"), n_steps=N_STEPS)
-    return build_jobs([sc], [TrackerSpec.parse(t) for t in trackers], None, None, list(seeds))
-
-
 @pytest.mark.parametrize("size", [2, 3])
 def test_every_run_of_a_batch_lost_for_good_gets_its_own_error_row(tmp_path, size):
     """A lost batch of two or more runs goes again one run per task; lost again, each run
     has one error row: the per-run table holds every job once."""
-    jobs = _jobs(("null", "kfnn"), seeds=range(size))
+    jobs = _jobs(("null", "kfnn"), range(size), N_STEPS)
     ex = InProcess(lose=("kfnn",))
     runs = run_sweep(jobs, tmp_path / "o", store="dataset", runs_per_batch=size, executor=ex)
     assert len(runs) == len(jobs)
@@ -72,14 +63,15 @@ def test_a_batch_tasks_time_limit_is_the_run_limit_times_its_longest_batch(tmp_p
     """Batches of 3 and 1 runs (4 jobs, 3 per batch) share one limit: 3 x run_timeout, so
     the longer batch is not ended early."""
     ex = InProcess()
-    run_sweep(_jobs(seeds=range(4)), tmp_path / "o", store="dataset", runs_per_batch=3,
+    jobs = _jobs(("null",), range(4), N_STEPS)
+    run_sweep(jobs, tmp_path / "o", store="dataset", runs_per_batch=3,
               executor=ex, run_timeout=7.0)
     assert ex.rounds == [(21.0, [3, 1])]
 
 
 @pytest.mark.parametrize("store", ["parts", "dataset"])
 def test_a_resumed_sweeps_progress_starts_at_the_runs_it_keeps(tmp_path, store):
-    jobs = _jobs(seeds=range(4))
+    jobs = _jobs(("null",), range(4), N_STEPS)
     out = tmp_path / "o"
     run_sweep(jobs, out, store=store, runs_per_batch=1, executor=InProcess())
     files = sorted((out / ("parts" if store == "parts" else "dataset")).rglob("*.parquet"))

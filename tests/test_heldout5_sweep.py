@@ -8,23 +8,15 @@ against another sweep's output.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
+from test_result_store import _jobs  # the runs on default, cut short
 
-from mttbench import scenarios
-from mttbench.benchmarks.engine.loop import build_jobs
-from mttbench.benchmarks.engine.specs import TrackerSpec
 from mttbench.benchmarks.engine.store import RUN_KEY, batch_frame, batch_name, read_batch_identity
 from mttbench.benchmarks.engine.sweep import make_batches, run_batch, run_sweep
-
-
-def _jobs(n_steps: int, seeds, trackers=("null",)):
-    sc = dataclasses.replace(scenarios.get("default"), n_steps=n_steps)
-    return build_jobs([sc], [TrackerSpec.parse(t) for t in trackers], None, None, list(seeds))
 
 
 @pytest.mark.parametrize(("n_steps", "per_batch"), [
@@ -37,7 +29,7 @@ def test_the_default_batch_is_about_fifty_thousand_rows_within_one_and_a_thousan
     """Without ``runs_per_batch`` a batch holds 50,000 // n_steps runs, at least 1 and at
     most 1,000 (the numbers written out, not read from the module): the jobs of one
     scenario and tracker are cut in order into batches of that size."""
-    jobs = _jobs(n_steps, range(per_batch + 1))
+    jobs = _jobs(("null",), n_steps=n_steps, seeds=range(per_batch + 1))
     keys = [job.key(None, 2.0) for job in jobs]
     batches = make_batches(jobs, keys, tmp_path)
     assert [len(b) for b, _ in batches] == [per_batch, 1]
@@ -48,7 +40,7 @@ def test_each_checkpoint_holds_only_the_runs_finished_since_the_last_one(tmp_pat
     """With a checkpoint interval of 0 the task writes a checkpoint after every run but
     the last: each a batch file of exactly one run (its identity lists that run and its
     rows are that run's), and the whole batch lists them as the files it replaces."""
-    jobs = _jobs(2, range(4))
+    jobs = _jobs(("null",), n_steps=2, seeds=range(4))
     keys = [job.key(None, 2.0) for job in jobs]
     (batch, path), = make_batches(jobs, keys, tmp_path, runs_per_batch=4, checkpoint_s=0.0)
     path.parent.mkdir(parents=True)
@@ -73,7 +65,7 @@ def test_a_run_whole_in_two_batch_files_is_indexed_once_on_resume(tmp_path):
     batch that replaced it, when the writer died between the two). On resume the run is
     kept from one file only: the manifest lists each run once, and the per-run table has
     one row per job."""
-    jobs = _jobs(2, range(3))
+    jobs = _jobs(("null",), n_steps=2, seeds=range(3))
     out = tmp_path / "o"
     first = run_sweep(jobs, out, store="dataset", runs_per_batch=3)
     (batch_file,) = sorted((out / "dataset").rglob("batch-*.parquet"))

@@ -48,8 +48,9 @@ RUN_TIMES = ["tracker_wall_s", "tracker_wall_p95_s", "tracker_wall_max_s", "trac
              "select_wall_s", "peak_rss_mb"]
 
 
-def _jobs(trackers=("null", "kfnn"), seeds=range(5)):
-    sc = dataclasses.replace(scenarios.get("default"), n_steps=N_STEPS)
+def _jobs(trackers=("null", "kfnn"), seeds=range(5), n_steps=N_STEPS):
+    """The runs of ``trackers`` x ``seeds`` on ``default`` cut to ``n_steps``."""
+    sc = dataclasses.replace(scenarios.get("default"), n_steps=n_steps)
     return build_jobs([sc], [TrackerSpec.parse(t) for t in trackers], None, None, list(seeds))
 
 
