@@ -130,34 +130,58 @@ def test_np_sum_is_numpys_pairwise_sum(n):
     assert ap_kernels.np_sum(x, n) == x.sum()
 
 
-def test_windows_and_draws_equal_the_numpy_forms():
-    """Cell masses of the window (both tails, means on and off the grid, narrow and wide
-    predictives) and the in-cell draws from the CDF values the window keeps equal
-    :func:`axis_window` and :func:`truncated_normal`."""
+@pytest.mark.parametrize("width", [2, 5])
+@pytest.mark.parametrize("reflect", [False, True])
+def test_windows_and_draws_equal_the_numpy_forms(width, reflect):
+    """:func:`propose`'s windows (both tails, means on and off the grid, narrow and wide
+    predictives; 4 window cells summed in the kernel, 25 by ``np_sum``) equal
+    :func:`axis_window`: the drawn cell's masses per axis, and with the open walls each
+    draw's ``log Z`` (``Z = dead + (1 - beta) sum gamma``, likelihood ratios 1); the CDF
+    values kept for the drawn cell give :func:`truncated_normal`'s draw in it."""
     rng = np.random.default_rng(7)
-    n, cell, width = 12, 1.0, 5
+    n, cell, beta = 12, 1.0, 0.1
     means = np.r_[rng.uniform(-2, 14, 400), 0.0, 12.0, 5.5, 5.0, -40.0, 60.0]
     sds = np.r_[10.0 ** rng.uniform(-2.5, 1, 400), 0.03, 0.03, 1e-3, 2.0, 0.5, 0.5]
-    index, mass, inside = axis_window(means, sds, n, cell, 0, width=width)
-    idx, m, start = np.empty((2, width), np.int64), np.empty((2, width)), np.empty((2, width))
-    side = np.zeros((2, width), bool)
-    scratch = (np.empty(width + 1), np.empty(width + 1))
-    for i, (mu, sd) in enumerate(zip(means, sds, strict=True)):
-        got_inside = ap_kernels._axis_window(mu, sd, n, cell, width, True, idx, m, start,
-                                             side, 1, *scratch)
-        assert np.array_equal(idx[1], index[i])
-        assert np.array_equal(m[1], mass[i]) and got_inside == inside[i]
-        u = rng.random(width)
-        lo = idx[1] * cell
-        expected = truncated_normal(np.full(width, mu), np.full(width, sd), lo, lo + cell, u)
-        upper = (lo - mu) / sd > 0.0
-        ok = idx[1] >= 0
-        assert np.array_equal(side[1][ok], upper[ok])
-        for k in range(width):
-            x = ap_kernels._draw_in_cell(mu, sd, lo[k], lo[k] + cell, u[k], start[1, k],
-                                         m[1, k], upper[k])
-            assert x == expected[k]
-            assert x == ap_kernels._truncated_normal(mu, sd, lo[k], lo[k] + cell, u[k])
+    N = len(means)
+    flip = rng.permutation(N)
+    rhohat = np.stack([means, means[flip]], axis=-1)[:, None, :].copy()  # (N, 1, 2)
+    sd = np.stack([sds, sds[flip]], axis=-1)[:, None, :].copy()
+    valid = np.ones((N, 1), bool)
+    one = np.zeros(1, np.int64)
+    table = np.zeros((1, 2))  # every cell's likelihood ratio 1
+    log_z, log_pi = np.empty((N, 1)), np.empty((N, 1))
+    new_cell, new_valid = np.empty((N, 1), np.int64), np.empty((N, 1), bool)
+    start, mass = np.empty((N, 1, 2)), np.empty((N, 1, 2))
+    side = np.empty((N, 1, 2), np.int8)
+    ap_kernels.propose(rhohat, sd, valid, one, one[None], np.ones(1, np.int64), one,
+                       rng.random((1, N, 1)), n, n, cell, n * n, width, width, reflect,
+                       beta, True, np.zeros(n * n + 1, np.int32), one, table, log_z, log_pi,
+                       new_cell, new_valid, start, mass, side)
+    windows = [axis_window(rhohat[:, 0, ax], sd[:, 0, ax], n, cell, 0, width=width)
+               for ax in range(2)]
+    if not reflect:  # numpy's form of Z
+        (ix, gx, in_x), (iy, gy, in_y) = windows
+        gamma = (gy[:, :, None] * gx[:, None, :]).reshape(N, -1)
+        total = gamma.sum(axis=-1)
+        inside = in_x * in_y
+        gamma *= np.where(total > 0, inside / np.where(total > 0, total, 1.0), 0.0)[:, None]
+        z = beta + (1.0 - beta) * (1.0 - inside) + ((1.0 - beta) * gamma * 1.0).sum(axis=-1)
+        assert np.array_equal(log_z[:, 0], np.log(z))
+    drawn = 0
+    for p in np.flatnonzero(new_valid[:, 0] & (side[:, 0, 0] >= 0)):
+        for ax, k in enumerate((new_cell[p, 0] % n, new_cell[p, 0] // n)):
+            index, masses, _ = windows[ax]
+            w = int(np.flatnonzero(index[p] == k)[0])
+            assert mass[p, 0, ax] == masses[p, w]
+            mu, s, lo, u = rhohat[p, 0, ax], sd[p, 0, ax], k * cell, rng.random()
+            expected = truncated_normal(np.array([mu]), np.array([s]), np.array([lo]),
+                                        np.array([lo + cell]), np.array([u]))[0]
+            assert side[p, 0, ax] == ((lo - mu) / s > 0.0)
+            x = ap_kernels._draw_in_cell(mu, s, lo, lo + cell, u, start[p, 0, ax],
+                                         mass[p, 0, ax], side[p, 0, ax] == 1)
+            assert x == expected == ap_kernels._truncated_normal(mu, s, lo, lo + cell, u)
+            drawn += 1
+    assert drawn > N  # most particles drew a cell of the grid
 
 
 def test_slot_log_likelihood_equals_the_numpy_form():
