@@ -270,6 +270,35 @@ def test_sort_sweeps_equal_the_numpy_form_with_ties(h, sweeps):
         assert np.array_equal(a, b)
 
 
+@pytest.mark.parametrize("spread", [0.3, 1.5])
+def test_sort_sweep_of_separated_targets_equals_the_numpy_form(spread):
+    """Five targets a few cells apart, each particle's positions near their slots' means
+    (the identity is least, found without the search) but a tenth of the particles with
+    two labels exchanged, some slots empty, and with ``spread`` 1.5 near-ties between
+    slots (the search): one sweep against :func:`.partitions.sort_slots`."""
+    from mttbench.trackers.jmpd.partitions import sort_slots
+    rng = np.random.default_rng(12)
+    N, T, h = 2000, 7, 5
+    centres = np.array([[1.0, 1.0], [4.0, 1.5], [2.0, 5.0], [6.0, 6.0], [3.5, 3.0]])
+    pos = np.zeros((N, T, 2))
+    pos[:, 1:h + 1] = centres + rng.normal(0.0, spread, (N, h, 2))
+    swap = rng.random(N) < 0.1
+    pos[swap, 1], pos[swap, 3] = pos[swap, 3].copy(), pos[swap, 1].copy()
+    vel, vvar = rng.normal(size=(N, T, 2)), rng.random((N, T, 2))
+    valid = rng.random((N, T)) < 0.8
+    slots = np.arange(1, h + 1)
+    arrays = [a.copy() for a in (pos, vel, vvar, valid)]
+    sort_slots(arrays[0], arrays[3], [slots], arrays, iterations=1)
+    got = [a.copy() for a in (pos, vel, vvar, valid)]
+    held = valid[:, slots].sum(axis=0)
+    means = (pos[:, slots] * valid[:, slots, None]).sum(axis=0) / held[:, None]
+    new_held, new_sums = np.empty(h, np.int64), np.empty((h, 2))
+    moved = ap_kernels.sort_cluster(*got, slots, means, held, new_held, new_sums)
+    assert moved >= swap.sum() // 2
+    for a, b in zip(got, arrays, strict=True):
+        assert np.array_equal(a, b)
+
+
 def test_least_permutation_is_the_first_least_of_a_full_scan():
     """The pruned depth-first search against ``argmin`` over every permutation's sum,
     on random costs, costs with many ties and zero rows."""

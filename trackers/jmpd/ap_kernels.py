@@ -593,7 +593,8 @@ def sort_cluster(pos: np.ndarray, vel: np.ndarray, vvar: np.ndarray, valid: np.n
     (h,)``: every particle takes the permutation of ``range(h)`` of least ``sum_j valid
     |pos[slots[perm_j]] - means_j|^2`` (terms of slots held nowhere, ``held (h,)``,
     count 0; the first least in ``itertools`` order, as ``argmin`` over
-    :func:`.partitions.permutations`: :func:`_least_permutation`), applied in place to
+    :func:`.partitions.permutations`: the identity when no other permutation can be
+    strictly less, else :func:`_least_permutation`), applied in place to
     all four arrays. Also the cluster's holders ``new_held (h,)`` and position sums
     ``new_sums (h, 2)`` after the sweep (:func:`slot_sums`' numbers, summed in particle
     order). Returns the particles moved."""
@@ -623,10 +624,26 @@ def sort_cluster(pos: np.ndarray, vel: np.ndarray, vvar: np.ndarray, valid: np.n
                     D[j, k] = dx * dx + dy * dy
                 else:
                     D[j, k] = 0.0
-        _least_permutation(D, h, best, path, used, nxt, partial)
-        identity = True
+        # the identity is the first permutation, and a least one (so the answer) when
+        # every valid slot k costs at least the identity's sum in every other row r: a
+        # permutation other than the identity either only exchanges invalid slots (the
+        # same terms, an equal sum) or puts a valid k in a row r != k, and a sum of terms
+        # >= 0 is at least each term (fl is monotone), so no sum is strictly less. Most
+        # particles pass; the others take the search.
+        cost = 0.0
         for j in range(h):
-            identity = identity and best[j] == j
+            cost += D[j, j]
+        identity = True
+        for k in range(h):
+            if valid[p, slots[k]]:
+                for r in range(h):
+                    if r != k and D[r, k] < cost:
+                        identity = False
+        if not identity:
+            _least_permutation(D, h, best, path, used, nxt, partial)
+            identity = True
+            for j in range(h):
+                identity = identity and best[j] == j
         if not identity:
             moved += 1
             for j in range(h):
