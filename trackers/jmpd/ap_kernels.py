@@ -483,13 +483,15 @@ def place(anc: np.ndarray, cluster_of: np.ndarray, slots: np.ndarray,
           cdf_mass: np.ndarray, cdf_upper: np.ndarray, rhohat: np.ndarray, sd: np.ndarray,
           psi: np.ndarray, uniforms: np.ndarray, nx: int, cell_size: float, tau: float,
           q12: np.ndarray, q22: np.ndarray, vel_src: np.ndarray, vvar_src: np.ndarray,
-          pos: np.ndarray, vel: np.ndarray, vvar: np.ndarray, valid: np.ndarray) -> None:
+          others: np.ndarray, pos: np.ndarray, vel: np.ndarray, vvar: np.ndarray,
+          valid: np.ndarray) -> None:
     """The end of :meth:`.ap.JMPDAPTracker._move_persistent`: receiver ``p`` takes slot
     ``slots[j]``'s cell from ancestor ``anc[p, cluster_of[j]]``, draws its position in
     the cell from the ancestor's predictive truncated to it (``uniforms (N, S, 2)``;
     the CDF values :func:`propose` kept for the drawn cell) and updates the velocity
     posterior (read from ``vel_src``, ``vvar_src``, the states before the step; written
-    to ``vel``, ``vvar``, ``pos``, ``valid``). A slot left empty gets a uniform
+    to ``vel``, ``vvar``, ``pos``, ``valid``; the slots ``others`` in no cluster keep
+    the receiver's own velocity mean and variance, copied). A slot left empty gets a uniform
     position in cell 0 (the numpy form draws the ancestor's predictive truncated to
     cell 0): no computation reads an empty slot's position or velocity mean (every one
     masks them by ``valid``, or multiplies them by 0, which a finite value survives),
@@ -535,6 +537,10 @@ def place(anc: np.ndarray, cluster_of: np.ndarray, slots: np.ndarray,
                 vel[p, t, ax] = vel_src[a, t, ax] + gain * (x - mu)
                 vvar[p, t, ax] = vv + q22[ax] - cross * gain
             valid[p, t] = alive
+        for t in others:
+            for ax in range(2):
+                vel[p, t, ax] = vel_src[p, t, ax]
+                vvar[p, t, ax] = vvar_src[p, t, ax]
 
 
 # ------------------------------------------------------------------ sorting
@@ -703,7 +709,7 @@ def warm_up() -> None:
     place(np.zeros((N, 1), np.int64), np.zeros(T, np.int64), slots, cell, alive, starts,
           masses, sides, rh, ps, ps,
           np.full((N, T, 2), 0.5), 1, 1.0, 1.0, np.zeros(2), np.zeros(2), pos.copy(),
-          pos.copy(), pos.copy(), pos.copy(), pos.copy(), valid.copy())
+          pos.copy(), np.zeros(0, np.int64), pos.copy(), pos.copy(), pos.copy(), valid.copy())
     sort_cluster(pos.copy(), pos.copy(), pos.copy(), valid.copy(), slots, np.zeros((T, 2)),
                  held, held.copy(), sums.copy())
     for direct in (True, False):
