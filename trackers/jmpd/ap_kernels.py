@@ -51,9 +51,10 @@ def _prefetch(typingctx, arr, i, j):
             inds=[args[1], args[2]] + [zero] * (aryty.ndim - 2))
         i8p = llir.IntType(8).as_pointer()
         i32 = llir.IntType(32)
-        fn = cgutils.get_or_insert_function(
-            builder.module, llir.FunctionType(llir.VoidType(), [i8p, i32, i32, i32]),
-            "llvm.prefetch.p0")
+        # declare_intrinsic mangles the name for the pointer type (LLVM upgrades the
+        # typed-pointer name where pointers are opaque)
+        fn = builder.module.declare_intrinsic(
+            "llvm.prefetch", [i8p], llir.FunctionType(llir.VoidType(), [i8p, i32, i32, i32]))
         builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
         return context.get_dummy_value()
     return sig, codegen
