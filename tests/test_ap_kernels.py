@@ -130,34 +130,58 @@ def test_np_sum_is_numpys_pairwise_sum(n):
     assert ap_kernels.np_sum(x, n) == x.sum()
 
 
-def test_windows_and_draws_equal_the_numpy_forms():
-    """Cell masses of the window (both tails, means on and off the grid, narrow and wide
-    predictives) and the in-cell draws from the CDF values the window keeps equal
-    :func:`axis_window` and :func:`truncated_normal`."""
+@pytest.mark.parametrize("width", [2, 5])
+@pytest.mark.parametrize("reflect", [False, True])
+def test_windows_and_draws_equal_the_numpy_forms(width, reflect):
+    """:func:`propose`'s windows (both tails, means on and off the grid, narrow and wide
+    predictives; 4 window cells summed in the kernel, 25 by ``np_sum``) equal
+    :func:`axis_window`: the drawn cell's masses per axis, and with the open walls each
+    draw's ``log Z`` (``Z = dead + (1 - beta) sum gamma``, likelihood ratios 1); the CDF
+    values kept for the drawn cell give :func:`truncated_normal`'s draw in it."""
     rng = np.random.default_rng(7)
-    n, cell, width = 12, 1.0, 5
+    n, cell, beta = 12, 1.0, 0.1
     means = np.r_[rng.uniform(-2, 14, 400), 0.0, 12.0, 5.5, 5.0, -40.0, 60.0]
     sds = np.r_[10.0 ** rng.uniform(-2.5, 1, 400), 0.03, 0.03, 1e-3, 2.0, 0.5, 0.5]
-    index, mass, inside = axis_window(means, sds, n, cell, 0, width=width)
-    idx, m, start = np.empty((2, width), np.int64), np.empty((2, width)), np.empty((2, width))
-    side = np.zeros((2, width), bool)
-    scratch = (np.empty(width + 1), np.empty(width + 1))
-    for i, (mu, sd) in enumerate(zip(means, sds, strict=True)):
-        got_inside = ap_kernels._axis_window(mu, sd, n, cell, width, True, idx, m, start,
-                                             side, 1, *scratch)
-        assert np.array_equal(idx[1], index[i])
-        assert np.array_equal(m[1], mass[i]) and got_inside == inside[i]
-        u = rng.random(width)
-        lo = idx[1] * cell
-        expected = truncated_normal(np.full(width, mu), np.full(width, sd), lo, lo + cell, u)
-        upper = (lo - mu) / sd > 0.0
-        ok = idx[1] >= 0
-        assert np.array_equal(side[1][ok], upper[ok])
-        for k in range(width):
-            x = ap_kernels._draw_in_cell(mu, sd, lo[k], lo[k] + cell, u[k], start[1, k],
-                                         m[1, k], upper[k])
-            assert x == expected[k]
-            assert x == ap_kernels._truncated_normal(mu, sd, lo[k], lo[k] + cell, u[k])
+    N = len(means)
+    flip = rng.permutation(N)
+    rhohat = np.stack([means, means[flip]], axis=-1)[:, None, :].copy()  # (N, 1, 2)
+    sd = np.stack([sds, sds[flip]], axis=-1)[:, None, :].copy()
+    valid = np.ones((N, 1), bool)
+    one = np.zeros(1, np.int64)
+    table = np.zeros((1, 2))  # every cell's likelihood ratio 1
+    log_z, log_pi = np.empty((N, 1)), np.empty((N, 1))
+    new_cell, new_valid = np.empty((N, 1), np.int64), np.empty((N, 1), bool)
+    start, mass = np.empty((N, 1, 2)), np.empty((N, 1, 2))
+    side = np.empty((N, 1, 2), np.int8)
+    ap_kernels.propose(rhohat, sd, valid, one, one[None], np.ones(1, np.int64), one,
+                       rng.random((1, N, 1)), n, n, cell, n * n, width, width, reflect,
+                       beta, True, np.zeros(n * n + 1, np.int32), one, table, log_z, log_pi,
+                       new_cell, new_valid, start, mass, side)
+    windows = [axis_window(rhohat[:, 0, ax], sd[:, 0, ax], n, cell, 0, width=width)
+               for ax in range(2)]
+    if not reflect:  # numpy's form of Z
+        (ix, gx, in_x), (iy, gy, in_y) = windows
+        gamma = (gy[:, :, None] * gx[:, None, :]).reshape(N, -1)
+        total = gamma.sum(axis=-1)
+        inside = in_x * in_y
+        gamma *= np.where(total > 0, inside / np.where(total > 0, total, 1.0), 0.0)[:, None]
+        z = beta + (1.0 - beta) * (1.0 - inside) + ((1.0 - beta) * gamma * 1.0).sum(axis=-1)
+        assert np.array_equal(log_z[:, 0], np.log(z))
+    drawn = 0
+    for p in np.flatnonzero(new_valid[:, 0] & (side[:, 0, 0] >= 0)):
+        for ax, k in enumerate((new_cell[p, 0] % n, new_cell[p, 0] // n)):
+            index, masses, _ = windows[ax]
+            w = int(np.flatnonzero(index[p] == k)[0])
+            assert mass[p, 0, ax] == masses[p, w]
+            mu, s, lo, u = rhohat[p, 0, ax], sd[p, 0, ax], k * cell, rng.random()
+            expected = truncated_normal(np.array([mu]), np.array([s]), np.array([lo]),
+                                        np.array([lo + cell]), np.array([u]))[0]
+            assert side[p, 0, ax] == ((lo - mu) / s > 0.0)
+            x = ap_kernels._draw_in_cell(mu, s, lo, lo + cell, u, start[p, 0, ax],
+                                         mass[p, 0, ax], side[p, 0, ax] == 1)
+            assert x == expected == ap_kernels._truncated_normal(mu, s, lo, lo + cell, u)
+            drawn += 1
+    assert drawn > N  # most particles drew a cell of the grid
 
 
 def test_slot_log_likelihood_equals_the_numpy_form():
@@ -242,6 +266,35 @@ def test_sort_sweeps_equal_the_numpy_form_with_ties(h, sweeps):
         means = sums[slots] / np.maximum(held[slots], 1)[:, None]
         ap_kernels.sort_cluster(*got, slots, means, held[slots], new_held, new_sums)
         held[slots], sums[slots] = new_held, new_sums
+    for a, b in zip(got, arrays, strict=True):
+        assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("spread", [0.3, 1.5])
+def test_sort_sweep_of_separated_targets_equals_the_numpy_form(spread):
+    """Five targets a few cells apart, each particle's positions near their slots' means
+    (the identity is least, found without the search) but a tenth of the particles with
+    two labels exchanged, some slots empty, and with ``spread`` 1.5 near-ties between
+    slots (the search): one sweep against :func:`.partitions.sort_slots`."""
+    from mttbench.trackers.jmpd.partitions import sort_slots
+    rng = np.random.default_rng(12)
+    N, T, h = 2000, 7, 5
+    centres = np.array([[1.0, 1.0], [4.0, 1.5], [2.0, 5.0], [6.0, 6.0], [3.5, 3.0]])
+    pos = np.zeros((N, T, 2))
+    pos[:, 1:h + 1] = centres + rng.normal(0.0, spread, (N, h, 2))
+    swap = rng.random(N) < 0.1
+    pos[swap, 1], pos[swap, 3] = pos[swap, 3].copy(), pos[swap, 1].copy()
+    vel, vvar = rng.normal(size=(N, T, 2)), rng.random((N, T, 2))
+    valid = rng.random((N, T)) < 0.8
+    slots = np.arange(1, h + 1)
+    arrays = [a.copy() for a in (pos, vel, vvar, valid)]
+    sort_slots(arrays[0], arrays[3], [slots], arrays, iterations=1)
+    got = [a.copy() for a in (pos, vel, vvar, valid)]
+    held = valid[:, slots].sum(axis=0)
+    means = (pos[:, slots] * valid[:, slots, None]).sum(axis=0) / held[:, None]
+    new_held, new_sums = np.empty(h, np.int64), np.empty((h, 2))
+    moved = ap_kernels.sort_cluster(*got, slots, means, held, new_held, new_sums)
+    assert moved >= swap.sum() // 2
     for a, b in zip(got, arrays, strict=True):
         assert np.array_equal(a, b)
 

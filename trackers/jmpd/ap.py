@@ -837,13 +837,12 @@ class JMPDAPTracker(Tracker):
             anc[:, c] = rng.permutation(systematic_resample(p / p.sum(), rng.random()))
         uu = rng.random(out=self._scratch("uu", (N, S, 2)))
         # the velocity posteriors go to the spares (the sources are the ancestors'); the
-        # slots not in a cluster keep theirs
+        # slots not in a cluster keep theirs (copied by the kernel)
         vel, vvar = self._spare("vel"), self._spare("vvar")
-        vel[...] = self.vel
-        vvar[...] = self.vvar
         K.place(anc, cluster_of, slots, new_cell, new_valid, starts, masses, sides, rhohat,
                 sd, psi, uu, grid.nx, float(grid.cell_size), self._tau, self._q12, self._q22,
-                self.vel, self.vvar, self.pos, vel, vvar, self.valid)
+                self.vel, self.vvar, np.flatnonzero(col < 0), self.pos, vel, vvar,
+                self.valid)
         self._install("vel", vel)
         self._install("vvar", vvar)
         return -log_pi[anc, np.arange(C)[None, :]].sum(axis=1), anc

@@ -23,12 +23,41 @@ first use only. Kernels compile on first call and are cached on disk (``cache=Tr
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from llvmlite import ir as llir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from ..numba_exact import ndtr as _ndtr
 from ..numba_exact import ndtri as _ndtri
 from ..numba_exact import np_sum
 from .kernels import _outside
+
+
+@intrinsic
+def _prefetch(typingctx, arr, i, j):
+    """A hint to the processor: fetch the cache line of ``arr[i, j, 0, ...]`` (LLVM's
+    ``prefetch``, read, high locality). Changes no value; :func:`place` issues it a few
+    receivers ahead, as its reads of the ancestors' rows are in random order."""
+    sig = types.void(arr, i, j)
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        zero = context.get_constant(types.intp, 0)
+        ptr = cgutils.get_item_pointer2(
+            context, builder, data=ary.data, shape=cgutils.unpack_tuple(builder, ary.shape),
+            strides=cgutils.unpack_tuple(builder, ary.strides), layout=aryty.layout,
+            inds=[args[1], args[2]] + [zero] * (aryty.ndim - 2))
+        i8p = llir.IntType(8).as_pointer()
+        i32 = llir.IntType(32)
+        # declare_intrinsic mangles the name for the pointer type (LLVM upgrades the
+        # typed-pointer name where pointers are opaque)
+        fn = builder.module.declare_intrinsic(
+            "llvm.prefetch", [i8p], llir.FunctionType(llir.VoidType(), [i8p, i32, i32, i32]))
+        builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
+        return context.get_dummy_value()
+    return sig, codegen
 
 
 # ------------------------------------------------------------------ predict
@@ -182,7 +211,7 @@ def max_held_sd(sd: np.ndarray, valid: np.ndarray, slots: np.ndarray) -> float:
 NDTR_ZERO = -37.7
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _ndtr_lower(x: float) -> float:
     """``ndtr(x)`` for ``x <= 0``, without the call where it is exactly 0."""
     if x < NDTR_ZERO:
@@ -190,7 +219,7 @@ def _ndtr_lower(x: float) -> float:
     return _ndtr(x, 0)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _ndtr_upper(x: float, lower: float) -> float:
     """``ndtr(x)`` for ``x > 0`` given ``lower = ndtr(-x)``: scipy computes ``ndtr(x)``
     for ``x >= 1`` as ``1 - ndtr(-x)`` (``1 - erfc(x / sqrt 2) / 2``), bit for bit (the
@@ -199,65 +228,7 @@ def _ndtr_upper(x: float, lower: float) -> float:
         return 1.0 - lower
     return _ndtr(x, 0)
 
-@njit(cache=True)
-def _axis_window(mean: float, sd: float, n: int, cell_size: float, width: int,
-                 with_inside: bool, index: np.ndarray, mass: np.ndarray, start: np.ndarray,
-                 side: np.ndarray, j: int, cdf: np.ndarray, zs: np.ndarray) -> float:
-    """:func:`.cell_proposal.axis_window` (the ``width`` form) for one mean: fills row
-    ``j`` of ``index`` and ``mass`` (``width`` entries) and returns the in-grid mass (0
-    unless ``with_inside``). Each cell's mass is a difference of normal CDFs in the tail
-    that keeps its precision: ``pb - pa``, ``pa = start[j, k]`` (:func:`_truncated_normal`'s
-    ``pa`` for the cell, so that a draw in the cell needs no CDF again) and ``side[j,
-    k]`` its ``upper`` (row ``j`` of 2-d arrays: a row view would cost reference
-    counting per call). Only the CDF values these differences use are computed
-    (``cdf`` and ``zs``: scratch of ``width + 1``); :func:`_ndtr_lower` and
-    :func:`_ndtr_upper` skip the calls whose value is known exactly."""
-    f = np.floor((mean - 4.0 * sd) / cell_size)
-    top = float(max(n - width, 0))
-    if f < 0.0:
-        f = 0.0
-    if f > top:
-        f = top
-    first = np.int64(f)
-    for k in range(width + 1):
-        zs[k] = ((first + k) * cell_size - mean) / sd
-    for k in range(width):
-        i = first + k
-        if i >= 0 and i < n:
-            index[j, k] = i
-        else:
-            index[j, k] = -1
-    # the lower-tail CDF at each edge: ndtr(z) below the mean, ndtr(-z) above it; a
-    # cell's side is its left edge's, so the edge where the side changes needs both
-    # (the edges increase: above the mean, every later edge is too)
-    for k in range(width + 1):
-        upper = zs[k] > 0.0
-        cdf[k] = _ndtr_lower(-zs[k]) if upper else _ndtr_lower(zs[k])
-        if k == 0:
-            continue
-        if index[j, k - 1] < 0:
-            mass[j, k - 1] = 0.0
-            start[j, k - 1] = 0.0
-            continue
-        side[j, k - 1] = zs[k - 1] > 0.0
-        if zs[k - 1] > 0.0:  # above the mean: ndtr(-z_left) - ndtr(-z_right)
-            right = cdf[k]
-            mass[j, k - 1] = cdf[k - 1] - right
-            start[j, k - 1] = right
-        else:  # ndtr(z_right) - ndtr(z_left)
-            right = _ndtr_upper(zs[k], cdf[k]) if upper else cdf[k]
-            mass[j, k - 1] = right - cdf[k - 1]
-            start[j, k - 1] = cdf[k - 1]
-    if not with_inside:
-        return 0.0
-    za = (0.0 - mean) / sd
-    zb = (n * cell_size - mean) / sd
-    if za > 0.0:
-        return _ndtr_lower(-za) - _ndtr_lower(-zb)
-    return _ndtr(zb, 0) - _ndtr_lower(za)
-
-
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _row(cell: int, direct: bool, table: np.ndarray, keys: np.ndarray) -> int:
     """:class:`.sparse.CellIndex`: the row of ``cell`` (in ``[0, n_cells]``)."""
     m = keys.shape[0]
@@ -307,14 +278,10 @@ def propose(rhohat: np.ndarray, sd: np.ndarray, valid: np.ndarray, slots: np.nda
             step_log[r, n] = table[r, n + 1] - table[r, n]
             step_exp[r, n] = np.exp(step_log[r, n])
     w_max = max(wx, wy)
-    ix = np.empty((S, wx), np.int64)
-    iy = np.empty((S, wy), np.int64)
-    gx = np.empty((S, wx))
-    gy = np.empty((S, wy))
-    sx_ = np.empty((S, wx))
-    sy_ = np.empty((S, wy))
-    side_x = np.zeros((S, wx), np.bool_)
-    side_y = np.zeros((S, wy), np.bool_)
+    wi = np.empty((S, 2, w_max), np.int64)
+    wm = np.empty((S, 2, w_max))
+    ws = np.empty((S, 2, w_max))
+    wside = np.zeros((S, 2, w_max), np.bool_)
     cdf = np.empty(w_max + 1)
     zs = np.empty(w_max + 1)
     gamma = np.empty((S, W))
@@ -333,37 +300,91 @@ def propose(rhohat: np.ndarray, sd: np.ndarray, valid: np.ndarray, slots: np.nda
             if not valid[p, t]:
                 continue
             mx, my = rhohat[p, t, 0], rhohat[p, t, 1]
-            in_x = _axis_window(mx, sd[p, t, 0], nx, cell_size, wx, not reflect, ix, gx,
-                                sx_, side_x, j, cdf, zs)
-            in_y = _axis_window(my, sd[p, t, 1], ny, cell_size, wy, not reflect, iy, gy,
-                                sy_, side_y, j, cdf, zs)
-            g = gamma[j]
+            in_x = in_y = 0.0
+            for ax in range(2):
+                # numpy's axis_window (the width form), written here rather than in a
+                # helper: a call taking the scratch arrays costs reference counting
+                mean, s_ = rhohat[p, t, ax], sd[p, t, ax]
+                n = nx if ax == 0 else ny
+                width = wx if ax == 0 else wy
+                f = np.floor((mean - 4.0 * s_) / cell_size)
+                top = float(max(n - width, 0))
+                if f < 0.0:
+                    f = 0.0
+                if f > top:
+                    f = top
+                first = np.int64(f)
+                for k in range(width + 1):
+                    zs[k] = ((first + k) * cell_size - mean) / s_
+                for k in range(width):
+                    i = first + k
+                    wi[j, ax, k] = i if i >= 0 and i < n else -1
+                # the lower-tail CDF at each edge: ndtr(z) below the mean, ndtr(-z)
+                # above it; a cell's side is its left edge's, so the edge where the side
+                # changes needs both (above the mean, every later edge is too)
+                for k in range(width + 1):
+                    upper = zs[k] > 0.0
+                    cdf[k] = _ndtr_lower(-zs[k]) if upper else _ndtr_lower(zs[k])
+                    if k == 0:
+                        continue
+                    if wi[j, ax, k - 1] < 0:
+                        wm[j, ax, k - 1] = 0.0
+                        ws[j, ax, k - 1] = 0.0
+                        continue
+                    wside[j, ax, k - 1] = zs[k - 1] > 0.0
+                    if zs[k - 1] > 0.0:  # above the mean: ndtr(-z_left) - ndtr(-z_right)
+                        right = cdf[k]
+                        wm[j, ax, k - 1] = cdf[k - 1] - right
+                        ws[j, ax, k - 1] = right
+                    else:  # ndtr(z_right) - ndtr(z_left)
+                        right = _ndtr_upper(zs[k], cdf[k]) if upper else cdf[k]
+                        wm[j, ax, k - 1] = right - cdf[k - 1]
+                        ws[j, ax, k - 1] = cdf[k - 1]
+                if not reflect:  # interval_mass(mean, sd, 0, n cell_size)
+                    za = (0.0 - mean) / s_
+                    zb = (n * cell_size - mean) / s_
+                    if za > 0.0:
+                        inside = _ndtr_lower(-za) - _ndtr_lower(-zb)
+                    else:
+                        right = _ndtr_upper(zb, _ndtr_lower(-zb)) if zb >= 1.0 \
+                            else _ndtr_lower(zb)
+                        inside = right - _ndtr_lower(za)
+                    if ax == 0:
+                        in_x = inside
+                    else:
+                        in_y = inside
             for a in range(wy):
                 for b in range(wx):
                     k = a * wx + b
-                    g[k] = gy[j, a] * gx[j, b]
-                    if iy[j, a] < 0 or ix[j, b] < 0:
+                    gamma[j, k] = wm[j, 1, a] * wm[j, 0, b]
+                    if wi[j, 1, a] < 0 or wi[j, 0, b] < 0:
                         wcell[j, k] = n_cells
                     else:
-                        wcell[j, k] = iy[j, a] * nx + ix[j, b]
+                        wcell[j, k] = wi[j, 1, a] * nx + wi[j, 0, b]
                     wrow[j, k] = _row(wcell[j, k], direct, row_table, keys)
-            total = np_sum(g, W)
+            if W < 8:  # np_sum's arithmetic, without a call taking a view
+                total = -0.0
+                for k in range(W):
+                    total += gamma[j, k]
+                total = 0.0 + total
+            else:
+                total = np_sum(gamma[j], W)
             if reflect:
                 if total <= 0.0:  # far outside the window's reach: the nearest cell
-                    near_x = min(max(np.floor(mx / cell_size), 0.0), nx - 1.0) - ix[j, 0]
-                    near_y = min(max(np.floor(my / cell_size), 0.0), ny - 1.0) - iy[j, 0]
+                    near_x = min(max(np.floor(mx / cell_size), 0.0), nx - 1.0) - wi[j, 0, 0]
+                    near_y = min(max(np.floor(my / cell_size), 0.0), ny - 1.0) - wi[j, 1, 0]
                     near = np.int64(min(max(near_y, 0.0), wy - 1.0) * wx
                                     + min(max(near_x, 0.0), wx - 1.0))
-                    g[near] = 1.0
+                    gamma[j, near] = 1.0
                     total = 1.0
                 for k in range(W):
-                    g[k] /= total
+                    gamma[j, k] /= total
                 m_out = 0.0
             else:
                 inside = in_x * in_y
                 factor = inside / total if total > 0 else 0.0
                 for k in range(W):
-                    g[k] *= factor
+                    gamma[j, k] *= factor
                 m_out = 1.0 - inside
             dead[j] = beta + one_beta * m_out
         for c in range(C):
@@ -385,7 +406,14 @@ def propose(rhohat: np.ndarray, sd: np.ndarray, valid: np.ndarray, slots: np.nda
                     cell_nb[k] = nb
                     weights[k] = one_beta * gamma[j, k] * step_exp[wrow[j, k], nb]
                 d = dead[j]
-                z = d + np_sum(weights, W)
+                if W < 8:  # np_sum(weights, W), as above
+                    sw = -0.0
+                    for k in range(W):
+                        sw += weights[k]
+                    sw = 0.0 + sw
+                else:
+                    sw = np_sum(weights, W)
+                z = d + sw
                 cum[0] = d
                 acc = 0.0
                 for k in range(W):
@@ -405,11 +433,11 @@ def propose(rhohat: np.ndarray, sd: np.ndarray, valid: np.ndarray, slots: np.nda
                 new_cell[p, j] = cell
                 new_valid[p, j] = alive
                 a, b = w_idx // wx, w_idx % wx
-                if ix[j, b] >= 0 and iy[j, a] >= 0:
-                    cdf_start[p, j, 0], cdf_start[p, j, 1] = sx_[j, b], sy_[j, a]
-                    cdf_mass[p, j, 0], cdf_mass[p, j, 1] = gx[j, b], gy[j, a]
-                    cdf_upper[p, j, 0] = 1 if side_x[j, b] else 0
-                    cdf_upper[p, j, 1] = 1 if side_y[j, a] else 0
+                if wi[j, 0, b] >= 0 and wi[j, 1, a] >= 0:
+                    cdf_start[p, j, 0], cdf_start[p, j, 1] = ws[j, 0, b], ws[j, 1, a]
+                    cdf_mass[p, j, 0], cdf_mass[p, j, 1] = wm[j, 0, b], wm[j, 1, a]
+                    cdf_upper[p, j, 0] = 1 if wside[j, 0, b] else 0
+                    cdf_upper[p, j, 1] = 1 if wside[j, 1, a] else 0
                 else:
                     cdf_upper[p, j, 0] = cdf_upper[p, j, 1] = -1
 
@@ -445,25 +473,48 @@ def _draw_in_cell(mean: float, sd: float, lo: float, hi: float, u: float, pa: fl
     return x
 
 
+#: how many receivers ahead :func:`place` prefetches (3-6 measured alike at 16,000
+#: particles; docs/speed.md)
+AHEAD = 4
+
+
 @njit(cache=True)
 def place(anc: np.ndarray, cluster_of: np.ndarray, slots: np.ndarray,
           new_cell: np.ndarray, new_valid: np.ndarray, cdf_start: np.ndarray,
           cdf_mass: np.ndarray, cdf_upper: np.ndarray, rhohat: np.ndarray, sd: np.ndarray,
           psi: np.ndarray, uniforms: np.ndarray, nx: int, cell_size: float, tau: float,
           q12: np.ndarray, q22: np.ndarray, vel_src: np.ndarray, vvar_src: np.ndarray,
-          pos: np.ndarray, vel: np.ndarray, vvar: np.ndarray, valid: np.ndarray) -> None:
+          others: np.ndarray, pos: np.ndarray, vel: np.ndarray, vvar: np.ndarray,
+          valid: np.ndarray) -> None:
     """The end of :meth:`.ap.JMPDAPTracker._move_persistent`: receiver ``p`` takes slot
     ``slots[j]``'s cell from ancestor ``anc[p, cluster_of[j]]``, draws its position in
     the cell from the ancestor's predictive truncated to it (``uniforms (N, S, 2)``;
     the CDF values :func:`propose` kept for the drawn cell) and updates the velocity
     posterior (read from ``vel_src``, ``vvar_src``, the states before the step; written
-    to ``vel``, ``vvar``, ``pos``, ``valid``). A slot left empty gets a uniform
+    to ``vel``, ``vvar``, ``pos``, ``valid``; the slots ``others`` in no cluster keep
+    the receiver's own velocity mean and variance, copied). A slot left empty gets a uniform
     position in cell 0 (the numpy form draws the ancestor's predictive truncated to
     cell 0): no computation reads an empty slot's position or velocity mean (every one
     masks them by ``valid``, or multiplies them by 0, which a finite value survives),
     and every slot that becomes valid gets all of its values anew."""
     N, S = new_cell.shape
     for p in range(N):
+        # the reads below go to the ancestors' rows in random order: ask for those of
+        # the receiver AHEAD places on (the first and last slot of each cluster)
+        if p + AHEAD < N:
+            for j in range(S):
+                if j == 0 or j == S - 1 or cluster_of[j] != cluster_of[j - 1]:
+                    a, t = anc[p + AHEAD, cluster_of[j]], slots[j]
+                    _prefetch(rhohat, a, t)
+                    _prefetch(sd, a, t)
+                    _prefetch(psi, a, t)
+                    _prefetch(vel_src, a, t)
+                    _prefetch(vvar_src, a, t)
+                    _prefetch(cdf_start, a, j)
+                    _prefetch(cdf_mass, a, j)
+                    _prefetch(cdf_upper, a, j)
+                    _prefetch(new_cell, a, j)
+                    _prefetch(new_valid, a, j)
         for j in range(S):
             a = anc[p, cluster_of[j]]
             t = slots[j]
@@ -487,6 +538,10 @@ def place(anc: np.ndarray, cluster_of: np.ndarray, slots: np.ndarray,
                 vel[p, t, ax] = vel_src[a, t, ax] + gain * (x - mu)
                 vvar[p, t, ax] = vv + q22[ax] - cross * gain
             valid[p, t] = alive
+        for t in others:
+            for ax in range(2):
+                vel[p, t, ax] = vel_src[p, t, ax]
+                vvar[p, t, ax] = vvar_src[p, t, ax]
 
 
 # ------------------------------------------------------------------ sorting
@@ -545,7 +600,8 @@ def sort_cluster(pos: np.ndarray, vel: np.ndarray, vvar: np.ndarray, valid: np.n
     (h,)``: every particle takes the permutation of ``range(h)`` of least ``sum_j valid
     |pos[slots[perm_j]] - means_j|^2`` (terms of slots held nowhere, ``held (h,)``,
     count 0; the first least in ``itertools`` order, as ``argmin`` over
-    :func:`.partitions.permutations`: :func:`_least_permutation`), applied in place to
+    :func:`.partitions.permutations`: the identity when no other permutation can be
+    strictly less, else :func:`_least_permutation`), applied in place to
     all four arrays. Also the cluster's holders ``new_held (h,)`` and position sums
     ``new_sums (h, 2)`` after the sweep (:func:`slot_sums`' numbers, summed in particle
     order). Returns the particles moved."""
@@ -575,10 +631,26 @@ def sort_cluster(pos: np.ndarray, vel: np.ndarray, vvar: np.ndarray, valid: np.n
                     D[j, k] = dx * dx + dy * dy
                 else:
                     D[j, k] = 0.0
-        _least_permutation(D, h, best, path, used, nxt, partial)
-        identity = True
+        # the identity is the first permutation, and a least one (so the answer) when
+        # every valid slot k costs at least the identity's sum in every other row r: a
+        # permutation other than the identity either only exchanges invalid slots (the
+        # same terms, an equal sum) or puts a valid k in a row r != k, and a sum of terms
+        # >= 0 is at least each term (fl is monotone), so no sum is strictly less. Most
+        # particles pass; the others take the search.
+        cost = 0.0
         for j in range(h):
-            identity = identity and best[j] == j
+            cost += D[j, j]
+        identity = True
+        for k in range(h):
+            if valid[p, slots[k]]:
+                for r in range(h):
+                    if r != k and D[r, k] < cost:
+                        identity = False
+        if not identity:
+            _least_permutation(D, h, best, path, used, nxt, partial)
+            identity = True
+            for j in range(h):
+                identity = identity and best[j] == j
         if not identity:
             moved += 1
             for j in range(h):
@@ -638,7 +710,7 @@ def warm_up() -> None:
     place(np.zeros((N, 1), np.int64), np.zeros(T, np.int64), slots, cell, alive, starts,
           masses, sides, rh, ps, ps,
           np.full((N, T, 2), 0.5), 1, 1.0, 1.0, np.zeros(2), np.zeros(2), pos.copy(),
-          pos.copy(), pos.copy(), pos.copy(), pos.copy(), valid.copy())
+          pos.copy(), np.zeros(0, np.int64), pos.copy(), pos.copy(), pos.copy(), valid.copy())
     sort_cluster(pos.copy(), pos.copy(), pos.copy(), valid.copy(), slots, np.zeros((T, 2)),
                  held, held.copy(), sums.copy())
     for direct in (True, False):
