@@ -388,3 +388,58 @@ def test_the_estimates_rows_equal_the_numpy_form():
         sel = np.argsort(-w, kind="stable")[:n]
         assert _equal(list(K.step_kernels.heaviest(w, n, m, P, tid)),
                       [m[sel], P[sel], tid[sel]])
+
+
+def _cluster_case(rng, n: int, n_opt: int):
+    """One large cluster's tilted options (absent, elsewhere, cells, missed), some of
+    probability 0, some rounded so that combinations tie, and its coupling table."""
+    probs = rng.random((n, n_opt)) * (rng.random((n, n_opt)) < 0.7)
+    if rng.random() < 0.5:
+        probs = np.round(probs, 1)  # equal options: ties in the priors and the bounds
+    probs[:, 0] += 0.01
+    probs /= probs.sum(axis=1, keepdims=True)
+    n_u = int(rng.integers(1, 5))
+    cell = np.where(rng.random((n, n_opt)) < 0.6, rng.integers(0, n_u, (n, n_opt)), -1)
+    cell[:, :2] = -1
+    cell[probs <= 0.0] = -1
+    LLc = np.zeros((n_u, n + 1))
+    LLc[:, 2:] = rng.normal(-4.0, 3.0, (n_u, n - 1))
+    return probs, cell, LLc, rng.random(n_u) < 0.7
+
+
+def test_the_enumeration_equals_the_numpy_form():
+    """``enumerate_choices`` against :func:`.linear.enumerate_combinations` (choices in
+    order and the dropped mass), with thresholds that drop everything, caps that bind,
+    and ties at the cap (where the kernel must decline rather than guess)."""
+    from mttbench.trackers.gpf import cluster_kernels as ck
+    from mttbench.trackers.gpf.linear import _BLOCK, enumerate_combinations
+    rng = np.random.default_rng(41)
+    seen = {"capped": 0, "declined": 0, "nothing passes": 0}
+    for _ in range(400):
+        n, n_opt = int(rng.integers(1, 12)), int(rng.integers(2, 6))
+        probs = _cluster_case(rng, n, n_opt)[0]
+        eps = float(rng.choice([0.0, 1e-4, 1e-2, 0.5]))
+        cap = int(rng.choice([1, 3, 16, 512]))
+        want = enumerate_combinations(probs, eps, cap)
+        choice, dropped, exact = ck.enumerate_choices(probs, eps, cap, _BLOCK)
+        if not exact:
+            seen["declined"] += 1
+            continue
+        assert _equal(choice, want.choice) and dropped == want.dropped
+        seen["capped"] += len(want.choice) == cap and np.prod((probs > 0).sum(1)) > cap
+        seen["nothing passes"] += eps > 0 and np.all(want.log_prior <= np.log(eps))
+    assert min(seen.values()) >= 5, seen
+
+
+def test_the_cluster_posterior_equals_the_numpy_form():
+    """:func:`.grid._cluster_posterior` (beliefs, enumeration, exact posterior, JPDA*,
+    cut) with the kernel and in numpy: the same posterior and dropped mass, bytes equal,
+    over clusters of 2-14 members, caps that bind and ties."""
+    rng = np.random.default_rng(43)
+    for _ in range(300):
+        n, n_opt = int(rng.integers(2, 15)), int(rng.integers(3, 7))
+        probs, cell, LLc, detected = _cluster_case(rng, n, n_opt)
+        eps = float(rng.choice([1e-4, 1e-3, 0.2]))
+        cap = int(rng.choice([4, 64, 512]))
+        got = _both(gpf_grid._cluster_posterior, probs, cell, LLc, eps, cap, detected)
+        assert _equal(list(got[0]), list(got[1]))

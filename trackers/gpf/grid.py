@@ -91,7 +91,7 @@ from ...scenarios.model import Grid, RayleighGridSensor
 from .. import kalman
 from ..cells import look_log_ratios
 from ..grid_backend import compiled_gpf_kernels, compiled_grid_kernels, looked_in_boxes
-from .linear import enumerate_combinations
+from .linear import _BLOCK, enumerate_combinations
 
 _RANGE_SIGMAS = 7.0
 _INV_SQRT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
@@ -367,7 +367,19 @@ def _cluster_posterior(option_probs: np.ndarray, option_cell: np.ndarray, LL: np
     ``(n, O)`` (cell ``-1`` = not in a looked cell); returns ``post (n, O)``, the posterior
     probability of each member's options, and the dropped mass (the listed combinations'
     posterior at or below ``epsilon``, plus the approximate posterior beyond the cap).
-    ``detected (n_u,)``: the detected looked cells, for :func:`avoid_coalescence`."""
+    ``detected (n_u,)``: the detected looked cells, for :func:`avoid_coalescence`.
+    With the compiled backend :func:`.cluster_kernels.cluster_posterior` computes the
+    same numbers in one call (this form where its enumeration's cap meets a tie)."""
+    kernels = compiled_gpf_kernels()
+    if kernels is not None:
+        post, dropped, exact = kernels.cluster_posterior(
+            np.ascontiguousarray(option_probs, dtype=float),
+            np.ascontiguousarray(option_cell, dtype=np.int64),
+            np.ascontiguousarray(LL, dtype=float), np.ascontiguousarray(detected, dtype=bool),
+            float(epsilon), int(max_combinations), _BLOCK, _BELIEF_ITERATIONS,
+            _BELIEF_DAMPING, _BELIEF_CLIP)
+        if exact:
+            return post, dropped
     n, n_opt = option_probs.shape
     combs = enumerate_combinations(_option_beliefs(option_probs, option_cell, LL), 0.0,
                                    max_combinations)

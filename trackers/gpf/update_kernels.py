@@ -31,7 +31,10 @@ from ..numba_exact import nan_min as _nan_min
 from ..numba_exact import np_sum
 from ..numba_exact import search_left as _search
 from ..numba_exact import unique_inverse as _unique_inverse
-from . import step_kernels
+from . import cluster_kernels, step_kernels
+
+# the GPF reaches the clusters' kernels through this module
+from .cluster_kernels import avoid_coalescence, cluster_posterior, option_beliefs  # noqa: F401
 
 # the GPF reaches the step's kernels through this module
 from .step_kernels import (  # noqa: F401
@@ -669,134 +672,6 @@ def greedy_merge(w, m, P, close, threshold, bounded, sum_tol):
 
 
 @njit(cache=True, error_model="numpy")
-def option_beliefs(option_probs, option_cell, LLc, iterations, damping, clip):
-    """:func:`.grid._option_beliefs`: the damped fixed-point iteration, with each
-    detected cell's sums over its options in (row, column) order (``bincount``'s) and each
-    row's normaliser numpy's pairwise sum."""
-    n, n_opt = option_probs.shape
-    q = option_probs.copy()
-    n_e = 0
-    for i in range(n):
-        for j in range(n_opt):
-            n_e += option_cell[i, j] >= 0
-    if n_e == 0:
-        return q
-    rows = np.empty(n_e, np.int64)
-    cols = np.empty(n_e, np.int64)
-    cell = np.empty(n_e, np.int64)
-    e = 0
-    for i in range(n):
-        for j in range(n_opt):
-            if option_cell[i, j] >= 0:
-                rows[e], cols[e], cell[e] = i, j, option_cell[i, j]
-                e += 1
-    cells, cidx = _unique_inverse(cell)
-    n_c = len(cells)
-    # exp(LLc[c, T + 1] - LLc[c, T]) for T = 0, 1, 2 (the last difference repeated)
-    n_d = LLc.shape[1] - 1
-    steps = np.empty((n_c, 3))
-    for c in range(n_c):
-        for k in range(3):
-            d = min(k, n_d - 1)
-            steps[c, k] = np.exp(LLc[cells[c], d + 1] - LLc[cells[c], d])
-    log_free = np.empty(n_e)
-    odds = np.empty(n_e)
-    new = np.empty((n, n_opt))
-    for _ in range(iterations):
-        sum_free = np.zeros(n_c)
-        sum_odds = np.zeros(n_c)
-        for k in range(n_e):
-            b = _nan_min(q[rows[k], cols[k]], 1.0 - clip)
-            log_free[k] = np.log1p(-b)
-            odds[k] = b / (1.0 - b)
-            sum_free[cidx[k]] += log_free[k]
-            sum_odds[cidx[k]] += odds[k]
-        new[:] = option_probs
-        for k in range(n_e):
-            c = cidx[k]
-            p0 = np.exp(sum_free[c] - log_free[k])
-            p1 = p0 * _nan_max(sum_odds[c] - odds[k], 0.0)
-            p1 = _nan_min(p1, 1.0 - p0)
-            factor = p0 * steps[c, 0] + p1 * steps[c, 1] + (1.0 - p0 - p1) * steps[c, 2]
-            new[rows[k], cols[k]] *= factor
-        for i in range(n):
-            tot = np_sum(new[i], n_opt)
-            for j in range(n_opt):
-                q[i, j] = (1.0 - damping) * q[i, j] + damping * (new[i, j] / tot)
-    return q
-
-
-@njit(cache=True, error_model="numpy")
-def _same_key(key, a, b):
-    for j in range(key.shape[1]):
-        if key[a, j] != key[b, j]:
-            return False
-    return True
-
-
-@njit(cache=True, error_model="numpy")
-def _better(log_post, a, b):
-    """Row ``a`` precedes row ``b`` in ``np.lexsort((index, -log_post))`` (NaN last)."""
-    x, y = -log_post[a], -log_post[b]
-    if x != x:
-        return y != y and a < b
-    if y != y or x < y:
-        return True
-    return x == y and a < b
-
-
-@njit(cache=True, error_model="numpy")
-def avoid_coalescence(cluster, choice, cell, detected, log_post):
-    """:func:`.grid.avoid_coalescence`: the same classes of combinations (rows of equal
-    key: cluster, the choices of the members that took no detected cell, the sorted
-    detected cells taken), found by a hash of each key and an exact comparison within
-    equal hashes instead of numpy's sort of the keys' rows; in each class the row first
-    in ``np.lexsort((index, -log_post))`` keeps its value. Only that choice reaches the
-    output, so the result is numpy's exactly."""
-    C, S = choice.shape
-    key = np.empty((C, 1 + 2 * S), np.int64)
-    taken = np.empty(S, np.int64)
-    h = np.empty(C, np.uint64)
-    for r in range(C):
-        key[r, 0] = cluster[r]
-        for j in range(S):
-            took = cell[r, j] >= 0 and detected[cell[r, j]]
-            key[r, 1 + j] = -1 if took else choice[r, j]
-            taken[j] = cell[r, j] if took else -1
-        taken.sort()
-        for j in range(S):
-            key[r, 1 + S + j] = taken[j]
-        v = np.uint64(14695981039346656037)
-        for j in range(1 + 2 * S):
-            v = (v ^ np.uint64(key[r, j] & 0xFFFFFFFFFFFF)) * np.uint64(1099511628211)
-        h[r] = v
-    order = np.argsort(h, kind="mergesort")
-    out = np.full(C, -np.inf)
-    best = np.empty(C, np.int64)  # per class in the current run of equal hashes
-    reps = np.empty(C, np.int64)
-    start = 0
-    while start < C:
-        stop = start + 1
-        while stop < C and h[order[stop]] == h[order[start]]:
-            stop += 1
-        n_cls = 0
-        for q in range(start, stop):
-            r = order[q]
-            k = 0
-            while k < n_cls and not _same_key(key, reps[k], r):
-                k += 1
-            if k == n_cls:
-                reps[k], best[k] = r, r
-                n_cls += 1
-            elif _better(log_post, r, best[k]):
-                best[k] = r
-        for k in range(n_cls):
-            out[best[k]] = log_post[best[k]]
-        start = stop
-    return out
-
-
-@njit(cache=True, error_model="numpy")
 def prune_tracks(w, own, a, m, P, tid, threshold):
     """The tracks with ``w >= threshold`` (NaN goes), their rows, owners renumbered."""
     T, R = len(w), len(own)
@@ -888,12 +763,9 @@ def warm_up() -> None:
     position_inverse(P2)
     prune_tracks(w2, own2, a2, m2, P2, own2, 1e-3)
     rows_by_track(own2, a2, m2, P2)
-    avoid_coalescence(i, np.zeros((1, 2), np.int64), np.zeros((1, 2), np.int64),
-                      np.ones(1, np.bool_), np.zeros(1))
-    option_beliefs(np.full((2, 3), 1.0 / 3.0), np.array([[-1, -1, 0], [-1, -1, 0]]),
-                   np.zeros((1, 3)), 20, 0.5, 1e-12)
     near_walls(m2, P2, 6.0, 1.0, 1.0)
     state_moments(m2, P2, i, f, f + 1.0, f, f + 1.0, np.zeros((2, 2, 2)), np.zeros((2, 2, 2)),
                   np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2))
     step_kernels.warm_up()
+    cluster_kernels.warm_up()
     warm_up.done = True
