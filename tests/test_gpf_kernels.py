@@ -443,3 +443,33 @@ def test_the_cluster_posterior_equals_the_numpy_form():
         cap = int(rng.choice([4, 64, 512]))
         got = _both(gpf_grid._cluster_posterior, probs, cell, LLc, eps, cap, detected)
         assert _equal(list(got[0]), list(got[1]))
+
+
+def test_the_fold_equals_the_numpy_form_at_walls_and_corners():
+    """:func:`.grid.fold_into_workspace` with the kernels and in numpy on Gaussians at the
+    walls and corners (several images each), narrow ones far outside (no mass left: the
+    prior, its position clipped; ``-0.0`` and NaN positions among them), broad ones
+    (images on both sides), bytes equal."""
+    rng = np.random.default_rng(47)
+    seen = {"images": 0, "no mass": 0}
+    for _ in range(60):
+        grid = Grid(int(rng.integers(3, 12)), int(rng.integers(3, 12)),
+                    float(rng.choice([0.5, 1.0, 2.0])))
+        width, height = grid.extent
+        n = int(rng.integers(1, 30))
+        m, P = _states(rng, n, width)
+        m[:, 2] = rng.uniform(-0.5, height + 0.5, n)
+        corner = rng.random(n) < 0.3
+        m[corner, 0] = rng.choice([0.0, width], corner.sum()) + rng.normal(0, 0.2, corner.sum())
+        m[corner, 2] = rng.choice([0.0, height], corner.sum()) + rng.normal(0, 0.2, corner.sum())
+        lost = rng.random(n) < 0.15  # far outside, narrow: nothing inside at all
+        m[lost, 0] = rng.choice([-30.0, width + 30.0], lost.sum())
+        P[lost] *= 1e-6
+        if n > 5:
+            m[4, 0], m[4, 2] = -0.0, -30.0
+            m[5, 2] = np.nan
+        got = _both(gpf_grid.fold_into_workspace, m, P, grid)
+        assert _equal(*got)
+        seen["images"] += int(np.sum(corner))
+        seen["no mass"] += int(np.sum(got[0][0][lost, 0] != m[lost, 0]))
+    assert min(seen.values()) >= 10, seen

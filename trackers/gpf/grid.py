@@ -1054,7 +1054,9 @@ def fold_into_workspace(m: np.ndarray, P: np.ndarray, grid: Grid
     beyond a wall mirrored back, position and that axis's velocity, as the truth
     reflects. Used by the GPF's predict and the truth-aided reference. A Gaussian whose
     ``RANGE_SIGMAS`` box lies inside the workspace is returned as it is (its images' masses
-    are below :data:`IMAGE_MASS_FLOOR`, so the fold would only symmetrise ``P``)."""
+    are below :data:`IMAGE_MASS_FLOOR`, so the fold would only symmetrise ``P``). With the
+    compiled backend :func:`.update_kernels.reflection_images` and
+    :func:`.update_kernels.fold_moments` compute the same numbers."""
     m = np.asarray(m, dtype=float).reshape(-1, 4)
     P = np.asarray(P, dtype=float).reshape(-1, 4, 4)
     width, height = grid.extent
@@ -1068,7 +1070,17 @@ def fold_into_workspace(m: np.ndarray, P: np.ndarray, grid: Grid
         edge = np.nonzero((m[:, 0] - sx < 0) | (m[:, 0] + sx > width)
                           | (m[:, 2] - sy < 0) | (m[:, 2] + sy > height))[0]
     means, covs = m.copy(), P.copy()
-    if len(edge):
+    if len(edge) and kernels is not None:
+        # the same numbers in two passes around the images' regression (numpy's matmul)
+        me, Pe = m[edge], P[edge]
+        owner, cm, cP, reach = kernels.reflection_images(me, Pe, float(width), float(height),
+                                                         IMAGE_MASS_FLOOR, RANGE_SIGMAS)
+        B, resid = position_regression(cP[reach])
+        means[edge], covs[edge] = kernels.fold_moments(
+            me, Pe, owner, cm, cP, reach, B, resid, float(width), float(height),
+            float(np.nextafter(width, 0.0)), float(np.nextafter(height, 0.0)), _TINY,
+            *_gl_table())
+    elif len(edge):
         means[edge], covs[edge] = known_existence_update(
             m[edge], P[edge], np.zeros(0, np.int64), np.zeros(0, bool), grid, None,
             workspace="reflect")

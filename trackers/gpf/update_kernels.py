@@ -28,6 +28,7 @@ from ..grid_kernels import looked_in_boxes, rect_position_moments
 from ..numba_exact import find_root as _find
 from ..numba_exact import nan_max as _nan_max
 from ..numba_exact import nan_min as _nan_min
+from ..numba_exact import ndtr as _ndtr
 from ..numba_exact import np_sum
 from ..numba_exact import search_left as _search
 from ..numba_exact import unique_inverse as _unique_inverse
@@ -739,6 +740,132 @@ def near_walls(m, P, range_sigmas, width, height):
     return out[:n]
 
 
+@njit(cache=True, error_model="numpy")
+def _axis_mass(mean, sd, length, shift_unit, ix):
+    """Image ``ix`` of one axis (:func:`.grid._axis_images`): its sign, shift and mass
+    inside ``[0, length)``."""
+    sign = 1.0 if ix < 3 else -1.0
+    shift = shift_unit * (ix % 3 - 1.0)
+    mu = sign * mean + shift
+    return sign, shift, _ndtr((length - mu) / sd, 0) - _ndtr(-mu / sd, 0)
+
+
+@njit(cache=True, error_model="numpy")
+def reflection_images(m, P, width, height, mass_floor, range_sigmas):
+    """:func:`.grid.reflection_images` (images ``owner``, ``means``, ``covs`` in its
+    order: by Gaussian, then x image, then y image) and the images whose
+    ``range_sigmas`` box reaches beyond the workspace (``known_existence_update``'s
+    ``edge``)."""
+    K = m.shape[0]
+    keep = np.zeros((K, 6, 6), np.bool_)
+    sgn = np.empty((K, 2, 6))
+    shf = np.empty((K, 2, 6))
+    J = 0
+    for k in range(K):
+        mass = np.empty((2, 6))
+        for a, (col, length) in enumerate(((0, width), (2, height))):
+            sd = _nan_max(np.sqrt(_nan_max(P[k, col, col], 0.0)), 1e-300)
+            for ix in range(6):
+                sgn[k, a, ix], shf[k, a, ix], mass[a, ix] = _axis_mass(
+                    m[k, col], sd, length, 2.0 * length, ix)
+        for ix in range(6):
+            for iy in range(6):
+                keep[k, ix, iy] = mass[0, ix] * mass[1, iy] > mass_floor or (ix == 1 and iy == 1)
+                J += keep[k, ix, iy]
+    owner = np.empty(J, np.int64)
+    cm = np.empty((J, 4))
+    cP = np.empty((J, 4, 4))
+    edge = np.empty(J, np.int64)
+    sg = np.empty(4)
+    j, n_e = 0, 0
+    for k in range(K):
+        for ix in range(6):
+            for iy in range(6):
+                if not keep[k, ix, iy]:
+                    continue
+                owner[j] = k
+                sg[0] = sg[1] = sgn[k, 0, ix]
+                sg[2] = sg[3] = sgn[k, 1, iy]
+                cm[j, 0] = sg[0] * m[k, 0] + shf[k, 0, ix]
+                cm[j, 1] = sg[1] * m[k, 1] + 0.0
+                cm[j, 2] = sg[2] * m[k, 2] + shf[k, 1, iy]
+                cm[j, 3] = sg[3] * m[k, 3] + 0.0
+                for a in range(4):
+                    for b in range(4):
+                        cP[j, a, b] = sg[a] * P[k, a, b] * sg[b]
+                sx = np.sqrt(_nan_max(cP[j, 0, 0], 0.0))
+                sy = np.sqrt(_nan_max(cP[j, 2, 2], 0.0))
+                if (cm[j, 0] - range_sigmas * sx < 0 or cm[j, 0] + range_sigmas * sx > width
+                        or cm[j, 2] - range_sigmas * sy < 0
+                        or cm[j, 2] + range_sigmas * sy > height):
+                    edge[n_e] = j
+                    n_e += 1
+                j += 1
+    return owner, cm, cP, edge[:n_e]
+
+
+@njit(cache=True, error_model="numpy")
+def fold_moments(m, P, owner, cm, cP, edge, B, resid, width, height, x_top, y_top, tiny,
+                 bounds, n_nodes, first, nodes, weights):
+    """:func:`.grid.known_existence_update` without looks, ``workspace="reflect"``, after
+    its images (:func:`reflection_images`) and the regression of the wall-reaching ones
+    (``B``, ``resid``): each image's mass and moments in the workspace (1, 0 and its
+    covariance away from the walls), summed per Gaussian in image order and moment
+    matched; a Gaussian with no mass left keeps its prior, the position clipped to
+    ``[0, x_top]``, ``[0, y_top]`` (the largest doubles below the width and height)."""
+    K, J = m.shape[0], len(owner)
+    n_e = len(edge)
+    em = np.empty((n_e, 4))
+    eP = np.empty((n_e, 4, 4))
+    for q in range(n_e):
+        em[q] = cm[edge[q]]
+        eP[q] = cP[edge[q]]
+    zeros = np.zeros(n_e)
+    mass_e, M1_e, M2_e = state_moments(em, eP, np.arange(n_e), zeros, np.full(n_e, width),
+                                       zeros, np.full(n_e, height), B, resid, bounds,
+                                       n_nodes, first, nodes, weights)
+    Zc = np.ones(J)
+    S1 = np.zeros((J, 4))
+    S2 = cP.copy()
+    for q in range(n_e):
+        Zc[edge[q]] = mass_e[q]
+        S1[edge[q]] = M1_e[q]
+        S2[edge[q]] = M2_e[q]
+    # (the numpy form's weights exp(-top) are exactly 1 without looks)
+    Z = np.zeros(K)
+    raw1 = np.zeros((K, 4))
+    for j in range(J):
+        Z[owner[j]] += Zc[j]
+        for a in range(4):
+            raw1[owner[j], a] += Zc[j] * cm[j, a] + S1[j, a]
+    mean = np.empty((K, 4))
+    for k in range(K):
+        for a in range(4):
+            mean[k, a] = raw1[k, a] / Z[k] if Z[k] > tiny else m[k, a]
+    S = np.zeros((K, 4, 4))
+    delta = np.empty(4)
+    for j in range(J):
+        k = owner[j]
+        for a in range(4):
+            delta[a] = cm[j, a] - mean[k, a]
+        for a in range(4):
+            for b in range(4):
+                S[k, a, b] += (((S2[j, a, b] + S1[j, a] * delta[b]) + delta[a] * S1[j, b])
+                               + Zc[j] * delta[a] * delta[b])
+    means, covs = m.copy(), P.copy()
+    for k in range(K):
+        if Z[k] > tiny:
+            means[k] = mean[k]
+            for a in range(4):
+                for b in range(4):
+                    covs[k, a, b] = 0.5 * (S[k, a, b] / Z[k] + S[k, b, a] / Z[k])
+        else:
+            # np.clip: np.maximum then np.minimum (NaN stays, -0.0 at 0.0 stays -0.0)
+            means[k, 0] = _nan_min(_nan_max(m[k, 0], 0.0), x_top)
+            means[k, 2] = _nan_min(_nan_max(m[k, 2], 0.0), y_top)
+    return means, covs
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) every kernel the GPF calls, on tiny inputs of
     the argument types it passes (about 50 s of CPU the first time after an edit, 0.2 s
@@ -764,6 +891,10 @@ def warm_up() -> None:
     prune_tracks(w2, own2, a2, m2, P2, own2, 1e-3)
     rows_by_track(own2, a2, m2, P2)
     near_walls(m2, P2, 6.0, 1.0, 1.0)
+    owner, cm, cP, edge = reflection_images(m2, P2, 1.0, 1.0, 1e-9, 6.0)
+    fold_moments(m2, P2, owner, cm, cP, edge, np.zeros((len(edge), 2, 2)),
+                 np.zeros((len(edge), 2, 2)), 1.0, 1.0, 0.99, 0.99, 1e-300,
+                 np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2))
     state_moments(m2, P2, i, f, f + 1.0, f, f + 1.0, np.zeros((2, 2, 2)), np.zeros((2, 2, 2)),
                   np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2))
     step_kernels.warm_up()
