@@ -473,3 +473,39 @@ def test_the_fold_equals_the_numpy_form_at_walls_and_corners():
         seen["images"] += int(np.sum(corner))
         seen["no mass"] += int(np.sum(got[0][0][lost, 0] != m[lost, 0]))
     assert min(seen.values()) >= 10, seen
+
+
+def test_the_count_bound_equals_the_numpy_form():
+    """:func:`.tracker.condition_on_count_bound` with the kernel and in numpy: bounds from
+    1 to beyond the tracks, certain tracks (``w = 1``, the bound's probability 0) and
+    impossible ones, one track, bytes equal."""
+    rng = np.random.default_rng(53)
+    for _ in range(300):
+        T = int(rng.integers(1, 50))
+        w = rng.random(T) ** rng.choice([0.2, 1.0, 5.0])
+        w[rng.random(T) < 0.1] = 1.0
+        w[rng.random(T) < 0.05] = 0.0
+        n_max = int(rng.integers(0, T + 2))
+        assert _equal(*_both(gpf_tracker.condition_on_count_bound, w, n_max))
+
+
+def test_the_distinct_modes_equal_the_numpy_form():
+    """The mixture estimate's rows (:meth:`._distinct_modes`) with the kernel and in
+    numpy: tracks of 1-4 components on a few cells (so that the distance rule picks other
+    rows), tied and NaN scores, NaN positions."""
+    from types import SimpleNamespace
+    rng = np.random.default_rng(59)
+    for _ in range(300):
+        T = int(rng.integers(1, 15))
+        n_rows = rng.integers(1, 5, T)
+        own = np.repeat(np.arange(T), n_rows)
+        R = len(own)
+        m = np.zeros((R, 4))
+        m[:, [0, 2]] = rng.integers(0, 4, (R, 2)) + rng.choice([0.0, 0.3], (R, 2))
+        m[rng.random(R) < 0.05, 0] = np.nan
+        score = np.round(rng.random(R), 1)
+        score[rng.random(R) < 0.05] = np.nan
+        sel = rng.permutation(T)[: int(rng.integers(0, T + 1))]
+        fake = SimpleNamespace(_own=own, _m=m, _w=np.ones(T), _grid=Grid(4, 4, 1.0))
+        got = _both(gpf_tracker.GaussianParticleFilter._distinct_modes, fake, sel, score)
+        assert _equal(*got)

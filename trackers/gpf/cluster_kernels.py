@@ -215,15 +215,23 @@ def _branch_and_bound(logs, n_pos, log_eps, max_combinations, block):
                     n_keep += 1
         keep = keep[:n_keep]
         if n_keep > max_combinations:
-            # np.argpartition(-bound, M - 1)[:M]: the M largest bounds, a set when the
-            # M-th largest is above the next
+            # np.argpartition(-bound, M - 1)[:M]: the M largest bounds, a set when no
+            # other bound equals the M-th largest
             neg = np.empty(n_keep)
             for q in range(n_keep):
                 neg[q] = -(cand[keep[q]] + rest[stop])
-            order = np.argsort(neg, kind="mergesort")
-            if not neg[order[max_combinations - 1]] < neg[order[max_combinations]]:
+            kth = np.partition(neg, max_combinations - 1)[max_combinations - 1]
+            n_in = 0
+            for q in range(n_keep):
+                n_in += neg[q] <= kth
+            if n_in != max_combinations:
                 return ranks, lp, False
-            keep = np.sort(keep[order[:max_combinations]])
+            n_in = 0
+            for q in range(n_keep):
+                if neg[q] <= kth:
+                    keep[n_in] = keep[q]
+                    n_in += 1
+            keep = keep[:n_in]
         new_ranks = np.empty((len(keep), n), np.int64)
         new_lp = np.empty(len(keep))
         for q in range(len(keep)):
