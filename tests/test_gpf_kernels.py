@@ -509,3 +509,22 @@ def test_the_distinct_modes_equal_the_numpy_form():
         fake = SimpleNamespace(_own=own, _m=m, _w=np.ones(T), _grid=Grid(4, 4, 1.0))
         got = _both(gpf_tracker.GaussianParticleFilter._distinct_modes, fake, sel, score)
         assert _equal(*got)
+
+
+def test_grid_update_with_large_clusters_equals_the_numpy_form():
+    """The whole update with a small combination cap, so that most clusters take the
+    large clusters' path (options, beliefs, enumeration under the cap, ``g``): every
+    output equal, bytes, on 150 random updates."""
+    rng = np.random.default_rng(61)
+    n_large = 0
+    for _ in range(150):
+        w, m, P, ucell, cells, returns, grid, sensor, own, alpha = _update_case(rng)
+        cap = int(rng.choice([2, 4, 8]))
+        a, b = _both(gpf_grid.grid_update, w, m, P, ucell, cells, returns, grid, sensor,
+                     max_combinations=cap, owner=own, alpha=alpha, split_share=0.05)
+        assert _equal([a.weights, a.means, a.covs, a.alpha, a.owner],
+                      [b.weights, b.means, b.covs, b.alpha, b.owner])
+        assert (a.dropped, a.n_clusters, a.max_cluster) == (b.dropped, b.n_clusters,
+                                                             b.max_cluster)
+        n_large += a.max_cluster >= 3
+    assert n_large >= 10

@@ -29,6 +29,7 @@ from numba import njit
 from ..numba_exact import nan_max as _nan_max
 from ..numba_exact import nan_min as _nan_min
 from ..numba_exact import np_sum
+from ..numba_exact import search_left as _search
 from ..numba_exact import unique_inverse as _unique_inverse
 
 @njit(cache=True, error_model="numpy")
@@ -393,6 +394,94 @@ def cluster_posterior(option_probs, option_cell, LLc, detected, epsilon, max_com
     return post, comb_dropped + cut, True
 
 
+@njit(cache=True, error_model="numpy")
+def cluster_options(w, mass, mass_out, pi, pu, mem, LL, hit):
+    """The options of the clusters' members ``mem`` (grouped by cluster), as
+    :func:`.grid.grid_update` builds them and :func:`.grid._aggregate_misses` pools and
+    tilts them: ``q (M, O + 1)``, their cells, the coupling ``LLc``, each member's
+    ``sum_c m_c l_c(1)`` over its missed cells, its number of options of positive
+    probability (at least 1), and the ``rows``, ``cols`` and track pairs ``pidx`` of the
+    members' looked cells. Sums as numpy's: the missed mass in pair order from 0, each
+    row's normaliser pairwise (:func:`.numba_exact.np_sum`)."""
+    M = len(mem)
+    first = np.empty(M, np.int64)
+    cnt = np.empty(M, np.int64)
+    most = 0
+    for i in range(M):
+        first[i] = _search(pi, mem[i])
+        cnt[i] = _search(pi, mem[i] + 1) - first[i]
+        most = max(most, cnt[i])
+    n_opt = 2 + most
+    n_e = 0
+    for i in range(M):
+        n_e += cnt[i]
+    rows = np.empty(n_e, np.int64)
+    cols = np.empty(n_e, np.int64)
+    pidx = np.empty(n_e, np.int64)
+    q = np.zeros((M, n_opt + 1))
+    out_cell = np.full((M, n_opt + 1), -1, np.int64)
+    miss_lik = np.empty(M)
+    n_pos = np.empty(M, np.int64)
+    e = 0
+    for i in range(M):
+        wm = w[mem[i]]
+        q[i, 0] = 1.0 - wm
+        q[i, 1] = wm * mass_out[mem[i]]
+        miss_w = 0.0
+        for k in range(cnt[i]):
+            rows[e], cols[e], pidx[e] = i, 2 + k, first[i] + k
+            c = pu[pidx[e]]
+            pl = wm * mass[pidx[e]] * np.exp(LL[c, 1])
+            if hit[c]:
+                q[i, 2 + k] = pl
+                out_cell[i, 2 + k] = c
+            else:
+                miss_w += pl
+            e += 1
+        q[i, n_opt] = miss_w
+        wm2 = 1.0 - q[i, 0]
+        miss_lik[i] = miss_w / wm2 if wm2 > 0.0 else 0.0
+        tot = np_sum(q[i], n_opt + 1)
+        n = 0
+        for j in range(n_opt + 1):
+            q[i, j] = q[i, j] / tot
+            n += q[i, j] > 0.0
+        n_pos[i] = max(n, 1)
+    LLc = np.empty(LL.shape)
+    for c in range(LL.shape[0]):
+        for t in range(LL.shape[1]):
+            LLc[c, t] = LL[c, t] - t * LL[c, 1]
+    return q, out_cell, LLc, miss_lik, n_pos, rows, cols, pidx
+
+
+@njit(cache=True, error_model="numpy")
+def cluster_g(post, mem, rows, cols, pidx, mass, mass_out, pu, hit, LL, miss_lik, w_new,
+              g_out, g_pair):
+    """From the members' option posteriors ``post``, as :func:`.grid.grid_update` does in
+    place: ``w_new`` (presence), and where present ``g_out`` and ``g_pair`` (posterior over
+    prior mass given presence; in a missed cell the missed option's share by
+    ``m_c l_c(1)``)."""
+    M = len(mem)
+    present = np.empty(M)
+    for i in range(M):
+        present[i] = 1.0 - post[i, 0]
+        w_new[mem[i]] = present[i]
+        if present[i] > 0.0:
+            mo = mass_out[mem[i]]
+            g_out[mem[i]] = post[i, 1] / present[i] / mo if mo > 0.0 else 0.0
+    last = post.shape[1] - 1
+    for e in range(len(rows)):
+        i = rows[e]
+        if not present[i] > 0.0:
+            continue
+        c = pu[pidx[e]]
+        if not hit[c]:
+            g_pair[pidx[e]] = post[i, last] / present[i] * np.exp(LL[c, 1]) / miss_lik[i]
+        else:
+            mp = mass[pidx[e]]
+            g_pair[pidx[e]] = post[i, cols[e]] / present[i] / mp if mp > 0.0 else 0.0
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) these kernels on tiny inputs of the argument
     types the GPF passes."""
@@ -404,3 +493,9 @@ def warm_up() -> None:
     enumerate_choices(probs, 1e-3, 4, 64)
     cluster_posterior(probs, cell, np.zeros((1, 3)), np.ones(1, np.bool_), 1e-3, 4, 64, 20,
                       0.5, 1e-12)
+    f, i, b = np.full(2, 0.5), np.zeros(2, np.int64), np.ones(1, np.bool_)
+    LL = np.zeros((1, 3))
+    q, out_cell, LLc, miss_lik, n_pos, rows, cols, pidx = cluster_options(
+        f, f, f, i, i, np.arange(2), LL, b)
+    cluster_g(q, np.arange(2), rows, cols, pidx, f, f, i, b, LL, miss_lik, f.copy(), f.copy(),
+              f.copy())

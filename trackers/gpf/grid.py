@@ -629,23 +629,28 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
         _, cl, csize = np.unique(plabel[mem], return_inverse=True, return_counts=True)
         n_clusters, max_cluster = len(csize), int(csize.max())
         M = len(mem)
-        # options per member, padded to (M, 2 + most pairs): absent, elsewhere, its cells
-        pair_start = np.searchsorted(pi, np.arange(K + 1))
-        first, cnt = pair_start[mem], pair_start[mem + 1] - pair_start[mem]
-        n_opt = 2 + int(cnt.max())
-        rows = np.repeat(np.arange(M), cnt)
-        cols = 2 + np.arange(len(rows)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-        pidx = first[rows] + cols - 2  # the member's pairs, in pair order
-        wm = w[mem]
-        option_probs = np.zeros((M, n_opt))
-        option_probs[:, 0] = 1.0 - wm
-        option_probs[:, 1] = wm * mass_out[mem]
-        option_probs[rows, cols] = wm[rows] * mass[pidx]
-        option_cell = np.full((M, n_opt), -1)
-        option_cell[rows, cols] = pu[pidx]
-        option_probs, option_cell, LLc, miss_lik = _aggregate_misses(
-            option_probs, option_cell, rows, cols, LL, hit)
-        n_pos = np.maximum((option_probs > 0.0).sum(axis=1), 1)
+        if kernels is not None:
+            (option_probs, option_cell, LLc, miss_lik, n_pos, rows, cols,
+             pidx) = kernels.cluster_options(w, mass, mass_out, pi, pu, mem,
+                                             np.ascontiguousarray(LL), hit)
+        else:
+            # options per member, padded to (M, 2 + most pairs): absent, elsewhere, its cells
+            pair_start = np.searchsorted(pi, np.arange(K + 1))
+            first, cnt = pair_start[mem], pair_start[mem + 1] - pair_start[mem]
+            n_opt = 2 + int(cnt.max())
+            rows = np.repeat(np.arange(M), cnt)
+            cols = 2 + np.arange(len(rows)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+            pidx = first[rows] + cols - 2  # the member's pairs, in pair order
+            wm = w[mem]
+            option_probs = np.zeros((M, n_opt))
+            option_probs[:, 0] = 1.0 - wm
+            option_probs[:, 1] = wm * mass_out[mem]
+            option_probs[rows, cols] = wm[rows] * mass[pidx]
+            option_cell = np.full((M, n_opt), -1)
+            option_cell[rows, cols] = pu[pidx]
+            option_probs, option_cell, LLc, miss_lik = _aggregate_misses(
+                option_probs, option_cell, rows, cols, LL, hit)
+            n_pos = np.maximum((option_probs > 0.0).sum(axis=1), 1)
         n_opt = option_probs.shape[1]
         # clusters with few joint choices (at most the cap) are listed in full, all at once
         log_size = np.bincount(cl, weights=np.log(n_pos))
@@ -662,22 +667,12 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
             post[sm], d = _small_clusters_posterior(option_probs[sm], option_cell[sm], cl[sm],
                                                     n_pos[sm], LLc, epsilon, hit)
             dropped += d
-        present = 1.0 - post[:, 0]
-        w_new[mem] = present
-        ok = present > 0.0
-        # the prior mass of each option's bin, given existence
-        bin_mass = np.zeros(post.shape)
-        bin_mass[:, 1] = mass_out[mem]
-        bin_mass[rows, cols] = mass[pidx]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            g = np.where(bin_mass > 0.0, post / present[:, None] / bin_mass, 0.0)
-            # inside the missed bin the posterior over its cells is m_c l_c(1) / sum
-            missed = ~hit[pu[pidx]]
-            gm = post[rows, -1] / present[rows] * np.exp(LL[pu[pidx], 1]) / miss_lik[rows]
-            g[rows[missed], cols[missed]] = gm[missed]
-        g[~ok] = 0.0
-        g_out[mem] = np.where(ok, g[:, 1], g_out[mem])
-        g_pair[pidx] = np.where(ok[rows], g[rows, cols], g_pair[pidx])
+        if kernels is not None:
+            kernels.cluster_g(post, mem, rows, cols, pidx, mass, mass_out, pu, hit,
+                              np.ascontiguousarray(LL), miss_lik, w_new, g_out, g_pair)
+        else:
+            _cluster_g(post, mem, rows, cols, pidx, mass, mass_out, pu, hit, LL, miss_lik,
+                       w_new, g_out, g_pair)
 
     # ---- moment match each Gaussian row: density prior * g, g piecewise constant (its
     # track's g per cell)
@@ -694,6 +689,31 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
             np.ascontiguousarray(P, dtype=float), B, resid, T, float(split_share))
     return GridUpdateResult(np.clip(w_new, 0.0, 1.0), means, covs, dropped, n_clusters,
                             max_cluster, new_alpha, out_own)
+
+
+def _cluster_g(post: np.ndarray, mem: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+               pidx: np.ndarray, mass: np.ndarray, mass_out: np.ndarray, pu: np.ndarray,
+               hit: np.ndarray, LL: np.ndarray, miss_lik: np.ndarray, w_new: np.ndarray,
+               g_out: np.ndarray, g_pair: np.ndarray) -> None:
+    """The clusters' members' presence ``w_new`` and, where present, their ``g_out`` and
+    ``g_pair`` from the option posteriors ``post`` (in place; numpy form of
+    :func:`.cluster_kernels.cluster_g`)."""
+    present = 1.0 - post[:, 0]
+    w_new[mem] = present
+    ok = present > 0.0
+    # the prior mass of each option's bin, given existence
+    bin_mass = np.zeros(post.shape)
+    bin_mass[:, 1] = mass_out[mem]
+    bin_mass[rows, cols] = mass[pidx]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        g = np.where(bin_mass > 0.0, post / present[:, None] / bin_mass, 0.0)
+        # inside the missed bin the posterior over its cells is m_c l_c(1) / sum
+        missed = ~hit[pu[pidx]]
+        gm = post[rows, -1] / present[rows] * np.exp(LL[pu[pidx], 1]) / miss_lik[rows]
+        g[rows[missed], cols[missed]] = gm[missed]
+    g[~ok] = 0.0
+    g_out[mem] = np.where(ok, g[:, 1], g_out[mem])
+    g_pair[pidx] = np.where(ok[rows], g[rows, cols], g_pair[pidx])
 
 
 @functools.lru_cache(maxsize=64)

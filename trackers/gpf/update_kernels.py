@@ -35,7 +35,13 @@ from ..numba_exact import unique_inverse as _unique_inverse
 from . import cluster_kernels, step_kernels
 
 # the GPF reaches the clusters' kernels through this module
-from .cluster_kernels import avoid_coalescence, cluster_posterior, option_beliefs  # noqa: F401
+from .cluster_kernels import (  # noqa: F401
+    avoid_coalescence,
+    cluster_g,
+    cluster_options,
+    cluster_posterior,
+    option_beliefs,
+)
 
 # the GPF reaches the step's kernels through this module
 from .step_kernels import (  # noqa: F401
