@@ -528,3 +528,16 @@ def test_grid_update_with_large_clusters_equals_the_numpy_form():
                                                              b.max_cluster)
         n_large += a.max_cluster >= 3
     assert n_large >= 10
+
+
+def test_collapse_equals_the_numpy_form():
+    """:func:`.tracker.collapse` (each group's moment match) with the kernel and in numpy:
+    groups in any order, empty groups, weights summing to 0 and NaN, bytes equal."""
+    rng = np.random.default_rng(67)
+    for _ in range(300):
+        R, n = int(rng.integers(0, 30)), int(rng.integers(1, 8))
+        owner = rng.integers(0, n, R)
+        w = rng.random(R) * (rng.random(R) < 0.8)
+        w[rng.random(R) < 0.03] = np.nan
+        m, P = _states(rng, R, 10.0)
+        assert _equal(*_both(gpf_tracker.collapse, w, m, P, owner, n))

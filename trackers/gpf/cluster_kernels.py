@@ -126,8 +126,13 @@ def avoid_coalescence(cluster, choice, cell, detected, log_post):
         for j in range(S):
             took = cell[r, j] >= 0 and detected[cell[r, j]]
             key[r, 1 + j] = -1 if took else choice[r, j]
-            taken[j] = cell[r, j] if took else -1
-        taken.sort()
+            # the taken cells sorted by insertion (a few; numba's sort call costs more)
+            x = cell[r, j] if took else -1
+            p = j - 1
+            while p >= 0 and taken[p] > x:
+                taken[p + 1] = taken[p]
+                p -= 1
+            taken[p + 1] = x
         for j in range(S):
             key[r, 1 + S + j] = taken[j]
         v = np.uint64(14695981039346656037)

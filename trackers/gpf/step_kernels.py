@@ -305,6 +305,34 @@ def distinct_modes(sel, score, own, m, n_tracks, min_d2):
     return chosen
 
 
+@njit(cache=True, error_model="numpy")
+def collapse(w, m, P, owner, n):
+    """:func:`.tracker.collapse`: each group's weights normalised by their sum, then its
+    mean and covariance (``P + dev dev^T``) summed in row order from 0, as ``bincount``
+    and ``np.add.at`` sum."""
+    R = len(owner)
+    tot = np.zeros(n)
+    for r in range(R):
+        tot[owner[r]] += w[r]
+    wn = np.empty(R)
+    mean = np.zeros((n, 4))
+    for r in range(R):
+        t = tot[owner[r]]
+        wn[r] = w[r] / (t if t > 0.0 else 1.0)
+        for a in range(4):
+            mean[owner[r], a] += wn[r] * m[r, a]
+    cov = np.zeros((n, 4, 4))
+    dev = np.empty(4)
+    for r in range(R):
+        g = owner[r]
+        for a in range(4):
+            dev[a] = m[r, a] - mean[g, a]
+        for a in range(4):
+            for b in range(4):
+                cov[g, a, b] += wn[r] * (P[r, a, b] + dev[a] * dev[b])
+    return mean, cov
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) these kernels on tiny inputs of the argument
     types the GPF passes."""
@@ -317,4 +345,5 @@ def warm_up() -> None:
     any_close(m, P, 4.0)
     heaviest(f, 1, m, P, i)
     count_bound(np.full(3, 0.5), 1)
+    collapse(f, m, P, i, 1)
     distinct_modes(i, f, i, m, 1, 1.0)

@@ -380,7 +380,14 @@ def truncate_to_workspace(m: np.ndarray, P: np.ndarray, width: float, height: fl
 def collapse(w: np.ndarray, m: np.ndarray, P: np.ndarray, owner: np.ndarray, n: int
              ) -> tuple[np.ndarray, np.ndarray]:
     """Per group ``0..n-1`` of ``owner``, the moment match of its rows (weights ``w``,
-    normalised within the group): ``means (n, 4)``, ``covs (n, 4, 4)``."""
+    normalised within the group): ``means (n, 4)``, ``covs (n, 4, 4)``. With the compiled
+    backend :func:`.step_kernels.collapse` computes the same numbers."""
+    kernels = compiled_gpf_kernels()
+    if kernels is not None:
+        return kernels.step_kernels.collapse(
+            np.ascontiguousarray(w, dtype=float), np.ascontiguousarray(m, dtype=float),
+            np.ascontiguousarray(P, dtype=float), np.ascontiguousarray(owner, dtype=np.int64),
+            int(n))
     tot = np.bincount(owner, weights=w, minlength=n)
     wn = w / np.where(tot > 0.0, tot, 1.0)[owner]
     mean = np.zeros((n, 4))

@@ -878,6 +878,10 @@ def warm_up() -> None:
     from the cache; docs/speed.md). Cheap after the first time in a process."""
     if getattr(warm_up, "done", False):
         return
+    # the kernels these call first: a callee loaded from the disk cache inside a caller
+    # before its own first call from Python returned arrays without their dtype
+    step_kernels.warm_up()
+    cluster_kernels.warm_up()
     f, i, b = np.ones(1), np.zeros(1, np.int64), np.zeros(1, np.bool_)
     m, P = np.zeros((1, 4)), np.eye(4)[None]
     # pairs_and_singletons is compiled into grid_update_packed (alone: tests only);
@@ -903,6 +907,4 @@ def warm_up() -> None:
                  np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2))
     state_moments(m2, P2, i, f, f + 1.0, f, f + 1.0, np.zeros((2, 2, 2)), np.zeros((2, 2, 2)),
                   np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2))
-    step_kernels.warm_up()
-    cluster_kernels.warm_up()
     warm_up.done = True
