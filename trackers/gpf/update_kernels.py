@@ -878,8 +878,8 @@ def warm_up() -> None:
     from the cache; docs/speed.md). Cheap after the first time in a process."""
     if getattr(warm_up, "done", False):
         return
-    # the kernels these call first: a callee loaded from the disk cache inside a caller
-    # before its own first call from Python returned arrays without their dtype
+    # the kernels these call first (with a caller's cache older than its callee's, a
+    # callee first loaded inside its caller returned arrays without their dtype)
     step_kernels.warm_up()
     cluster_kernels.warm_up()
     f, i, b = np.ones(1), np.zeros(1, np.int64), np.zeros(1, np.bool_)
