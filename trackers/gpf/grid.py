@@ -574,8 +574,9 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     the rest of the row stays one moment-matched component.
 
     With the compiled backend (:mod:`.grid_backend`) the pairs, the singletons and the
-    moment match run as :mod:`.update_kernels`' passes, with the same numbers bit for
-    bit; the clusters' combinatorics run in numpy either way.
+    moment match run as :mod:`.update_kernels`' passes, and the clusters' options, the
+    large clusters' posteriors and the members' ``g`` as :mod:`.cluster_kernels`', with
+    the same numbers bit for bit; the small clusters' full listing stays numpy.
     """
     T = len(w)
     R = len(m)
