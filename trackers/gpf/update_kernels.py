@@ -1,6 +1,8 @@
 """The GPF's grid update (:func:`.grid.grid_update`) as two compiled (numba) passes,
 equal bit for bit to its numpy forms :func:`.grid._pairs_and_singletons` and
-:func:`.grid._moment_match`; the clusters' combinatorics between them stay numpy.
+:func:`.grid._moment_match` (the clusters' passes between them are
+:mod:`.cluster_kernels`'), and the fold into the workspace (:func:`reflection_images`,
+:func:`fold_moments`).
 
 Why: on a small grid the update is a few hundred numpy calls on arrays of a few dozen
 pairs, so its time is the interpreter's (docs/speed.md, "GPF: the update in two passes").
