@@ -388,3 +388,156 @@ def test_the_estimates_rows_equal_the_numpy_form():
         sel = np.argsort(-w, kind="stable")[:n]
         assert _equal(list(K.step_kernels.heaviest(w, n, m, P, tid)),
                       [m[sel], P[sel], tid[sel]])
+
+
+def _cluster_case(rng, n: int, n_opt: int):
+    """One large cluster's tilted options (absent, elsewhere, cells, missed), some of
+    probability 0, some rounded so that combinations tie, and its coupling table."""
+    probs = rng.random((n, n_opt)) * (rng.random((n, n_opt)) < 0.7)
+    if rng.random() < 0.5:
+        probs = np.round(probs, 1)  # equal options: ties in the priors and the bounds
+    probs[:, 0] += 0.01
+    probs /= probs.sum(axis=1, keepdims=True)
+    n_u = int(rng.integers(1, 5))
+    cell = np.where(rng.random((n, n_opt)) < 0.6, rng.integers(0, n_u, (n, n_opt)), -1)
+    cell[:, :2] = -1
+    cell[probs <= 0.0] = -1
+    LLc = np.zeros((n_u, n + 1))
+    LLc[:, 2:] = rng.normal(-4.0, 3.0, (n_u, n - 1))
+    return probs, cell, LLc, rng.random(n_u) < 0.7
+
+
+def test_the_enumeration_equals_the_numpy_form():
+    """``enumerate_choices`` against :func:`.linear.enumerate_combinations` (choices in
+    order and the dropped mass), with thresholds that drop everything, caps that bind,
+    and ties at the cap (where the kernel must decline rather than guess)."""
+    from mttbench.trackers.gpf import cluster_kernels as ck
+    from mttbench.trackers.gpf.linear import _BLOCK, enumerate_combinations
+    rng = np.random.default_rng(41)
+    seen = {"capped": 0, "declined": 0, "nothing passes": 0}
+    for _ in range(400):
+        n, n_opt = int(rng.integers(1, 12)), int(rng.integers(2, 6))
+        probs = _cluster_case(rng, n, n_opt)[0]
+        eps = float(rng.choice([0.0, 1e-4, 1e-2, 0.5]))
+        cap = int(rng.choice([1, 3, 16, 512]))
+        want = enumerate_combinations(probs, eps, cap)
+        choice, dropped, exact = ck.enumerate_choices(probs, eps, cap, _BLOCK)
+        if not exact:
+            seen["declined"] += 1
+            continue
+        assert _equal(choice, want.choice) and dropped == want.dropped
+        seen["capped"] += len(want.choice) == cap and np.prod((probs > 0).sum(1)) > cap
+        seen["nothing passes"] += eps > 0 and np.all(want.log_prior <= np.log(eps))
+    assert min(seen.values()) >= 5, seen
+
+
+def test_the_cluster_posterior_equals_the_numpy_form():
+    """:func:`.grid._cluster_posterior` (beliefs, enumeration, exact posterior, JPDA*,
+    cut) with the kernel and in numpy: the same posterior and dropped mass, bytes equal,
+    over clusters of 2-14 members, caps that bind and ties."""
+    rng = np.random.default_rng(43)
+    for _ in range(300):
+        n, n_opt = int(rng.integers(2, 15)), int(rng.integers(3, 7))
+        probs, cell, LLc, detected = _cluster_case(rng, n, n_opt)
+        eps = float(rng.choice([1e-4, 1e-3, 0.2]))
+        cap = int(rng.choice([4, 64, 512]))
+        got = _both(gpf_grid._cluster_posterior, probs, cell, LLc, eps, cap, detected)
+        assert _equal(list(got[0]), list(got[1]))
+
+
+def test_the_fold_equals_the_numpy_form_at_walls_and_corners():
+    """:func:`.grid.fold_into_workspace` with the kernels and in numpy on Gaussians at the
+    walls and corners (several images each), narrow ones far outside (no mass left: the
+    prior, its position clipped; ``-0.0`` and NaN positions among them), broad ones
+    (images on both sides), bytes equal."""
+    rng = np.random.default_rng(47)
+    seen = {"images": 0, "no mass": 0}
+    for _ in range(60):
+        grid = Grid(int(rng.integers(3, 12)), int(rng.integers(3, 12)),
+                    float(rng.choice([0.5, 1.0, 2.0])))
+        width, height = grid.extent
+        n = int(rng.integers(1, 30))
+        m, P = _states(rng, n, width)
+        m[:, 2] = rng.uniform(-0.5, height + 0.5, n)
+        corner = rng.random(n) < 0.3
+        m[corner, 0] = rng.choice([0.0, width], corner.sum()) + rng.normal(0, 0.2, corner.sum())
+        m[corner, 2] = rng.choice([0.0, height], corner.sum()) + rng.normal(0, 0.2, corner.sum())
+        lost = rng.random(n) < 0.15  # far outside, narrow: nothing inside at all
+        m[lost, 0] = rng.choice([-30.0, width + 30.0], lost.sum())
+        P[lost] *= 1e-6
+        if n > 5:
+            m[4, 0], m[4, 2] = -0.0, -30.0
+            m[5, 2] = np.nan
+        got = _both(gpf_grid.fold_into_workspace, m, P, grid)
+        assert _equal(*got)
+        seen["images"] += int(np.sum(corner))
+        seen["no mass"] += int(np.sum(got[0][0][lost, 0] != m[lost, 0]))
+    assert min(seen.values()) >= 10, seen
+
+
+def test_the_count_bound_equals_the_numpy_form():
+    """:func:`.tracker.condition_on_count_bound` with the kernel and in numpy: bounds from
+    1 to beyond the tracks, certain tracks (``w = 1``, the bound's probability 0) and
+    impossible ones, one track, bytes equal."""
+    rng = np.random.default_rng(53)
+    for _ in range(300):
+        T = int(rng.integers(1, 50))
+        w = rng.random(T) ** rng.choice([0.2, 1.0, 5.0])
+        w[rng.random(T) < 0.1] = 1.0
+        w[rng.random(T) < 0.05] = 0.0
+        n_max = int(rng.integers(0, T + 2))
+        assert _equal(*_both(gpf_tracker.condition_on_count_bound, w, n_max))
+
+
+def test_the_distinct_modes_equal_the_numpy_form():
+    """The mixture estimate's rows (:meth:`._distinct_modes`) with the kernel and in
+    numpy: tracks of 1-4 components on a few cells (so that the distance rule picks other
+    rows), tied and NaN scores, NaN positions."""
+    from types import SimpleNamespace
+    rng = np.random.default_rng(59)
+    for _ in range(300):
+        T = int(rng.integers(1, 15))
+        n_rows = rng.integers(1, 5, T)
+        own = np.repeat(np.arange(T), n_rows)
+        R = len(own)
+        m = np.zeros((R, 4))
+        m[:, [0, 2]] = rng.integers(0, 4, (R, 2)) + rng.choice([0.0, 0.3], (R, 2))
+        m[rng.random(R) < 0.05, 0] = np.nan
+        score = np.round(rng.random(R), 1)
+        score[rng.random(R) < 0.05] = np.nan
+        sel = rng.permutation(T)[: int(rng.integers(0, T + 1))]
+        fake = SimpleNamespace(_own=own, _m=m, _w=np.ones(T), _grid=Grid(4, 4, 1.0))
+        got = _both(gpf_tracker.GaussianParticleFilter._distinct_modes, fake, sel, score)
+        assert _equal(*got)
+
+
+def test_grid_update_with_large_clusters_equals_the_numpy_form():
+    """The whole update with a small combination cap, so that most clusters take the
+    large clusters' path (options, beliefs, enumeration under the cap, ``g``): every
+    output equal, bytes, on 150 random updates."""
+    rng = np.random.default_rng(61)
+    n_large = 0
+    for _ in range(150):
+        w, m, P, ucell, cells, returns, grid, sensor, own, alpha = _update_case(rng)
+        cap = int(rng.choice([2, 4, 8]))
+        a, b = _both(gpf_grid.grid_update, w, m, P, ucell, cells, returns, grid, sensor,
+                     max_combinations=cap, owner=own, alpha=alpha, split_share=0.05)
+        assert _equal([a.weights, a.means, a.covs, a.alpha, a.owner],
+                      [b.weights, b.means, b.covs, b.alpha, b.owner])
+        assert (a.dropped, a.n_clusters, a.max_cluster) == (b.dropped, b.n_clusters,
+                                                             b.max_cluster)
+        n_large += a.max_cluster >= 3
+    assert n_large >= 10
+
+
+def test_collapse_equals_the_numpy_form():
+    """:func:`.tracker.collapse` (each group's moment match) with the kernel and in numpy:
+    groups in any order, empty groups, weights summing to 0 and NaN, bytes equal."""
+    rng = np.random.default_rng(67)
+    for _ in range(300):
+        R, n = int(rng.integers(0, 30)), int(rng.integers(1, 8))
+        owner = rng.integers(0, n, R)
+        w = rng.random(R) * (rng.random(R) < 0.8)
+        w[rng.random(R) < 0.03] = np.nan
+        m, P = _states(rng, R, 10.0)
+        assert _equal(*_both(gpf_tracker.collapse, w, m, P, owner, n))

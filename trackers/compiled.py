@@ -33,7 +33,8 @@ MODULES = (
 #: Numba checks a cached kernel against its own file only: after editing one of these,
 #: delete the callers' caches too (``find trackers -name '*.nb[ic]' -delete``), or a
 #: caller keeps the old helper compiled into it
-HELPERS = ("mttbench.trackers.gpf.step_kernels", "mttbench.trackers.numba_exact")
+HELPERS = ("mttbench.trackers.gpf.cluster_kernels", "mttbench.trackers.gpf.step_kernels",
+           "mttbench.trackers.numba_exact")
 
 
 def _has_index(origin: Path, cache_dir: str | None) -> bool:

@@ -91,7 +91,7 @@ from ...scenarios.model import Grid, RayleighGridSensor
 from .. import kalman
 from ..cells import look_log_ratios
 from ..grid_backend import compiled_gpf_kernels, compiled_grid_kernels, looked_in_boxes
-from .linear import enumerate_combinations
+from .linear import _BLOCK, enumerate_combinations
 
 _RANGE_SIGMAS = 7.0
 _INV_SQRT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
@@ -367,7 +367,19 @@ def _cluster_posterior(option_probs: np.ndarray, option_cell: np.ndarray, LL: np
     ``(n, O)`` (cell ``-1`` = not in a looked cell); returns ``post (n, O)``, the posterior
     probability of each member's options, and the dropped mass (the listed combinations'
     posterior at or below ``epsilon``, plus the approximate posterior beyond the cap).
-    ``detected (n_u,)``: the detected looked cells, for :func:`avoid_coalescence`."""
+    ``detected (n_u,)``: the detected looked cells, for :func:`avoid_coalescence`.
+    With the compiled backend :func:`.cluster_kernels.cluster_posterior` computes the
+    same numbers in one call (this form where its enumeration's cap meets a tie)."""
+    kernels = compiled_gpf_kernels()
+    if kernels is not None:
+        post, dropped, exact = kernels.cluster_posterior(
+            np.ascontiguousarray(option_probs, dtype=float),
+            np.ascontiguousarray(option_cell, dtype=np.int64),
+            np.ascontiguousarray(LL, dtype=float), np.ascontiguousarray(detected, dtype=bool),
+            float(epsilon), int(max_combinations), _BLOCK, _BELIEF_ITERATIONS,
+            _BELIEF_DAMPING, _BELIEF_CLIP)
+        if exact:
+            return post, dropped
     n, n_opt = option_probs.shape
     combs = enumerate_combinations(_option_beliefs(option_probs, option_cell, LL), 0.0,
                                    max_combinations)
@@ -562,8 +574,9 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     the rest of the row stays one moment-matched component.
 
     With the compiled backend (:mod:`.grid_backend`) the pairs, the singletons and the
-    moment match run as :mod:`.update_kernels`' passes, with the same numbers bit for
-    bit; the clusters' combinatorics run in numpy either way.
+    moment match run as :mod:`.update_kernels`' passes, and the clusters' options, the
+    large clusters' posteriors and the members' ``g`` as :mod:`.cluster_kernels`', with
+    the same numbers bit for bit; the small clusters' full listing stays numpy.
     """
     T = len(w)
     R = len(m)
@@ -617,23 +630,28 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
         _, cl, csize = np.unique(plabel[mem], return_inverse=True, return_counts=True)
         n_clusters, max_cluster = len(csize), int(csize.max())
         M = len(mem)
-        # options per member, padded to (M, 2 + most pairs): absent, elsewhere, its cells
-        pair_start = np.searchsorted(pi, np.arange(K + 1))
-        first, cnt = pair_start[mem], pair_start[mem + 1] - pair_start[mem]
-        n_opt = 2 + int(cnt.max())
-        rows = np.repeat(np.arange(M), cnt)
-        cols = 2 + np.arange(len(rows)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-        pidx = first[rows] + cols - 2  # the member's pairs, in pair order
-        wm = w[mem]
-        option_probs = np.zeros((M, n_opt))
-        option_probs[:, 0] = 1.0 - wm
-        option_probs[:, 1] = wm * mass_out[mem]
-        option_probs[rows, cols] = wm[rows] * mass[pidx]
-        option_cell = np.full((M, n_opt), -1)
-        option_cell[rows, cols] = pu[pidx]
-        option_probs, option_cell, LLc, miss_lik = _aggregate_misses(
-            option_probs, option_cell, rows, cols, LL, hit)
-        n_pos = np.maximum((option_probs > 0.0).sum(axis=1), 1)
+        if kernels is not None:
+            (option_probs, option_cell, LLc, miss_lik, n_pos, rows, cols,
+             pidx) = kernels.cluster_options(w, mass, mass_out, pi, pu, mem,
+                                             np.ascontiguousarray(LL), hit)
+        else:
+            # options per member, padded to (M, 2 + most pairs): absent, elsewhere, its cells
+            pair_start = np.searchsorted(pi, np.arange(K + 1))
+            first, cnt = pair_start[mem], pair_start[mem + 1] - pair_start[mem]
+            n_opt = 2 + int(cnt.max())
+            rows = np.repeat(np.arange(M), cnt)
+            cols = 2 + np.arange(len(rows)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+            pidx = first[rows] + cols - 2  # the member's pairs, in pair order
+            wm = w[mem]
+            option_probs = np.zeros((M, n_opt))
+            option_probs[:, 0] = 1.0 - wm
+            option_probs[:, 1] = wm * mass_out[mem]
+            option_probs[rows, cols] = wm[rows] * mass[pidx]
+            option_cell = np.full((M, n_opt), -1)
+            option_cell[rows, cols] = pu[pidx]
+            option_probs, option_cell, LLc, miss_lik = _aggregate_misses(
+                option_probs, option_cell, rows, cols, LL, hit)
+            n_pos = np.maximum((option_probs > 0.0).sum(axis=1), 1)
         n_opt = option_probs.shape[1]
         # clusters with few joint choices (at most the cap) are listed in full, all at once
         log_size = np.bincount(cl, weights=np.log(n_pos))
@@ -650,22 +668,12 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
             post[sm], d = _small_clusters_posterior(option_probs[sm], option_cell[sm], cl[sm],
                                                     n_pos[sm], LLc, epsilon, hit)
             dropped += d
-        present = 1.0 - post[:, 0]
-        w_new[mem] = present
-        ok = present > 0.0
-        # the prior mass of each option's bin, given existence
-        bin_mass = np.zeros(post.shape)
-        bin_mass[:, 1] = mass_out[mem]
-        bin_mass[rows, cols] = mass[pidx]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            g = np.where(bin_mass > 0.0, post / present[:, None] / bin_mass, 0.0)
-            # inside the missed bin the posterior over its cells is m_c l_c(1) / sum
-            missed = ~hit[pu[pidx]]
-            gm = post[rows, -1] / present[rows] * np.exp(LL[pu[pidx], 1]) / miss_lik[rows]
-            g[rows[missed], cols[missed]] = gm[missed]
-        g[~ok] = 0.0
-        g_out[mem] = np.where(ok, g[:, 1], g_out[mem])
-        g_pair[pidx] = np.where(ok[rows], g[rows, cols], g_pair[pidx])
+        if kernels is not None:
+            kernels.cluster_g(post, mem, rows, cols, pidx, mass, mass_out, pu, hit,
+                              np.ascontiguousarray(LL), miss_lik, w_new, g_out, g_pair)
+        else:
+            _cluster_g(post, mem, rows, cols, pidx, mass, mass_out, pu, hit, LL, miss_lik,
+                       w_new, g_out, g_pair)
 
     # ---- moment match each Gaussian row: density prior * g, g piecewise constant (its
     # track's g per cell)
@@ -682,6 +690,31 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
             np.ascontiguousarray(P, dtype=float), B, resid, T, float(split_share))
     return GridUpdateResult(np.clip(w_new, 0.0, 1.0), means, covs, dropped, n_clusters,
                             max_cluster, new_alpha, out_own)
+
+
+def _cluster_g(post: np.ndarray, mem: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+               pidx: np.ndarray, mass: np.ndarray, mass_out: np.ndarray, pu: np.ndarray,
+               hit: np.ndarray, LL: np.ndarray, miss_lik: np.ndarray, w_new: np.ndarray,
+               g_out: np.ndarray, g_pair: np.ndarray) -> None:
+    """The clusters' members' presence ``w_new`` and, where present, their ``g_out`` and
+    ``g_pair`` from the option posteriors ``post`` (in place; numpy form of
+    :func:`.cluster_kernels.cluster_g`)."""
+    present = 1.0 - post[:, 0]
+    w_new[mem] = present
+    ok = present > 0.0
+    # the prior mass of each option's bin, given existence
+    bin_mass = np.zeros(post.shape)
+    bin_mass[:, 1] = mass_out[mem]
+    bin_mass[rows, cols] = mass[pidx]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        g = np.where(bin_mass > 0.0, post / present[:, None] / bin_mass, 0.0)
+        # inside the missed bin the posterior over its cells is m_c l_c(1) / sum
+        missed = ~hit[pu[pidx]]
+        gm = post[rows, -1] / present[rows] * np.exp(LL[pu[pidx], 1]) / miss_lik[rows]
+        g[rows[missed], cols[missed]] = gm[missed]
+    g[~ok] = 0.0
+    g_out[mem] = np.where(ok, g[:, 1], g_out[mem])
+    g_pair[pidx] = np.where(ok[rows], g[rows, cols], g_pair[pidx])
 
 
 @functools.lru_cache(maxsize=64)
@@ -1042,7 +1075,9 @@ def fold_into_workspace(m: np.ndarray, P: np.ndarray, grid: Grid
     beyond a wall mirrored back, position and that axis's velocity, as the truth
     reflects. Used by the GPF's predict and the truth-aided reference. A Gaussian whose
     ``RANGE_SIGMAS`` box lies inside the workspace is returned as it is (its images' masses
-    are below :data:`IMAGE_MASS_FLOOR`, so the fold would only symmetrise ``P``)."""
+    are below :data:`IMAGE_MASS_FLOOR`, so the fold would only symmetrise ``P``). With the
+    compiled backend :func:`.update_kernels.reflection_images` and
+    :func:`.update_kernels.fold_moments` compute the same numbers."""
     m = np.asarray(m, dtype=float).reshape(-1, 4)
     P = np.asarray(P, dtype=float).reshape(-1, 4, 4)
     width, height = grid.extent
@@ -1056,7 +1091,17 @@ def fold_into_workspace(m: np.ndarray, P: np.ndarray, grid: Grid
         edge = np.nonzero((m[:, 0] - sx < 0) | (m[:, 0] + sx > width)
                           | (m[:, 2] - sy < 0) | (m[:, 2] + sy > height))[0]
     means, covs = m.copy(), P.copy()
-    if len(edge):
+    if len(edge) and kernels is not None:
+        # the same numbers in two passes around the images' regression (numpy's matmul)
+        me, Pe = m[edge], P[edge]
+        owner, cm, cP, reach = kernels.reflection_images(me, Pe, float(width), float(height),
+                                                         IMAGE_MASS_FLOOR, RANGE_SIGMAS)
+        B, resid = position_regression(cP[reach])
+        means[edge], covs[edge] = kernels.fold_moments(
+            me, Pe, owner, cm, cP, reach, B, resid, float(width), float(height),
+            float(np.nextafter(width, 0.0)), float(np.nextafter(height, 0.0)), _TINY,
+            *_gl_table())
+    elif len(edge):
         means[edge], covs[edge] = known_existence_update(
             m[edge], P[edge], np.zeros(0, np.int64), np.zeros(0, bool), grid, None,
             workspace="reflect")

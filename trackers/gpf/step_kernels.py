@@ -25,6 +25,7 @@ from numba import njit
 from ..numba_exact import nan_max as _nan_max
 from ..numba_exact import nan_min as _nan_min
 from ..numba_exact import np_sum
+from .cluster_kernels import _better
 
 #: field_predict's modes: the floor (a model with arrivals), the count bound's respread
 #: (without), or neither (no births)
@@ -223,6 +224,115 @@ def heaviest(w, n, m, P, tid):
     return m[sel], P[sel], tid[sel]
 
 
+@njit(cache=True, error_model="numpy")
+def count_bound(w, n_max):
+    """:func:`.tracker.condition_on_count_bound` for ``len(w) > n_max > 0``: the prefix
+    and suffix Poisson-binomial tables row by row, the suffix's cumulative sums from each
+    row's first entry, and the two sums of products per track in order from 0 (numpy's
+    ``einsum`` over a reversed, hence strided, operand sums in order)."""
+    T = len(w)
+    n = n_max + 1
+    pre = np.zeros((T + 1, n))
+    pre[0, 0] = 1.0
+    for i in range(T):
+        for j in range(n):
+            pre[i + 1, j] = pre[i, j] * (1.0 - w[i])
+        for j in range(1, n):
+            pre[i + 1, j] += pre[i, j - 1] * w[i]
+    suf = np.zeros((T + 1, n))
+    suf[T, 0] = 1.0
+    for i in range(T - 1, -1, -1):
+        for j in range(n):
+            suf[i, j] = suf[i + 1, j] * (1.0 - w[i])
+        for j in range(1, n):
+            suf[i, j] += suf[i + 1, j - 1] * w[i]
+    out = np.empty(T)
+    cum = np.empty(n)
+    for i in range(T):
+        cum[0] = suf[i + 1, 0]
+        for j in range(1, n):
+            cum[j] = cum[j - 1] + suf[i + 1, j]
+        B = 0.0
+        for j in range(n):
+            B += pre[i, j] * cum[n - 1 - j]
+        A = 0.0
+        for j in range(n - 1):
+            A += pre[i, j] * cum[n - 2 - j]
+        den = w[i] * A + (1.0 - w[i]) * B
+        out[i] = w[i] * A / den if den > 0.0 else w[i]
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def distinct_modes(sel, score, own, m, n_tracks, min_d2):
+    """:meth:`.tracker.GaussianParticleFilter._distinct_modes`: each track's rows in
+    ``np.lexsort((-score, own))`` order (NaN last, ties by index), then per selected
+    track its first row whose position is at least ``sqrt(min_d2)`` from every row
+    chosen before (squared distances ``dx * dx + dy * dy``, their minimum NaN if any is),
+    else its first row."""
+    R = len(own)
+    order = np.argsort(own, kind="mergesort")
+    start = np.zeros(n_tracks + 1, np.int64)
+    for q in range(R):
+        start[own[order[q]] + 1] += 1
+    for t in range(n_tracks):
+        start[t + 1] += start[t]
+    for t in range(n_tracks):  # within a track, by -score (an insertion sort: few rows)
+        for q in range(start[t] + 1, start[t + 1]):
+            x = order[q]
+            p = q - 1
+            while p >= start[t] and _better(score, x, order[p]):
+                order[p + 1] = order[p]
+                p -= 1
+            order[p + 1] = x
+    chosen = np.empty(len(sel), np.int64)
+    for k in range(len(sel)):
+        t = sel[k]
+        pick = order[start[t]]
+        if k > 0 and start[t + 1] - start[t] > 1:
+            for q in range(start[t], start[t + 1]):
+                r = order[q]
+                d2 = np.nan
+                for c in range(k):
+                    dx = m[r, 0] - m[chosen[c], 0]
+                    dy = m[r, 2] - m[chosen[c], 2]
+                    v = dx * dx + dy * dy
+                    d2 = v if c == 0 else _nan_min(d2, v)
+                if d2 >= min_d2:
+                    pick = r
+                    break
+        chosen[k] = pick
+    return chosen
+
+
+@njit(cache=True, error_model="numpy")
+def collapse(w, m, P, owner, n):
+    """:func:`.tracker.collapse`: each group's weights normalised by their sum, then its
+    mean and covariance (``P + dev dev^T``) summed in row order from 0, as ``bincount``
+    and ``np.add.at`` sum."""
+    R = len(owner)
+    tot = np.zeros(n)
+    for r in range(R):
+        tot[owner[r]] += w[r]
+    wn = np.empty(R)
+    mean = np.zeros((n, 4))
+    for r in range(R):
+        t = tot[owner[r]]
+        wn[r] = w[r] / (t if t > 0.0 else 1.0)
+        for a in range(4):
+            mean[owner[r], a] += wn[r] * m[r, a]
+    cov = np.zeros((n, 4, 4))
+    dev = np.empty(4)
+    for r in range(R):
+        g = owner[r]
+        for a in range(4):
+            dev[a] = m[r, a] - mean[g, a]
+        for a in range(4):
+            for b in range(4):
+                cov[g, a, b] += wn[r] * (P[r, a, b] + dev[a] * dev[b])
+    return mean, cov
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) these kernels on tiny inputs of the argument
     types the GPF passes."""
@@ -234,3 +344,6 @@ def warm_up() -> None:
     field_set(0.1, i, f, i, f, 1e-4, True)
     any_close(m, P, 4.0)
     heaviest(f, 1, m, P, i)
+    count_bound(np.full(3, 0.5), 1)
+    collapse(f, m, P, i, 1)
+    distinct_modes(i, f, i, m, 1, 1.0)

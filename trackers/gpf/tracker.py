@@ -173,12 +173,17 @@ def condition_on_count_bound(w: np.ndarray, n_max: int) -> np.ndarray:
     ``w_i' = w_i A_i / (w_i A_i + (1 - w_i) B_i)`` with ``A_i = P(C_-i <= n_max - 1)``,
     ``B_i = P(C_-i <= n_max)``, ``C_-i`` the count of the others (prefix and suffix
     Poisson-binomial tables, ``O(T n_max^2)``). Where the bound has probability 0 (more
-    certain tracks than it allows) ``w`` is returned unchanged."""
+    certain tracks than it allows) ``w`` is returned unchanged. With the compiled backend
+    :func:`.step_kernels.count_bound` computes the same numbers."""
     T = len(w)
     if T <= n_max:
         return w.copy()
     if n_max <= 0:
         return np.zeros(T) if np.all(w < 1.0) else w.copy()
+    kernels = compiled_gpf_kernels()
+    if kernels is not None:
+        return kernels.step_kernels.count_bound(np.ascontiguousarray(w, dtype=float),
+                                                int(n_max))
     n = n_max + 1  # counts 0..n_max
     pre = np.zeros((T + 1, n))
     pre[0, 0] = 1.0
@@ -375,7 +380,14 @@ def truncate_to_workspace(m: np.ndarray, P: np.ndarray, width: float, height: fl
 def collapse(w: np.ndarray, m: np.ndarray, P: np.ndarray, owner: np.ndarray, n: int
              ) -> tuple[np.ndarray, np.ndarray]:
     """Per group ``0..n-1`` of ``owner``, the moment match of its rows (weights ``w``,
-    normalised within the group): ``means (n, 4)``, ``covs (n, 4, 4)``."""
+    normalised within the group): ``means (n, 4)``, ``covs (n, 4, 4)``. With the compiled
+    backend :func:`.step_kernels.collapse` computes the same numbers."""
+    kernels = compiled_gpf_kernels()
+    if kernels is not None:
+        return kernels.step_kernels.collapse(
+            np.ascontiguousarray(w, dtype=float), np.ascontiguousarray(m, dtype=float),
+            np.ascontiguousarray(P, dtype=float), np.ascontiguousarray(owner, dtype=np.int64),
+            int(n))
     tot = np.bincount(owner, weights=w, minlength=n)
     wn = w / np.where(tot > 0.0, tot, 1.0)[owner]
     mean = np.zeros((n, 4))
@@ -889,7 +901,15 @@ class GaussianParticleFilter(Tracker):
         """One row per selected track (heaviest track first): its best-scoring component
         whose mean is at least a cell from the states already reported, else its best.
         Tracks that share a detection each hold a component on it; reporting it once and
-        each other track's next component avoids stacking estimates on one cell."""
+        each other track's next component avoids stacking estimates on one cell. With the
+        compiled backend :func:`.step_kernels.distinct_modes` picks the same rows."""
+        kernels = compiled_gpf_kernels()
+        if kernels is not None:
+            return kernels.step_kernels.distinct_modes(
+                np.ascontiguousarray(sel, dtype=np.int64), np.ascontiguousarray(score),
+                np.ascontiguousarray(self._own, dtype=np.int64),
+                np.ascontiguousarray(self._m, dtype=float), len(self._w),
+                float(self._grid.cell_size ** 2))
         order = np.lexsort((-score, self._own))  # each track's rows, best first
         start = np.searchsorted(self._own[order], np.arange(len(self._w) + 1))
         chosen: list[int] = []

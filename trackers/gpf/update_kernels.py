@@ -1,6 +1,8 @@
 """The GPF's grid update (:func:`.grid.grid_update`) as two compiled (numba) passes,
 equal bit for bit to its numpy forms :func:`.grid._pairs_and_singletons` and
-:func:`.grid._moment_match`; the clusters' combinatorics between them stay numpy.
+:func:`.grid._moment_match` (the clusters' passes between them are
+:mod:`.cluster_kernels`'), and the fold into the workspace (:func:`reflection_images`,
+:func:`fold_moments`).
 
 Why: on a small grid the update is a few hundred numpy calls on arrays of a few dozen
 pairs, so its time is the interpreter's (docs/speed.md, "GPF: the update in two passes").
@@ -28,10 +30,20 @@ from ..grid_kernels import looked_in_boxes, rect_position_moments
 from ..numba_exact import find_root as _find
 from ..numba_exact import nan_max as _nan_max
 from ..numba_exact import nan_min as _nan_min
+from ..numba_exact import ndtr as _ndtr
 from ..numba_exact import np_sum
 from ..numba_exact import search_left as _search
 from ..numba_exact import unique_inverse as _unique_inverse
-from . import step_kernels
+from . import cluster_kernels, step_kernels
+
+# the GPF reaches the clusters' kernels through this module
+from .cluster_kernels import (  # noqa: F401
+    avoid_coalescence,
+    cluster_g,
+    cluster_options,
+    cluster_posterior,
+    option_beliefs,
+)
 
 # the GPF reaches the step's kernels through this module
 from .step_kernels import (  # noqa: F401
@@ -669,134 +681,6 @@ def greedy_merge(w, m, P, close, threshold, bounded, sum_tol):
 
 
 @njit(cache=True, error_model="numpy")
-def option_beliefs(option_probs, option_cell, LLc, iterations, damping, clip):
-    """:func:`.grid._option_beliefs`: the damped fixed-point iteration, with each
-    detected cell's sums over its options in (row, column) order (``bincount``'s) and each
-    row's normaliser numpy's pairwise sum."""
-    n, n_opt = option_probs.shape
-    q = option_probs.copy()
-    n_e = 0
-    for i in range(n):
-        for j in range(n_opt):
-            n_e += option_cell[i, j] >= 0
-    if n_e == 0:
-        return q
-    rows = np.empty(n_e, np.int64)
-    cols = np.empty(n_e, np.int64)
-    cell = np.empty(n_e, np.int64)
-    e = 0
-    for i in range(n):
-        for j in range(n_opt):
-            if option_cell[i, j] >= 0:
-                rows[e], cols[e], cell[e] = i, j, option_cell[i, j]
-                e += 1
-    cells, cidx = _unique_inverse(cell)
-    n_c = len(cells)
-    # exp(LLc[c, T + 1] - LLc[c, T]) for T = 0, 1, 2 (the last difference repeated)
-    n_d = LLc.shape[1] - 1
-    steps = np.empty((n_c, 3))
-    for c in range(n_c):
-        for k in range(3):
-            d = min(k, n_d - 1)
-            steps[c, k] = np.exp(LLc[cells[c], d + 1] - LLc[cells[c], d])
-    log_free = np.empty(n_e)
-    odds = np.empty(n_e)
-    new = np.empty((n, n_opt))
-    for _ in range(iterations):
-        sum_free = np.zeros(n_c)
-        sum_odds = np.zeros(n_c)
-        for k in range(n_e):
-            b = _nan_min(q[rows[k], cols[k]], 1.0 - clip)
-            log_free[k] = np.log1p(-b)
-            odds[k] = b / (1.0 - b)
-            sum_free[cidx[k]] += log_free[k]
-            sum_odds[cidx[k]] += odds[k]
-        new[:] = option_probs
-        for k in range(n_e):
-            c = cidx[k]
-            p0 = np.exp(sum_free[c] - log_free[k])
-            p1 = p0 * _nan_max(sum_odds[c] - odds[k], 0.0)
-            p1 = _nan_min(p1, 1.0 - p0)
-            factor = p0 * steps[c, 0] + p1 * steps[c, 1] + (1.0 - p0 - p1) * steps[c, 2]
-            new[rows[k], cols[k]] *= factor
-        for i in range(n):
-            tot = np_sum(new[i], n_opt)
-            for j in range(n_opt):
-                q[i, j] = (1.0 - damping) * q[i, j] + damping * (new[i, j] / tot)
-    return q
-
-
-@njit(cache=True, error_model="numpy")
-def _same_key(key, a, b):
-    for j in range(key.shape[1]):
-        if key[a, j] != key[b, j]:
-            return False
-    return True
-
-
-@njit(cache=True, error_model="numpy")
-def _better(log_post, a, b):
-    """Row ``a`` precedes row ``b`` in ``np.lexsort((index, -log_post))`` (NaN last)."""
-    x, y = -log_post[a], -log_post[b]
-    if x != x:
-        return y != y and a < b
-    if y != y or x < y:
-        return True
-    return x == y and a < b
-
-
-@njit(cache=True, error_model="numpy")
-def avoid_coalescence(cluster, choice, cell, detected, log_post):
-    """:func:`.grid.avoid_coalescence`: the same classes of combinations (rows of equal
-    key: cluster, the choices of the members that took no detected cell, the sorted
-    detected cells taken), found by a hash of each key and an exact comparison within
-    equal hashes instead of numpy's sort of the keys' rows; in each class the row first
-    in ``np.lexsort((index, -log_post))`` keeps its value. Only that choice reaches the
-    output, so the result is numpy's exactly."""
-    C, S = choice.shape
-    key = np.empty((C, 1 + 2 * S), np.int64)
-    taken = np.empty(S, np.int64)
-    h = np.empty(C, np.uint64)
-    for r in range(C):
-        key[r, 0] = cluster[r]
-        for j in range(S):
-            took = cell[r, j] >= 0 and detected[cell[r, j]]
-            key[r, 1 + j] = -1 if took else choice[r, j]
-            taken[j] = cell[r, j] if took else -1
-        taken.sort()
-        for j in range(S):
-            key[r, 1 + S + j] = taken[j]
-        v = np.uint64(14695981039346656037)
-        for j in range(1 + 2 * S):
-            v = (v ^ np.uint64(key[r, j] & 0xFFFFFFFFFFFF)) * np.uint64(1099511628211)
-        h[r] = v
-    order = np.argsort(h, kind="mergesort")
-    out = np.full(C, -np.inf)
-    best = np.empty(C, np.int64)  # per class in the current run of equal hashes
-    reps = np.empty(C, np.int64)
-    start = 0
-    while start < C:
-        stop = start + 1
-        while stop < C and h[order[stop]] == h[order[start]]:
-            stop += 1
-        n_cls = 0
-        for q in range(start, stop):
-            r = order[q]
-            k = 0
-            while k < n_cls and not _same_key(key, reps[k], r):
-                k += 1
-            if k == n_cls:
-                reps[k], best[k] = r, r
-                n_cls += 1
-            elif _better(log_post, r, best[k]):
-                best[k] = r
-        for k in range(n_cls):
-            out[best[k]] = log_post[best[k]]
-        start = stop
-    return out
-
-
-@njit(cache=True, error_model="numpy")
 def prune_tracks(w, own, a, m, P, tid, threshold):
     """The tracks with ``w >= threshold`` (NaN goes), their rows, owners renumbered."""
     T, R = len(w), len(own)
@@ -864,12 +748,142 @@ def near_walls(m, P, range_sigmas, width, height):
     return out[:n]
 
 
+@njit(cache=True, error_model="numpy")
+def _axis_mass(mean, sd, length, shift_unit, ix):
+    """Image ``ix`` of one axis (:func:`.grid._axis_images`): its sign, shift and mass
+    inside ``[0, length)``."""
+    sign = 1.0 if ix < 3 else -1.0
+    shift = shift_unit * (ix % 3 - 1.0)
+    mu = sign * mean + shift
+    return sign, shift, _ndtr((length - mu) / sd, 0) - _ndtr(-mu / sd, 0)
+
+
+@njit(cache=True, error_model="numpy")
+def reflection_images(m, P, width, height, mass_floor, range_sigmas):
+    """:func:`.grid.reflection_images` (images ``owner``, ``means``, ``covs`` in its
+    order: by Gaussian, then x image, then y image) and the images whose
+    ``range_sigmas`` box reaches beyond the workspace (``known_existence_update``'s
+    ``edge``)."""
+    K = m.shape[0]
+    keep = np.zeros((K, 6, 6), np.bool_)
+    sgn = np.empty((K, 2, 6))
+    shf = np.empty((K, 2, 6))
+    J = 0
+    for k in range(K):
+        mass = np.empty((2, 6))
+        for a, (col, length) in enumerate(((0, width), (2, height))):
+            sd = _nan_max(np.sqrt(_nan_max(P[k, col, col], 0.0)), 1e-300)
+            for ix in range(6):
+                sgn[k, a, ix], shf[k, a, ix], mass[a, ix] = _axis_mass(
+                    m[k, col], sd, length, 2.0 * length, ix)
+        for ix in range(6):
+            for iy in range(6):
+                keep[k, ix, iy] = mass[0, ix] * mass[1, iy] > mass_floor or (ix == 1 and iy == 1)
+                J += keep[k, ix, iy]
+    owner = np.empty(J, np.int64)
+    cm = np.empty((J, 4))
+    cP = np.empty((J, 4, 4))
+    edge = np.empty(J, np.int64)
+    sg = np.empty(4)
+    j, n_e = 0, 0
+    for k in range(K):
+        for ix in range(6):
+            for iy in range(6):
+                if not keep[k, ix, iy]:
+                    continue
+                owner[j] = k
+                sg[0] = sg[1] = sgn[k, 0, ix]
+                sg[2] = sg[3] = sgn[k, 1, iy]
+                cm[j, 0] = sg[0] * m[k, 0] + shf[k, 0, ix]
+                cm[j, 1] = sg[1] * m[k, 1] + 0.0
+                cm[j, 2] = sg[2] * m[k, 2] + shf[k, 1, iy]
+                cm[j, 3] = sg[3] * m[k, 3] + 0.0
+                for a in range(4):
+                    for b in range(4):
+                        cP[j, a, b] = sg[a] * P[k, a, b] * sg[b]
+                sx = np.sqrt(_nan_max(cP[j, 0, 0], 0.0))
+                sy = np.sqrt(_nan_max(cP[j, 2, 2], 0.0))
+                if (cm[j, 0] - range_sigmas * sx < 0 or cm[j, 0] + range_sigmas * sx > width
+                        or cm[j, 2] - range_sigmas * sy < 0
+                        or cm[j, 2] + range_sigmas * sy > height):
+                    edge[n_e] = j
+                    n_e += 1
+                j += 1
+    return owner, cm, cP, edge[:n_e]
+
+
+@njit(cache=True, error_model="numpy")
+def fold_moments(m, P, owner, cm, cP, edge, B, resid, width, height, x_top, y_top, tiny,
+                 bounds, n_nodes, first, nodes, weights):
+    """:func:`.grid.known_existence_update` without looks, ``workspace="reflect"``, after
+    its images (:func:`reflection_images`) and the regression of the wall-reaching ones
+    (``B``, ``resid``): each image's mass and moments in the workspace (1, 0 and its
+    covariance away from the walls), summed per Gaussian in image order and moment
+    matched; a Gaussian with no mass left keeps its prior, the position clipped to
+    ``[0, x_top]``, ``[0, y_top]`` (the largest doubles below the width and height)."""
+    K, J = m.shape[0], len(owner)
+    n_e = len(edge)
+    em = np.empty((n_e, 4))
+    eP = np.empty((n_e, 4, 4))
+    for q in range(n_e):
+        em[q] = cm[edge[q]]
+        eP[q] = cP[edge[q]]
+    zeros = np.zeros(n_e)
+    mass_e, M1_e, M2_e = state_moments(em, eP, np.arange(n_e), zeros, np.full(n_e, width),
+                                       zeros, np.full(n_e, height), B, resid, bounds,
+                                       n_nodes, first, nodes, weights)
+    Zc = np.ones(J)
+    S1 = np.zeros((J, 4))
+    S2 = cP.copy()
+    for q in range(n_e):
+        Zc[edge[q]] = mass_e[q]
+        S1[edge[q]] = M1_e[q]
+        S2[edge[q]] = M2_e[q]
+    # (the numpy form's weights exp(-top) are exactly 1 without looks)
+    Z = np.zeros(K)
+    raw1 = np.zeros((K, 4))
+    for j in range(J):
+        Z[owner[j]] += Zc[j]
+        for a in range(4):
+            raw1[owner[j], a] += Zc[j] * cm[j, a] + S1[j, a]
+    mean = np.empty((K, 4))
+    for k in range(K):
+        for a in range(4):
+            mean[k, a] = raw1[k, a] / Z[k] if Z[k] > tiny else m[k, a]
+    S = np.zeros((K, 4, 4))
+    delta = np.empty(4)
+    for j in range(J):
+        k = owner[j]
+        for a in range(4):
+            delta[a] = cm[j, a] - mean[k, a]
+        for a in range(4):
+            for b in range(4):
+                S[k, a, b] += (((S2[j, a, b] + S1[j, a] * delta[b]) + delta[a] * S1[j, b])
+                               + Zc[j] * delta[a] * delta[b])
+    means, covs = m.copy(), P.copy()
+    for k in range(K):
+        if Z[k] > tiny:
+            means[k] = mean[k]
+            for a in range(4):
+                for b in range(4):
+                    covs[k, a, b] = 0.5 * (S[k, a, b] / Z[k] + S[k, b, a] / Z[k])
+        else:
+            # np.clip: np.maximum then np.minimum (NaN stays, -0.0 at 0.0 stays -0.0)
+            means[k, 0] = _nan_min(_nan_max(m[k, 0], 0.0), x_top)
+            means[k, 2] = _nan_min(_nan_max(m[k, 2], 0.0), y_top)
+    return means, covs
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) every kernel the GPF calls, on tiny inputs of
     the argument types it passes (about 50 s of CPU the first time after an edit, 0.2 s
     from the cache; docs/speed.md). Cheap after the first time in a process."""
     if getattr(warm_up, "done", False):
         return
+    # the kernels these call first (with a caller's cache older than its callee's, a
+    # callee first loaded inside its caller returned arrays without their dtype)
+    step_kernels.warm_up()
+    cluster_kernels.warm_up()
     f, i, b = np.ones(1), np.zeros(1, np.int64), np.zeros(1, np.bool_)
     m, P = np.zeros((1, 4)), np.eye(4)[None]
     # pairs_and_singletons is compiled into grid_update_packed (alone: tests only);
@@ -888,12 +902,11 @@ def warm_up() -> None:
     position_inverse(P2)
     prune_tracks(w2, own2, a2, m2, P2, own2, 1e-3)
     rows_by_track(own2, a2, m2, P2)
-    avoid_coalescence(i, np.zeros((1, 2), np.int64), np.zeros((1, 2), np.int64),
-                      np.ones(1, np.bool_), np.zeros(1))
-    option_beliefs(np.full((2, 3), 1.0 / 3.0), np.array([[-1, -1, 0], [-1, -1, 0]]),
-                   np.zeros((1, 3)), 20, 0.5, 1e-12)
     near_walls(m2, P2, 6.0, 1.0, 1.0)
+    owner, cm, cP, edge = reflection_images(m2, P2, 1.0, 1.0, 1e-9, 6.0)
+    fold_moments(m2, P2, owner, cm, cP, edge, np.zeros((len(edge), 2, 2)),
+                 np.zeros((len(edge), 2, 2)), 1.0, 1.0, 0.99, 0.99, 1e-300,
+                 np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2))
     state_moments(m2, P2, i, f, f + 1.0, f, f + 1.0, np.zeros((2, 2, 2)), np.zeros((2, 2, 2)),
                   np.array([np.inf]), np.array([2], np.int64), i, np.zeros(2), np.ones(2))
-    step_kernels.warm_up()
     warm_up.done = True
