@@ -32,6 +32,7 @@ from ..numba_exact import np_sum
 from ..numba_exact import search_left as _search
 from ..numba_exact import unique_inverse as _unique_inverse
 
+
 @njit(cache=True, error_model="numpy")
 def option_beliefs(option_probs, option_cell, LLc, iterations, damping, clip):
     """:func:`.grid._option_beliefs`: the damped fixed-point iteration, with each
