@@ -83,11 +83,21 @@ def run(mutants: list[dict], only: set[str], out_file: Path = OUT) -> None:
             f.write(json.dumps(row) + "\n")
 
 
-if __name__ == "__main__":
-    mutants = tomllib.loads(SAMPLE.read_text())["mutant"]
-    args = sys.argv[1:]
+def main(sample: Path, out_file: Path, args: list[str]) -> None:
+    """The command line of this runner and of the later samples' (theirs pass their own
+    sample and results file): ``--check``, or the NAMEs to run (all when none), with
+    ``--tests FILE ...`` after them in place of each mutant's listed files."""
+    mutants = tomllib.loads(sample.read_text())["mutant"]
     if args[:1] == ["--check"]:
         problems = check(mutants)
         print("\n".join(problems) or f"{len(mutants)} mutants: no problem")
         sys.exit(1 if problems else 0)
-    run(mutants, set(args))
+    if "--tests" in args:
+        i = args.index("--tests")
+        args, tests = args[:i], args[i + 1:]
+        mutants = [{**m, "tests": tests} for m in mutants]
+    run(mutants, set(args), out_file)
+
+
+if __name__ == "__main__":
+    main(SAMPLE, OUT, sys.argv[1:])

@@ -16,7 +16,6 @@ Usage: .venv/bin/python docs/mutation_heldout_6_run.py [--check] [NAME ...] [--t
 import importlib.util
 import os
 import sys
-import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,14 +29,4 @@ SAMPLE = ROOT / "docs" / "mutation_heldout_6.toml"
 OUT = Path(os.environ.get("HELDOUT6_RESULTS", "/tmp/heldout6_results.jsonl"))
 
 if __name__ == "__main__":
-    mutants = tomllib.loads(SAMPLE.read_text())["mutant"]
-    args = sys.argv[1:]
-    if args[:1] == ["--check"]:
-        problems = runner.check(mutants)
-        print("\n".join(problems) or f"{len(mutants)} mutants: no problem")
-        sys.exit(1 if problems else 0)
-    if "--tests" in args:
-        i = args.index("--tests")
-        args, tests = args[:i], args[i + 1:]
-        mutants = [{**m, "tests": tests} for m in mutants]
-    runner.run(mutants, set(args), OUT)
+    runner.main(SAMPLE, OUT, sys.argv[1:])
