@@ -30,6 +30,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..gpf import step_kernels
+from ..gpf.step_kernels import collapse as _collapse
 from ..gpf.update_kernels import state_moments
 from ..grid_kernels import looked_in_boxes
 from ..numba_exact import find_root as _find
@@ -389,32 +391,6 @@ def pmb_update(r, own, alpha, m, P, B, resid, U, L, M, S, positive, lam_meas, s,
 
 # ------------------------------------------------------------------ mixture bound
 @njit(cache=True, error_model="numpy")
-def _collapse(w, m, P, grp, n):
-    """:func:`.gpf.tracker.collapse`: per group, the moment match of its rows (weights
-    normalised within the group; sums in row order, ``np.add.at``'s)."""
-    tot = np.zeros(n)
-    for i in range(len(grp)):
-        tot[grp[i]] += w[i]
-    wn = np.empty(len(grp))
-    mean = np.zeros((n, 4))
-    for i in range(len(grp)):
-        g = grp[i]
-        wn[i] = w[i] / (tot[g] if tot[g] > 0.0 else 1.0)
-        for a in range(4):
-            mean[g, a] += wn[i] * m[i, a]
-    cov = np.zeros((n, 4, 4))
-    dev = np.empty(4)
-    for i in range(len(grp)):
-        g = grp[i]
-        for a in range(4):
-            dev[a] = m[i, a] - mean[g, a]
-        for a in range(4):
-            for b in range(4):
-                cov[g, a, b] += wn[i] * (P[i, a, b] + dev[a] * dev[b])
-    return mean, cov
-
-
-@njit(cache=True, error_model="numpy")
 def _before(own, neg_a, i, j):
     """Row ``i`` precedes row ``j`` in ``np.lexsort((neg_a, own))`` (NaN last)."""
     if own[i] != own[j]:
@@ -675,6 +651,7 @@ def warm_up() -> None:
     in a process."""
     if getattr(warm_up, "done", False):
         return
+    step_kernels.warm_up()  # the GPF's kernels these call first (as the GPF's warm_up does)
     f, i, b = np.ones(1), np.zeros(1, np.int64), np.ones(1, np.bool_)
     m, P = np.zeros((1, 4)) + 0.5, np.eye(4)[None]
     zero22 = np.zeros((1, 2, 2))
