@@ -276,9 +276,9 @@ def assert_timed_out(out: pd.DataFrame, tracker: str) -> None:
 def test_a_hung_run_gets_its_error_row_on_dask(dask_two, tmp_path):
     """--run-timeout on Dask: a run on its worker for longer than the limit is cancelled
     and its worker restarted; it gets its error row (no retry), the others finish, and the
-    cluster has its workers again for the next sweep. On the module's cluster (two workers,
-    as a cluster of its own here would be: its start is the costliest part of the test);
-    the restart leaves it two workers, which the check below and the next tests use."""
+    cluster has its workers again for the next sweep. On the module's cluster (two
+    workers, as the cluster of its own that it started before: that start was most of
+    the test's time); the restart is one more of that cluster's, as the kill test's."""
     jobs = jobs_of(short("default", 6), [("faulty_tracker:Hang", [0]), ("null", [0, 1])])
     # the limit: far above what a null run takes on a loaded machine (a hang exceeds any
     # limit), so that it decides nothing for them
