@@ -273,22 +273,22 @@ def assert_timed_out(out: pd.DataFrame, tracker: str) -> None:
     assert "timed out" in rows["error"].iloc[0] and "--run-timeout" in rows["error"].iloc[0]
 
 
-def test_a_hung_run_gets_its_error_row_on_dask(tmp_path):
+def test_a_hung_run_gets_its_error_row_on_dask(dask_two, tmp_path):
     """--run-timeout on Dask: a run on its worker for longer than the limit is cancelled
     and its worker restarted; it gets its error row (no retry), the others finish, and the
-    cluster has its workers again for the next sweep."""
-    pytest.importorskip("distributed", reason="distributed is not installed (mttbench[dask])")
+    cluster has its workers again for the next sweep. On the module's cluster (two
+    workers, as the cluster of its own that it started before: that start was most of
+    the test's time); the restart is one more of that cluster's, as the kill test's."""
     jobs = jobs_of(short("default", 6), [("faulty_tracker:Hang", [0]), ("null", [0, 1])])
-    with DaskExecutor(workers=2) as executor:
-        # the limit: far above what a null run takes on a loaded machine (a hang exceeds
-        # any limit), so that it decides nothing for them
-        out = run_sweep(jobs, tmp_path / "out", executor=executor, run_timeout=HANG_LIMIT_S)
-        assert_timed_out(out, "faulty_tracker:Hang")
-        assert (out[out["tracker"] == "null"]["status"] == "ok").all(), list(out["error"])
-        # the restarted worker imports everything again on its first run: the limit here
-        # only needs to let the cluster show it has its workers back
-        again = run_sweep(jobs[1:], tmp_path / "again", executor=executor, run_timeout=60.0)
-        assert (again["status"] == "ok").all()
+    # the limit: far above what a null run takes on a loaded machine (a hang exceeds any
+    # limit), so that it decides nothing for them
+    out = run_sweep(jobs, tmp_path / "out", executor=dask_two, run_timeout=HANG_LIMIT_S)
+    assert_timed_out(out, "faulty_tracker:Hang")
+    assert (out[out["tracker"] == "null"]["status"] == "ok").all(), list(out["error"])
+    # the restarted worker imports everything again on its first run: the limit here
+    # only needs to let the cluster show it has its workers back
+    again = run_sweep(jobs[1:], tmp_path / "again", executor=dask_two, run_timeout=60.0)
+    assert (again["status"] == "ok").all()
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="libc's sleep through ctypes")
