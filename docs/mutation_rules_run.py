@@ -1,0 +1,207 @@
+"""Apply a list of one-line slips (a TOML of ``[[mutant]]`` tables) one at a time to the
+checkout, run each slip's listed tests, restore the file, and print caught / missed.
+
+Each ``[[mutant]]`` has ``name``, ``file`` (a path inside the checkout), ``original`` (text
+that must occur exactly once in the file), ``replacement`` and ``tests`` (a list of pytest
+arguments: files or node ids); any other key (``why``, ``note``, ``equivalent``) is kept
+for the reader and ignored here, except ``equivalent = "reason"``, which is only reported.
+
+For each selected slip the runner writes the file with ``original`` replaced, runs
+``nice -n 5 PYTHON -m pytest -x -q -p no:cacheprovider TESTS`` from the checkout's root
+under a timeout, then restores the file with ``git checkout -- FILE`` (so a slip's file
+must have no uncommitted change: the runner refuses it otherwise). A slip is *caught* when
+pytest exits non-zero (a failure or an error: a slip that breaks the import counts, as it
+would in any run of the suite), *missed* when it exits 0, *timeout* past the limit.
+
+The checkout is the git top level of the current directory (``--root`` to name another),
+never the folder this script lives in, so another worktree can run it on its own files.
+PYTHON is the checkout's ``.venv/bin/python`` when it exists, else this interpreter.
+
+Usage (from the checkout's root)::
+
+    .venv/bin/python docs/mutation_rules_run.py SAMPLE.toml [NAME ...]
+        [--check] [--tests ARG ...] [--timeout S] [--results FILE.jsonl] [--root DIR]
+
+    NAME ...        run only these slips, in this order (default: all; a name ending in
+                    ``*`` is a prefix)
+    --check         only check the sample (each original once in its file, unique names,
+                    replacement differs, the listed test files exist); run nothing
+    --tests ...     run these pytest arguments instead of each slip's own (all the rest of
+                    the command line), e.g. the new tests for the misses
+    --timeout S     seconds per slip (default 600)
+    --results F     also append one JSON line per slip to F
+
+Prints one line per slip (``caught``/``missed``/``timeout``, seconds, the first failing
+test), then a summary: ``caught N of M`` and the names missed. Exit status 0 always after a
+run (a missed slip is a finding, not an error); 1 when ``--check`` finds a problem.
+
+Other modules can ``import`` it (``importlib`` from its path) and call ``load``,
+``check`` and ``run``."""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+
+def git_root(start: Path) -> Path:
+    """The git top level of ``start`` (a worktree's own root)."""
+    out = subprocess.run(["git", "rev-parse", "--show-toplevel"], cwd=start,
+                         capture_output=True, text=True, check=True)
+    return Path(out.stdout.strip())
+
+
+def load(sample: Path) -> list[dict]:
+    """The ``[[mutant]]`` tables of a sample TOML."""
+    return tomllib.loads(Path(sample).read_text())["mutant"]
+
+
+def select(mutants: list[dict], names: list[str]) -> list[dict]:
+    """The slips named (``x*`` a prefix), in the order named (a prefix's matches in the
+    sample's order); all, in the sample's order, when none named. An unknown name is an
+    error (a typo would otherwise run nothing silently)."""
+    if not names:
+        return list(mutants)
+    chosen: list[dict] = []
+    for n in names:
+        hit = [m for m in mutants
+               if (m["name"].startswith(n[:-1]) if n.endswith("*") else m["name"] == n)]
+        if not hit:
+            raise SystemExit(f"no slip named {n!r} in the sample")
+        chosen += [m for m in hit if m not in chosen]
+    return chosen
+
+
+def check(mutants: list[dict], root: Path) -> list[str]:
+    """The sample's problems (empty list: none)."""
+    problems = []
+    names = [m.get("name", "?") for m in mutants]
+    for n in sorted({n for n in names if names.count(n) > 1}):
+        problems.append(f"{n}: name repeated")
+    for m in mutants:
+        missing = [k for k in ("name", "file", "original", "replacement", "tests")
+                   if k not in m]
+        if missing:
+            problems.append(f"{m.get('name', '?')}: missing {', '.join(missing)}")
+            continue
+        path = root / m["file"]
+        if not path.is_file():
+            problems.append(f"{m['name']}: no file {m['file']}")
+            continue
+        n = path.read_text().count(m["original"])
+        if n != 1:
+            problems.append(f"{m['name']}: original occurs {n} times in {m['file']}")
+        if m["original"] == m["replacement"]:
+            problems.append(f"{m['name']}: replacement equals original")
+        for t in m["tests"]:
+            f = t.split("::", 1)[0]
+            if not f.startswith("-") and not (root / f).exists():
+                problems.append(f"{m['name']}: no test file {f}")
+    return problems
+
+
+def _clean(root: Path, file: str) -> bool:
+    return subprocess.run(["git", "diff", "--quiet", "HEAD", "--", file],
+                          cwd=root).returncode == 0
+
+
+def run_one(m: dict, root: Path, python: str, timeout: float,
+            tests: list[str] | None = None) -> dict:
+    """Apply slip ``m``, run its tests (or ``tests``), restore the file; its result row."""
+    path = root / m["file"]
+    if not _clean(root, m["file"]):
+        raise SystemExit(f"{m['file']} has uncommitted changes: commit or stash them first "
+                         "(the runner restores it with git checkout)")
+    text = path.read_text()
+    if text.count(m["original"]) != 1:
+        return {"name": m["name"], "status": "bad", "s": 0.0, "first": "",
+                "tail": [f"original occurs {text.count(m['original'])} times"]}
+    args = tests if tests is not None else list(m["tests"])
+    env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
+    t0 = time.time()
+    try:
+        path.write_text(text.replace(m["original"], m["replacement"], 1))
+        try:
+            p = subprocess.run(["nice", "-n", "5", python, "-m", "pytest", "-x", "-q",
+                                "-p", "no:cacheprovider", *args],
+                               cwd=root, env=env, capture_output=True, text=True,
+                               timeout=timeout)
+            code, out = p.returncode, p.stdout + p.stderr
+        except subprocess.TimeoutExpired:
+            code, out = None, "timeout"
+    finally:
+        subprocess.run(["git", "checkout", "--", m["file"]], cwd=root, check=True)
+    failed = [ln.split()[1] for ln in out.splitlines()
+              if ln.startswith(("FAILED ", "ERROR ")) and len(ln.split()) > 1]
+    status = "timeout" if code is None else "missed" if code == 0 else "caught"
+    if code == 5:       # pytest: no tests collected; not a catch
+        status = "no-tests"
+    return {"name": m["name"], "file": m["file"], "status": status, "code": code,
+            "s": round(time.time() - t0, 1), "first": failed[0] if failed else "",
+            "equivalent": m.get("equivalent", ""),
+            "tail": out.strip().splitlines()[-3:]}
+
+
+def run(mutants: list[dict], root: Path, python: str, timeout: float = 600,
+        tests: list[str] | None = None, results: Path | None = None) -> list[dict]:
+    """Run each slip in turn; print a line each and return the rows."""
+    rows = []
+    for m in mutants:
+        row = run_one(m, root, python, timeout, tests)
+        rows.append(row)
+        eq = "  (marked equivalent)" if row["equivalent"] else ""
+        print(f"{row['status']:8} {row['s']:6.1f}s  {row['name']}  {row['first']}{eq}",
+              flush=True)
+        if row["status"] in ("no-tests", "bad"):
+            print("         " + " | ".join(row["tail"]), flush=True)
+        if results is not None:
+            with Path(results).open("a") as f:
+                f.write(json.dumps(row) + "\n")
+    return rows
+
+
+def summary(rows: list[dict]) -> str:
+    caught = [r for r in rows if r["status"] == "caught"]
+    missed = [r for r in rows if r["status"] == "missed"]
+    other = [r for r in rows if r["status"] not in ("caught", "missed")]
+    lines = [f"caught {len(caught)} of {len(rows)}; missed {len(missed)}"
+             + (f"; other {len(other)}" if other else "")]
+    if missed:
+        lines.append("missed: " + " ".join(r["name"] for r in missed))
+    if other:
+        lines.append("other: " + " ".join(f"{r['name']}({r['status']})" for r in other))
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("sample", type=Path)
+    ap.add_argument("names", nargs="*")
+    ap.add_argument("--check", action="store_true")
+    ap.add_argument("--timeout", type=float, default=600)
+    ap.add_argument("--results", type=Path)
+    ap.add_argument("--root", type=Path)
+    ap.add_argument("--tests", nargs=argparse.REMAINDER)
+    a = ap.parse_args(argv)
+    root = git_root(a.root or Path.cwd())
+    sample = a.sample if a.sample.is_absolute() else Path.cwd() / a.sample
+    mutants = load(sample)
+    if a.check:
+        problems = check(mutants, root)
+        print("\n".join(problems) or f"{len(mutants)} slips: no problem")
+        return 1 if problems else 0
+    chosen = select(mutants, a.names)
+    venv = root / ".venv" / "bin" / "python"
+    python = str(venv) if venv.exists() else sys.executable
+    rows = run(chosen, root, python, a.timeout, a.tests, a.results)
+    print(summary(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
