@@ -20,7 +20,8 @@ PYTHON is the checkout's ``.venv/bin/python`` when it exists, else this interpre
 Usage (from the checkout's root)::
 
     .venv/bin/python docs/mutation_rules_run.py SAMPLE.toml [NAME ...]
-        [--check] [--tests ARG ...] [--timeout S] [--results FILE.jsonl] [--root DIR]
+        [--check] [--timeout S] [--results FILE.jsonl] [--root DIR]
+        [--fork PREFIX [--preload MODULES]] [--tests ARG ...]
 
     NAME ...        run only these slips, in this order (default: all; a name ending in
                     ``*`` is a prefix)
@@ -30,16 +31,29 @@ Usage (from the checkout's root)::
                     the command line), e.g. the new tests for the misses
     --timeout S     seconds per slip (default 600)
     --results F     also append one JSON line per slip to F
+    --fork PREFIX   fast mode: this process imports pytest and the heavy libraries
+                    (numpy, pandas, scipy, matplotlib, optuna, and --preload) once, then
+                    runs each slip's pytest in a forked child that first forgets every
+                    module named PREFIX or below it (comma-separated prefixes, e.g.
+                    ``mttbench.benchmarks.app``), so the child imports the mutated file
+                    afresh; only for slips in files under PREFIX
+    --preload MODS  with --fork: more modules to import once (comma-separated), none of
+                    them importing a module under PREFIX
 
 Prints one line per slip (``caught``/``missed``/``timeout``, seconds, the first failing
 test), then a summary: ``caught N of M`` and the names missed. Exit status 0 always after a
 run (a missed slip is a finding, not an error); 1 when ``--check`` finds a problem.
+
+Each slip's cached bytecode (``__pycache__/<stem>.*.pyc``) is deleted before and after
+it runs: a mutant of the same size written within the second of the original's
+checkout would otherwise be served from the original's bytecode.
 
 Other modules can ``import`` it (``importlib`` from its path) and call ``load``,
 ``check`` and ``run``."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import subprocess
@@ -110,6 +124,102 @@ def _clean(root: Path, file: str) -> bool:
                           cwd=root).returncode == 0
 
 
+def _drop_pyc(path: Path) -> None:
+    for pyc in (path.parent / "__pycache__").glob(f"{path.stem}.*.pyc"):
+        pyc.unlink(missing_ok=True)
+
+
+def _pytest_args(args: list[str]) -> list[str]:
+    return ["-x", "-q", "-p", "no:cacheprovider", *args]
+
+
+def _run_subprocess(root: Path, python: str, args: list[str], timeout: float
+                    ) -> tuple[int | None, str]:
+    env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
+    try:
+        p = subprocess.run(["nice", "-n", "5", python, "-m", "pytest", *_pytest_args(args)],
+                           cwd=root, env=env, capture_output=True, text=True,
+                           timeout=timeout)
+        return p.returncode, p.stdout + p.stderr
+    except subprocess.TimeoutExpired:
+        return None, "timeout"
+
+
+#: module-name prefixes the forked child forgets (``--fork``); None: subprocess mode
+FORK_PREFIXES: list[str] | None = None
+
+
+def preload(extra: list[str]) -> None:
+    """``--fork``: import pytest, the heavy libraries and ``extra`` in this process."""
+    import importlib
+
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    sys.dont_write_bytecode = True
+    os.environ["PYTHONDONTWRITEBYTECODE"] = "1"
+    for name in ["pytest", "numpy", "pandas", "scipy.stats", "matplotlib",
+                 "matplotlib.figure", "pyarrow.parquet", "optuna", *extra]:
+        try:
+            importlib.import_module(name)
+        except ImportError:
+            pass
+
+
+def _forget(prefixes: list[str]) -> None:
+    """Remove every module named by a prefix or below it, and its parent's attribute."""
+    for name in [n for n in sys.modules
+                 if any(n == p or n.startswith(p + ".") for p in prefixes)]:
+        del sys.modules[name]
+        parent, _, child = name.rpartition(".")
+        if parent in sys.modules and hasattr(sys.modules[parent], child):
+            with contextlib.suppress(AttributeError):
+                delattr(sys.modules[parent], child)
+
+
+def _run_forked(root: Path, args: list[str], timeout: float) -> tuple[int | None, str]:
+    """pytest in a forked child (its own process group, output to a temporary file)."""
+    import signal
+    import tempfile
+
+    with tempfile.TemporaryFile(mode="w+") as out:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        pid = os.fork()
+        if pid == 0:  # the child: never returns
+            code = 3
+            try:
+                os.setsid()
+                os.nice(5)
+                os.dup2(out.fileno(), 1)
+                os.dup2(out.fileno(), 2)
+                os.chdir(root)
+                _forget(FORK_PREFIXES or [])
+                import pytest
+                code = int(pytest.main(_pytest_args(args)))
+            except BaseException:  # noqa: BLE001 - reported through the exit status
+                import traceback
+                traceback.print_exc()
+            finally:
+                sys.stdout.flush()
+                sys.stderr.flush()
+                os._exit(code)
+        t0 = time.time()
+        while True:
+            done, status = os.waitpid(pid, os.WNOHANG)
+            if done:
+                code = os.waitstatus_to_exitcode(status)
+                break
+            if time.time() - t0 > timeout:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(pid, signal.SIGKILL)
+                os.waitpid(pid, 0)
+                code = None
+                break
+            time.sleep(0.05)
+        out.seek(0)
+        text = out.read()
+    return code, "timeout" if code is None else text
+
+
 def run_one(m: dict, root: Path, python: str, timeout: float,
             tests: list[str] | None = None) -> dict:
     """Apply slip ``m``, run its tests (or ``tests``), restore the file; its result row."""
@@ -122,20 +232,17 @@ def run_one(m: dict, root: Path, python: str, timeout: float,
         return {"name": m["name"], "status": "bad", "s": 0.0, "first": "",
                 "tail": [f"original occurs {text.count(m['original'])} times"]}
     args = tests if tests is not None else list(m["tests"])
-    env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
     t0 = time.time()
     try:
         path.write_text(text.replace(m["original"], m["replacement"], 1))
-        try:
-            p = subprocess.run(["nice", "-n", "5", python, "-m", "pytest", "-x", "-q",
-                                "-p", "no:cacheprovider", *args],
-                               cwd=root, env=env, capture_output=True, text=True,
-                               timeout=timeout)
-            code, out = p.returncode, p.stdout + p.stderr
-        except subprocess.TimeoutExpired:
-            code, out = None, "timeout"
+        _drop_pyc(path)
+        if FORK_PREFIXES is not None:
+            code, out = _run_forked(root, args, timeout)
+        else:
+            code, out = _run_subprocess(root, python, args, timeout)
     finally:
         subprocess.run(["git", "checkout", "--", m["file"]], cwd=root, check=True)
+        _drop_pyc(path)
     failed = [ln.split()[1] for ln in out.splitlines()
               if ln.startswith(("FAILED ", "ERROR ")) and len(ln.split()) > 1]
     status = "timeout" if code is None else "missed" if code == 0 else "caught"
@@ -186,6 +293,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=600)
     ap.add_argument("--results", type=Path)
     ap.add_argument("--root", type=Path)
+    ap.add_argument("--fork", metavar="PREFIX")
+    ap.add_argument("--preload", default="")
     ap.add_argument("--tests", nargs=argparse.REMAINDER)
     a = ap.parse_args(argv)
     root = git_root(a.root or Path.cwd())
@@ -196,6 +305,12 @@ def main(argv: list[str] | None = None) -> int:
         print("\n".join(problems) or f"{len(mutants)} slips: no problem")
         return 1 if problems else 0
     chosen = select(mutants, a.names)
+    if a.fork:
+        global FORK_PREFIXES
+        FORK_PREFIXES = [p for p in a.fork.split(",") if p]
+        os.chdir(root)
+        sys.path.insert(0, str(root / "tests"))
+        preload([m for m in a.preload.split(",") if m])
     venv = root / ".venv" / "bin" / "python"
     python = str(venv) if venv.exists() else sys.executable
     rows = run(chosen, root, python, a.timeout, a.tests, a.results)
