@@ -39,6 +39,9 @@ Usage (from the checkout's root)::
                     afresh; only for slips in files under PREFIX
     --preload MODS  with --fork: more modules to import once (comma-separated), none of
                     them importing a module under PREFIX
+    --table B A     run nothing: print a Markdown table per file of the sample from two
+                    results files (B: the slips against their listed tests, A: against
+                    the new tests), the last row of each slip in each file counting
 
 Prints one line per slip (``caught``/``missed``/``timeout``, seconds, the first failing
 test), then a summary: ``caught N of M`` and the names missed. Exit status 0 always after a
@@ -285,6 +288,43 @@ def summary(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _last_rows(path: Path) -> dict[str, dict]:
+    rows: dict[str, dict] = {}
+    if Path(path).is_file():
+        for line in Path(path).read_text().splitlines():
+            if line.strip():
+                r = json.loads(line)
+                rows[r["name"]] = r
+    return rows
+
+
+def table(mutants: list[dict], before: Path, after: Path) -> str:
+    """Markdown: per file, each slip's result before and after, then per file the counts."""
+    b, a = _last_rows(before), _last_rows(after)
+    out, totals = [], []
+    files = list(dict.fromkeys(m["file"] for m in mutants))
+    for f in files:
+        ms = [m for m in mutants if m["file"] == f]
+        out += ["", f"#### `{f}`", "", "| slip | before (listed tests) | after (new tests) |",
+                "|---|---|---|"]
+        for m in ms:
+            rb = b.get(m["name"], {}).get("status", "not run")
+            ra = a.get(m["name"], {}).get("status", "not run")
+            eq = " (equivalent)" if m.get("equivalent") else ""
+            out.append(f"| {m['name']}{eq} | {rb} | {ra} |")
+        run_b = [m for m in ms if m["name"] in b]
+        totals.append((f, len(ms), sum(b[m["name"]]["status"] == "caught" for m in run_b),
+                       len(run_b), sum(a.get(m["name"], {}).get("status") == "caught"
+                                       for m in ms), sum(bool(m.get("equivalent")) for m in ms)))
+    head = ["| file | slips | caught before (of run) | caught after | equivalent |",
+            "|---|---:|---:|---:|---:|"]
+    head += [f"| `{f}` | {n} | {cb} of {rb} | {ca} | {eq} |" for f, n, cb, rb, ca, eq in totals]
+    n = sum(x[1] for x in totals)
+    head.append(f"| all | {n} | {sum(x[2] for x in totals)} of {sum(x[3] for x in totals)} | "
+                f"{sum(x[4] for x in totals)} | {sum(x[5] for x in totals)} |")
+    return "\n".join(head + out)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("sample", type=Path)
@@ -295,11 +335,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--root", type=Path)
     ap.add_argument("--fork", metavar="PREFIX")
     ap.add_argument("--preload", default="")
+    ap.add_argument("--table", nargs=2, type=Path, metavar=("BEFORE", "AFTER"))
     ap.add_argument("--tests", nargs=argparse.REMAINDER)
     a = ap.parse_args(argv)
     root = git_root(a.root or Path.cwd())
     sample = a.sample if a.sample.is_absolute() else Path.cwd() / a.sample
     mutants = load(sample)
+    if a.table:
+        print(table(mutants, *a.table))
+        return 0
     if a.check:
         problems = check(mutants, root)
         print("\n".join(problems) or f"{len(mutants)} slips: no problem")
