@@ -87,3 +87,12 @@ def test_a_usage_error_is_the_engines_config_error_and_exits_2(capsys):
     assert main(["run", "--scenarios", "default", "--trackers", "null", "--seeds", "0"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--seeds 0 is not allowed" in err[0]
+
+
+def test_c_to_the_p_is_checked_on_the_small_side_too():
+    """(1e-5) ** 50 = 1e-250 underflows below 1e-200; 1e5 ** 50 overflows above 1e200."""
+    with pytest.raises(UsageError, match="c \\*\\* p must stay"):
+        cli_common.check_common(_ns(c=1e-5, p=50.0))
+    with pytest.raises(UsageError, match="c \\*\\* p must stay"):
+        cli_common.check_common(_ns(c=1e5, p=50.0))
+    cli_common.check_common(_ns(c=1e-3, p=2.0))

@@ -56,13 +56,16 @@ def test_a_parameter_given_on_the_command_line_wins_over_the_file(tmp_path):
 
 
 def _steps(label: str, per_seed: dict[int, tuple[str, float]]) -> pd.DataFrame:
+    """Two steps per seed: the first ok with the value, the second with the status (a
+    failed run keeps the mean of its ok step, 50 here, so only its status drops it)."""
     rows = []
     for seed, (status, ospa) in per_seed.items():
-        rows.append({"scenario": "default", "tracker": "kfnn", "tracker_label": label,
-                     "policy_label": "raster", "looks_per_step": 24, "seed": seed,
-                     "step": 0, "status": status, "error": "" if status == "ok" else "x",
-                     "ospa": ospa, "tracker_wall_s": 1e-3, "tracker_cpu_s": 1e-3,
-                     "select_wall_s": 0.0, "peak_rss_mb": 1.0})
+        for step, st in enumerate(("ok", status)):
+            rows.append({"scenario": "default", "tracker": "kfnn", "tracker_label": label,
+                         "policy_label": "raster", "looks_per_step": 24, "seed": seed,
+                         "step": step, "status": st, "error": "" if st == "ok" else "x",
+                         "ospa": ospa, "tracker_wall_s": 1e-3, "tracker_cpu_s": 1e-3,
+                         "select_wall_s": 0.0, "peak_rss_mb": 1.0})
     return pd.DataFrame(rows)
 
 
