@@ -299,7 +299,8 @@ def _last_rows(path: Path) -> dict[str, dict]:
 
 
 def table(mutants: list[dict], before: Path, after: Path) -> str:
-    """Markdown: per file, each slip's result before and after, then per file the counts."""
+    """Markdown: per file the counts (equivalent slips apart: neither before nor after
+    counts them), then per file each slip's result before and after."""
     b, a = _last_rows(before), _last_rows(after)
     out, totals = [], []
     files = list(dict.fromkeys(m["file"] for m in mutants))
@@ -312,11 +313,12 @@ def table(mutants: list[dict], before: Path, after: Path) -> str:
             ra = a.get(m["name"], {}).get("status", "not run")
             eq = " (equivalent)" if m.get("equivalent") else ""
             out.append(f"| {m['name']}{eq} | {rb} | {ra} |")
-        run_b = [m for m in ms if m["name"] in b]
+        real = [m for m in ms if not m.get("equivalent")]
+        run_b = [m for m in real if m["name"] in b]
         totals.append((f, len(ms), sum(b[m["name"]]["status"] == "caught" for m in run_b),
                        len(run_b), sum(a.get(m["name"], {}).get("status") == "caught"
-                                       for m in ms), sum(bool(m.get("equivalent")) for m in ms)))
-    head = ["| file | slips | caught before (of run) | caught after | equivalent |",
+                                       for m in real), len(ms) - len(real)))
+    head = ["| file | slips | caught before (of those run) | caught after | equivalent |",
             "|---|---:|---:|---:|---:|"]
     head += [f"| `{f}` | {n} | {cb} of {rb} | {ca} | {eq} |" for f, n, cb, rb, ca, eq in totals]
     n = sum(x[1] for x in totals)
