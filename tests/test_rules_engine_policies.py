@@ -196,3 +196,11 @@ def test_search_tracks_own_field_values_and_memory():
         assert st._own.at(np.array([c]))[0] == pytest.approx(want)
     terms = SearchTrack.resource_terms({}, model, 1)
     assert terms.state_bytes == 2 * 16 * 4  # two fields over the 4 cells
+
+
+def test_the_lookahead_declares_its_visibility_lists():
+    # H lists of at most each occlusion's area (3 x 2 and 1 x 1 cells), 16 bytes a cell
+    model = _model(nx=6, ny=2, occlusions=[Occlusion((0, 2), (0, 1), (0, 3)),
+                                           Occlusion((5, 5), (1, 1), (2, 4))])
+    terms = Lookahead.resource_terms({"horizon": 3}, model, 2)
+    assert terms.state_bytes == 16.0 * 3 * 7 and terms.looks == 2.0
