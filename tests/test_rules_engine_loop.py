@@ -32,6 +32,18 @@ class FailFirst(crashing_tracker._Nothing):
         raise ValueError("first line\nsecond line")
 
 
+class LateLabels(crashing_tracker._Nothing):
+    """One state on the first target's start; labels only from step 2 on."""
+
+    name = "late-labels"
+    summary = "test tracker: labels from step 2"
+    parameters: ClassVar[dict] = {}
+
+    def estimate(self):
+        states = np.array([[2.5, 0.0, 3.5, 0.0]])
+        return Estimate(1, states, labels=np.array([1]) if self._k >= 2 else None)
+
+
 @pytest.fixture
 def sc():
     return dataclasses.replace(get_scenario("single-clean"), n_steps=3)
@@ -104,3 +116,11 @@ def test_a_run_failing_at_its_first_step_has_its_error_row_there(sc):
     assert (row["step"], row["status"]) == (0, "error")
     assert row["error"] == "ValueError: first line second line"
     assert row["true_count"] == 1.0  # single-clean's one target at step 0
+
+
+def test_a_run_unlabelled_at_some_step_keeps_only_the_scores_that_need_no_labels(sc):
+    rows = run_job(Job(sc, TrackerSpec(f"{__name__}:LateLabels")))
+    assert rows["status"].tolist() == ["ok"] * 3
+    assert rows["tgospa"].isna().all() and rows["id_switches"].isna().all()
+    # one target: no crossing, a number on every row (needs no labels)
+    assert rows["crossings"].tolist() == [0.0] * 3
