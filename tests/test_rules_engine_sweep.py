@@ -31,7 +31,7 @@ class InProcess(Executor):
     def run(self, todo, work):
         self.timeouts.append(work.timeout)
         for i, (job, part) in enumerate(todo):
-            self.sizes.append(len(job))
+            self.sizes.append(len(job) if hasattr(job, "__len__") else 1)
             if self.lose_above is not None and len(job) > self.lose_above:
                 yield i, "worker failed: lost"
                 continue
@@ -86,3 +86,16 @@ def test_a_dataset_run_lost_for_good_is_in_the_runs_table_as_an_error(jobs, tmp_
                            store="dataset", runs_per_batch=1)
     assert runs["status"].tolist() == ["error"]
     assert runs["error"].tolist() == ["worker failed: lost"]
+
+
+def test_a_resumed_part_holding_another_runs_rows_is_run_again(jobs, tmp_path, capsys):
+    ex = InProcess()
+    sweep.run_sweep(jobs[:2], tmp_path, executor=ex)
+    parts = [tmp_path / "parts" / f"{j.key(None, 2.0)}.parquet" for j in jobs[:2]]
+    parts[0].write_bytes(parts[1].read_bytes())  # job 0's part now holds job 1's rows
+    ex.sizes.clear()
+    df = sweep.run_sweep(jobs[:2], tmp_path, executor=ex, resume=True)
+    assert len(ex.sizes) == 1  # job 0 only, run again
+    assert sorted(set(zip(df["seed"], df["step"], strict=True))) == [
+        (s, k) for s in (0, 1) for k in range(3)]
+    assert "1 damaged part file(s) will be recomputed" in capsys.readouterr().err
