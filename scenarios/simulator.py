@@ -50,7 +50,8 @@ def tracker_seed(scenario_name: str, seed: int, identity: str) -> np.random.Seed
     identity). The harness passes the canonical configuration
     (:meth:`mttbench.trackers.params.Configurable.canonical_config`: kind, implementation,
     every resolved parameter), so equal configurations draw equal numbers; the identity
-    enters as a 128-bit SHA-256 prefix (no practical collision between configurations)."""
+    enters as a 128-bit SHA-256 prefix read little-endian (no practical collision between
+    configurations; stored references depend on every detail of this derivation)."""
     key = int.from_bytes(hashlib.sha256(identity.encode("utf-8")).digest()[:16], "little")
     return np.random.SeedSequence(seed, spawn_key=(stable_hash(scenario_name), TRACKER_TAG, key))
 
