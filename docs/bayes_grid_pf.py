@@ -21,15 +21,8 @@ import numpy as np
 
 from mttbench import scenarios
 from mttbench.benchmarks.engine.loop import play
+from mttbench.scenarios.simulator import _reflect as fold  # the truth's own wall rule
 from mttbench.trackers.grid_bayes import GridBayesTracker
-
-
-def fold(pos: np.ndarray, vel: np.ndarray, length: float) -> None:
-    folded = np.mod(pos, 2.0 * length)
-    bounced = folded >= length
-    pos[:] = np.minimum(np.where(bounced, 2.0 * length - folded, folded),
-                        np.nextafter(length, 0.0))
-    vel[:] = np.where(bounced, -vel, vel)
 
 
 def particle_existence(sc, looks_per_step, n: int, seed: int = 0) -> tuple[list, list]:

@@ -24,8 +24,9 @@ targets' posteriors overlap, and no reference.
 The single-target filters: ``grid-bayes`` (exact on its grid, but its linear split adds up
 to ``h^2 / 4`` variance per step: on a scene with little process noise it is the filter of
 a noisier model) and a bootstrap particle filter that samples the model exactly as the
-simulator moves the truth (``docs/bayes_grid_pf.py``'s, vectorised over the looks: each
-particle weighted by ``Lambda`` of its cell; systematic resampling every step).
+simulator moves the truth (its own wall rule; ``docs/bayes_grid_pf.py``'s filter,
+vectorised over the looks: each particle weighted by ``Lambda`` of its cell; systematic
+resampling every step).
 
 Estimate: per target, reported iff its existence is at least 0.5 (``grid-bayes``'s rule),
 at the posterior mean given existence (``mean``) or (``cut``, particle filter only) at the
@@ -37,26 +38,22 @@ scored on 4,096 others), which OSPA favours over the mean where a posterior is w
 from __future__ import annotations
 
 import dataclasses
-import json
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
-import pandas as pd
 from scipy import stats
 
 from mttbench import scenarios
-from mttbench.benchmarks.app.bayes import default_store
+from mttbench.benchmarks.app import bayes
 from mttbench.benchmarks.engine.loop import play
 from mttbench.benchmarks.engine.metrics import ospa
+from mttbench.benchmarks.engine.specs import PolicySpec
+from mttbench.scenarios.simulator import _reflect as fold  # the truth's own wall rule
 from mttbench.trackers.base import Estimate, Tracker
 from mttbench.trackers.grid_bayes import GridBayesTracker
 from mttbench.trackers.jmpd.resampling import systematic_resample
 from mttbench.trackers.params import Param
-
-sys.path.insert(0, str(Path(__file__).parent))
-from bayes_grid_pf import fold  # noqa: E402  (the simulator's wall rule, docs/)
 
 
 class GridProduct(Tracker):
@@ -215,15 +212,6 @@ def parse_seeds(text: str) -> list[int]:
     return [int(t) for t in text.split(",")]
 
 
-def stored_reference(name: str) -> tuple[pd.DataFrame, dict]:
-    """The stored `bayes` rows and provenance of scenario ``name`` (one file per name)."""
-    store = Path(default_store())
-    (meta_path,) = sorted(store.glob(f"{name}-*.json"))
-    meta = json.loads(meta_path.read_text())
-    rows = pd.read_parquet(meta_path.with_suffix(".parquet"))
-    return rows, meta
-
-
 def main(argv: list[str]) -> int:
     if len(argv) < 2:
         print(__doc__.strip().splitlines()[4], file=sys.stderr)
@@ -231,7 +219,11 @@ def main(argv: list[str]) -> int:
     name, seeds = argv[0], parse_seeds(argv[1])
     method = argv[2] if len(argv) > 2 else "grid:1"
     sc = scenarios.get(name)
-    rows, meta = stored_reference(name)
+    ref = bayes.find(sc, PolicySpec.parse("raster"), None, seeds)
+    if ref is None:
+        raise SystemExit(f"no stored bayes reference of {name} (raster, its own looks) holds "
+                         f"seeds {argv[1]}")
+    rows, meta = ref.rows, ref.provenance
     c, p = meta["ospa_c"], meta["ospa_p"]
     per_seed, shared_steps = [], 0
     for seed in seeds:
