@@ -82,3 +82,107 @@ def test_after_warm_up_no_module_is_cold(monkeypatch):
 def test_a_listed_module_that_does_not_exist_is_an_error(missing):
     with pytest.raises(ModuleNotFoundError):
         compiled.cold_modules((missing,))
+
+
+KERNELS_SOURCE = """
+from numba import njit
+
+
+@njit(cache=True)
+def double(x):
+    return 2.0 * x
+
+
+@njit(cache=True)
+def triple(x):
+    return 3.0 * x
+
+
+@njit(cache=True, inline="always")
+def inlined(x):
+    return x + 1.0
+
+
+@njit
+def uncached(x):
+    return x - 1.0
+
+
+def warm_up():
+    double(1.0)
+    triple(1.0)
+"""
+
+
+def _kernel_module(tmp_path, monkeypatch):
+    monkeypatch.delenv("MTTBENCH_NO_NUMBA", raising=False)
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    pkg, name = _fake_module(tmp_path, monkeypatch)
+    (pkg / "kern.py").write_text(KERNELS_SOURCE)
+    return pkg, name
+
+
+def test_loads_without_compiling_only_when_every_cached_kernel_is_in_the_cache(tmp_path,
+                                                                              monkeypatch):
+    """Numba's own cache lookup decides: no index, one kernel of two compiled, or a source
+    edited after the compile (a stale stamp) all mean a load would compile."""
+    pkg, name = _kernel_module(tmp_path, monkeypatch)
+    assert not compiled.loads_without_compiling(name, also=())
+    module = importlib.import_module(name)
+    module.double(1.0)  # one of the two cached kernels compiled and written to the cache
+    assert not compiled.loads_without_compiling(name, also=())
+    module.triple(1.0)  # both: the inlined one and the uncached one do not count
+    assert compiled.loads_without_compiling(name, also=())
+    assert not compiled.cold_modules((name,))
+    # the same source again (a new process would see the same stamp): still in the cache
+    importlib.reload(module)
+    assert compiled.loads_without_compiling(name, also=())
+    # an edit after the compile: numba's stamp no longer matches, so every kernel recompiles
+    (pkg / "kern.py").write_text(KERNELS_SOURCE + "\n# edited\n")
+    importlib.reload(module)
+    assert not compiled.loads_without_compiling(name, also=())
+    module.warm_up()
+    assert compiled.loads_without_compiling(name, also=())
+    # the modules of ``also`` loaded in the process count too
+    second = tmp_path / f"{tmp_path.name}_second"
+    second.mkdir()
+    other_pkg, other = _fake_module(second, monkeypatch, name="other")
+    (other_pkg / "other.py").write_text(KERNELS_SOURCE)
+    importlib.import_module(other)
+    assert not compiled.loads_without_compiling(name, also=(other,))
+    assert compiled.loads_without_compiling(name, also=(other + "_not_loaded",))
+
+
+def test_loads_without_compiling_is_false_without_numba(tmp_path, monkeypatch):
+    _, name = _kernel_module(tmp_path, monkeypatch)
+    importlib.import_module(name).warm_up()
+    assert compiled.loads_without_compiling(name, also=())
+    monkeypatch.setenv("MTTBENCH_NO_NUMBA", "1")
+    assert not compiled.loads_without_compiling(name, also=())
+
+
+def test_background_kernels_start_no_child_when_the_cache_holds_them(tmp_path, monkeypatch):
+    """A warm cache is loaded in this process (the child's imports cost seconds of CPU in
+    every process that runs the GPF or pmb); a cold one is compiled by a child first."""
+    from mttbench.trackers import grid_backend
+
+    if grid_backend.compiled_grid_kernels() is None:
+        pytest.skip("the compiled backend is off")
+    _, name = _kernel_module(tmp_path, monkeypatch)
+    children = []
+
+    def child(args, **kwargs):
+        children.append(args)
+        importlib.import_module(name).warm_up()  # what the child would leave in the cache
+        return grid_backend.subprocess.CompletedProcess(args, 0)
+
+    monkeypatch.setattr(grid_backend.subprocess, "run", child)
+    # the fake module alone (the checkout's kernel modules may be stale after an edit)
+    monkeypatch.setattr(grid_backend, "loads_without_compiling",
+                        lambda module: compiled.loads_without_compiling(module, also=()))
+    cold = grid_backend.BackgroundKernels(name)
+    assert cold.get(wait=None) is importlib.import_module(name)
+    assert len(children) == 1 and children[0][-1] == f"import {name} as k; k.warm_up()"
+    warm = grid_backend.BackgroundKernels(name)
+    assert warm.get(wait=None) is importlib.import_module(name)
+    assert len(children) == 1

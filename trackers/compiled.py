@@ -18,6 +18,7 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import os
+import sys
 from pathlib import Path
 
 #: the modules with disk-cached kernels, each with a ``warm_up()`` that compiles (or
@@ -60,6 +61,42 @@ def cold_modules(modules: tuple[str, ...] = MODULES + HELPERS) -> list[str]:
         if not _has_index(Path(spec.origin), cache_dir):
             cold.append(name)
     return cold
+
+
+def loads_without_compiling(name: str, also: tuple[str, ...] = MODULES + HELPERS) -> bool:
+    """Whether loading the kernels of the module ``name`` (and of the modules of ``also``
+    loaded in this process by then: by default every kernel module) would find each one
+    compiled in numba's disk cache: every ``cache=True`` kernel has an index whose source
+    stamp is its file's now (numba's SHA-256 of the source) with an entry for this
+    machine's code generator and the function's bytecode now, the key numba looks up.
+    Kernels inlined always are skipped (compiled only inside their callers). Imports the
+    module (and numba), compiles nothing, reads a few small files.
+
+    An entry is per signature, so a signature no run has compiled yet is not seen: loading
+    it compiles that one. False on anything unexpected (numba's private cache layout is
+    read here: ``Dispatcher._cache``): the caller then compiles as if the cache were cold.
+    """
+    if os.environ.get("MTTBENCH_NO_NUMBA"):
+        return False
+    try:
+        from numba.core.dispatcher import Dispatcher
+
+        importlib.import_module(name)
+        for module in [sys.modules[m] for m in (name, *also) if m in sys.modules]:
+            for kernel in vars(module).values():
+                if not (isinstance(kernel, Dispatcher)
+                        and kernel.py_func.__module__ == module.__name__):
+                    continue  # not a kernel, or another module's (checked there)
+                cache_file = getattr(kernel._cache, "_cache_file", None)
+                if cache_file is None or kernel.targetoptions.get("inline") == "always":
+                    continue  # no disk cache asked for, or compiled only inside its callers
+                codegen = kernel.targetctx.codegen()
+                entries = cache_file._load_index()  # {} when absent or stale
+                if not any(kernel._cache._index_key(key[0], codegen) == key for key in entries):
+                    return False
+        return True
+    except Exception:
+        return False
 
 
 def warm_up(modules: tuple[str, ...] = MODULES) -> None:

@@ -18,10 +18,11 @@ from types import ModuleType
 import numpy as np
 
 from . import cells
+from .compiled import loads_without_compiling
 from .jmpd.backend import compiled_kernels
 
 _KERNELS: ModuleType | None = None
-#: how long the GPF's ``reset`` waits for its kernels (about 2 s when they are cached; a
+#: how long the GPF's ``reset`` waits for its kernels (about 0.2 s when they are cached; a
 #: compile goes on in the background meanwhile)
 GPF_WAIT_S = 15.0
 
@@ -45,11 +46,13 @@ def compiled_grid_kernels() -> ModuleType | None:
 
 class BackgroundKernels:
     """A compiled kernels' module loaded off the caller's thread: the first :meth:`get`
-    starts a thread that has a child process compile the module's kernels into numba's
-    disk cache (about a minute of CPU after an install or an edit, 2-5 s when cached: the
-    child's imports), then imports and warms them here (0.2 s). So a run in a fresh
-    install is not held up by the compile, and a compile does not hold numba's compiler
-    lock in this process; a failed compile leaves the numpy forms (same numbers)."""
+    starts a thread that imports and warms the module here (0.2 s) when numba's disk
+    cache holds every kernel (:func:`.compiled.loads_without_compiling`); otherwise it
+    first has a child process compile them into that cache (about a minute of CPU after
+    an install or an edit). So a run in a fresh install is not held up by the compile, a
+    compile does not hold numba's compiler lock in this process, and a warm cache costs
+    no child's imports (2-5 s of CPU in every process that runs the tracker); a failed
+    compile leaves the numpy forms (same numbers)."""
 
     def __init__(self, module: str) -> None:
         self.module = module  # absolute name; the module has ``warm_up()``
@@ -71,12 +74,13 @@ class BackgroundKernels:
         return self._loaded
 
     def _load(self) -> None:
-        child = subprocess.run(
-            [sys.executable, "-c", f"import {self.module} as k; k.warm_up()"],
-            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-            check=False)
-        if child.returncode != 0:
-            return
+        if not loads_without_compiling(self.module):
+            child = subprocess.run(
+                [sys.executable, "-c", f"import {self.module} as k; k.warm_up()"],
+                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                check=False)
+            if child.returncode != 0:
+                return
         module = importlib.import_module(self.module)
         module.warm_up()
         self._loaded = module
