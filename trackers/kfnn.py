@@ -156,7 +156,6 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 from scipy.special import expit
-from scipy.stats import chi2
 
 from ..scenarios.model import Looks, RayleighGridSensor, TrackingModel
 from . import kalman
@@ -436,6 +435,8 @@ class KFNNTracker(Tracker):
         s = model.grid.cell_size
         self._r_var = s * s / 12.0
         self._R = self._r_var * np.eye(2)
+        from scipy.stats import chi2  # here: scipy.stats costs most commands 0.8 s to import
+
         self._gate = float(chi2.ppf(self.gate_probability, 2))
         bd = model.birth_death
         sv = self.birth_velocity_scale * bd.birth_velocity_std

@@ -61,7 +61,6 @@ from __future__ import annotations
 from typing import ClassVar
 
 import numpy as np
-from scipy.stats import poisson
 
 from ...scenarios.model import RayleighGridSensor, TrackingModel
 from ...trackers.cells import CellCounts, CellField
@@ -99,6 +98,8 @@ def undetected_rows(intensity: np.ndarray, n_counts: int) -> np.ndarray:
     more": ``(len(intensity), n_counts)``, rows summing to 1."""
     lam = np.asarray(intensity, dtype=float).reshape(-1, 1)
     t = np.arange(n_counts - 1)[None, :]
+    from scipy.stats import poisson  # here: scipy.stats costs most commands 0.8 s to import
+
     head = poisson.pmf(t, lam)
     return np.hstack([head, poisson.sf(n_counts - 2, lam)])
 

@@ -194,7 +194,6 @@ from typing import Any, ClassVar
 
 import numpy as np
 from scipy.special import expit
-from scipy.stats import poisson
 
 from ...scenarios.model import Looks, RayleighGridSensor, TrackingModel
 from .. import kalman
@@ -458,6 +457,8 @@ def poisson_counts(lam: np.ndarray, n_counts: int) -> np.ndarray:
     more": ``(len(lam), n_counts)``, rows summing to 1."""
     lam = np.maximum(np.asarray(lam, dtype=float), 0.0)
     t = np.arange(n_counts - 1)
+    from scipy.stats import poisson  # here: scipy.stats costs most commands 0.8 s to import
+
     pmf = poisson.pmf(t[None, :], lam[:, None])
     return np.column_stack([pmf, np.maximum(1.0 - pmf.sum(axis=1), 0.0)])
 
