@@ -435,9 +435,7 @@ class KFNNTracker(Tracker):
         s = model.grid.cell_size
         self._r_var = s * s / 12.0
         self._R = self._r_var * np.eye(2)
-        from scipy.stats import chi2  # here: scipy.stats costs most commands 0.8 s to import
-
-        self._gate = float(chi2.ppf(self.gate_probability, 2))
+        self._gate = kalman.gate_d2(self.gate_probability)
         bd = model.birth_death
         sv = self.birth_velocity_scale * bd.birth_velocity_std
         self._birth_P = np.diag([self._r_var, sv * sv, self._r_var, sv * sv])

@@ -257,9 +257,7 @@ class StoneSoupJPDA(_StoneSoupPeer):
         self._p_target = target_detection_probability(sensor.p_d, sensor.p_f)
         self._miss = look_ratios(sensor).miss
         self._undetected = CellField(n, bd.initial_count_mean / n)
-        from scipy.stats import chi2  # here: scipy.stats costs most commands 0.8 s to import
-
-        self._gate_d2 = float(chi2.ppf(self.gate_probability, 2))
+        self._gate_d2 = kalman.gate_d2(self.gate_probability)
         sd = self.max_position_sd * model.grid.cell_size
         self._cov_deleter = js.CovarianceBasedDeleter(covar_trace_thresh=2.0 * sd * sd,
                                                       mapping=[0, 2])
