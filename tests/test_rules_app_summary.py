@@ -66,6 +66,71 @@ def test_a_run_that_failed_part_way_has_no_track_score():
     assert math.isnan(bad.loc[0, "id_switches"])
 
 
+def _per_run_by_pandas(results: pd.DataFrame) -> pd.DataFrame:
+    """The per-run table the plain way: pandas statistics of each run's own rows (the
+    definition :func:`summary.per_run` computes from arrays)."""
+    steps, track = summary.step_metrics_of(results), summary.track_metrics_of(results)
+    carry = [c for c in ("tracker", "policy", "tracker_uses_truth", "policy_uses_truth")
+             if c in results.columns]
+    out = []
+    for key, g in results.groupby(summary.RUN_KEYS, sort=True):
+        ok = g[g["status"] == "ok"]
+        statuses = set(g["status"])
+        row = dict(zip(summary.RUN_KEYS, key, strict=True))
+        row.update({c: g[c].iloc[0] for c in carry})
+        row["status"] = ("ok" if statuses == {"ok"}
+                         else "unsupported" if "unsupported" in statuses else "error")
+        bad = g.loc[g["status"] != "ok", "error"]
+        row["error"] = str(bad.iloc[0]) if len(bad) else ""
+        row["n_steps"] = len(ok)
+        for m in steps:
+            row[m] = ok[m].astype(float).dropna().mean() if ok[m].notna().any() else math.nan
+        for m in track:
+            row[m] = float(ok[m].iloc[0]) if statuses == {"ok"} else math.nan
+        wall = ok["tracker_wall_s"]
+        row["tracker_wall_s"] = float(np.median(wall)) if len(ok) else math.nan
+        row["tracker_wall_p95_s"] = float(np.quantile(wall, 0.95)) if len(ok) else math.nan
+        row["tracker_wall_max_s"] = float(wall.max()) if len(ok) else math.nan
+        row["tracker_cpu_s"] = float(ok["tracker_cpu_s"].median()) if len(ok) else math.nan
+        row["select_wall_s"] = float(ok["select_wall_s"].mean()) if len(ok) else math.nan
+        row["peak_rss_mb"] = float(g["peak_rss_mb"].max())
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+def test_per_run_equals_the_statistics_of_each_runs_own_rows():
+    """Runs interleaved in a shuffled table (a run's rows are not together), with failed
+    and unsupported steps, NaN metrics and times, a track score, a row whose key is NaN
+    (no run: groupby leaves it out) and 9-31 steps a run (numpy's pairwise sum blocks):
+    every value equal to the pandas statistics of the run's own rows, bit for bit."""
+    rng = np.random.default_rng(7)
+    frames = []
+    for seed in range(4):
+        for label in ("x", "y(n=2)"):
+            for policy in ("raster", "renyi"):
+                n = int(rng.integers(9, 32))
+                statuses = rng.choice(["ok"] * 8 + ["error", "unsupported"], n).tolist()
+                if seed == 0:
+                    statuses = ["ok"] * n  # whole runs, with their track score
+                wall = rng.exponential(1e-3, n)
+                run = _steps(statuses, wall, select=rng.exponential(1e-4, n),
+                             rss=rng.uniform(90, 110, n), ospa=rng.uniform(0, 2, n),
+                             rmse=np.where(rng.random(n) < 0.3, np.nan, rng.random(n)),
+                             id_switches=float(rng.integers(0, 5)))
+                run["tracker_cpu_s"] = np.where(rng.random(n) < 0.2, np.nan, wall)
+                run["tracker_label"], run["policy_label"], run["seed"] = label, policy, seed
+                frames.append(run)
+    table = pd.concat(frames, ignore_index=True)
+    table.loc[5, "looks_per_step"] = np.nan
+    table = table.sample(frac=1.0, random_state=3).reset_index(drop=True)
+    got = summary.per_run(table)
+    want = _per_run_by_pandas(table)
+    assert len(got) == 4 * 2 * 2 and "id_switches" in summary.track_metrics_of(table)
+    assert (got["status"] != "ok").any() and (got["status"] == "ok").any()
+    pd.testing.assert_frame_equal(got[list(want.columns)], want, check_exact=True,
+                                  check_dtype=False)
+
+
 # ----------------------------------------------------------------- mean_ci95
 def test_mean_ci95_is_the_student_t_half_width_with_n_minus_one_degrees():
     v = np.array([1.0, 2.0, 3.0, 6.0])

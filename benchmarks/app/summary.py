@@ -114,7 +114,11 @@ def run_metrics(table: pd.DataFrame) -> list[str]:
 
 
 def _nanmean(x: pd.Series) -> float:
-    v = x.to_numpy(dtype=float)
+    return _nanmean_of(x.to_numpy(dtype=float))
+
+
+def _nanmean_of(v: np.ndarray) -> float:
+    """The mean of the values of ``v`` that are not NaN (NaN if none)."""
     v = v[~np.isnan(v)]
     return float(v.mean()) if v.size else math.nan
 
@@ -133,38 +137,62 @@ def per_run(results: pd.DataFrame) -> pd.DataFrame:
     ``"error"``; ``error`` holds the first message; ``n_steps`` counts ok steps;
     ``looks_made`` is the mean number of looks made per ok step (when the table has
     ``n_looks``).
+
+    The columns are read into arrays once and each run is a slice of them, its rows in
+    table order (pandas per run cost 7 ms, a report of 480 runs 3 s): the same numbers
+    as the statistics of each run's own rows (numpy's mean and median of the same values
+    in the same order; pandas' NaN-skipping median and mean where the definition is
+    theirs).
     """
     carry = [c for c in _CARRY if c in results.columns]
     steps = step_metrics_of(results)
     track = track_metrics_of(results)
+    cols = [*RUN_KEYS, *carry, "status", "error", "n_steps", *steps, *track, *RUN_TIMES]
+    cols += ["looks_made"] if "n_looks" in results.columns else []
+    grouped = results.groupby(RUN_KEYS, sort=True)
+    run_of = grouped.ngroup().to_numpy()  # -1: a row whose key holds a NaN (no run)
+    keys = list(grouped.size().index)
+    order = np.argsort(run_of, kind="stable")  # each run's rows together, in table order
+    bounds = np.searchsorted(run_of[order], np.arange(len(keys) + 1))
+    status = results["status"].to_numpy(dtype=object)
+    error = results["error"].to_numpy(dtype=object)
+    floats = {c: results[c].to_numpy(dtype=float) for c in
+              {*steps, *track, "tracker_wall_s", "tracker_cpu_s", "select_wall_s",
+               "peak_rss_mb", *(["n_looks"] if "n_looks" in results.columns else [])}}
+    firsts = order[bounds[:-1]]
+    carried = {c: results[c].iloc[firsts].tolist() for c in carry}
     out = []
-    for key, g in results.groupby(RUN_KEYS, sort=True):
-        ok = g[g["status"] == "ok"]
-        row = dict(zip(RUN_KEYS, key, strict=True))
+    for r, (key, start, stop) in enumerate(zip(keys, bounds[:-1], bounds[1:], strict=True)):
+        rows = order[start:stop]
+        st = status[rows]
+        is_ok = st == "ok"
+        ok = rows[is_ok]
+        all_ok = bool(is_ok.all())
+        row = dict(zip(RUN_KEYS, key if isinstance(key, tuple) else (key,), strict=True))
         for c in carry:
-            row[c] = g[c].iloc[0]
-        statuses = set(g["status"])
-        row["status"] = ("ok" if statuses == {"ok"}
-                         else "unsupported" if "unsupported" in statuses else "error")
-        bad = g.loc[g["status"] != "ok", "error"]
-        row["error"] = str(bad.iloc[0]) if len(bad) else ""
+            row[c] = carried[c][r]
+        row["status"] = ("ok" if all_ok
+                         else "unsupported" if (st == "unsupported").any() else "error")
+        row["error"] = "" if all_ok else str(error[rows[~is_ok][0]])
         row["n_steps"] = len(ok)
         for m in steps:
-            row[m] = _nanmean(ok[m])
+            row[m] = _nanmean_of(floats[m][ok])
         for m in track:  # constant over the run's rows
-            row[m] = float(ok[m].iloc[0]) if len(ok) and statuses == {"ok"} else math.nan
-        wall = ok["tracker_wall_s"].to_numpy(float)
+            row[m] = float(floats[m][ok[0]]) if all_ok else math.nan
+        wall = floats["tracker_wall_s"][ok]
         row["tracker_wall_s"] = float(np.median(wall)) if len(ok) else math.nan
         row["tracker_wall_p95_s"] = float(np.quantile(wall, 0.95)) if len(ok) else math.nan
         row["tracker_wall_max_s"] = float(wall.max()) if len(ok) else math.nan
-        row["tracker_cpu_s"] = float(ok["tracker_cpu_s"].median()) if len(ok) else math.nan
-        row["select_wall_s"] = float(ok["select_wall_s"].mean()) if len(ok) else math.nan
-        row["peak_rss_mb"] = float(g["peak_rss_mb"].max())
-        if "n_looks" in g.columns:
-            row["looks_made"] = _nanmean(ok["n_looks"]) if len(ok) else math.nan
+        row["tracker_cpu_s"] = (float(pd.Series(floats["tracker_cpu_s"][ok]).median())
+                                if len(ok) else math.nan)
+        row["select_wall_s"] = (float(pd.Series(floats["select_wall_s"][ok]).mean())
+                                if len(ok) else math.nan)
+        rss = floats["peak_rss_mb"][rows]
+        rss = rss[~np.isnan(rss)]
+        row["peak_rss_mb"] = float(rss.max()) if rss.size else math.nan
+        if "n_looks" in floats:
+            row["looks_made"] = _nanmean_of(floats["n_looks"][ok]) if len(ok) else math.nan
         out.append(row)
-    cols = [*RUN_KEYS, *carry, "status", "error", "n_steps", *steps, *track, *RUN_TIMES]
-    cols += ["looks_made"] if "n_looks" in results.columns else []
     return pd.DataFrame(out, columns=cols)
 
 
