@@ -254,8 +254,9 @@ def test_installed_copy_wins_and_bare_layer_names_do_not_import(installed_site, 
 
 def test_installed_compare_writes_report_and_results(installed_site, empty_cwd, tmp_path):
     out = tmp_path / "cmp"
-    ok(run_python(["-m", "mttbench", "compare", "--trackers", "null", "kfnn", "--seeds", "2",
-                   "--steps", "10", "--workers", "1", "--no-progress", "--out", str(out)],
+    ok(run_python(["-m", "mttbench", "compare", "--scenarios", "default", "--trackers", "null",
+                   "kfnn", "--seeds", "2", "--steps", "10", "--workers", "1", "--no-progress",
+                   "--out", str(out)],
                   empty_cwd, [installed_site]))
     assert (out / "report.html").is_file()
     df = pd.read_parquet(out / "results.parquet")
