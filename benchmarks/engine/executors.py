@@ -267,6 +267,7 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
     # the worker processes, read before shutdown() forgets them (a private attribute of
     # ProcessPoolExecutor; without it the running and already queued runs would finish)
     procs = list((getattr(pool, "_processes", None) or {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)  # also forgotten by shutdown()
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in procs:
         with contextlib.suppress(Exception):
@@ -280,6 +281,12 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
             if proc.is_alive():
                 proc.kill()
                 proc.join(timeout=_TERM_GRACE_S)
+    # the pool's manager thread closes its wake-up pipe on its way out; CPython 3.11's exit
+    # hook writes to that pipe unless it is closed, so an exit while the thread is closing
+    # it prints an OSError traceback (EBADF): let the thread finish first
+    if manager is not None:
+        with contextlib.suppress(Exception):
+            manager.join(timeout=_TERM_GRACE_S)
 
 
 class LocalExecutor(Executor):
