@@ -168,7 +168,7 @@ def per_run(results: pd.DataFrame) -> pd.DataFrame:
         is_ok = st == "ok"
         ok = rows[is_ok]
         all_ok = bool(is_ok.all())
-        row = dict(zip(RUN_KEYS, key if isinstance(key, tuple) else (key,), strict=True))
+        row = dict(zip(RUN_KEYS, key, strict=True))
         for c in carry:
             row[c] = carried[c][r]
         row["status"] = ("ok" if all_ok
