@@ -1,4 +1,4 @@
-""":func:`executors._stop_pool` (an interrupted sweep's pool): when it returns, the
+""":func:`executors.stop_pool` (an interrupted sweep's pool): when it returns, the
 workers are gone and so is the pool's manager thread, whose wake-up pipe CPython 3.11's
 exit hook (``concurrent.futures.process._python_exit``) writes to unless it is closed. An
 exit while that thread was still closing the pipe printed an ``OSError: [Errno 9] Bad
@@ -26,7 +26,7 @@ def test_the_pool_and_its_manager_thread_are_gone_when_stop_pool_returns():
         manager = pool._executor_manager_thread
         wakeup = pool._executor_manager_thread_wakeup
         procs = list(pool._processes.values())
-        executors._stop_pool(pool)
+        executors.stop_pool(pool)
         assert not any(p.is_alive() for p in procs)
         assert not manager.is_alive()
         assert wakeup._closed  # the exit hook skips a closed pipe

@@ -346,7 +346,7 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
                                     settings=settings, trace=trace,
                                     sections=tuned.report_sections(plan, results),
                                     tuned_on=tuned.tuned_scenarios(plan),
-                                    policy_order=order)
+                                    policy_order=order, processes=workers)
     except BaseException as exc:
         status = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
         with contextlib.suppress(OSError):

@@ -43,9 +43,12 @@ from __future__ import annotations
 import base64
 import html
 import math
+import multiprocessing
 import shutil
+import signal
 import subprocess
 import tempfile
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -53,6 +56,7 @@ from typing import Any
 import pandas as pd
 
 from ... import trackers
+from ..engine.executors import stop_pool
 from ..engine.metrics import (
     Metric,
     column_label,
@@ -654,7 +658,7 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
                  trace: Any = None, notes: list[str] | None = None,
                  draw: bool = True, sections: list[tuple[Any, ...]] | None = None,
                  tuned_on: dict[str, frozenset[str]] | None = None,
-                 policy_order: list[str] | None = None) -> ReportFiles:
+                 policy_order: list[str] | None = None, processes: int = 1) -> ReportFiles:
     """Write ``report.md``, ``report.html`` and ``figures/*.png`` into ``out_dir``.
 
     ``reference`` is the tracker label that paired differences subtract (skipped
@@ -666,7 +670,8 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
     setting's label to the scenarios its file was tuned on: every table marks the rows
     out of sample for it (:func:`mark_out_of_sample`). ``policy_order``: the policies in
     the order given (the first is the base of the differences between policies; default
-    their order in ``results``).
+    their order in ``results``). ``processes``: how many processes draw the figures
+    (each figure is drawn whole by one of them; the files do not depend on it).
     """
     out_dir = Path(out_dir)
     fig_dir = out_dir / "figures"
@@ -677,15 +682,36 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
     gc = summary.gap_closed(runs)
     axis = policy_axis.policy_axis(runs, gc, gc.metric, policy_order)
 
-    figs: dict[str, Path] = {}
+    tasks: list[FigureTask] = []
     if draw:
         if axis.available:  # one panel per scenario and policy
-            _draw_figures(_panel_per_policy(results), _panel_per_policy(runs),
-                          _panel_per_policy(summ), fig_dir, trace, figs, gc,
-                          summary.cutoff_text(results))
+            tasks = _figure_tasks(_panel_per_policy(results), _panel_per_policy(runs),
+                                  _panel_per_policy(summ), fig_dir, trace, gc,
+                                  summary.cutoff_text(results))
         else:
-            _draw_figures(results, runs, summ, fig_dir, trace, figs, gc)
+            tasks = _figure_tasks(results, runs, summ, fig_dir, trace, gc)
+    # the figures are drawn while the document is written; every file is written once
+    # they all are
+    with _Drawing(tasks, processes) as drawing:
+        doc = _document(results, runs, summ, truth, gc, axis, drawing.paths, title=title,
+                        intro=intro, settings=settings, notes=notes, sections=sections,
+                        tuned_on=tuned_on, reference=reference)
+        figs = drawing.wait()
 
+    md_path = out_dir / "report.md"
+    write_text_atomic(md_path, doc.markdown(out_dir))
+    html_path = out_dir / "report.html"
+    write_text_atomic(html_path, doc.html(title))
+    return ReportFiles(md_path, html_path, figs)
+
+
+def _document(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame,
+              truth: pd.DataFrame, gc: summary.GapClosed, axis: policy_axis.PolicyAxis,
+              figs: dict[str, Path], *, title: str, intro: list[str] | None,
+              settings: dict[str, Any] | None, notes: list[str] | None,
+              sections: list[tuple[Any, ...]] | None,
+              tuned_on: dict[str, frozenset[str]] | None, reference: str | None) -> Document:
+    """The report's blocks (:func:`build_report`); ``figs``: each figure's file."""
     doc = Document()
     doc.add("h1", title)
     _verdict_section(doc, results, runs, summ, gc, figs, axis)
@@ -770,12 +796,7 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
         doc.add(*block)
     for para in notes or []:
         doc.add("p", para)
-
-    md_path = out_dir / "report.md"
-    write_text_atomic(md_path, doc.markdown(out_dir))
-    html_path = out_dir / "report.html"
-    write_text_atomic(html_path, doc.html(title))
-    return ReportFiles(md_path, html_path, figs)
+    return doc
 
 
 def _panel_per_policy(table: pd.DataFrame) -> pd.DataFrame:
@@ -840,38 +861,104 @@ def _verdict_section(doc: Document, results: pd.DataFrame, runs: pd.DataFrame,
                 "nothing), 1 = the ceiling (told the truth), 95% delta-method intervals.")
 
 
-def _draw_figures(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame, fig_dir: Path,
-                  trace: Any, figs: dict[str, Path],
-                  gc: summary.GapClosed | None = None, cut: str | None = None) -> None:
+@dataclass(frozen=True)
+class FigureTask:
+    """A figure of the report: its key, its file and the :mod:`.figures` function that
+    draws it (called ``draw(*args, path=path, **kwargs)``)."""
+
+    key: str
+    path: Path
+    draw: Any
+    args: tuple[Any, ...]
+    kwargs: dict[str, Any] = field(default_factory=dict)
+
+    def __call__(self) -> Path:
+        return self.draw(*self.args, path=self.path, **self.kwargs)
+
+
+def _figure_tasks(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame,
+                  fig_dir: Path, trace: Any, gc: summary.GapClosed | None = None,
+                  cut: str | None = None) -> list[FigureTask]:
+    """The report's figures, in the order the report shows them (the costliest first:
+    :class:`_Drawing` hands them out in this order)."""
     cut = cut or summary.cutoff_text(results)
-    figs["ospa"] = figures.metric_over_time(results, "ospa", fig_dir / "ospa_over_time.png",
-                                            f"OSPA ({cut})")
-    figs["count_error"] = figures.metric_over_time(results, "count_error",
-                                                   fig_dir / "count_error_over_time.png",
-                                                   "count error |N_est - N|")
+    tasks = [
+        FigureTask("ospa", fig_dir / "ospa_over_time.png", figures.metric_over_time,
+                   (results, "ospa"), {"ylabel": f"OSPA ({cut})"}),
+        FigureTask("count_error", fig_dir / "count_error_over_time.png",
+                   figures.metric_over_time, (results, "count_error"),
+                   {"ylabel": "count error |N_est - N|"}),
+    ]
     if "ospa2_window" in results.columns and results["ospa2_window"].notna().any():
         window = next((m.params.get("window") for m in registered_run_metrics()
                        if m.name == "ospa2_window"), None)
-        figs["ospa2"] = figures.metric_over_time(
-            results, "ospa2_window", fig_dir / "ospa2_over_time.png", "OSPA(2)",
-            f"OSPA(2) of the window ending at the step ({cut}"
-            + (f", {window:g} steps)" if window else ")"))
-    figs["runtime"] = figures.runtime_per_step(runs, fig_dir / "runtime_per_step.png")
-    figs["accuracy_runtime"] = figures.accuracy_vs_runtime(summ,
-                                                           fig_dir / "accuracy_vs_runtime.png")
+        tasks.append(FigureTask(
+            "ospa2", fig_dir / "ospa2_over_time.png", figures.metric_over_time,
+            (results, "ospa2_window"),
+            {"ylabel": "OSPA(2)", "title": f"OSPA(2) of the window ending at the step ({cut}"
+                                           + (f", {window:g} steps)" if window else ")")}))
+    tasks.append(FigureTask("runtime", fig_dir / "runtime_per_step.png",
+                            figures.runtime_per_step, (runs,)))
+    tasks.append(FigureTask("accuracy_runtime", fig_dir / "accuracy_vs_runtime.png",
+                            figures.accuracy_vs_runtime, (summ,)))
     if gc is not None and not gc.shares.empty and (~gc.shares["role"].isin(
             ("floor", "ceiling"))).any():
-        figs["gap_closed"] = figures.gap_closed_shares(
-            gc.shares, fig_dir / "gap_closed.png",
-            style_labels=list(summ["tracker_label"].astype(str).unique()))
+        tasks.append(FigureTask(
+            "gap_closed", fig_dir / "gap_closed.png", figures.gap_closed_shares,
+            (gc.shares,), {"style_labels": list(summ["tracker_label"].astype(str).unique())}))
     if trace is not None:
         n = len(trace.steps)
         steps = sorted({max(0, n // 4 - 1), max(0, n // 2 - 1), n - 1})
         g = trace.scenario.grid
-        figs["snapshot"] = figures.snapshot(
-            trace.frames(), fig_dir / "snapshot.png", steps, g.nx, g.ny, g.cell_size,
-            title=f"{trace.tracker_label} on {trace.scenario.name}, seed {trace.seed}, "
-                  f"policy {trace.policy_label}")
+        tasks.append(FigureTask(
+            "snapshot", fig_dir / "snapshot.png", figures.snapshot, (trace.frames(),),
+            {"steps": steps, "nx": g.nx, "ny": g.ny, "cell_size": g.cell_size,
+             "title": f"{trace.tracker_label} on {trace.scenario.name}, seed {trace.seed}, "
+                      f"policy {trace.policy_label}"}))
+    return tasks
+
+
+class _Drawing:
+    """The figures of ``tasks`` being drawn. With ``processes <= 1`` each is drawn when the
+    drawing starts, in this process; else in that many worker processes at once, which
+    go on while this one writes the report (:meth:`wait` collects them). A figure is one
+    process's work, so its file is the one this process would write. An error in one is
+    raised by :meth:`wait`; leaving the ``with`` block early (an error, Ctrl-C) ends
+    the workers."""
+
+    def __init__(self, tasks: list[FigureTask], processes: int = 1) -> None:
+        self.paths = {t.key: t.path for t in tasks}  # where the report links them
+        self._pool = None
+        self._futures: list[tuple[str, Any]] = []
+        self._drawn: dict[str, Path] = {}
+        if processes <= 1 or len(tasks) <= 1:
+            self._drawn = {t.key: t() for t in tasks}
+            return
+        self._pool = ProcessPoolExecutor(max_workers=min(processes, len(tasks)),
+                                         mp_context=multiprocessing.get_context(),
+                                         initializer=_ignore_sigint)
+        self._futures = [(t.key, self._pool.submit(t)) for t in tasks]
+
+    def wait(self) -> dict[str, Path]:
+        """Each figure's file, ``{key: path}`` in the tasks' order, once all are drawn."""
+        if self._pool is not None:
+            self._drawn = {key: fut.result() for key, fut in self._futures}
+            self._pool.shutdown()
+            self._pool = None
+        return self._drawn
+
+    def __enter__(self) -> _Drawing:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._pool is not None:
+            stop_pool(self._pool)
+            self._pool = None
+
+
+def _ignore_sigint() -> None:
+    # a figure worker leaves Ctrl-C to the report, which ends it (no second traceback)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 # -------------------------------------------------------------- browser check

@@ -52,6 +52,7 @@ near the truth's crossings and elsewhere.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -196,9 +197,11 @@ def per_run(results: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(out, columns=cols)
 
 
+@functools.cache
 def t_975(df: int) -> float:
     """Student's t 0.975 quantile with ``df`` degrees of freedom (scipy.stats, imported
-    here: it costs a command that never summarises 0.8 s)."""
+    here: it costs a command that never summarises 0.8 s; kept per ``df``, as a report
+    asks for the same few thousands of times)."""
     from scipy import stats
 
     return float(stats.t.ppf(0.975, df))

@@ -259,11 +259,12 @@ _WATCH_S = 0.5
 _TERM_GRACE_S = 5.0
 
 
-def _stop_pool(pool: ProcessPoolExecutor) -> None:
-    """Drop the queued runs and end the running ones now (an interrupt or a write error),
-    and wait until every worker is gone: ``SIGTERM``, then ``SIGKILL`` for one that is
-    still alive after :data:`_TERM_GRACE_S` (a loaded machine). A worker outliving the
-    sweep could still write a part after it returned, beside a resumed sweep."""
+def stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Drop the queued tasks of ``pool`` and end the running ones now (an interrupt or a
+    write error; a sweep's runs, a report's figures), and wait until every worker is gone:
+    ``SIGTERM``, then ``SIGKILL`` for one that is still alive after :data:`_TERM_GRACE_S`
+    (a loaded machine). A worker outliving the sweep could still write a part after it
+    returned, beside a resumed sweep."""
     # the worker processes, read before shutdown() forgets them (a private attribute of
     # ProcessPoolExecutor; without it the running and already queued runs would finish)
     procs = list((getattr(pool, "_processes", None) or {}).values())
@@ -357,7 +358,7 @@ class LocalExecutor(Executor):
             except BaseException:
                 # Ctrl-C, a write error or the caller closing: drop the queued runs and end
                 # the running ones instead of waiting for them
-                _stop_pool(pool)
+                stop_pool(pool)
                 started.close()
                 raise
             pool.shutdown()

@@ -244,9 +244,14 @@ def _run_sweep(jobs: list[Job], keys: list[str], out_dir: Path, workers: int,
         work = Work(run_job, _write_part, _parquet_bytes, _write_bytes, c, p, run_timeout)
         with contextlib.closing(executor.run(todo, work)) as outcomes:
             for i, error in outcomes:
+                job, path = todo[i]
                 if error is not None:
-                    job, path = todo[i]
                     lost[path] = _lost_job_frame(job, error, c, p)
+                else:
+                    # read while the workers run the rest: the table is ready at the end
+                    # (one that cannot be read here is read, and refused, below)
+                    with contextlib.suppress(ValueError):
+                        done[path] = _read_part(path)
                 finished += 1
                 if progress is not None:
                     progress(finished, len(jobs))
