@@ -159,6 +159,53 @@ def test_recycling_equals_the_numpy_form():
         assert _equal(*_both(field))
 
 
+def test_looked_log_ratios_equal_the_numpy_form():
+    """Repeated looks at a cell, every one positive or none, no looks; the ratios of a
+    sensor with p_d = 1 (``log_neg = -inf``: NaN where every look of a cell was
+    positive) and p_f = 0 (``log_pos`` beyond the clip)."""
+    rng = np.random.default_rng(5)
+    ratios = [(6.9, -0.6), (0.3, -0.01), (np.log(0.9) - np.log(5e-324), -2.3),
+              (2.0, -np.inf), (np.inf, -1.0)]
+    n_nan = n_clipped = 0
+    for trial in range(400):
+        n_cells = int(rng.integers(1, 60))
+        looks = rng.integers(0, n_cells, int(rng.integers(0, 120)))
+        returns = rng.random(len(looks)) < rng.choice([0.0, 0.2, 0.9, 1.0])
+        log_pos, log_neg = ratios[trial % len(ratios)]
+
+        def ratios_of(looks=looks, returns=returns, a=log_pos, b=log_neg):
+            with np.errstate(invalid="ignore"):  # 0 * -inf
+                return cell_evidence.looked_log_ratios(looks, returns, a, b)
+
+        want, got = _both(ratios_of)
+        assert _equal(want, got)
+        n_nan += int(np.isnan(want[3]).sum())
+        n_clipped += int((want[3] == 700.0).sum())
+    assert n_nan > 0 and n_clipped > 0  # both special cases met
+
+
+def test_adding_intensity_equals_the_numpy_form():
+    """Repeated cells (their amounts summed in the order given, from tiny to huge), cells
+    the field holds and new ones, an amount that brings a cell back to the default."""
+    rng = np.random.default_rng(6)
+    for _ in range(400):
+        n = int(rng.integers(1, 200))
+        cells = rng.integers(0, 40, n)
+        amounts = rng.choice([1.0, -1.0], n) * np.exp(rng.uniform(-30, 30, n))
+        amounts[rng.random(n) < 0.1] = 0.0
+
+        def field(cells=cells, amounts=amounts):
+            f = CellField(50, 0.5)
+            f.set(np.array([3, 7, 20]), np.array([0.2, 0.7, 1e-9]))
+            ppp.add_intensity(f, cells, amounts)
+            ppp.add_intensity(f, np.array([3]), np.array([0.5 - f.at(np.array([3]))[0]]))
+            return f.default, f.cells, f.values
+
+        assert _equal(*_both(field))
+    with use_backend("compiled"), pytest.raises(ValueError, match="2 amounts for 3 cells"):
+        ppp.add_intensity(CellField(5, 0.0), np.array([0, 1, 1]), np.array([1.0, 2.0]))
+
+
 def _observed(tracker) -> list[np.ndarray]:
     """The arrays a tracker's next step reads (its private state, by name)."""
     out = []

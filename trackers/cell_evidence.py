@@ -82,9 +82,14 @@ def looked_log_ratios(cells: np.ndarray, returns: np.ndarray, log_pos: float,
                       log_neg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The looked cells (sorted), the looks at each, the positive cells (one detection
     each) and ``log r_c`` per looked cell, one target in it against none: ``k_c log_pos +
-    (n_c - k_c) log_neg`` (clipped at :data:`_MAX_LOG_RATIO`)."""
-    cells = np.asarray(cells, dtype=np.int64)
-    returns = np.asarray(returns, dtype=bool)
+    (n_c - k_c) log_neg`` (clipped at :data:`_MAX_LOG_RATIO`). With the compiled backend
+    :func:`.grid_kernels.looked_log_ratios` computes the same, bit for bit."""
+    cells = np.ascontiguousarray(cells, dtype=np.int64).reshape(-1)
+    returns = np.ascontiguousarray(returns, dtype=bool).reshape(-1)
+    kernels = compiled_grid_kernels()
+    if kernels is not None:  # one pass instead of two sorts (the same numbers)
+        return kernels.looked_log_ratios(cells, returns, float(log_pos), float(log_neg),
+                                         _MAX_LOG_RATIO)
     looked, n_looks = np.unique(cells, return_counts=True)
     det_cells = np.unique(cells[returns])
     positive = np.bincount(np.searchsorted(looked, cells[returns]), minlength=len(looked))

@@ -417,9 +417,22 @@ class CellField:
 
     def _apply(self, op, cells: np.ndarray, operands: np.ndarray) -> None:
         """``x_c <- op(x_c, operand_c)`` at the sorted unique ``cells``: the cells that had
-        the default are first inserted (sorted, with the default value: a memory move)."""
+        the default are first inserted (sorted, with the default value: a memory move).
+        With the compiled backend :func:`.grid_kernels.field_apply` merges them in one
+        pass (the same numbers)."""
         cells = np.asarray(cells, dtype=np.int64).reshape(-1)
         if not len(cells):
+            return
+        from .grid_backend import compiled_grid_kernels  # it imports this module
+
+        kernels = compiled_grid_kernels()
+        if kernels is not None:
+            operands = np.ascontiguousarray(operands, dtype=float).reshape(-1)
+            if len(operands) != len(cells):
+                raise ValueError(f"{len(operands)} operands for {len(cells)} cells")
+            self.cells, self.values = kernels.field_apply(
+                self.default, self.cells, self.values, np.ascontiguousarray(cells), operands,
+                op is np.add)
             return
         i = np.searchsorted(self.cells, cells)
         new = cells[(i == len(self.cells)) | (self.cells[np.minimum(i, len(self.cells) - 1)]

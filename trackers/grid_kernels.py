@@ -30,6 +30,7 @@ from .numba_exact import nan_min as _nan_min
 from .numba_exact import ndtr as _ndtr
 from .numba_exact import np_sum
 from .numba_exact import search_left as _search
+from .numba_exact import unique_inverse as _unique_inverse
 
 _INV_SQRT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
 
@@ -192,15 +193,41 @@ def cell_evidence(s: float, nx: int, ny: int, mx: np.ndarray, my: np.ndarray,
     n_pairs = len(box) + len(rows)
     if n_pairs == 0:
         return total, tested
+    # each box's normal CDF at its cell edges, once: a looked cell's mass is a difference
+    # of two neighbours (the same arguments, so the same numbers, as per cell)
+    x0 = np.zeros(K, np.int64)
+    y0 = np.zeros(K, np.int64)
+    at_x = np.zeros(K + 1, np.int64)
+    at_y = np.zeros(K + 1, np.int64)
+    for k in range(K):
+        wx = wy = 0
+        if (hi_x[k] >= 0 and lo_x[k] <= nx - 1 and hi_y[k] >= 0 and lo_y[k] <= ny - 1
+                and hi_x[k] >= lo_x[k] and hi_y[k] >= lo_y[k]):
+            x0[k] = int(min(max(lo_x[k], 0.0), nx - 1))
+            y0[k] = int(min(max(lo_y[k], 0.0), ny - 1))
+            wx = int(min(max(hi_x[k], 0.0), nx - 1)) - x0[k] + 2
+            wy = int(min(max(hi_y[k], 0.0), ny - 1)) - y0[k] + 2
+        at_x[k + 1] = at_x[k] + wx
+        at_y[k + 1] = at_y[k] + wy
+    cdf_x = np.empty(at_x[K])
+    cdf_y = np.empty(at_y[K])
+    for k in range(K):
+        for j in range(at_x[k + 1] - at_x[k]):
+            cdf_x[at_x[k] + j] = _ndtr(((x0[k] + j) * s - mx[k]) / sx[k], 0)
+        for j in range(at_y[k + 1] - at_y[k]):
+            cdf_y[at_y[k] + j] = _ndtr(((y0[k] + j) * s - my[k]) / sy[k], 0)
     for p in range(n_pairs):
         if p < len(box):
             k, c = box[p], negative[i[p]]
-        else:
+            ix, iy = c % nx - x0[k] + at_x[k], c // nx - y0[k] + at_y[k]
+            mass = (cdf_x[ix + 1] - cdf_x[ix]) * (cdf_y[iy + 1] - cdf_y[iy])
+        else:  # the detection's cell: maybe outside the box
             k, c = rows[p - len(box)], hit_cells[p - len(box)]
-        ix, iy = c % nx, c // nx
-        mass = ((_ndtr(((ix + 1) * s - mx[k]) / sx[k], 0) - _ndtr((ix * s - mx[k]) / sx[k], 0))
-                * (_ndtr(((iy + 1) * s - my[k]) / sy[k], 0)
-                   - _ndtr((iy * s - my[k]) / sy[k], 0)))
+            ix, iy = c % nx, c // nx
+            mass = ((_ndtr(((ix + 1) * s - mx[k]) / sx[k], 0)
+                     - _ndtr((ix * s - mx[k]) / sx[k], 0))
+                    * (_ndtr(((iy + 1) * s - my[k]) / sy[k], 0)
+                       - _ndtr((iy * s - my[k]) / sy[k], 0)))
         total[k] += mass * np.expm1(log_r[_search(looked, c)])
         tested[k] += mass
     for k in range(K):
@@ -262,6 +289,96 @@ def recycled_intensity(s: float, nx: int, ny: int, mean_xy: np.ndarray, cov_xy: 
     return cells, amounts
 
 
+@njit(cache=True)
+def cell_sums(cells: np.ndarray, amounts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The sorted unique ``cells`` and each one's sum of ``amounts``, as
+    :func:`.pmb.ppp.add_intensity` computes them (``np.unique``, then ``np.bincount``'s
+    weighted sums: from 0, in the order given). Cells already strictly increasing (one
+    Gaussian's box, by rows) need no sort."""
+    n = len(cells)
+    increasing = True
+    for j in range(1, n):
+        if cells[j] <= cells[j - 1]:
+            increasing = False
+            break
+    if increasing:
+        sums = np.empty(n)
+        for j in range(n):
+            sums[j] = 0.0 + amounts[j]
+        return cells.copy(), sums
+    order = np.argsort(cells)  # any order among equal cells: the sums follow the input's
+    inv = np.empty(n, np.int64)
+    n_u = 0
+    for j in range(n):
+        if j == 0 or cells[order[j]] != cells[order[j - 1]]:
+            n_u += 1
+        inv[order[j]] = n_u - 1
+    uniq = np.empty(n_u, np.int64)
+    sums = np.zeros(n_u)
+    for j in range(n):
+        uniq[inv[j]] = cells[j]
+        sums[inv[j]] += amounts[j]
+    return uniq, sums
+
+
+@njit(cache=True)
+def looked_log_ratios(cells: np.ndarray, returns: np.ndarray, log_pos: float,
+                      log_neg: float, max_log: float
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`.cell_evidence.looked_log_ratios`: the looked cells (sorted), the looks at
+    each, the positive cells and ``min(k_c log_pos + (n_c - k_c) log_neg, max_log)``."""
+    uniq, inv = _unique_inverse(cells)
+    n_looks = np.zeros(len(uniq), np.int64)
+    positive = np.zeros(len(uniq), np.int64)
+    for j in range(len(cells)):
+        n_looks[inv[j]] += 1
+        if returns[j]:
+            positive[inv[j]] += 1
+    n_det = 0
+    for c in range(len(uniq)):
+        if positive[c] > 0:
+            n_det += 1
+    det_cells = np.empty(n_det, np.int64)
+    log_r = np.empty(len(uniq))
+    d = 0
+    for c in range(len(uniq)):
+        if positive[c] > 0:
+            det_cells[d] = uniq[c]
+            d += 1
+        log_r[c] = _nan_min(positive[c] * log_pos + (n_looks[c] - positive[c]) * log_neg,
+                            max_log)
+    return uniq, n_looks, det_cells, log_r
+
+
+@njit(cache=True, error_model="numpy")
+def field_apply(f_default, f_cells, f_values, cells, operands, add):
+    """:meth:`.cells.CellField.multiply` (``add`` False) or ``add`` at the sorted unique
+    ``cells``: the new ``cells`` and ``values`` (a cell whose value becomes the default
+    rejoins it; nothing changes when ``cells`` is empty)."""
+    if len(cells) == 0:
+        return f_cells, f_values
+    n_f, n_c = len(f_cells), len(cells)
+    out_c = np.empty(n_f + n_c, np.int64)
+    out_v = np.empty(n_f + n_c)
+    i = k = n = 0
+    while i < n_f or k < n_c:
+        if k == n_c or (i < n_f and f_cells[i] < cells[k]):
+            c, v = f_cells[i], f_values[i]
+            i += 1
+        else:
+            c = cells[k]
+            v = f_default
+            if i < n_f and f_cells[i] == c:
+                v = f_values[i]
+                i += 1
+            v = v + operands[k] if add else v * operands[k]
+            k += 1
+        if not v == f_default:
+            out_c[n], out_v[n] = c, v
+            n += 1
+    return out_c[:n], out_v[:n]
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) every kernel on tiny inputs, for the argument
     types the callers pass, so that a tracker's ``reset`` pays for it and no timed step
@@ -275,4 +392,7 @@ def warm_up() -> None:
     looked_in_boxes(f, f, f, f, i, 1, 1)
     cell_evidence(1.0, 1, 1, f, f, f + 1.0, f + 1.0, 6.0, i, f, i, i, i)
     recycled_intensity(1.0, 1, 1, np.zeros((1, 2)), cov, 1e-12, 6.0, f)
+    cell_sums(i, f)
+    field_apply(0.0, i, f, i, f, True)
+    looked_log_ratios(i, np.zeros(1, np.bool_), 1.0, -1.0, 700.0)
     warm_up.done = True

@@ -61,7 +61,7 @@ GOALS = [
 #: warm-up steps: bench_trackers.py (every cell) and bench_stonesoup.py (raster)
 WARM_STEPS = {True: 20, False: 60}
 #: rounds of each tracker in the paired ratio, and of the gated benchmark
-PAIRED_ROUNDS, ROUNDS = 15, 15
+PAIRED_ROUNDS, ROUNDS = 60, 15
 #: OSPA (c = 2) the timed steps must stay below: bench_trackers.py's bound after the
 #: every-cell warm-up, bench_stonesoup.py's after the raster (no tracker holds all 25
 #: targets of large after 60 raster steps; null scores 2)

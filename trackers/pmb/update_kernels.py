@@ -33,7 +33,7 @@ from numba import njit
 from ..gpf import step_kernels
 from ..gpf.step_kernels import collapse as _collapse
 from ..gpf.update_kernels import state_moments
-from ..grid_kernels import looked_in_boxes
+from ..grid_kernels import field_apply, looked_in_boxes
 from ..numba_exact import find_root as _find
 from ..numba_exact import search_left as _search
 from ..numba_exact import unique_inverse as _unique_inverse
@@ -515,35 +515,6 @@ def field_at(f_default, f_cells, f_values, cells):
             if f_cells[k] == cells[i]:
                 out[i] = f_values[k]
     return out
-
-
-@njit(cache=True, error_model="numpy")
-def field_apply(f_default, f_cells, f_values, cells, operands, add):
-    """:meth:`.cells.CellField.multiply` (``add`` False) or ``add`` at the sorted unique
-    ``cells``: the new ``cells`` and ``values`` (a cell whose value becomes the default
-    rejoins it; nothing changes when ``cells`` is empty)."""
-    if len(cells) == 0:
-        return f_cells, f_values
-    n_f, n_c = len(f_cells), len(cells)
-    out_c = np.empty(n_f + n_c, np.int64)
-    out_v = np.empty(n_f + n_c)
-    i = k = n = 0
-    while i < n_f or k < n_c:
-        if k == n_c or (i < n_f and f_cells[i] < cells[k]):
-            c, v = f_cells[i], f_values[i]
-            i += 1
-        else:
-            c = cells[k]
-            v = f_default
-            if i < n_f and f_cells[i] == c:
-                v = f_values[i]
-                i += 1
-            v = v + operands[k] if add else v * operands[k]
-            k += 1
-        if not v == f_default:
-            out_c[n], out_v[n] = c, v
-            n += 1
-    return out_c[:n], out_v[:n]
 
 
 # ------------------------------------------------------------ the tracker's update
