@@ -60,7 +60,9 @@ GOALS = [
 ]
 #: warm-up steps: bench_trackers.py (every cell) and bench_stonesoup.py (raster)
 WARM_STEPS = {True: 20, False: 60}
-#: rounds of each tracker in the paired ratio, and of the gated benchmark
+#: rounds of each tracker in the paired ratio (60: with 15 the fastest kfnn step on
+#: `large` moved by 1.4x between processes of one tree; docs/speed.md), and of the
+#: gated benchmark
 PAIRED_ROUNDS, ROUNDS = 60, 15
 #: OSPA (c = 2) the timed steps must stay below: bench_trackers.py's bound after the
 #: every-cell warm-up, bench_stonesoup.py's after the raster (no tracker holds all 25
