@@ -21,6 +21,9 @@ differ. Each equals its dense counterpart bit for bit where it keeps a number.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from types import ModuleType
+
 import numpy as np
 from scipy.special import ndtr
 
@@ -377,6 +380,20 @@ def bernoulli_cell_counts(n_cells: int, n_counts: int, cells: np.ndarray, probs:
     return CellCounts(n_cells, own, dist.T.copy(), default[:, 0])
 
 
+#: where :class:`CellField` finds the compiled kernels (a function returning their module
+#: or None): :func:`use_field_kernels`; None until then (the numpy form)
+_field_kernels: Callable[[], ModuleType | None] | None = None
+
+
+def use_field_kernels(provider: Callable[[], ModuleType | None] | None) -> None:
+    """Have :class:`CellField` merge with ``provider()``'s :func:`.grid_kernels.field_apply`
+    whenever it returns the kernels (the same numbers as the numpy form).
+    :mod:`.grid_backend` registers its ``compiled_grid_kernels`` when it is imported: it
+    imports this module, so this one cannot import it."""
+    global _field_kernels
+    _field_kernels = provider
+
+
 class CellField:
     """A value per cell (for example an undetected-target intensity) stored as one
     ``default`` shared by every cell plus the sorted ``cells`` whose ``values`` differ.
@@ -423,9 +440,7 @@ class CellField:
         cells = np.asarray(cells, dtype=np.int64).reshape(-1)
         if not len(cells):
             return
-        from .grid_backend import compiled_grid_kernels  # it imports this module
-
-        kernels = compiled_grid_kernels()
+        kernels = _field_kernels() if _field_kernels is not None else None
         if kernels is not None:
             operands = np.ascontiguousarray(operands, dtype=float).reshape(-1)
             if len(operands) != len(cells):
