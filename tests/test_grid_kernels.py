@@ -184,6 +184,19 @@ def test_looked_log_ratios_equal_the_numpy_form():
     assert n_nan > 0 and n_clipped > 0  # both special cases met
 
 
+def test_unique_inverse_equals_numpys():
+    """Many repeats (the kernel's sort is not stable: equal keys in any order must give
+    the same two arrays), a single key, none."""
+    from mttbench.trackers.numba_exact import unique_inverse
+
+    rng = np.random.default_rng(7)
+    for n in [0, 1, *rng.integers(2, 300, 200)]:
+        key = rng.integers(-5, int(rng.integers(1, 40)), n)
+        uniq, inv = unique_inverse(key)
+        want_u, want_inv = np.unique(key, return_inverse=True)
+        assert _equal((uniq, inv), (want_u, want_inv.reshape(-1).astype(np.int64)))
+
+
 def test_adding_intensity_equals_the_numpy_form():
     """Repeated cells (their amounts summed in the order given, from tiny to huge), cells
     the field holds and new ones, an amount that brings a cell back to the default."""

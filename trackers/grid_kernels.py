@@ -306,17 +306,9 @@ def cell_sums(cells: np.ndarray, amounts: np.ndarray) -> tuple[np.ndarray, np.nd
         for j in range(n):
             sums[j] = 0.0 + amounts[j]
         return cells.copy(), sums
-    order = np.argsort(cells)  # any order among equal cells: the sums follow the input's
-    inv = np.empty(n, np.int64)
-    n_u = 0
+    uniq, inv = _unique_inverse(cells)
+    sums = np.zeros(len(uniq))
     for j in range(n):
-        if j == 0 or cells[order[j]] != cells[order[j - 1]]:
-            n_u += 1
-        inv[order[j]] = n_u - 1
-    uniq = np.empty(n_u, np.int64)
-    sums = np.zeros(n_u)
-    for j in range(n):
-        uniq[inv[j]] = cells[j]
         sums[inv[j]] += amounts[j]
     return uniq, sums
 

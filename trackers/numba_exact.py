@@ -154,7 +154,7 @@ def find_root(parent: np.ndarray, i: int) -> int:
 def unique_inverse(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``np.unique(key, return_inverse=True)`` of an int array."""
     n = len(key)
-    order = np.argsort(key, kind="mergesort")
+    order = np.argsort(key)  # any order among equal keys gives the same two arrays
     inv = np.empty(n, np.int64)
     n_k = 0
     for j in range(n):
