@@ -46,6 +46,7 @@ def compiled_grid_kernels() -> ModuleType | None:
 
 cells.use_field_kernels(compiled_grid_kernels)
 
+
 class BackgroundKernels:
     """A compiled kernels' module loaded off the caller's thread: the first :meth:`get`
     starts a thread that imports and warms the module here (0.2 s) when numba's disk

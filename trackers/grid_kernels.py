@@ -199,16 +199,11 @@ def cell_evidence(s: float, nx: int, ny: int, mx: np.ndarray, my: np.ndarray,
     y0 = np.zeros(K, np.int64)
     at_x = np.zeros(K + 1, np.int64)
     at_y = np.zeros(K + 1, np.int64)
-    for k in range(K):
-        wx = wy = 0
-        if (hi_x[k] >= 0 and lo_x[k] <= nx - 1 and hi_y[k] >= 0 and lo_y[k] <= ny - 1
-                and hi_x[k] >= lo_x[k] and hi_y[k] >= lo_y[k]):
-            x0[k] = int(min(max(lo_x[k], 0.0), nx - 1))
-            y0[k] = int(min(max(lo_y[k], 0.0), ny - 1))
-            wx = int(min(max(hi_x[k], 0.0), nx - 1)) - x0[k] + 2
-            wy = int(min(max(hi_y[k], 0.0), ny - 1)) - y0[k] + 2
-        at_x[k + 1] = at_x[k] + wx
-        at_y[k + 1] = at_y[k] + wy
+    for k in range(K):  # the box's cells on each axis (as looked_in_boxes clips them)
+        x0[k], wx = _axis_box(mx[k], sx[k], nx, s, box_sd)
+        y0[k], wy = _axis_box(my[k], sy[k], ny, s, box_sd)
+        at_x[k + 1] = at_x[k] + (wx + 1 if wx else 0)  # w cells, w + 1 edges
+        at_y[k + 1] = at_y[k] + (wy + 1 if wy else 0)
     cdf_x = np.empty(at_x[K])
     cdf_y = np.empty(at_y[K])
     for k in range(K):
