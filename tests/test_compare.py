@@ -98,7 +98,7 @@ def test_a_failed_compare_is_marked_in_its_manifest(tmp_path, monkeypatch):
     def broken(*args, **kwargs):
         raise RuntimeError("no figures today")
 
-    monkeypatch.setattr(report, "build_report", broken)
+    monkeypatch.setattr(report, "start_report", broken)
     with pytest.raises(RuntimeError, match="no figures today"):
         compare.run_compare(["default"], ["null"], [0], steps=2, workers=1, out_dir=tmp_path,
                             progress=False, snapshot=False, argv=["x"])

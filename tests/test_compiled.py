@@ -153,6 +153,53 @@ def test_loads_without_compiling_only_when_every_cached_kernel_is_in_the_cache(t
     assert compiled.loads_without_compiling(name, also=(other + "_not_loaded",))
 
 
+HELPER_SOURCE = """
+from numba import njit
+
+
+@njit(cache=True)
+def halve(x):
+    return 0.5 * x
+"""
+
+CALLER_SOURCE = """
+from numba import njit
+
+from .helper import halve
+
+
+@njit(cache=True)
+def quarter(x):
+    return halve(halve(x))
+
+
+def warm_up():
+    quarter(1.0)
+"""
+
+
+def test_a_helpers_stale_index_does_not_make_its_callers_load_compile(tmp_path, monkeypatch):
+    """A helper kernel called only from other kernels: once its file is edited its own
+    index is stale, but its caller loads from the cache without it (the caller's code holds
+    the helper's), so the check of the caller (with the helpers left out, as by default)
+    says no compile, and a load indeed compiles nothing."""
+    pkg, name = _kernel_module(tmp_path, monkeypatch)
+    (pkg / "helper.py").write_text(HELPER_SOURCE)
+    (pkg / "caller.py").write_text(CALLER_SOURCE)
+    helper_name, caller_name = name.replace(".kern", ".helper"), name.replace(".kern",
+                                                                              ".caller")
+    importlib.import_module(caller_name).warm_up()  # both compiled into the cache
+    (pkg / "helper.py").write_text(HELPER_SOURCE + "\n# edited\n")
+    helper = importlib.reload(importlib.import_module(helper_name))
+    caller = importlib.reload(importlib.import_module(caller_name))
+    assert not compiled.loads_without_compiling(helper_name, also=())  # stale
+    assert compiled.loads_without_compiling(caller_name, also=())
+    assert compiled.loads_without_compiling.__defaults__ == (compiled.MODULES,)
+    assert caller.quarter(8.0) == 2.0
+    assert caller.quarter.stats.cache_hits and not caller.quarter.stats.cache_misses
+    assert not helper.halve.signatures  # the helper was not compiled for the load
+
+
 def test_loads_without_compiling_is_false_without_numba(tmp_path, monkeypatch):
     _, name = _kernel_module(tmp_path, monkeypatch)
     importlib.import_module(name).warm_up()

@@ -287,6 +287,13 @@ def test_tiny_sweep_report_has_ospa2_figure_and_crossing_table(tmp_path):
     runs = summary.per_run(results)
     tg, tg_half = summary.mean_ci95(runs.loc[runs["tracker"] == "kfnn", "tgospa"].to_numpy())
     assert f"{tg:.3f} ± {tg_half:.3f}" in track and "| crossing | null" not in track
+    # the caller's tables (as compare's report has them) give the same files
+    (tmp_path / "given").mkdir()
+    given = summary.write_summary(results, tmp_path / "given", "tiny", runs=runs,
+                                  summ=summary.summarize(runs), gc=summary.gap_closed(runs))
+    assert given == text
+    assert (tmp_path / "given" / "summary.csv").read_text() == (
+        tmp_path / "summary.csv").read_text()
 
 
 def _runs(gaps: dict[str, np.ndarray], metric: str = "gospa") -> pd.DataFrame:

@@ -1,14 +1,19 @@
-"""A report's figures drawn in several processes: the same files as in one, each figure in
+"""A report's figures drawn in several processes: the same files as in one (also when the
+snapshot is added after the other figures started, as `compare` does), each figure in
 another process than the report's, and a figure's error raised by the report."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 
 import pytest
 from test_report import synthetic_results
 
+from mttbench import scenarios
 from mttbench.benchmarks.app import figures, report
+from mttbench.benchmarks.engine.snapshot import trace_run
+from mttbench.benchmarks.engine.specs import TrackerSpec
 
 
 def test_two_processes_write_the_same_report_and_figures_as_one(tmp_path):
@@ -21,6 +26,21 @@ def test_two_processes_write_the_same_report_and_figures_as_one(tmp_path):
         assert two.figures[key].read_bytes() == path.read_bytes(), key
     assert two.markdown.read_text() == one.markdown.read_text()
     assert two.html.read_bytes() == one.html.read_bytes()
+
+
+def test_a_snapshot_added_while_the_figures_are_drawn_is_the_one_built_at_once(tmp_path):
+    results = synthetic_results()
+    sc = dataclasses.replace(scenarios.get("default"), n_steps=8)
+    trace = trace_run(sc, TrackerSpec("kfnn"), seed=1)
+    once = report.build_report(results, tmp_path / "once", reference="kfnn", trace=trace)
+    with report.start_report(results, tmp_path / "later", processes=2) as pending:
+        pending.add_snapshot(trace)
+        later = pending.finish(reference="kfnn")
+    assert list(later.figures) == list(once.figures)
+    assert list(once.figures)[-1] == "snapshot"
+    for key, path in once.figures.items():
+        assert later.figures[key].read_bytes() == path.read_bytes(), key
+    assert later.markdown.read_text() == once.markdown.read_text()
 
 
 def _pid(path):

@@ -63,14 +63,18 @@ def cold_modules(modules: tuple[str, ...] = MODULES + HELPERS) -> list[str]:
     return cold
 
 
-def loads_without_compiling(name: str, also: tuple[str, ...] = MODULES + HELPERS) -> bool:
+def loads_without_compiling(name: str, also: tuple[str, ...] = MODULES) -> bool:
     """Whether loading the kernels of the module ``name`` (and of the modules of ``also``
     loaded in this process by then: by default every kernel module) would find each one
     compiled in numba's disk cache: every ``cache=True`` kernel has an index whose source
     stamp is its file's now (numba's SHA-256 of the source) with an entry for this
     machine's code generator and the function's bytecode now, the key numba looks up.
-    Kernels inlined always are skipped (compiled only inside their callers). Imports the
-    module (and numba), compiles nothing, reads a few small files.
+    Kernels inlined always are skipped (compiled only inside their callers), and so are
+    the :data:`HELPERS`: a caller loaded from the cache holds their code and never asks
+    for them, so a helper's stale index (its file edited, the callers not) does not make a
+    load compile, and checking it would have every process compile again forever (the
+    compile loads the callers from the cache and leaves the helper's index stale).
+    Imports the module (and numba), compiles nothing, reads a few small files.
 
     An entry is per signature, so a signature no run has compiled yet is not seen: loading
     it compiles that one. False on anything unexpected (numba's private cache layout is

@@ -300,14 +300,6 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
             bayes_lines += lines
         manifest["bayes"] = bayes_lines
         order = [pol.label for pol in pols]
-        axis_md = policy_axis.markdown(policy_axis.policy_axis(
-            summary.per_run(results), order=order)) if len(pols) > 1 else ""
-
-        summary.write_summary(results, out, "mttbench compare",
-                              notes=tuned.parameter_notes(plan),
-                              sections=[axis_md] if axis_md else ())
-
-        trace = _snapshot_trace(scs, specs, seeds, pols[0]) if snapshot else None
         earlier = sum(float(s.get("wall_time_s") or 0.0) for s in sessions[:-1])
         wall_text = f"{t_runs:.1f} s"
         if len(sessions) > 1:
@@ -342,11 +334,20 @@ def run_compare(scenario_names: Sequence[str] = COMPARE_SCENARIOS,
         ]
         from . import report  # matplotlib: imported only when a report is drawn
 
-        files = report.build_report(results, out, reference=reference, intro=intro,
-                                    settings=settings, trace=trace,
-                                    sections=tuned.report_sections(plan, results),
-                                    tuned_on=tuned.tuned_scenarios(plan),
-                                    policy_order=order, processes=workers)
+        # the figures are drawn in the workers while this process writes the summary,
+        # traces the snapshot's run and writes the report
+        with report.start_report(results, out, policy_order=order,
+                                 processes=workers) as pending:
+            axis_md = policy_axis.markdown(pending.axis) if len(pols) > 1 else ""
+            summary.write_summary(results, out, "mttbench compare",
+                                  notes=tuned.parameter_notes(plan),
+                                  sections=[axis_md] if axis_md else (), runs=pending.runs,
+                                  summ=pending.summ, gc=pending.gc)
+            pending.add_snapshot(_snapshot_trace(scs, specs, seeds, pols[0]) if snapshot
+                                 else None)
+            files = pending.finish(reference=reference, intro=intro, settings=settings,
+                                   sections=tuned.report_sections(plan, results),
+                                   tuned_on=tuned.tuned_scenarios(plan))
     except BaseException as exc:
         status = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
         with contextlib.suppress(OSError):

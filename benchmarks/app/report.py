@@ -672,13 +672,29 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
     the order given (the first is the base of the differences between policies; default
     their order in ``results``). ``processes``: how many processes draw the figures
     (each figure is drawn whole by one of them; the files do not depend on it).
+    :func:`start_report` does the same in two steps, for a caller with other work to do
+    while the figures are drawn.
     """
+    with start_report(results, out_dir, draw=draw, policy_order=policy_order,
+                      processes=processes) as pending:
+        pending.add_snapshot(trace)
+        return pending.finish(reference=reference, title=title, intro=intro,
+                              settings=settings, notes=notes, sections=sections,
+                              tuned_on=tuned_on)
+
+
+def start_report(results: pd.DataFrame, out_dir: str | Path, *, draw: bool = True,
+                 policy_order: list[str] | None = None,
+                 processes: int = 1) -> PendingReport:
+    """The first half of :func:`build_report` (same arguments): the report's tables, and
+    its figures being drawn in ``processes`` processes while the caller goes on (with one
+    process, drawn here). Use it as a context manager (leaving it early ends the drawing)
+    and end with :meth:`PendingReport.finish`, which writes the files."""
     out_dir = Path(out_dir)
     fig_dir = out_dir / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
     runs = summary.per_run(results)
     summ = summary.summarize(runs)
-    truth = summary.truth_labels(runs)
     gc = summary.gap_closed(runs)
     axis = policy_axis.policy_axis(runs, gc, gc.metric, policy_order)
 
@@ -686,23 +702,55 @@ def build_report(results: pd.DataFrame, out_dir: str | Path, *, reference: str |
     if draw:
         if axis.available:  # one panel per scenario and policy
             tasks = _figure_tasks(_panel_per_policy(results), _panel_per_policy(runs),
-                                  _panel_per_policy(summ), fig_dir, trace, gc,
+                                  _panel_per_policy(summ), fig_dir, gc,
                                   summary.cutoff_text(results))
         else:
-            tasks = _figure_tasks(results, runs, summ, fig_dir, trace, gc)
-    # the figures are drawn while the document is written; every file is written once
-    # they all are
-    with _Drawing(tasks, processes) as drawing:
-        doc = _document(results, runs, summ, truth, gc, axis, drawing.paths, title=title,
-                        intro=intro, settings=settings, notes=notes, sections=sections,
-                        tuned_on=tuned_on, reference=reference)
-        figs = drawing.wait()
+            tasks = _figure_tasks(results, runs, summ, fig_dir, gc)
+    pending = PendingReport(results, out_dir, runs, summ, gc, axis, draw,
+                            _Drawing(tasks, processes))
+    return pending
 
-    md_path = out_dir / "report.md"
-    write_text_atomic(md_path, doc.markdown(out_dir))
-    html_path = out_dir / "report.html"
-    write_text_atomic(html_path, doc.html(title))
-    return ReportFiles(md_path, html_path, figs)
+
+class PendingReport:
+    """A report being made (:func:`start_report`): its tables are computed, its figures
+    are being drawn. :meth:`add_snapshot` adds the snapshot figure; :meth:`finish` writes
+    the document while the figures are drawn and every file once they all are."""
+
+    def __init__(self, results: pd.DataFrame, out_dir: Path, runs: pd.DataFrame,
+                 summ: pd.DataFrame, gc: summary.GapClosed, axis: policy_axis.PolicyAxis,
+                 draw: bool, drawing: _Drawing) -> None:
+        self.results, self.out_dir, self.runs, self.summ = results, out_dir, runs, summ
+        self.gc, self.axis, self.draw, self.drawing = gc, axis, draw, drawing
+
+    def add_snapshot(self, trace: Any) -> None:
+        """Draw the snapshot of ``trace`` (a :class:`benchmarks.engine.snapshot.Trace`;
+        None: no snapshot) after the other figures."""
+        if trace is not None and self.draw:
+            self.drawing.add(_snapshot_task(trace, self.out_dir / "figures"))
+
+    def finish(self, *, reference: str | None = "kfnn",
+               title: str = "mttbench head-to-head comparison",
+               intro: list[str] | None = None, settings: dict[str, Any] | None = None,
+               notes: list[str] | None = None, sections: list[tuple[Any, ...]] | None = None,
+               tuned_on: dict[str, frozenset[str]] | None = None) -> ReportFiles:
+        """Write ``report.md`` and ``report.html`` (arguments as :func:`build_report`)."""
+        truth = summary.truth_labels(self.runs)
+        doc = _document(self.results, self.runs, self.summ, truth, self.gc, self.axis,
+                        self.drawing.paths, title=title, intro=intro, settings=settings,
+                        notes=notes, sections=sections, tuned_on=tuned_on,
+                        reference=reference)
+        figs = self.drawing.wait()
+        md_path = self.out_dir / "report.md"
+        write_text_atomic(md_path, doc.markdown(self.out_dir))
+        html_path = self.out_dir / "report.html"
+        write_text_atomic(html_path, doc.html(title))
+        return ReportFiles(md_path, html_path, figs)
+
+    def __enter__(self) -> PendingReport:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.drawing.__exit__(*exc)
 
 
 def _document(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame,
@@ -877,10 +925,11 @@ class FigureTask:
 
 
 def _figure_tasks(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame,
-                  fig_dir: Path, trace: Any, gc: summary.GapClosed | None = None,
+                  fig_dir: Path, gc: summary.GapClosed | None = None,
                   cut: str | None = None) -> list[FigureTask]:
-    """The report's figures, in the order the report shows them (the costliest first:
-    :class:`_Drawing` hands them out in this order)."""
+    """The report's figures but the snapshot (:func:`_snapshot_task`), in the order the
+    report shows them (the costliest first: :class:`_Drawing` hands them out in this
+    order)."""
     cut = cut or summary.cutoff_text(results)
     tasks = [
         FigureTask("ospa", fig_dir / "ospa_over_time.png", figures.metric_over_time,
@@ -906,43 +955,53 @@ def _figure_tasks(results: pd.DataFrame, runs: pd.DataFrame, summ: pd.DataFrame,
         tasks.append(FigureTask(
             "gap_closed", fig_dir / "gap_closed.png", figures.gap_closed_shares,
             (gc.shares,), {"style_labels": list(summ["tracker_label"].astype(str).unique())}))
-    if trace is not None:
-        n = len(trace.steps)
-        steps = sorted({max(0, n // 4 - 1), max(0, n // 2 - 1), n - 1})
-        g = trace.scenario.grid
-        tasks.append(FigureTask(
-            "snapshot", fig_dir / "snapshot.png", figures.snapshot, (trace.frames(),),
-            {"steps": steps, "nx": g.nx, "ny": g.ny, "cell_size": g.cell_size,
-             "title": f"{trace.tracker_label} on {trace.scenario.name}, seed {trace.seed}, "
-                      f"policy {trace.policy_label}"}))
     return tasks
 
 
+def _snapshot_task(trace: Any, fig_dir: Path) -> FigureTask:
+    """The snapshot figure of ``trace``: three steps of its run."""
+    n = len(trace.steps)
+    steps = sorted({max(0, n // 4 - 1), max(0, n // 2 - 1), n - 1})
+    g = trace.scenario.grid
+    return FigureTask(
+        "snapshot", fig_dir / "snapshot.png", figures.snapshot, (trace.frames(),),
+        {"steps": steps, "nx": g.nx, "ny": g.ny, "cell_size": g.cell_size,
+         "title": f"{trace.tracker_label} on {trace.scenario.name}, seed {trace.seed}, "
+                  f"policy {trace.policy_label}"})
+
+
 class _Drawing:
-    """The figures of ``tasks`` being drawn. With ``processes <= 1`` each is drawn when the
-    drawing starts, in this process; else in that many worker processes at once, which
-    go on while this one writes the report (:meth:`wait` collects them). A figure is one
-    process's work, so its file is the one this process would write. An error in one is
-    raised by :meth:`wait`; leaving the ``with`` block early (an error, Ctrl-C) ends
-    the workers."""
+    """The figures of ``tasks`` (and of those :meth:`add` gives later) being drawn. With
+    ``processes <= 1`` each is drawn when it is given, in this process; else in that many
+    worker processes at once, which go on while this one writes the report (:meth:`wait`
+    collects them). A figure is one process's work, so its file is the one this process
+    would write. An error in one is raised by :meth:`wait`; leaving the ``with`` block
+    early (an error, Ctrl-C) ends the workers."""
 
     def __init__(self, tasks: list[FigureTask], processes: int = 1) -> None:
-        self.paths = {t.key: t.path for t in tasks}  # where the report links them
+        self.paths: dict[str, Path] = {}  # where the report links them
         self._pool = None
         self._futures: list[tuple[str, Any]] = []
         self._drawn: dict[str, Path] = {}
-        if processes <= 1 or len(tasks) <= 1:
-            self._drawn = {t.key: t() for t in tasks}
-            return
-        self._pool = ProcessPoolExecutor(max_workers=min(processes, len(tasks)),
-                                         mp_context=multiprocessing.get_context(),
-                                         initializer=_ignore_sigint)
-        self._futures = [(t.key, self._pool.submit(t)) for t in tasks]
+        if processes > 1 and tasks:
+            self._pool = ProcessPoolExecutor(max_workers=processes,
+                                             mp_context=multiprocessing.get_context(),
+                                             initializer=_ignore_sigint)
+        for task in tasks:
+            self.add(task)
+
+    def add(self, task: FigureTask) -> None:
+        """Draw ``task`` after those given before."""
+        self.paths[task.key] = task.path
+        if self._pool is None:
+            self._drawn[task.key] = task()
+        else:
+            self._futures.append((task.key, self._pool.submit(task)))
 
     def wait(self) -> dict[str, Path]:
         """Each figure's file, ``{key: path}`` in the tasks' order, once all are drawn."""
         if self._pool is not None:
-            self._drawn = {key: fut.result() for key, fut in self._futures}
+            self._drawn.update((key, fut.result()) for key, fut in self._futures)
             self._pool.shutdown()
             self._pool = None
         return self._drawn

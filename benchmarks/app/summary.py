@@ -858,18 +858,23 @@ def cutoff_text(results: pd.DataFrame) -> str:
 
 
 def write_summary(results: pd.DataFrame, out_dir: str | Path, title: str,
-                  notes: Sequence[str] = (), sections: Sequence[str] = ()) -> str:
+                  notes: Sequence[str] = (), sections: Sequence[str] = (), *,
+                  runs: pd.DataFrame | None = None, summ: pd.DataFrame | None = None,
+                  gc: GapClosed | None = None) -> str:
     """Write ``summary.csv`` and ``summary.md`` (headed ``title``) of ``results`` into
     ``out_dir``, each all or nothing; return the Markdown text. ``notes``: more lines
     listed under the table (``compare``: which parameters each tracker ran).
     ``summary.md`` then has the track-level sections of :func:`track_markdown` (the
     switches around the crossings only from a step table with the per-step series), then
-    ``sections`` (Markdown; ``compare`` and ``run``: the tracker x policy tables)."""
+    ``sections`` (Markdown; ``compare`` and ``run``: the tracker x policy tables).
+    ``runs``, ``summ``, ``gc``: :func:`per_run`, :func:`summarize` and :func:`gap_closed`
+    of ``results`` when the caller has them already (computed here when None)."""
     from ..engine.store import write_text_atomic
 
     out_dir = Path(out_dir)
-    runs = _as_runs(results)
-    table = with_gap_closed(summarize(runs), gc := gap_closed(runs))
+    runs = _as_runs(results) if runs is None else runs
+    summ = summarize(runs) if summ is None else summ
+    table = with_gap_closed(summ, gc := gap_closed(runs) if gc is None else gc)
     write_text_atomic(out_dir / "summary.csv", table.to_csv(index=False))
     text = f"# {title}\n\n" + to_markdown(table)
     extra = [f"OSPA/GOSPA cut-off and order: {cutoff_text(results)} (the default c is "
