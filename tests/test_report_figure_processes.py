@@ -17,30 +17,22 @@ from mttbench.benchmarks.engine.specs import TrackerSpec
 
 
 def test_two_processes_write_the_same_report_and_figures_as_one(tmp_path):
+    """``build_report`` in one process, and in two steps with two drawing processes and the
+    snapshot added while the other figures are drawn (as ``compare`` does)."""
     results = synthetic_results()
-    one = report.build_report(results, tmp_path / "one", reference="kfnn", processes=1)
-    two = report.build_report(results, tmp_path / "two", reference="kfnn", processes=2)
+    sc = dataclasses.replace(scenarios.get("default"), n_steps=8)
+    trace = trace_run(sc, TrackerSpec("kfnn"), seed=1)
+    one = report.build_report(results, tmp_path / "one", reference="kfnn", trace=trace,
+                              processes=1)
+    with report.start_report(results, tmp_path / "two", processes=2) as pending:
+        pending.add_snapshot(trace)
+        two = pending.finish(reference="kfnn")
     assert list(two.figures) == list(one.figures)  # the same figures, in the same order
-    assert len(one.figures) >= 4
+    assert len(one.figures) >= 5 and list(one.figures)[-1] == "snapshot"
     for key, path in one.figures.items():
         assert two.figures[key].read_bytes() == path.read_bytes(), key
     assert two.markdown.read_text() == one.markdown.read_text()
     assert two.html.read_bytes() == one.html.read_bytes()
-
-
-def test_a_snapshot_added_while_the_figures_are_drawn_is_the_one_built_at_once(tmp_path):
-    results = synthetic_results()
-    sc = dataclasses.replace(scenarios.get("default"), n_steps=8)
-    trace = trace_run(sc, TrackerSpec("kfnn"), seed=1)
-    once = report.build_report(results, tmp_path / "once", reference="kfnn", trace=trace)
-    with report.start_report(results, tmp_path / "later", processes=2) as pending:
-        pending.add_snapshot(trace)
-        later = pending.finish(reference="kfnn")
-    assert list(later.figures) == list(once.figures)
-    assert list(once.figures)[-1] == "snapshot"
-    for key, path in once.figures.items():
-        assert later.figures[key].read_bytes() == path.read_bytes(), key
-    assert later.markdown.read_text() == once.markdown.read_text()
 
 
 def _pid(path):
