@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev,stonesoup,dask]'
 	# compile the numba kernels into their on-disk cache once here (about 130 s), so that no
 	# sweep's workers compile them side by side inside their first timed runs
-	$(BIN)/python -m mttbench.trackers.compiled
+	$(BIN)/python -c 'from mttbench.trackers import compiled; compiled.warm_up()'
 	touch $(STAMP)
 
 # the tests and every benchmark once, untimed, in one session on two processes (the

@@ -71,7 +71,7 @@ def test_without_numba_nothing_is_cold(tmp_path, monkeypatch):
 
 
 def test_after_warm_up_no_module_is_cold(monkeypatch):
-    """The install's warm-up (``python -m mttbench.trackers.compiled``, run by ``make``)
+    """The install's warm-up (``compiled.warm_up()``, run by ``make``)
     leaves every listed module indexed in the disk cache."""
     monkeypatch.delenv("MTTBENCH_NO_NUMBA", raising=False)
     compiled.warm_up()

@@ -6,8 +6,9 @@ pyXY.nbi`` per kernel in ``__pycache__`` next to the module, or under
 ``NUMBA_CACHE_DIR``); a later process loads them in milliseconds. With a cold cache the
 first runs of a sweep compile them, each worker process its own (about 130 s of CPU for
 all of them on a 2-core x86-64 machine). ``make``'s install step pays that once
-(``python -m mttbench.trackers.compiled``); the sweep's default wall-time limit of a run
-allows for it while the cache is cold (``mttbench.benchmarks.app.resources``).
+(:func:`warm_up`; ``python -m mttbench.trackers.compiled`` does the same, with a warning
+from runpy, the package having imported this module); the sweep's default wall-time
+limit of a run allows for it while the cache is cold (``mttbench.benchmarks.app.resources``).
 
 :func:`cold_modules` looks for the index files only: it imports neither numba nor the
 modules, so asking costs a few file-system lookups.
