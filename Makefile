@@ -12,9 +12,10 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev,stonesoup,dask]'
-	# compile the numba kernels into their on-disk cache once here (about 130 s), so that no
-	# sweep's workers compile them side by side inside their first timed runs
-	$(BIN)/python -c 'from mttbench.trackers import compiled; compiled.warm_up()'
+	# compile the numba kernels into their on-disk cache once here, so that no sweep's workers
+	# compile them side by side inside their first timed runs (two processes: about 105 s
+	# on 2 cores, 165 s in one; docs/suite_time.md)
+	$(BIN)/python -c 'from mttbench.trackers import compiled; compiled.warm_up_in_processes()'
 	touch $(STAMP)
 
 # the tests and every benchmark once, untimed, in one session on two processes (the

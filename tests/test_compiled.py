@@ -3,8 +3,13 @@
 
 from __future__ import annotations
 
+import fcntl
 import importlib
+import os
 import re
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -76,6 +81,11 @@ def test_after_warm_up_no_module_is_cold(monkeypatch):
     monkeypatch.delenv("MTTBENCH_NO_NUMBA", raising=False)
     compiled.warm_up()
     assert compiled.cold_modules() == []
+
+
+def test_the_warm_up_groups_hold_every_module_once():
+    grouped = [name for group in compiled.WARM_UP_GROUPS for name in group]
+    assert sorted(grouped) == sorted(compiled.MODULES)
 
 
 @pytest.mark.parametrize("missing", ["no.such.module", "nosuchmodule_mttbench"])
@@ -233,3 +243,67 @@ def test_background_kernels_start_no_child_when_the_cache_holds_them(tmp_path, m
     warm = grid_backend.BackgroundKernels(name)
     assert warm.get(wait=None) is importlib.import_module(name)
     assert len(children) == 1
+
+
+def test_warm_up_in_processes_caches_every_group_and_raises_a_groups_error(tmp_path,
+                                                                          monkeypatch):
+    """Each group compiled in a child process of its own: this process then finds every
+    kernel in the cache; a group that fails raises its error here."""
+    pkg, name = _kernel_module(tmp_path, monkeypatch)
+    (pkg / "helper.py").write_text(HELPER_SOURCE)
+    (pkg / "caller.py").write_text(CALLER_SOURCE)
+    (pkg / "broken.py").write_text("def warm_up():\n    raise RuntimeError('no compiler')\n")
+    caller, broken = name.replace(".kern", ".caller"), name.replace(".kern", ".broken")
+    assert not compiled.loads_without_compiling(name, also=())
+    compiled.warm_up_in_processes(((name,), (caller,)))
+    assert compiled.loads_without_compiling(name, also=())
+    assert compiled.loads_without_compiling(caller, also=())
+    with pytest.raises(RuntimeError, match="no compiler"):
+        compiled.warm_up_in_processes(((name,), (broken,)))
+
+
+SERIALISED_CHILD = """
+import fcntl
+import importlib
+import sys
+from pathlib import Path
+
+real_flock = fcntl.flock
+
+
+def flock(file, operation):
+    print("locking", flush=True)  # the kernel is compiled; its cache write waits here
+    real_flock(file, operation)
+
+
+fcntl.flock = flock
+from mttbench.trackers import compiled
+
+kern = importlib.import_module(sys.argv[1])
+with compiled.serialised_cache_writes(Path(sys.argv[2])):
+    kern.double(1.0)
+print("saved", flush=True)
+"""
+
+
+def test_a_serialised_cache_write_waits_for_the_lock(tmp_path, monkeypatch):
+    """While another process holds the lock, a compiled kernel is not written to the cache;
+    once it is released, it is."""
+    pkg, name = _kernel_module(tmp_path, monkeypatch)
+    lock_file = tmp_path / "numba-cache.lock"
+    env = {**os.environ,
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(tmp_path),
+                                                       os.environ.get("PYTHONPATH")]))}
+    written = lambda: list((pkg / "__pycache__").glob("kern.double-*.nbi"))  # noqa: E731
+    with open(lock_file, "a") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        child = subprocess.Popen([sys.executable, "-c", SERIALISED_CHILD, name, str(lock_file)],
+                                 env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                 text=True)
+        line = child.stdout.readline()
+        assert line == "locking\n", child.communicate(timeout=60)
+        time.sleep(0.2)  # time to write, were it not waiting
+        assert child.poll() is None and not written()
+    out, err = child.communicate(timeout=120)  # the lock released with the file
+    assert child.returncode == 0 and out == "saved\n", err
+    assert written()

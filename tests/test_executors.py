@@ -32,7 +32,7 @@ from crashing_tracker import COUNT_LIMIT_ENV, COUNT_LOG_ENV, gate_env
 
 from mttbench import scenarios
 from mttbench.benchmarks.app.cli import main
-from mttbench.benchmarks.engine import executors
+from mttbench.benchmarks.engine import dask_watch, executors
 from mttbench.benchmarks.engine import sweep as harness
 from mttbench.benchmarks.engine.dask_watch import (
     NO_WORKER_FLOOR_S,
@@ -292,17 +292,24 @@ def test_a_hung_run_gets_its_error_row_on_dask(dask_two, tmp_path):
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="libc's sleep through ctypes")
-def test_a_run_that_freezes_its_worker_is_ended_at_its_time_limit_on_dask(tmp_path):
+def test_a_run_that_freezes_its_worker_is_ended_at_its_time_limit_on_dask(tmp_path,
+                                                                          monkeypatch):
     """A run holding the GIL freezes its Dask worker (no heartbeat, no answer to a call):
     its limit still holds (the scheduler's view, dask_watch.py), it gets its error row,
     and the other runs finish on the restarted worker. One worker and three runs: the
-    scheduler gives the worker one run at a time, so no other run waits on it."""
+    scheduler gives the worker one run at a time, so no other run waits on it. The
+    silence floor (20 s, for a fresh worker's imports on a loaded machine) lowered to the
+    run limit: this cluster's worker imports before it takes a run (dask_setup), and the
+    wait is what the test would otherwise spend most of its time on."""
     pytest.importorskip("distributed", reason="distributed is not installed (mttbench[dask])")
+    monkeypatch.setattr(dask_watch, "SILENCE_FLOOR_S", HANG_LIMIT_S)
     jobs = jobs_of(short("default", 6), [("test_executors:HoldTheGIL", [0]), ("null", [0, 1])])
     with DaskExecutor(workers=1) as executor:
         out = run_sweep(jobs, tmp_path / "out", executor=executor, run_timeout=HANG_LIMIT_S)
     # (a call that ended by itself would let the run finish: status ok)
     assert_timed_out(out, "test_executors:HoldTheGIL")
+    # ended by the worker's silence: a frozen worker never reports the run executing
+    assert "sent no heartbeat" in out.loc[out["status"] == "error", "error"].iloc[0]
     assert (out[out["tracker"] == "null"]["status"] == "ok").all()
 
 

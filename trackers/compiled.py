@@ -4,11 +4,12 @@ Each module below compiles its kernels (numba, cached on disk) the first time th
 a process and keeps them in numba's disk cache (an index ``<module>.<function>-<line>.
 pyXY.nbi`` per kernel in ``__pycache__`` next to the module, or under
 ``NUMBA_CACHE_DIR``); a later process loads them in milliseconds. With a cold cache the
-first runs of a sweep compile them, each worker process its own (about 130 s of CPU for
-all of them on a 2-core x86-64 machine). ``make``'s install step pays that once
-(:func:`warm_up`; ``python -m mttbench.trackers.compiled`` does the same, with a warning
-from runpy, the package having imported this module); the sweep's default wall-time
-limit of a run allows for it while the cache is cold (``mttbench.benchmarks.app.resources``).
+first runs of a sweep compile them, each worker process its own (about 165 s of CPU for
+all of them on a 2-core x86-64 machine). ``make``'s install step pays that once, in two
+processes (:func:`warm_up_in_processes`, about 105 s of wall time; ``python -m
+mttbench.trackers.compiled`` does the same, with a warning from runpy, the package having
+imported this module); the sweep's default wall-time limit of a run allows for it while
+the cache is cold (``mttbench.benchmarks.app.resources``).
 
 :func:`cold_modules` looks for the index files only: it imports neither numba nor the
 modules, so asking costs a few file-system lookups.
@@ -16,10 +17,15 @@ modules, so asking costs a few file-system lookups.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import importlib.util
 import os
 import sys
+import tempfile
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
 from pathlib import Path
 
 #: the modules with disk-cached kernels, each with a ``warm_up()`` that compiles (or
@@ -104,11 +110,69 @@ def loads_without_compiling(name: str, also: tuple[str, ...] = MODULES) -> bool:
         return False
 
 
+#: :data:`MODULES` in groups of about equal compile time with a cold cache, for
+#: :func:`warm_up_in_processes` (grid and GPF kernels 105 s, JMPD and pmb 70 s of CPU on an
+#: x86-64 core; docs/suite_time.md); pmb's kernels call some of the first group's, which it
+#: loads when that group has cached them by then, else compiles too
+WARM_UP_GROUPS = (
+    ("mttbench.trackers.grid_kernels", "mttbench.trackers.gpf.update_kernels"),
+    ("mttbench.trackers.jmpd.kernels", "mttbench.trackers.jmpd.ap_kernels",
+     "mttbench.trackers.pmb.update_kernels"),
+)
+
+
 def warm_up(modules: tuple[str, ...] = MODULES) -> None:
     """Compile (or load from the disk cache) every kernel of ``modules``."""
     for name in modules:
         importlib.import_module(name).warm_up()
 
 
+@contextlib.contextmanager
+def serialised_cache_writes(lock_file: Path) -> Iterator[None]:
+    """While open, every write of numba's disk cache in this process holds an exclusive
+    ``flock`` on ``lock_file``. Numba adds an entry by reading the kernel's index, picking
+    a free data-file name and writing both back: two processes adding different signatures
+    of one kernel (a helper that both compile) at once could each keep the other's entry
+    out of the index, or leave one entry pointing at the other's code. (numba's private
+    ``IndexDataCacheFile.save``, as :func:`loads_without_compiling` reads its index.)"""
+    import fcntl
+
+    from numba.core import caching
+
+    original = caching.IndexDataCacheFile.save
+
+    def save(self, key, data):
+        with open(lock_file, "a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+            original(self, key, data)
+
+    caching.IndexDataCacheFile.save = save
+    try:
+        yield
+    finally:
+        caching.IndexDataCacheFile.save = original
+
+
+def _warm_up_serialised(modules: tuple[str, ...], lock_file: str) -> None:
+    with serialised_cache_writes(Path(lock_file)):
+        warm_up(modules)
+
+
+def warm_up_in_processes(groups: tuple[tuple[str, ...], ...] = WARM_UP_GROUPS) -> None:
+    """:func:`warm_up` of each group of modules in a process of its own (fresh: ``spawn``),
+    side by side, their cache writes serialised (:func:`serialised_cache_writes`). Where
+    ``fcntl`` is missing (not POSIX), one group after the other in this process."""
+    try:
+        import fcntl  # noqa: F401
+    except ImportError:
+        warm_up(tuple(name for group in groups for name in group))
+        return
+    with (tempfile.TemporaryDirectory(prefix="mttbench-warm-up-") as folder,
+          ProcessPoolExecutor(len(groups), mp_context=get_context("spawn")) as pool):
+        lock_file = str(Path(folder) / "numba-cache.lock")
+        for done in [pool.submit(_warm_up_serialised, group, lock_file) for group in groups]:
+            done.result()  # a group's error, raised here
+
+
 if __name__ == "__main__":  # make's install step
-    warm_up()
+    warm_up_in_processes()
