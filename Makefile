@@ -14,8 +14,14 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev,stonesoup,dask]'
 	# compile the numba kernels into their on-disk cache once here, so that no sweep's workers
 	# compile them side by side inside their first timed runs (two processes: about 105 s
-	# on 2 cores, 165 s in one; docs/suite_time.md)
-	$(BIN)/python -c 'from mttbench.trackers import compiled; compiled.warm_up_in_processes()'
+	# on 2 cores, 165 s in one; docs/suite_time.md). Beside them, on the core their shorter
+	# group leaves idle, pytest collects the tests once with bytecode writing on, so that
+	# its rewritten test modules are cached (each test process would rewrite them all)
+	$(BIN)/python -c 'from mttbench.trackers import compiled; compiled.warm_up_in_processes()' & \
+	  warm=$$!; \
+	  env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest --collect-only -q -p no:cacheprovider \
+	    tests benchmarks/bench >/dev/null 2>&1 || echo "note: collecting the tests failed"; \
+	  wait $$warm
 	touch $(STAMP)
 
 # the tests and every benchmark once, untimed, in one session on two processes (the

@@ -706,9 +706,8 @@ def start_report(results: pd.DataFrame, out_dir: str | Path, *, draw: bool = Tru
                                   summary.cutoff_text(results))
         else:
             tasks = _figure_tasks(results, runs, summ, fig_dir, gc)
-    pending = PendingReport(results, out_dir, runs, summ, gc, axis, draw,
-                            _Drawing(tasks, processes))
-    return pending
+    return PendingReport(results, out_dir, runs, summ, gc, axis, draw,
+                         _Drawing(tasks, processes))
 
 
 class PendingReport:
