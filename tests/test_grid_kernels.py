@@ -79,6 +79,43 @@ def test_rect_position_moments_equal_the_numpy_form():
     assert len(np.unique(np.searchsorted(bounds, difficulty, side="right"))) == len(bounds)
 
 
+def test_rect_position_moments_shared_edges_equal_the_numpy_form():
+    """A wide Gaussian meets many looked cells, row after row, and the kernel shares a
+    column's nodes and the edge between a cell and the one below it: blocks of cells in
+    row order with gaps, one Gaussian's block split by another's (a new run), a signed
+    zero at a shared edge, NaN and infinite y edges (a NaN x edge has no rule in the
+    numpy form), equal to the numpy form bit for bit; and the blocks do share (most
+    pairs' lower edge is the upper edge of the pair before them in their column)."""
+    from mttbench.trackers import grid_kernels
+
+    rng = np.random.default_rng(7)
+    mean, cov = _gaussians(rng, 8, (0.3, 6.0), 4.0)
+    rows = []  # (gaussian, x0, x1, y0, y1)
+    for g in range(8):
+        ax, ay = rng.integers(-4, 4, 2)
+        for iy in range(ay, ay + 7):
+            for ix in range(ax, ax + 6):
+                if rng.random() < 0.8:  # a gap now and then
+                    rows.append((g, float(ix), ix + 1.0, float(iy), iy + 1.0))
+    rows.insert(len(rows) // 2, (3, 0.0, 1.0, 0.0, 1.0))  # splits a block: a new run
+    rows += [(0, 0.0, 1.0, -1.0, -0.0), (0, 0.0, 1.0, 0.0, 1.0),  # -0.0 then 0.0
+             (0, -0.0, 1.0, 1.0, 2.0), (0, 0.0, 1.0, 2.0, np.inf), (0, 0.0, 1.0, np.inf, 3.0),
+             (0, 0.0, 1.0, np.nan, 4.0), (0, 0.0, 1.0, 4.0, 5.0)]
+    g = np.array([r[0] for r in rows])
+    x0, x1, y0, y1 = (np.array([r[i] for r in rows]) for i in range(1, 5))
+    got = _both(lambda: gpf_grid.rect_position_moments(mean[g], cov[g], x0, x1, y0, y1))
+    assert _equal(*got)
+    run, col, _ = grid_kernels._columns(mean[g], cov[g], x0, x1)
+    below = {}
+    shared = 0
+    for p in range(len(rows)):
+        key = (run[p], col[p])
+        shared += below.get(key) == y0[p]
+        below[key] = y1[p]
+    assert shared > len(rows) / 2, (shared, len(rows))
+    assert len(np.unique(run)) >= 10  # the split block, and the eight others
+
+
 def test_rect_position_moments_follow_patched_rules(monkeypatch):
     """The kernel reads the module's rules when called (a test may patch them)."""
     monkeypatch.setattr(gpf_grid, "_GL_ORDERS", ((np.inf, 96),))

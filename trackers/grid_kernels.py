@@ -56,6 +56,48 @@ def _einsum_row(a: np.ndarray, b: np.ndarray, n: int) -> float:
 
 
 @njit(cache=True)
+def _columns(mean_xy: np.ndarray, cov_xy: np.ndarray, x0: np.ndarray, x1: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Per pair: its run (consecutive pairs of one Gaussian: the same mean and position
+    covariance) and its column in the run (the run's pairs with the same ``x0, x1``,
+    numbered in order of appearance); and the most columns of a run."""
+    n = mean_xy.shape[0]
+    run = np.empty(n, np.int64)
+    col = np.empty(n, np.int64)
+    cx0 = np.empty(n)
+    cx1 = np.empty(n)
+    n_col = 0
+    most = 0
+    last = -1
+    r = -1
+    for p in range(n):
+        if not (p > 0 and mean_xy[p, 0] == mean_xy[p - 1, 0]
+                and mean_xy[p, 1] == mean_xy[p - 1, 1]
+                and cov_xy[p, 0, 0] == cov_xy[p - 1, 0, 0]
+                and cov_xy[p, 0, 1] == cov_xy[p - 1, 0, 1]
+                and cov_xy[p, 1, 1] == cov_xy[p - 1, 1, 1]):
+            r += 1
+            n_col = 0
+            last = -1
+        j = -1
+        # pairs come row by row: the next column is the likeliest
+        if last + 1 < n_col and cx0[last + 1] == x0[p] and cx1[last + 1] == x1[p]:
+            j = last + 1
+        else:
+            for c in range(n_col):
+                if cx0[c] == x0[p] and cx1[c] == x1[p]:
+                    j = c
+                    break
+        if j < 0:
+            j = n_col
+            cx0[j], cx1[j] = x0[p], x1[p]
+            n_col += 1
+            most = max(most, n_col)
+        run[p], col[p], last = r, j, j
+    return run, col, most
+
+
+@njit(cache=True)
 def rect_position_moments(mean_xy: np.ndarray, cov_xy: np.ndarray, x0: np.ndarray,
                           x1: np.ndarray, y0: np.ndarray, y1: np.ndarray,
                           bounds: np.ndarray, n_nodes: np.ndarray, first: np.ndarray,
@@ -63,13 +105,20 @@ def rect_position_moments(mean_xy: np.ndarray, cov_xy: np.ndarray, x0: np.ndarra
                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`.gpf.grid.rect_position_moments` (and its ``_gl_moments``), one pass per
     pair. The Gauss-Legendre rules: ``bounds (G,)`` difficulty bounds, rule ``g`` with
-    ``n_nodes[g]`` nodes at ``nodes[first[g]:]``, ``weights`` alike."""
+    ``n_nodes[g]`` nodes at ``nodes[first[g]:]``, ``weights`` alike.
+
+    A wide Gaussian meets many looked cells, row after row: the pairs of one Gaussian in
+    one column (:func:`_columns`) share its nodes and node weights, and a pair whose
+    lower edge ``y0`` is the upper edge ``y1`` of the column's pair before it shares that
+    edge's normal CDF and density. Shared values are the values the pair would compute
+    (the same operations on the same operands; equal edges of opposite signed zeros give
+    at most a zero of the other sign), so the numbers do not change. NaN is never equal,
+    so a pair with a NaN edge or moment computes everything afresh."""
     n = mean_xy.shape[0]
     mass = np.empty(n)
     m1 = np.empty((n, 2))
     m2 = np.empty((n, 2, 2))
     q_max = n_nodes.max()
-    u = np.empty(q_max)
     wq = np.empty(q_max)
     i0 = np.empty(q_max)
     ey = np.empty(q_max)
@@ -77,6 +126,17 @@ def rect_position_moments(mean_xy: np.ndarray, cov_xy: np.ndarray, x0: np.ndarra
     wi = np.empty(q_max)
     wu = np.empty(q_max)
     wuu = np.empty(q_max)
+    run, col, most = _columns(mean_xy, cov_xy, x0, x1)
+    # per column of the current run: its rule, nodes, node weights, and the last pair's
+    # upper edge (y1, then per node be, ndtr(be), phi(be))
+    c_run = np.full(most, -1, np.int64)
+    c_q = np.empty(most, np.int64)
+    c_y1 = np.empty(most)
+    c_u = np.empty((most, q_max))
+    c_w = np.empty((most, q_max))
+    c_be = np.empty((most, q_max))
+    c_nb = np.empty((most, q_max))
+    c_pb = np.empty((most, q_max))
     G = len(bounds)
     for p in range(n):
         mx, my = mean_xy[p, 0], mean_xy[p, 1]
@@ -85,38 +145,54 @@ def rect_position_moments(mean_xy: np.ndarray, cov_xy: np.ndarray, x0: np.ndarra
         sx = np.sqrt(a)
         k = c / a
         s = np.sqrt(_nan_max(cov_xy[p, 1, 1] - c * k, 1e-24))
-        lo = _nan_max(x0[p] - mx, -7.0 * sx)
-        hi = _nan_min(x1[p] - mx, 7.0 * sx)
-        half = 0.5 * _nan_max(hi - lo, 0.0)
-        difficulty = 2.0 * half * _nan_max(1.0 / sx, np.abs(k) / s)
-        g = 0  # np.searchsorted(bounds, difficulty, side="right")
-        while g < G and bounds[g] <= difficulty:
-            g += 1
-        if g == G:
-            g = G - 1
-        Q, f = n_nodes[g], first[g]
-        mid = lo + half
-        hs = half / sx
+        j = col[p]
+        if c_run[j] != run[p]:  # the column's first pair in this run: its nodes
+            lo = _nan_max(x0[p] - mx, -7.0 * sx)
+            hi = _nan_min(x1[p] - mx, 7.0 * sx)
+            half = 0.5 * _nan_max(hi - lo, 0.0)
+            difficulty = 2.0 * half * _nan_max(1.0 / sx, np.abs(k) / s)
+            g = 0  # np.searchsorted(bounds, difficulty, side="right")
+            while g < G and bounds[g] <= difficulty:
+                g += 1
+            if g == G:
+                g = G - 1
+            Q, f = n_nodes[g], first[g]
+            mid = lo + half
+            hs = half / sx
+            for q in range(Q):
+                uq = mid + half * nodes[f + q]
+                t = uq / sx
+                c_u[j, q] = uq
+                c_w[j, q] = weights[f + q] * hs * (_INV_SQRT_2PI * np.exp(-0.5 * t * t))
+            c_run[j], c_q[j] = run[p], Q
+            c_y1[j] = np.nan  # no edge yet
+        Q = c_q[j]
+        shared = y0[p] == c_y1[j]
         dy0 = y0[p] - my
         dy1 = y1[p] - my
         for q in range(Q):
-            uq = mid + half * nodes[f + q]
-            t = uq / sx
-            wqq = weights[f + q] * hs * (_INV_SQRT_2PI * np.exp(-0.5 * t * t))
+            uq, wqq = c_u[j, q], c_w[j, q]
             ku = k * uq
-            al = (dy0 - ku) / s
+            if shared:
+                al, nal, pa = c_be[j, q], c_nb[j, q], c_pb[j, q]
+            else:
+                al = (dy0 - ku) / s
+                nal = _ndtr(al, 0)
+                pa = _INV_SQRT_2PI * np.exp(-0.5 * al * al)
             be = (dy1 - ku) / s
-            i0q = _ndtr(be, 0) - _ndtr(al, 0)
-            pa = _INV_SQRT_2PI * np.exp(-0.5 * al * al)
+            nbe = _ndtr(be, 0)
             pb = _INV_SQRT_2PI * np.exp(-0.5 * be * be)
+            c_be[j, q], c_nb[j, q], c_pb[j, q] = be, nbe, pb
+            i0q = nbe - nal
             j1 = pa - pb
             j2 = i0q + al * pa - be * pb
             eyq = ku * i0q + s * j1
-            u[q], wq[q], i0[q], ey[q] = uq, wqq, i0q, eyq
+            wq[q], i0[q], ey[q] = wqq, i0q, eyq
             eyy[q] = ku * eyq + s * (ku * j1 + s * j2)
             wi[q] = wqq * i0q
             wu[q] = wqq * uq
             wuu[q] = wu[q] * uq
+        c_y1[j] = y1[p]
         m2[p, 0, 0] = _einsum_row(wuu, i0, Q)
         m2[p, 0, 1] = m2[p, 1, 0] = _einsum_row(wu, ey, Q)
         m2[p, 1, 1] = _einsum_row(wq, eyy, Q)
