@@ -40,7 +40,8 @@ MODULES = (
 #: disk-cached kernels that only the modules above call (compiled through their warm-up).
 #: Numba checks a cached kernel against its own file only: after editing one of these,
 #: delete the callers' caches too (``find trackers -name '*.nb[ic]' -delete``), or a
-#: caller keeps the old helper compiled into it
+#: caller keeps the old helper compiled into it. The same holds for ``grid_kernels``,
+#: whose kernels the GPF's and pmb's call too
 HELPERS = ("mttbench.trackers.gpf.cluster_kernels", "mttbench.trackers.gpf.step_kernels",
            "mttbench.trackers.numba_exact")
 
