@@ -262,6 +262,33 @@ def test_warm_up_in_processes_caches_every_group_and_raises_a_groups_error(tmp_p
         compiled.warm_up_in_processes(((name,), (broken,)))
 
 
+def test_a_numba_without_its_cache_writes_where_expected_cannot_serialise(monkeypatch):
+    from numba.core import caching
+
+    assert compiled.can_serialise_cache_writes()
+    monkeypatch.delattr(caching.IndexDataCacheFile, "save")
+    assert not compiled.can_serialise_cache_writes()
+
+
+def test_without_serialised_writes_the_groups_warm_up_here_one_after_the_other(tmp_path,
+                                                                               monkeypatch):
+    """(Not POSIX, or a numba that keeps its cache writes elsewhere.) No process is
+    started: every group's kernels are compiled in this process."""
+    pkg, name = _kernel_module(tmp_path, monkeypatch)
+    (pkg / "helper.py").write_text(HELPER_SOURCE)
+    (pkg / "caller.py").write_text(CALLER_SOURCE)
+    caller = name.replace(".kern", ".caller")
+
+    def no_pool(*args, **kwargs):
+        raise AssertionError("a process pool was started")
+
+    monkeypatch.setattr(compiled, "can_serialise_cache_writes", lambda: False)
+    monkeypatch.setattr(compiled, "ProcessPoolExecutor", no_pool)
+    compiled.warm_up_in_processes(((name,), (caller,)))
+    assert importlib.import_module(name).double.signatures
+    assert importlib.import_module(caller).quarter.signatures
+
+
 SERIALISED_CHILD = """
 import fcntl
 import importlib

@@ -159,13 +159,24 @@ def _warm_up_serialised(modules: tuple[str, ...], lock_file: str) -> None:
         warm_up(modules)
 
 
+def can_serialise_cache_writes() -> bool:
+    """Whether :func:`serialised_cache_writes` works here: POSIX ``fcntl``, and numba's
+    cache writes where this numba keeps them."""
+    try:
+        import fcntl  # noqa: F401
+
+        from numba.core import caching
+    except ImportError:
+        return False
+    return callable(getattr(getattr(caching, "IndexDataCacheFile", None), "save", None))
+
+
 def warm_up_in_processes(groups: tuple[tuple[str, ...], ...] = WARM_UP_GROUPS) -> None:
     """:func:`warm_up` of each group of modules in a process of its own (fresh: ``spawn``),
     side by side, their cache writes serialised (:func:`serialised_cache_writes`). Where
-    ``fcntl`` is missing (not POSIX), one group after the other in this process."""
-    try:
-        import fcntl  # noqa: F401
-    except ImportError:
+    they cannot be (:func:`can_serialise_cache_writes`: not POSIX, or a numba that keeps
+    its cache writes elsewhere), one group after the other in this process."""
+    if not can_serialise_cache_writes():
         warm_up(tuple(name for group in groups for name in group))
         return
     with (tempfile.TemporaryDirectory(prefix="mttbench-warm-up-") as folder,
