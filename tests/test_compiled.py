@@ -188,16 +188,21 @@ def warm_up():
 """
 
 
+def _helper_and_caller(pkg: Path, name: str) -> tuple[str, str]:
+    """A helper kernel module and its caller beside the kernel module ``name``: their
+    names."""
+    (pkg / "helper.py").write_text(HELPER_SOURCE)
+    (pkg / "caller.py").write_text(CALLER_SOURCE)
+    return name.replace(".kern", ".helper"), name.replace(".kern", ".caller")
+
+
 def test_a_helpers_stale_index_does_not_make_its_callers_load_compile(tmp_path, monkeypatch):
     """A helper kernel called only from other kernels: once its file is edited its own
     index is stale, but its caller loads from the cache without it (the caller's code holds
     the helper's), so the check of the caller (with the helpers left out, as by default)
     says no compile, and a load indeed compiles nothing."""
     pkg, name = _kernel_module(tmp_path, monkeypatch)
-    (pkg / "helper.py").write_text(HELPER_SOURCE)
-    (pkg / "caller.py").write_text(CALLER_SOURCE)
-    helper_name, caller_name = name.replace(".kern", ".helper"), name.replace(".kern",
-                                                                              ".caller")
+    helper_name, caller_name = _helper_and_caller(pkg, name)
     importlib.import_module(caller_name).warm_up()  # both compiled into the cache
     (pkg / "helper.py").write_text(HELPER_SOURCE + "\n# edited\n")
     helper = importlib.reload(importlib.import_module(helper_name))
@@ -250,10 +255,9 @@ def test_warm_up_in_processes_caches_every_group_and_raises_a_groups_error(tmp_p
     """Each group compiled in a child process of its own: this process then finds every
     kernel in the cache; a group that fails raises its error here."""
     pkg, name = _kernel_module(tmp_path, monkeypatch)
-    (pkg / "helper.py").write_text(HELPER_SOURCE)
-    (pkg / "caller.py").write_text(CALLER_SOURCE)
+    _, caller = _helper_and_caller(pkg, name)
     (pkg / "broken.py").write_text("def warm_up():\n    raise RuntimeError('no compiler')\n")
-    caller, broken = name.replace(".kern", ".caller"), name.replace(".kern", ".broken")
+    broken = name.replace(".kern", ".broken")
     assert not compiled.loads_without_compiling(name, also=())
     compiled.warm_up_in_processes(((name,), (caller,)))
     assert compiled.loads_without_compiling(name, also=())
@@ -275,9 +279,7 @@ def test_without_serialised_writes_the_groups_warm_up_here_one_after_the_other(t
     """(Not POSIX, or a numba that keeps its cache writes elsewhere.) No process is
     started: every group's kernels are compiled in this process."""
     pkg, name = _kernel_module(tmp_path, monkeypatch)
-    (pkg / "helper.py").write_text(HELPER_SOURCE)
-    (pkg / "caller.py").write_text(CALLER_SOURCE)
-    caller = name.replace(".kern", ".caller")
+    _, caller = _helper_and_caller(pkg, name)
 
     def no_pool(*args, **kwargs):
         raise AssertionError("a process pool was started")
