@@ -22,7 +22,8 @@ from mttbench.scenarios.model import (
 from mttbench.scenarios.simulator import simulate
 from mttbench.trackers.cells import gaussian_cell_mass
 from mttbench.trackers.gpf import DEFAULT_DEATH_FLOOR, EmptyPriorGPF, merge_particles
-from mttbench.trackers.gpf.grid import fold_into_workspace
+from mttbench.trackers.gpf.grid import fold_into_workspace, sorted_runs
+from mttbench.trackers.gpf.tracker import group_heads, merge_groups
 
 #: round-off only (a few products and sums of O(1) numbers)
 EXACT = 1e-12
@@ -342,3 +343,30 @@ def test_death_floor_default_only_on_the_grid_with_births():
     assert t.particles[0][0] == 1.0
     with pytest.raises(ValueError, match="death_probability"):
         trackers.make("gpf", death_probability=1.5).reset(grid, np.random.default_rng(0))
+
+
+def test_group_heads_and_sorted_runs_equal_np_unique():
+    """The merge's group heads and the sorted keys' runs, against ``np.unique`` (which
+    sorts): random merges with tied weights and both rules, sorted keys with repeats,
+    one key and none."""
+    rng = np.random.default_rng(21)
+    merged = 0
+    for _ in range(200):
+        K = int(rng.integers(1, 15))
+        w = rng.uniform(0.0, 1.0, K)
+        w[rng.random(K) < 0.3] = 0.5  # ties: the stable order decides
+        m = np.zeros((K, 4))
+        m[:, [0, 2]] = rng.uniform(0.0, 3.0, (K, 2))
+        P = np.eye(4)[None] * rng.uniform(0.05, 1.0, (K, 1, 1))
+        for rule in ("capped_sum", "bounded_sum"):
+            out_w, _, _, label = merge_groups(w, m, P, 4.0, rule)
+            lab = label[np.argsort(-w, kind="stable")]
+            assert np.array_equal(np.flatnonzero(group_heads(lab)),
+                                  np.unique(lab, return_index=True)[1])
+            merged += len(out_w) < K
+        key = np.sort(rng.integers(-3, 6, int(rng.integers(0, 30))))
+        want = np.unique(key, return_inverse=True, return_counts=True)
+        got = sorted_runs(key)
+        for a, b in zip(got, want, strict=True):
+            assert a.dtype == b.dtype and np.array_equal(a, b.reshape(-1))
+    assert merged > 100

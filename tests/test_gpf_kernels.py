@@ -3,7 +3,7 @@ they replace, bit for bit, on random inputs: the grid update's two passes (compo
 birth candidates, splits, clusters, degenerate and far-away Gaussians, existence 0 and
 1), the merge (both weight rules, groups, the Bhattacharyya form, coincident Gaussians),
 the position regression and the wall test, the undetected field's passes, the birth
-candidates and the merge's screen (``step_kernels.py``). Whole runs:
+candidates and the merge's distances (``step_kernels.py``). Whole runs:
 ``tests/test_grid_kernels.py``. Each comparison picks the backend with ``use_backend``.
 """
 
@@ -177,6 +177,42 @@ def test_merge_equals_the_numpy_form(rule, metric):
         assert _equal(list(a), list(b))
         merged += len(a[0]) < K
     assert merged >= 30
+
+
+@pytest.mark.parametrize("metric", ["mahalanobis", "bhattacharyya"])
+def test_pair_distances_equal_the_numpy_form_and_lapack(metric):
+    """The merge's distances: both forms bit for bit (a NaN covariance and one that is not
+    positive definite included), and against LAPACK's solve and ``slogdet`` (an
+    independent method) within 1e-9 relative where the screen let a pair through."""
+    rng = np.random.default_rng(17 if metric == "mahalanobis" else 18)
+    checked = 0
+    for _ in range(150):
+        K = int(rng.integers(1, 14))
+        m, P = _states(rng, K, 4.0)
+        m[:, [0, 2]] = rng.uniform(0.0, 3.0, (K, 2))
+        if K > 6 and rng.random() < 0.3:
+            P[6, 0, 0] = np.nan
+        if K > 7 and rng.random() < 0.3:
+            P[7] = -P[7]  # negative definite: not a covariance, no distance
+        groups = rng.integers(0, 3, K) if rng.random() < 0.5 else None
+        threshold = float(rng.choice([1.0, 4.0, 16.0]))
+        want, got = _both(gpf_tracker._pair_distances, m, P, threshold, metric, groups)
+        assert _equal(want, got)
+        i, j = np.nonzero(np.isfinite(want))
+        ok = np.isfinite(P[i]).all(axis=(1, 2)) & np.isfinite(P[j]).all(axis=(1, 2))
+        ok &= (np.linalg.eigvalsh(np.nan_to_num(P[i])) > 0).all(axis=1)
+        ok &= (np.linalg.eigvalsh(np.nan_to_num(P[j])) > 0).all(axis=1)
+        i, j = i[ok], j[ok]
+        d, S = m[i] - m[j], P[i] + P[j]
+        ref = np.einsum("ka,ka->k", d, np.linalg.solve(S, d[..., None])[..., 0])
+        if metric == "bhattacharyya":
+            ref = ref + np.maximum(2.0 * np.linalg.slogdet(0.5 * S)[1]
+                                   - np.linalg.slogdet(P[i])[1] - np.linalg.slogdet(P[j])[1],
+                                   0.0)
+        np.testing.assert_allclose(want[i, j], ref, rtol=1e-9, atol=1e-12)
+        assert np.array_equal(want, want.T, equal_nan=True)
+        checked += len(i)
+    assert checked > 200
 
 
 def test_position_regression_and_the_fold_equal_the_numpy_forms():

@@ -17,7 +17,7 @@ from mttbench import scenarios
 from mttbench.benchmarks.engine.loop import play
 from mttbench.benchmarks.engine.policies import AllCells
 from mttbench.benchmarks.engine.specs import TrackerSpec
-from mttbench.scenarios.model import Grid
+from mttbench.scenarios.model import Grid, RayleighGridSensor
 from mttbench.trackers import cell_evidence, cells, grid_backend
 from mttbench.trackers.cells import CellField
 from mttbench.trackers.gpf import grid as gpf_grid
@@ -219,6 +219,26 @@ def test_looked_log_ratios_equal_the_numpy_form():
         n_nan += int(np.isnan(want[3]).sum())
         n_clipped += int((want[3] == 700.0).sum())
     assert n_nan > 0 and n_clipped > 0  # both special cases met
+
+
+def test_look_log_ratios_equal_the_numpy_form():
+    """Up to four looks at a cell (their rows summed in look order: with three or more
+    the order matters), every look positive or none, t_max 1 to 6, no looks; sensors
+    whose p_f is tiny (a large ``log l``) and whose p_d is near 1."""
+    rng = np.random.default_rng(8)
+    sensors = [RayleighGridSensor(p_d=0.5, snr=10.0), RayleighGridSensor(p_d=0.9, snr=2.0),
+               RayleighGridSensor(p_d=0.999, snr=40.0)]
+    repeats = 0
+    for trial in range(300):
+        n_cells = int(rng.integers(1, 40))
+        looks = rng.integers(0, n_cells, int(rng.integers(0, 4 * n_cells)))
+        returns = rng.random(len(looks)) < rng.choice([0.0, 0.3, 1.0])
+        sensor, t_max = sensors[trial % 3], int(rng.integers(1, 7))
+        want, got = _both(lambda s=sensor, c=looks, r=returns, t=t_max:
+                          cells.look_log_ratios(s, c, r, t))
+        assert _equal(want, got) and want[1].dtype == float
+        repeats += int((np.bincount(looks, minlength=1) >= 3).sum())
+    assert repeats > 50
 
 
 def test_unique_inverse_equals_numpys():

@@ -21,6 +21,7 @@ differ. Each equals its dense counterpart bit for bit where it keeps a number.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from types import ModuleType
 
@@ -139,14 +140,33 @@ def look_log_ratios(sensor: RayleighGridSensor, cells: np.ndarray, returns: np.n
     """Looked cells ``U (n_u,)`` (sorted, unique) and ``LL (n_u, t_max + 1)``.
 
     ``LL[u, T] = sum_{looks at U[u]} log p(z | T) / p(z | 0)``: several looks at one cell
-    multiply their likelihoods; ``LL[:, 0] = 0``.
+    multiply their likelihoods; ``LL[:, 0] = 0``. With the compiled backend
+    :func:`.grid_kernels.look_log_ratios` sums the same two rows (a look with a return and
+    one without) in the same order.
     """
+    kernels = _field_kernels() if _field_kernels is not None else None
+    if kernels is not None:
+        hit, miss = _look_ratio_rows(sensor, int(t_max))
+        return kernels.look_log_ratios(np.ascontiguousarray(cells, dtype=np.int64),
+                                       np.ascontiguousarray(returns, dtype=bool), hit, miss)
     U, inv = np.unique(cells, return_inverse=True)
     T = np.arange(t_max + 1)
     per_look = sensor.log_likelihood_ratio(returns[:, None], T[None, :])  # (L, t_max+1)
     LL = np.zeros((len(U), t_max + 1))
     np.add.at(LL, inv, per_look)
     return U, LL
+
+
+@functools.lru_cache(maxsize=64)
+def _look_ratio_rows(sensor: RayleighGridSensor, t_max: int) -> tuple[np.ndarray, np.ndarray]:
+    """``log l(T)``, ``T = 0..t_max``, of a look with a return and of one without: the two
+    rows :func:`look_log_ratios`' per-look table is made of (the sensor's function of
+    ``T`` alone, broadcast over the looks), read-only."""
+    rows = sensor.log_likelihood_ratio(np.array([[True], [False]]),
+                                       np.arange(t_max + 1)[None, :])
+    hit, miss = np.ascontiguousarray(rows[0]), np.ascontiguousarray(rows[1])
+    hit.flags.writeable = miss.flags.writeable = False
+    return hit, miss
 
 
 class CellCounts:

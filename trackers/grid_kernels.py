@@ -413,6 +413,22 @@ def looked_log_ratios(cells: np.ndarray, returns: np.ndarray, log_pos: float,
     return uniq, n_looks, det_cells, log_r
 
 
+@njit(cache=True)
+def look_log_ratios(cells: np.ndarray, returns: np.ndarray, hit: np.ndarray,
+                    miss: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`.cells.look_log_ratios` given its two rows ``hit``, ``miss`` (``log l(T)`` of
+    a look with a return and without): the sorted looked cells and each one's looks' rows
+    summed from 0 in look order, as ``np.add.at`` adds."""
+    uniq, inv = _unique_inverse(cells)
+    n_t = len(hit)
+    LL = np.zeros((len(uniq), n_t))
+    for j in range(len(cells)):
+        row = hit if returns[j] else miss
+        for t in range(n_t):
+            LL[inv[j], t] += row[t]
+    return uniq, LL
+
+
 @njit(cache=True, error_model="numpy")
 def field_apply(f_default, f_cells, f_values, cells, operands, add):
     """:meth:`.cells.CellField.multiply` (``add`` False) or ``add`` at the sorted unique
@@ -458,4 +474,7 @@ def warm_up() -> None:
     cell_sums(i, f)
     field_apply(0.0, i, f, i, f, True)
     looked_log_ratios(i, np.zeros(1, np.bool_), 1.0, -1.0, 700.0)
+    ro = np.zeros(1)
+    ro.flags.writeable = False  # cells' rows are read-only
+    look_log_ratios(i, np.zeros(1, np.bool_), ro, ro)
     warm_up.done = True

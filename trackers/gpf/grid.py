@@ -197,6 +197,21 @@ def _gl_moments(nodes: np.ndarray, weights: np.ndarray, mx: np.ndarray, my: np.n
     return wi.sum(axis=1), m1, m2
 
 
+def sorted_runs(key: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``np.unique(key, return_inverse=True, return_counts=True)`` of a non-decreasing int
+    array ``key``: its distinct values, the run each entry is in, each run's length (the
+    same arrays in a quarter of ``np.unique``'s time, which sorts again)."""
+    n = len(key)
+    new = np.empty(n, dtype=bool)
+    new[:1] = True
+    np.not_equal(key[1:], key[:-1], out=new[1:])
+    starts = new.nonzero()[0]
+    counts = np.empty(len(starts), dtype=np.int64)
+    np.subtract(starts[1:], starts[:-1], out=counts[:-1])
+    counts[-1:] = n - starts[-1:]
+    return key[starts], np.arange(len(starts)).repeat(counts), counts
+
+
 def position_regression(covs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per Gaussian ``covs (K, 4, 4)``: the regression of velocity on position,
     ``v - m_v = B (p - m_p) + e``: ``B = S_vp S_pp^-1 (K, 2, 2)`` (closed-form 2x2 inverse)
@@ -627,7 +642,7 @@ def grid_update(w: np.ndarray, m: np.ndarray, P: np.ndarray, uniform_cell: np.nd
     mem = np.nonzero(in_cluster)[0]
     if len(mem):
         mem = mem[np.argsort(plabel[mem], kind="stable")]  # grouped by cluster
-        _, cl, csize = np.unique(plabel[mem], return_inverse=True, return_counts=True)
+        _, cl, csize = sorted_runs(plabel[mem])
         n_clusters, max_cluster = len(csize), int(csize.max())
         M = len(mem)
         if kernels is not None:

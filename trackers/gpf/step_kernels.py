@@ -1,8 +1,9 @@
 """The GPF's step around its grid update as compiled (numba) passes: the undetected
 field's operations (:class:`.cells.CellField`'s ``map``, ``set``, ``at``), the looked
-cells and the birth candidates, and the merge's screen. Each equals, bit for bit, the
-numpy operations of :class:`.tracker.GaussianParticleFilter` it replaces (those stay the
-reference, ``MTTBENCH_NO_NUMBA=1``).
+cells and the birth candidates, and the merge's distances (its screen and the 4x4
+Cholesky forms). Each equals, bit for bit, the numpy operations of
+:class:`.tracker.GaussianParticleFilter` it replaces (those stay the reference,
+``MTTBENCH_NO_NUMBA=1``).
 
 Why: on ``default`` a step is about 300 us, and these were 40-odd numpy calls of a few
 microseconds each on arrays of a few dozen entries (docs/speed.md, "GPF: the step's
@@ -18,6 +19,8 @@ sorted distinct cells, whatever the sort.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit
@@ -200,6 +203,68 @@ def screen_bound(m, P, i, j):
     return (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
 
 
+#: ``ln 16``, as :data:`.tracker._LN16`
+_LN16 = math.log(16.0)
+
+
+@njit(cache=True, error_model="numpy")
+def _cholesky_forms(S, d, L, y):
+    """:func:`.tracker.cholesky_forms` of one ``S (4, 4)``, ``d (4,)`` (the same operations
+    in the same order), with ``L (4, 4)`` and ``y (4,)`` as scratch: ``(d^T S^-1 d,
+    ln det S)``."""
+    for a in range(4):
+        for b in range(a + 1):
+            s = S[a, b]
+            for k in range(b):
+                s = s - L[a, k] * L[b, k]
+            L[a, b] = np.sqrt(s) if a == b else s / L[b, b]
+    for a in range(4):
+        s = d[a]
+        for k in range(a):
+            s = s - L[a, k] * y[k]
+        y[a] = s / L[a, a]
+    q = y[0] * y[0] + y[1] * y[1] + y[2] * y[2] + y[3] * y[3]
+    logdet = 2.0 * (np.log(L[0, 0]) + np.log(L[1, 1]) + np.log(L[2, 2]) + np.log(L[3, 3]))
+    return q, logdet
+
+
+@njit(cache=True, error_model="numpy")
+def pair_distances(m, P, threshold, bhattacharyya, groups, use_groups):
+    """:func:`.tracker._pair_distances`: the pairs ``i < j`` whose position-only bound
+    (:func:`screen_bound`) is not ``>= threshold`` (NaN passes), in one group when
+    ``use_groups``, get the full form (:func:`_cholesky_forms`; with ``bhattacharyya``
+    plus ``max(2 (ln det S - ln 16) - ln det P_i - ln det P_j, 0)`` by numpy's NaN rule),
+    at ``(i, j)`` and ``(j, i)``; every other entry is ``inf``."""
+    K = m.shape[0]
+    d2 = np.full((K, K), np.inf)
+    L = np.zeros((4, 4))
+    y = np.empty(4)
+    S = np.empty((4, 4))
+    d = np.empty(4)
+    ld = np.empty(K)
+    if bhattacharyya:
+        zero = np.zeros(4)
+        for i in range(K):
+            ld[i] = _cholesky_forms(P[i], zero, L, y)[1]
+    for i in range(K):
+        for j in range(i + 1, K):
+            if use_groups and groups[i] != groups[j]:
+                continue
+            lower = screen_bound(m, P, i, j)
+            if lower >= threshold:
+                continue
+            for a in range(4):
+                d[a] = m[i, a] - m[j, a]
+                for b in range(4):
+                    S[a, b] = P[i, a, b] + P[j, a, b]
+            full, ld_s = _cholesky_forms(S, d, L, y)
+            if bhattacharyya:
+                full = full + _nan_max(2.0 * (ld_s - _LN16) - ld[i] - ld[j], 0.0)
+            d2[i, j] = full
+            d2[j, i] = full
+    return d2
+
+
 @njit(cache=True, error_model="numpy")
 def any_close(m, P, threshold):
     """Whether :func:`.tracker._pair_distances`' position-only screen passes any pair
@@ -343,6 +408,8 @@ def warm_up() -> None:
     candidates(i, True, 0.1, i, f, f, i, f, m, P, 1.0, 1, 1.0)
     field_set(0.1, i, f, i, f, 1e-4, True)
     any_close(m, P, 4.0)
+    for bhattacharyya in (False, True):
+        pair_distances(m, P, 4.0, bhattacharyya, i, bhattacharyya)
     heaviest(f, 1, m, P, i)
     count_bound(np.full(3, 0.5), 1)
     collapse(f, m, P, i, 1)

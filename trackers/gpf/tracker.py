@@ -137,7 +137,13 @@ from ..cells import (
 )
 from ..grid_backend import GPF_WAIT_S, compiled_gpf_kernels
 from ..params import Budget, Param, Search
-from .grid import RANGE_SIGMAS, fold_into_workspace, grid_update, rect_state_moments
+from .grid import (
+    RANGE_SIGMAS,
+    fold_into_workspace,
+    grid_update,
+    rect_state_moments,
+    sorted_runs,
+)
 from .linear import superposition_update
 
 #: merged weight rules of :func:`merge_groups` (module docstring, "Merge")
@@ -212,6 +218,38 @@ def _upper_pairs(K: int) -> tuple[np.ndarray, np.ndarray]:
     return iu, ju
 
 
+#: ``ln det (S / 2) = ln det S - ln 16`` for a 4x4 ``S``
+_LN16 = math.log(16.0)
+
+
+def cholesky_forms(S: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per row of ``S (n, 4, 4)`` (symmetric positive definite; its lower triangle is read)
+    and ``d (n, 4)``: ``d^T S^-1 d`` and ``ln det S``, by the Cholesky factor ``S = L L^T``
+    written out: ``y = L^-1 d``, ``d^T S^-1 d = |y|^2``, ``ln det S = 2 sum_k ln L_kk``. A
+    row that is not positive definite gets NaN (and is never merged). Elementwise over
+    rows, so :func:`.step_kernels.pair_distances` performs the same operations pair by pair
+    (a batched LAPACK solve costs more in its calls than in its arithmetic here)."""
+    n = len(S)
+    L = np.zeros((n, 4, 4))
+    y = np.empty((n, 4))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for a in range(4):
+            for b in range(a + 1):
+                s = S[:, a, b]
+                for k in range(b):
+                    s = s - L[:, a, k] * L[:, b, k]
+                L[:, a, b] = np.sqrt(s) if a == b else s / L[:, b, b]
+        for a in range(4):
+            s = d[:, a]
+            for k in range(a):
+                s = s - L[:, a, k] * y[:, k]
+            y[:, a] = s / L[:, a, a]
+        q = y[:, 0] * y[:, 0] + y[:, 1] * y[:, 1] + y[:, 2] * y[:, 2] + y[:, 3] * y[:, 3]
+        logdet = 2.0 * (np.log(L[:, 0, 0]) + np.log(L[:, 1, 1]) + np.log(L[:, 2, 2])
+                        + np.log(L[:, 3, 3]))
+    return q, logdet
+
+
 def _pair_distances(m: np.ndarray, P: np.ndarray, threshold: float,
                     metric: str = "mahalanobis", groups: np.ndarray | None = None
                     ) -> np.ndarray:
@@ -224,37 +262,37 @@ def _pair_distances(m: np.ndarray, P: np.ndarray, threshold: float,
 
     The position-only form is a lower bound of the full one (a marginal's quadratic form never
     exceeds the joint's, and the shape term is non-negative), so it screens the pairs in
-    closed form (2x2 inverse) and the 4x4 solve runs only on the pairs that pass.
-    ``groups (K,)``: only pairs in the same group get a distance (components of one track).
+    closed form (2x2 inverse) and the 4x4 form (:func:`cholesky_forms`) runs only on the
+    pairs that pass. ``groups (K,)``: only pairs in the same group get a distance
+    (components of one track). With the compiled backend :func:`.step_kernels.pair_distances`
+    computes the same numbers.
     """
     K = len(m)
+    bhattacharyya = metric == "bhattacharyya"
     kernels = compiled_gpf_kernels()
     if kernels is not None:
-        ci, cj, dc, Sc = kernels.pair_screen(
+        return kernels.step_kernels.pair_distances(
             np.ascontiguousarray(m, dtype=float), np.ascontiguousarray(P, dtype=float),
-            float(threshold), np.zeros(0, np.int64) if groups is None
+            float(threshold), bhattacharyya, np.zeros(0, np.int64) if groups is None
             else np.ascontiguousarray(groups, dtype=np.int64), groups is not None)
-    else:
-        iu, ju = _upper_pairs(K)
-        diff = m[iu] - m[ju]  # (n_pairs, 4)
-        S = P[iu] + P[ju]
-        a, b, c = S[:, 0, 0], S[:, 0, 2], S[:, 2, 2]
-        dx, dy = diff[:, 0], diff[:, 2]
-        det = a * c - b * b
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lower = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
-        cand = ~(lower >= threshold)  # NaN (degenerate) pairs go to the exact solve
-        if groups is not None:
-            cand &= groups[iu] == groups[ju]
-        ci, cj, dc, Sc = iu[cand], ju[cand], diff[cand], S[cand]
+    iu, ju = _upper_pairs(K)
+    diff = m[iu] - m[ju]  # (n_pairs, 4)
+    S = P[iu] + P[ju]
+    a, b, c = S[:, 0, 0], S[:, 0, 2], S[:, 2, 2]
+    dx, dy = diff[:, 0], diff[:, 2]
+    det = a * c - b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lower = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
+    cand = ~(lower >= threshold)  # NaN (degenerate) pairs go to the full form
+    if groups is not None:
+        cand &= groups[iu] == groups[ju]
+    ci, cj = iu[cand], ju[cand]
     d2 = np.full((K, K), np.inf)
     if len(ci):
-        full = np.einsum("ka,ka->k", dc, np.linalg.solve(Sc, dc[..., None])[..., 0])
-        if metric == "bhattacharyya":
-            ld_s = np.linalg.slogdet(0.5 * Sc)[1]
-            ld_i = np.linalg.slogdet(P[ci])[1]
-            ld_j = np.linalg.slogdet(P[cj])[1]
-            full = full + np.maximum(2.0 * ld_s - ld_i - ld_j, 0.0)
+        full, ld_s = cholesky_forms(S[cand], diff[cand])
+        if bhattacharyya:
+            ld = cholesky_forms(P, np.zeros((K, 4)))[1]
+            full = full + np.maximum(2.0 * (ld_s - _LN16) - ld[ci] - ld[cj], 0.0)
         d2[ci, cj] = full
         d2[cj, ci] = full
     return d2
@@ -341,6 +379,16 @@ def merge_groups(w: np.ndarray, m: np.ndarray, P: np.ndarray, threshold: float,
     cov = np.zeros((n_g, 4, 4))
     np.add.at(cov, label, wn[:, None, None] * (P + dev[:, :, None] * dev[:, None, :]))
     return np.array(out_w), mean, cov, in_order
+
+
+def group_heads(label: np.ndarray) -> np.ndarray:
+    """``np.unique(label, return_index=True)[1]`` for :func:`merge_groups`' labels in its
+    order (decreasing weight): it numbers the groups in the order their heads come, each
+    head before its members, so a head is where the label exceeds every label before it
+    (a boolean mask, in the same order)."""
+    head = np.ones(len(label), dtype=bool)
+    np.greater(label[1:], np.maximum.accumulate(label)[:-1], out=head[1:])
+    return head
 
 
 def truncate_to_workspace(m: np.ndarray, P: np.ndarray, width: float, height: float,
@@ -809,10 +857,9 @@ class GaussianParticleFilter(Tracker):
             if len(mw) < T:
                 # each merged track keeps the id of its heaviest member
                 by_weight = np.argsort(-w, kind="stable")
-                head = np.unique(label[by_weight], return_index=True)[1]
-                tid = tid[by_weight][head]
+                tid = tid[by_weight][group_heads(label[by_weight])]
                 share = w / np.bincount(label, weights=w, minlength=len(mw))[label]
-                a = a * np.nan_to_num(share, nan=0.0)[own]
+                a = a * np.where(np.isnan(share), 0.0, share)[own]  # 0 / 0: a group of 0
                 own = label[own]
                 tot = np.bincount(own, weights=a, minlength=len(mw))
                 a = np.where(tot[own] > 0.0, a / np.where(tot > 0.0, tot, 1.0)[own],
@@ -865,11 +912,10 @@ class GaussianParticleFilter(Tracker):
         excess = rank >= self.max_components - 1
         n_rows = np.bincount(own, minlength=T)
         excess &= n_rows[own] > self.max_components
-        if np.any(excess):
+        if excess.any():
             g = np.where(excess, self.max_components - 1, rank)
             key = own * self.max_components + g
-            uk, grp = np.unique(key, return_inverse=True)
-            grp = grp.reshape(-1)
+            uk, grp, _ = sorted_runs(key)  # sorted: by track, then rank capped
             wsum = np.bincount(grp, weights=a)
             mean, cov = collapse(a, m, P, grp, len(uk))
             own, a, m, P = uk // self.max_components, wsum, mean, cov
@@ -891,8 +937,9 @@ class GaussianParticleFilter(Tracker):
         if len(self._m) == len(self._w):  # (indexing by an index array copies)
             return Estimate(count, self._m[sel], self._P[sel], self._tid[sel])
         # the peak height of each component, a / sqrt(det Sigma_pos)
-        pos = self._P[:, 0::2, 0::2]
-        score = self._a / np.sqrt(np.maximum(np.linalg.det(pos), 1e-300))
+        P = self._P
+        det = P[:, 0, 0] * P[:, 2, 2] - P[:, 0, 2] * P[:, 2, 0]  # of the position block
+        score = self._a / np.sqrt(np.maximum(det, 1e-300))
         rows = self._distinct_modes(sel, score)
         return Estimate(count, self._m[rows].copy(), self._P[rows].copy(),
                         self._tid[self._own[rows]].copy())

@@ -21,6 +21,7 @@ pass with its numpy form; ``tests/test_grid_kernels.py`` compares whole runs.
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -54,7 +55,6 @@ from .step_kernels import (  # noqa: F401
     field_predict,
     field_set,
     heaviest,
-    screen_bound,
 )
 
 _LOGE2 = math.log(2.0)
@@ -311,11 +311,13 @@ def grid_update_packed(w, m, P, uniform_cell, own, alp, cells, returns, ll_pos, 
 def unpack_front(ints: np.ndarray, floats: np.ndarray) -> tuple:
     """:func:`grid_update_packed`'s output when it stopped before the moment match: the
     tuple of :func:`.grid._pairs_and_singletons` (views), then ``hit``."""
-    n_g, n_p, n_rows, T, n_u, t_max, bad = (int(v) for v in ints[:7])
-    cuts = np.cumsum([HEADER, n_g, n_g, n_p, n_p, n_rows, T, T, n_u])
+    n_g, n_p, n_rows, T, n_u, t_max, bad = ints[:7].tolist()
+    # Python ints: slicing by them costs a fraction of slicing by numpy's
+    cuts = list(itertools.accumulate((n_g, n_g, n_p, n_p, n_rows, T, T, n_u), initial=HEADER))
     ri_g, pu_g, pi, pu, pair_of, plabel, in_cluster, hit = (
         ints[a:b] for a, b in zip(cuts[:-1], cuts[1:], strict=True))
-    cuts = np.cumsum([0, n_g, 2 * n_g, 4 * n_g, n_p, T, T, 2 * n_u, T, T, n_p])
+    cuts = list(itertools.accumulate((n_g, 2 * n_g, 4 * n_g, n_p, T, T, 2 * n_u, T, T, n_p),
+                                     initial=0))
     (mass_g, p1_g, p2_g, mass, mass_out, logL, LL1, w_new, g_out, g_pair) = (
         floats[a:b] for a, b in zip(cuts[:-1], cuts[1:], strict=True))
     return (ri_g, pu_g, mass_g, p1_g.reshape(n_g, 2), p2_g.reshape(n_g, 2, 2), pi, pu,
@@ -570,35 +572,6 @@ def keep_and_prune(weights, owner, alpha, means, covs, T, cand, cells, returns, 
     d, fc, fv = field_set(default, f_cells, f_values, cand, u_new, floor, apply_floor)
     w2, own2, a2, m2, P2, tid3 = prune_tracks(w, own, a, m, P, tid2, prune)
     return n_new, d, fc, fv, w2, own2, a2, m2, P2, tid3
-
-
-@njit(cache=True, error_model="numpy")
-def pair_screen(m, P, threshold, groups, use_groups):
-    """:func:`.tracker._pair_distances`' screen: the pairs ``i < j`` (in
-    ``np.triu_indices`` order) whose position-only lower bound is not ``>= threshold``
-    (NaN passes), in the same group when ``use_groups``; returns them with ``m_i - m_j``
-    and ``P_i + P_j`` for the exact solve."""
-    K = m.shape[0]
-    n = 0
-    ci = np.empty(K * (K - 1) // 2, np.int64)
-    cj = np.empty(K * (K - 1) // 2, np.int64)
-    for i in range(K):
-        for j in range(i + 1, K):
-            if use_groups and groups[i] != groups[j]:
-                continue
-            lower = screen_bound(m, P, i, j)
-            if not lower >= threshold:
-                ci[n], cj[n] = i, j
-                n += 1
-    dc = np.empty((n, 4))
-    Sc = np.empty((n, 4, 4))
-    for k in range(n):
-        i, j = ci[k], cj[k]
-        for x in range(4):
-            dc[k, x] = m[i, x] - m[j, x]
-            for y in range(4):
-                Sc[k, x, y] = P[i, x, y] + P[j, x, y]
-    return ci[:n], cj[:n], dc, Sc
 
 
 @njit(cache=True, error_model="numpy")
@@ -896,7 +869,6 @@ def warm_up() -> None:
     w2, own2, a2, m2, P2, ucell = step_kernels.with_candidates(f, i, f, m, P, i, f, 1.0, 1, 1.0)
     keep_promoted(w2, own2, a2, m2, P2, 1, i, i, b, 1e-3)
     keep_and_prune(w2, own2, a2, m2, P2, 1, i, i, b, 1e-3, i, 1, 0.1, i, f, 1e-4, True)
-    ci, cj, dc, Sc = pair_screen(m2, P2, 4.0, i, False)
     for bounded in (False, True):
         greedy_merge(w2, m2, P2, np.zeros((2, 2)), 4.0, bounded, 1e-9)
     position_inverse(P2)
