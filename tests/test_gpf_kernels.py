@@ -215,6 +215,33 @@ def test_pair_distances_equal_the_numpy_form_and_lapack(metric):
     assert checked > 200
 
 
+@pytest.mark.parametrize("max_components", [2, 3, 8])
+def test_reducing_components_equals_the_numpy_form(max_components):
+    """A track's components: those below the floor dropped (the heaviest kept; one at
+    the floor kept), merged on Bhattacharyya distances within the track, the lightest
+    beyond ``max_components`` moment-matched; tied weights, tracks of one row, no merging
+    (threshold 0)."""
+    rng = np.random.default_rng(31 + max_components)
+    tracker = gpf_tracker.GaussianParticleFilter(max_components=max_components)
+    capped = merged = 0
+    for _ in range(150):
+        T, R = int(rng.integers(1, 6)), int(rng.integers(1, 30))
+        own = np.sort(np.concatenate([np.arange(T), rng.integers(0, T, R)]))
+        a = rng.uniform(0.0, 1.0, len(own)) ** 3  # some below the floor
+        a[rng.random(len(own)) < 0.2] = 0.25  # ties
+        a[rng.random(len(own)) < 0.1] = 0.02  # at the floor: kept
+        m, P = _states(rng, len(own), 3.0)
+        m = m[: len(own)]
+        P = P[: len(own)]
+        m[:, [0, 2]] = rng.uniform(0.0, 2.0, (len(own), 2))
+        tracker.merge_threshold = float(rng.choice([0.0, 4.0, 16.0]))
+        want, got = _both(tracker._reduce_components, own, a, m, P, T)
+        assert _equal(list(want), list(got))
+        capped += int(np.bincount(want[0], minlength=T).max() == max_components)
+        merged += len(want[0]) < int((a >= 0.02).sum())
+    assert capped > 10 and merged > 10
+
+
 def test_position_regression_and_the_fold_equal_the_numpy_forms():
     rng = np.random.default_rng(7)
     m, P = _states(rng, 500, 10.0)

@@ -887,6 +887,11 @@ class GaussianParticleFilter(Tracker):
         if self.max_components == 1:  # the paper's one Gaussian: the moment match
             mean, cov = collapse(a, m, P, own, T)
             return np.arange(T), np.ones(T), mean, cov
+        kernels = compiled_gpf_kernels()
+        if kernels is not None:  # the same operations in one compiled pass
+            return kernels.reduce_components(
+                *(np.ascontiguousarray(x) for x in (own, a, m, P)), T, self.max_components,
+                float(self.merge_threshold), _COMPONENT_FLOOR, _SUM_TOL)
         keep = a >= _COMPONENT_FLOOR
         # a track keeps its heaviest row even when all are below the floor
         best = np.zeros(len(a), dtype=bool)

@@ -52,9 +52,11 @@ from .step_kernels import (  # noqa: F401
     RESPREAD,
     any_close,
     candidates,
+    collapse,
     field_predict,
     field_set,
     heaviest,
+    pair_distances,
 )
 
 _LOGE2 = math.log(2.0)
@@ -685,6 +687,88 @@ def prune_tracks(w, own, a, m, P, tid, threshold):
 
 
 @njit(cache=True, error_model="numpy")
+def _by_track_heaviest_first(own, a):
+    """``np.lexsort((-a, own))``: by track, then by decreasing weight, then by index (two
+    stable sorts; numba's merge sort puts NaN last, as numpy does)."""
+    first = np.argsort(-a, kind="mergesort")
+    return first[np.argsort(own[first], kind="mergesort")]
+
+
+@njit(cache=True, error_model="numpy")
+def reduce_components(own, a, m, P, T, max_components, threshold, floor, sum_tol):
+    """:meth:`.tracker.GaussianParticleFilter._reduce_components` for ``max_components >
+    1``: each track keeps its rows of weight ``>= floor`` and its heaviest; with
+    ``threshold > 0`` a track's rows merge by :func:`.tracker.merge_groups`' capped rule on
+    Bhattacharyya distances (:func:`.step_kernels.pair_distances`, :func:`greedy_merge`);
+    beyond ``max_components`` a track's lightest rows are moment-matched into one
+    (:func:`.step_kernels.collapse`); the weights are normalised per track. The same
+    operations in the same order as the numpy form (``bincount`` sums in index order from
+    0). Returns ``own``, ``a``, ``m``, ``P``."""
+    R = len(a)
+    keep = np.empty(R, np.bool_)
+    for r in range(R):
+        keep[r] = a[r] >= floor
+    order = _by_track_heaviest_first(own, a)
+    for q in range(R):
+        if q == 0 or own[order[q]] != own[order[q - 1]]:
+            keep[order[q]] = True
+    idx = np.nonzero(keep)[0]
+    own, a, m, P = own[idx], a[idx], m[idx], P[idx]
+    K = len(a)
+    if threshold > 0 and K > 1:
+        o = np.argsort(-a, kind="mergesort")
+        w_s, m_s, P_s, g_s = a[o], m[o], P[o], own[o]
+        close = pair_distances(m_s, P_s, threshold, True, g_s, True)
+        out_w, label, mean, cov = greedy_merge(w_s, m_s, P_s, close, threshold, False,
+                                               sum_tol)
+        merged_own = np.empty(len(out_w), np.int64)
+        for q in range(K):
+            merged_own[label[q]] = g_s[q]  # a group's members share their track
+        if len(out_w) == K:
+            own, a, m, P = merged_own, out_w, m_s, P_s
+        else:
+            own, a, m, P = merged_own, out_w, mean, cov
+    order = _by_track_heaviest_first(own, a)
+    own, a, m, P = own[order], a[order], m[order], P[order]
+    n = len(own)
+    n_rows = np.zeros(T, np.int64)
+    for r in range(n):
+        n_rows[own[r]] += 1
+    key = np.empty(n, np.int64)
+    any_excess = False
+    start = 0
+    for r in range(n):
+        if r == 0 or own[r] != own[r - 1]:
+            start = r
+        rank = r - start
+        excess = rank >= max_components - 1 and n_rows[own[r]] > max_components
+        any_excess = any_excess or excess
+        key[r] = own[r] * max_components + (max_components - 1 if excess else rank)
+    if any_excess:
+        # the keys are sorted (by track, then by rank capped): their runs are the groups
+        grp = np.empty(n, np.int64)
+        n_g = 0
+        for r in range(n):
+            if r == 0 or key[r] != key[r - 1]:
+                n_g += 1
+            grp[r] = n_g - 1
+        uk = np.empty(n_g, np.int64)
+        wsum = np.zeros(n_g)
+        for r in range(n):
+            uk[grp[r]] = key[r]
+            wsum[grp[r]] += a[r]
+        m, P = collapse(a, m, P, grp, n_g)
+        own, a = uk // max_components, wsum
+    tot = np.zeros(T)
+    for r in range(len(own)):
+        tot[own[r]] += a[r]
+    out = np.empty(len(own))
+    for r in range(len(own)):
+        out[r] = a[r] / tot[own[r]]
+    return own, out, m, P
+
+
+@njit(cache=True, error_model="numpy")
 def rows_by_track(own, a, m, P):
     """The rows in a stable order of their track."""
     order = np.argsort(own, kind="mergesort")
@@ -874,6 +958,8 @@ def warm_up() -> None:
     position_inverse(P2)
     prune_tracks(w2, own2, a2, m2, P2, own2, 1e-3)
     rows_by_track(own2, a2, m2, P2)
+    for threshold in (0.0, 4.0):
+        reduce_components(own2, a2, m2, P2, 2, 2, threshold, 0.02, 1e-9)
     near_walls(m2, P2, 6.0, 1.0, 1.0)
     owner, cm, cP, edge = reflection_images(m2, P2, 1.0, 1.0, 1e-9, 6.0)
     fold_moments(m2, P2, owner, cm, cP, edge, np.zeros((len(edge), 2, 2)),
