@@ -371,6 +371,37 @@ def distinct_modes(sel, score, own, m, n_tracks, min_d2):
 
 
 @njit(cache=True, error_model="numpy")
+def _before(own, neg_a, i, j):
+    """Row ``i`` precedes row ``j`` in ``np.lexsort((neg_a, own))`` (NaN last)."""
+    if own[i] != own[j]:
+        return own[i] < own[j]
+    x, y = neg_a[i], neg_a[j]
+    if x < y or (y != y and x == x):
+        return True
+    if x > y or (x != x and y == y):
+        return False
+    return i < j
+
+
+@njit(cache=True, error_model="numpy")
+def by_track_heaviest_first(own, a):
+    """``np.lexsort((-a, own))``: a stable sort by track, then by decreasing weight (NaN
+    last), then by index (the GPF's and pmb's mixture reductions)."""
+    n = len(own)
+    neg_a = -a
+    order = np.argsort(own, kind="mergesort")
+    for k in range(1, n):  # insertion sort within each track's run (a few rows)
+        cur = order[k]
+        q = k
+        while q > 0 and own[order[q - 1]] == own[cur] and _before(own, neg_a, cur,
+                                                                  order[q - 1]):
+            order[q] = order[q - 1]
+            q -= 1
+        order[q] = cur
+    return order
+
+
+@njit(cache=True, error_model="numpy")
 def collapse(w, m, P, owner, n):
     """:func:`.tracker.collapse`: each group's weights normalised by their sum, then its
     mean and covariance (``P + dev dev^T``) summed in row order from 0, as ``bincount``
@@ -413,4 +444,5 @@ def warm_up() -> None:
     heaviest(f, 1, m, P, i)
     count_bound(np.full(3, 0.5), 1)
     collapse(f, m, P, i, 1)
+    by_track_heaviest_first(i, f)
     distinct_modes(i, f, i, m, 1, 1.0)

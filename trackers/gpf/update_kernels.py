@@ -51,6 +51,7 @@ from .step_kernels import (  # noqa: F401
     FLOOR,
     RESPREAD,
     any_close,
+    by_track_heaviest_first,
     candidates,
     collapse,
     field_predict,
@@ -687,14 +688,6 @@ def prune_tracks(w, own, a, m, P, tid, threshold):
 
 
 @njit(cache=True, error_model="numpy")
-def _by_track_heaviest_first(own, a):
-    """``np.lexsort((-a, own))``: by track, then by decreasing weight, then by index (two
-    stable sorts; numba's merge sort puts NaN last, as numpy does)."""
-    first = np.argsort(-a, kind="mergesort")
-    return first[np.argsort(own[first], kind="mergesort")]
-
-
-@njit(cache=True, error_model="numpy")
 def reduce_components(own, a, m, P, T, max_components, threshold, floor, sum_tol):
     """:meth:`.tracker.GaussianParticleFilter._reduce_components` for ``max_components >
     1``: each track keeps its rows of weight ``>= floor`` and its heaviest; with
@@ -708,7 +701,7 @@ def reduce_components(own, a, m, P, T, max_components, threshold, floor, sum_tol
     keep = np.empty(R, np.bool_)
     for r in range(R):
         keep[r] = a[r] >= floor
-    order = _by_track_heaviest_first(own, a)
+    order = by_track_heaviest_first(own, a)
     for q in range(R):
         if q == 0 or own[order[q]] != own[order[q - 1]]:
             keep[order[q]] = True
@@ -728,7 +721,7 @@ def reduce_components(own, a, m, P, T, max_components, threshold, floor, sum_tol
             own, a, m, P = merged_own, out_w, m_s, P_s
         else:
             own, a, m, P = merged_own, out_w, mean, cov
-    order = _by_track_heaviest_first(own, a)
+    order = by_track_heaviest_first(own, a)
     own, a, m, P = own[order], a[order], m[order], P[order]
     n = len(own)
     n_rows = np.zeros(T, np.int64)

@@ -31,6 +31,7 @@ import numpy as np
 from numba import njit
 
 from ..gpf import step_kernels
+from ..gpf.step_kernels import by_track_heaviest_first as _by_track_heaviest_first
 from ..gpf.step_kernels import collapse as _collapse
 from ..gpf.update_kernels import state_moments
 from ..grid_kernels import field_apply, looked_in_boxes
@@ -390,36 +391,6 @@ def pmb_update(r, own, alpha, m, P, B, resid, U, L, M, S, positive, lam_meas, s,
 
 
 # ------------------------------------------------------------------ mixture bound
-@njit(cache=True, error_model="numpy")
-def _before(own, neg_a, i, j):
-    """Row ``i`` precedes row ``j`` in ``np.lexsort((neg_a, own))`` (NaN last)."""
-    if own[i] != own[j]:
-        return own[i] < own[j]
-    x, y = neg_a[i], neg_a[j]
-    if x < y or (y != y and x == x):
-        return True
-    if x > y or (x != x and y == y):
-        return False
-    return i < j
-
-
-@njit(cache=True, error_model="numpy")
-def _by_track_heaviest_first(own, a):
-    """``np.lexsort((-a, own))``: a stable sort by track, then by decreasing weight."""
-    n = len(own)
-    neg_a = -a
-    order = np.argsort(own, kind="mergesort")
-    for k in range(1, n):  # insertion sort within each track's run (a few rows)
-        cur = order[k]
-        q = k
-        while q > 0 and own[order[q - 1]] == own[cur] and _before(own, neg_a, cur,
-                                                                  order[q - 1]):
-            order[q] = order[q - 1]
-            q -= 1
-        order[q] = cur
-    return order
-
-
 @njit(cache=True, error_model="numpy")
 def reduce_rows(own, a, m, P, hyp, T, max_components, floor):
     """:func:`.tracker.reduce_rows` (``floor``: its ``COMPONENT_FLOOR``): the rows of one
