@@ -219,8 +219,8 @@ def test_pair_distances_equal_the_numpy_form_and_lapack(metric):
 def test_reducing_components_equals_the_numpy_form(max_components):
     """A track's components: those below the floor dropped (the heaviest kept; one at
     the floor kept), merged on Bhattacharyya distances within the track, the lightest
-    beyond ``max_components`` moment-matched; tied weights, tracks of one row, no merging
-    (threshold 0)."""
+    beyond ``max_components`` moment-matched; tied weights, tracks of one row, a track of
+    weights 0, no merging (threshold 0)."""
     rng = np.random.default_rng(31 + max_components)
     tracker = gpf_tracker.GaussianParticleFilter(max_components=max_components)
     capped = merged = 0
@@ -230,6 +230,8 @@ def test_reducing_components_equals_the_numpy_form(max_components):
         a = rng.uniform(0.0, 1.0, len(own)) ** 3  # some below the floor
         a[rng.random(len(own)) < 0.2] = 0.25  # ties
         a[rng.random(len(own)) < 0.1] = 0.02  # at the floor: kept
+        if rng.random() < 0.2:
+            a[own == own[0]] = 0.0  # a track whose weights all underflowed
         m, P = _states(rng, len(own), 3.0)
         m = m[: len(own)]
         P = P[: len(own)]
@@ -237,6 +239,7 @@ def test_reducing_components_equals_the_numpy_form(max_components):
         tracker.merge_threshold = float(rng.choice([0.0, 4.0, 16.0]))
         want, got = _both(tracker._reduce_components, own, a, m, P, T)
         assert _equal(list(want), list(got))
+        assert np.isfinite(want[1]).all()  # weight 1 where a track's sum is 0
         capped += int(np.bincount(want[0], minlength=T).max() == max_components)
         merged += len(want[0]) < int((a >= 0.02).sum())
     assert capped > 10 and merged > 10

@@ -28,6 +28,7 @@ from numba import njit
 from ..numba_exact import nan_max as _nan_max
 from ..numba_exact import nan_min as _nan_min
 from ..numba_exact import np_sum
+from ..numba_exact import unique_inverse as _unique_inverse
 from .cluster_kernels import _better
 
 #: field_predict's modes: the floor (a model with arrivals), the count bound's respread
@@ -429,6 +430,44 @@ def collapse(w, m, P, owner, n):
     return mean, cov
 
 
+@njit(cache=True, error_model="numpy")
+def cap_and_normalise(own, a, m, P, T, max_components):
+    """The end of the GPF's and pmb's mixture reductions, on rows sorted by track and then
+    by decreasing weight (:func:`by_track_heaviest_first`): a track's rows beyond
+    ``max_components`` - 1 are moment-matched into one (:func:`collapse`; their weight the
+    sum, in row order from 0), then the weights are normalised per track (1 where a
+    track's weights sum to 0). Returns ``own``, ``a``, ``m``, ``P``."""
+    n_k = len(own)
+    n_rows = np.zeros(T, np.int64)
+    for i in range(n_k):
+        n_rows[own[i]] += 1
+    rank = np.empty(n_k, np.int64)
+    any_excess = False
+    for i in range(n_k):
+        rank[i] = i if i == 0 or own[i] != own[i - 1] else rank[i - 1]
+    for i in range(n_k):
+        rank[i] = i - rank[i]
+        any_excess |= rank[i] >= max_components - 1 and n_rows[own[i]] > max_components
+    if any_excess:
+        key = np.empty(n_k, np.int64)
+        for i in range(n_k):
+            excess = rank[i] >= max_components - 1 and n_rows[own[i]] > max_components
+            key[i] = own[i] * max_components + (max_components - 1 if excess else rank[i])
+        uk, grp = _unique_inverse(key)
+        wsum = np.zeros(len(uk))
+        for i in range(n_k):
+            wsum[grp[i]] += a[i]
+        m, P = collapse(a, m, P, grp, len(uk))
+        own, a = uk // max_components, wsum
+    tot = np.zeros(T)
+    for i in range(len(own)):
+        tot[own[i]] += a[i]
+    out = np.empty(len(own))
+    for i in range(len(own)):
+        out[i] = a[i] / tot[own[i]] if tot[own[i]] > 0.0 else 1.0
+    return own, out, m, P
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) these kernels on tiny inputs of the argument
     types the GPF passes."""
@@ -445,4 +484,5 @@ def warm_up() -> None:
     count_bound(np.full(3, 0.5), 1)
     collapse(f, m, P, i, 1)
     by_track_heaviest_first(i, f)
+    cap_and_normalise(i, f, m, P, 1, 2)
     distinct_modes(i, f, i, m, 1, 1.0)

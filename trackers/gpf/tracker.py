@@ -924,8 +924,9 @@ class GaussianParticleFilter(Tracker):
             wsum = np.bincount(grp, weights=a)
             mean, cov = collapse(a, m, P, grp, len(uk))
             own, a, m, P = uk // self.max_components, wsum, mean, cov
-        tot = np.bincount(own, weights=a, minlength=T)
-        return own, a / tot[own], m, P
+        tot = np.bincount(own, weights=a, minlength=T)[own]
+        # a track whose weights all vanished (underflow) keeps its rows at weight 1
+        return own, np.where(tot > 0.0, a / np.where(tot > 0.0, tot, 1.0), 1.0), m, P
 
     # --------------------------------------------------------------- estimate
     def estimate(self) -> Estimate:

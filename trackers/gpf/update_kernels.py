@@ -53,6 +53,7 @@ from .step_kernels import (  # noqa: F401
     any_close,
     by_track_heaviest_first,
     candidates,
+    cap_and_normalise,
     collapse,
     field_predict,
     field_set,
@@ -694,9 +695,9 @@ def reduce_components(own, a, m, P, T, max_components, threshold, floor, sum_tol
     ``threshold > 0`` a track's rows merge by :func:`.tracker.merge_groups`' capped rule on
     Bhattacharyya distances (:func:`.step_kernels.pair_distances`, :func:`greedy_merge`);
     beyond ``max_components`` a track's lightest rows are moment-matched into one
-    (:func:`.step_kernels.collapse`); the weights are normalised per track. The same
-    operations in the same order as the numpy form (``bincount`` sums in index order from
-    0). Returns ``own``, ``a``, ``m``, ``P``."""
+    (:func:`.step_kernels.cap_and_normalise`, shared with pmb); the weights are normalised
+    per track. The same operations in the same order as the numpy form (``bincount`` sums
+    in index order from 0). Returns ``own``, ``a``, ``m``, ``P``."""
     R = len(a)
     keep = np.empty(R, np.bool_)
     for r in range(R):
@@ -722,43 +723,7 @@ def reduce_components(own, a, m, P, T, max_components, threshold, floor, sum_tol
         else:
             own, a, m, P = merged_own, out_w, mean, cov
     order = by_track_heaviest_first(own, a)
-    own, a, m, P = own[order], a[order], m[order], P[order]
-    n = len(own)
-    n_rows = np.zeros(T, np.int64)
-    for r in range(n):
-        n_rows[own[r]] += 1
-    key = np.empty(n, np.int64)
-    any_excess = False
-    start = 0
-    for r in range(n):
-        if r == 0 or own[r] != own[r - 1]:
-            start = r
-        rank = r - start
-        excess = rank >= max_components - 1 and n_rows[own[r]] > max_components
-        any_excess = any_excess or excess
-        key[r] = own[r] * max_components + (max_components - 1 if excess else rank)
-    if any_excess:
-        # the keys are sorted (by track, then by rank capped): their runs are the groups
-        grp = np.empty(n, np.int64)
-        n_g = 0
-        for r in range(n):
-            if r == 0 or key[r] != key[r - 1]:
-                n_g += 1
-            grp[r] = n_g - 1
-        uk = np.empty(n_g, np.int64)
-        wsum = np.zeros(n_g)
-        for r in range(n):
-            uk[grp[r]] = key[r]
-            wsum[grp[r]] += a[r]
-        m, P = collapse(a, m, P, grp, n_g)
-        own, a = uk // max_components, wsum
-    tot = np.zeros(T)
-    for r in range(len(own)):
-        tot[own[r]] += a[r]
-    out = np.empty(len(own))
-    for r in range(len(own)):
-        out[r] = a[r] / tot[own[r]]
-    return own, out, m, P
+    return cap_and_normalise(own[order], a[order], m[order], P[order], T, max_components)
 
 
 @njit(cache=True, error_model="numpy")

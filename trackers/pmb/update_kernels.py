@@ -32,6 +32,7 @@ from numba import njit
 
 from ..gpf import step_kernels
 from ..gpf.step_kernels import by_track_heaviest_first as _by_track_heaviest_first
+from ..gpf.step_kernels import cap_and_normalise
 from ..gpf.step_kernels import collapse as _collapse
 from ..gpf.update_kernels import state_moments
 from ..grid_kernels import field_apply, looked_in_boxes
@@ -443,35 +444,7 @@ def reduce_rows(own, a, m, P, hyp, T, max_components, floor):
             n_k += 1
     order = _by_track_heaviest_first(own[idx], a[idx])
     own, a, m, P = own[idx[order]], a[idx[order]], m[idx[order]], P[idx[order]]
-    # beyond max_components: the lightest of a track moment matched into one
-    n_rows = np.zeros(T, np.int64)
-    for i in range(n_k):
-        n_rows[own[i]] += 1
-    rank = np.empty(n_k, np.int64)
-    any_excess = False
-    for i in range(n_k):
-        rank[i] = i if i == 0 or own[i] != own[i - 1] else rank[i - 1]
-    for i in range(n_k):
-        rank[i] = i - rank[i]
-        any_excess |= rank[i] >= max_components - 1 and n_rows[own[i]] > max_components
-    if any_excess:
-        key = np.empty(n_k, np.int64)
-        for i in range(n_k):
-            excess = rank[i] >= max_components - 1 and n_rows[own[i]] > max_components
-            key[i] = own[i] * max_components + (max_components - 1 if excess else rank[i])
-        uk, grp = _unique_inverse(key)
-        wsum = np.zeros(len(uk))
-        for i in range(n_k):
-            wsum[grp[i]] += a[i]
-        m, P = _collapse(a, m, P, grp, len(uk))
-        own, a = uk // max_components, wsum
-    tot = np.zeros(T)
-    for i in range(len(own)):
-        tot[own[i]] += a[i]
-    out = np.empty(len(own))
-    for i in range(len(own)):
-        out[i] = a[i] / tot[own[i]] if tot[own[i]] > 0.0 else 1.0
-    return own, out, m, P
+    return cap_and_normalise(own, a, m, P, T, max_components)
 
 
 # ------------------------------------------------------- the PPP (a CellField's arrays)
