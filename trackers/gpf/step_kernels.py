@@ -431,6 +431,21 @@ def collapse(w, m, P, owner, n):
 
 
 @njit(cache=True, error_model="numpy")
+def above_floor(own, a, floor):
+    """The rows a mixture reduction keeps: weight ``>= floor``, and each track's heaviest
+    (:func:`by_track_heaviest_first`'s first of the track) even below it. A boolean mask."""
+    n = len(a)
+    keep = np.empty(n, np.bool_)
+    for i in range(n):
+        keep[i] = a[i] >= floor
+    order = by_track_heaviest_first(own, a)
+    for k in range(n):
+        if k == 0 or own[order[k]] != own[order[k - 1]]:
+            keep[order[k]] = True
+    return keep
+
+
+@njit(cache=True, error_model="numpy")
 def cap_and_normalise(own, a, m, P, T, max_components):
     """The end of the GPF's and pmb's mixture reductions, on rows sorted by track and then
     by decreasing weight (:func:`by_track_heaviest_first`): a track's rows beyond
@@ -484,5 +499,6 @@ def warm_up() -> None:
     count_bound(np.full(3, 0.5), 1)
     collapse(f, m, P, i, 1)
     by_track_heaviest_first(i, f)
+    above_floor(i, f, 0.02)
     cap_and_normalise(i, f, m, P, 1, 2)
     distinct_modes(i, f, i, m, 1, 1.0)

@@ -50,6 +50,7 @@ from .cluster_kernels import (  # noqa: F401
 from .step_kernels import (  # noqa: F401
     FLOOR,
     RESPREAD,
+    above_floor,
     any_close,
     by_track_heaviest_first,
     candidates,
@@ -698,15 +699,7 @@ def reduce_components(own, a, m, P, T, max_components, threshold, floor, sum_tol
     (:func:`.step_kernels.cap_and_normalise`, shared with pmb); the weights are normalised
     per track. The same operations in the same order as the numpy form (``bincount`` sums
     in index order from 0). Returns ``own``, ``a``, ``m``, ``P``."""
-    R = len(a)
-    keep = np.empty(R, np.bool_)
-    for r in range(R):
-        keep[r] = a[r] >= floor
-    order = by_track_heaviest_first(own, a)
-    for q in range(R):
-        if q == 0 or own[order[q]] != own[order[q - 1]]:
-            keep[order[q]] = True
-    idx = np.nonzero(keep)[0]
+    idx = np.nonzero(above_floor(own, a, floor))[0]
     own, a, m, P = own[idx], a[idx], m[idx], P[idx]
     K = len(a)
     if threshold > 0 and K > 1:

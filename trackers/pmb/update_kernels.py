@@ -31,8 +31,8 @@ import numpy as np
 from numba import njit
 
 from ..gpf import step_kernels
+from ..gpf.step_kernels import above_floor, cap_and_normalise
 from ..gpf.step_kernels import by_track_heaviest_first as _by_track_heaviest_first
-from ..gpf.step_kernels import cap_and_normalise
 from ..gpf.step_kernels import collapse as _collapse
 from ..gpf.update_kernels import state_moments
 from ..grid_kernels import field_apply, looked_in_boxes
@@ -425,13 +425,7 @@ def reduce_rows(own, a, m, P, hyp, T, max_components, floor):
         m, P = m2, P2
     own, a = g_own, g_a
     # the floor, each track keeping its heaviest row
-    order = _by_track_heaviest_first(own, a)
-    keep = np.empty(n_g, np.bool_)
-    for i in range(n_g):
-        keep[i] = a[i] >= floor
-    for k in range(n_g):
-        if k == 0 or own[order[k]] != own[order[k - 1]]:
-            keep[order[k]] = True
+    keep = above_floor(own, a, floor)
     # then sorted by track, heaviest first
     n_k = 0
     for i in range(n_g):
