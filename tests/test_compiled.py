@@ -64,8 +64,16 @@ def test_a_users_numba_cache_dir_is_searched(tmp_path, monkeypatch):
     cache = tmp_path / "numba-cache"
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(cache))
     assert compiled.cold_modules((name,)) == [name]
-    (cache / "fakekernels_abc").mkdir(parents=True)
-    (cache / "fakekernels_abc" / "kern.g-9.py311.nbi").write_bytes(b"")
+    # numba keeps a folder per source folder there, named by its own rule
+    from numba.core.caching import _CacheLocator
+
+    origin = importlib.util.find_spec(name).origin
+    folder = cache / _CacheLocator.get_suitable_cache_subpath(origin)
+    (cache / "elsewhere").mkdir(parents=True)
+    (cache / "elsewhere" / "kern.g-9.py311.nbi").write_bytes(b"")  # another project's
+    assert compiled.cold_modules((name,)) == [name]
+    folder.mkdir(parents=True)
+    (folder / "kern.g-9.py311.nbi").write_bytes(b"")
     assert compiled.cold_modules((name,)) == []
 
 
@@ -213,6 +221,113 @@ def test_a_helpers_stale_index_does_not_make_its_callers_load_compile(tmp_path, 
     assert caller.quarter(8.0) == 2.0
     assert caller.quarter.stats.cache_hits and not caller.quarter.stats.cache_misses
     assert not helper.halve.signatures  # the helper was not compiled for the load
+
+
+@pytest.mark.parametrize("cache_dir", [False, True], ids=["in-tree", "NUMBA_CACHE_DIR"])
+def test_a_callers_cache_is_dropped_when_a_module_it_calls_changes(tmp_path, monkeypatch,
+                                                                   cache_dir):
+    """Numba loads a caller compiled with the old helper after the helper's file changed
+    (the first half shows it, so the second can fail); :func:`compiled.drop_stale_caches`
+    deletes the cache then, and only then, and the caller runs the new helper."""
+    pkg, name = _kernel_module(tmp_path, monkeypatch)
+    if cache_dir:  # numba read the environment on import: its config too
+        from numba.core import config
+
+        monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba-cache"))
+        monkeypatch.setattr(config, "CACHE_DIR", str(tmp_path / "numba-cache"))
+    helper_name, caller_name = _helper_and_caller(pkg, name)
+    called, cached = (helper_name,), (helper_name, caller_name)
+
+    def fresh_process(check: bool):
+        """The helper and caller imported anew, after the check a kernel module makes."""
+        monkeypatch.setattr(compiled, "_CHECKED", set())
+        dropped = compiled.drop_stale_caches(called, cached) if check else None
+        importlib.reload(importlib.import_module(helper_name))
+        return dropped, importlib.reload(importlib.import_module(caller_name))
+
+    dropped, caller = fresh_process(check=True)
+    assert dropped is False and caller.quarter(8.0) == 2.0  # compiled, cached, stamped
+    files = compiled._cached_files(cached)
+    assert {f.name.split(".")[0] for f in files} == {"helper", "caller"}  # numba's folder
+    assert not compiled.stale_caches(called, cached)
+    mtimes = {f: f.stat().st_mtime_ns for f in files}
+    dropped, caller = fresh_process(check=True)
+    assert dropped is False and caller.quarter(8.0) == 2.0
+    assert caller.quarter.stats.cache_hits  # loaded, not compiled: the cache was kept
+    assert {f: f.stat().st_mtime_ns for f in files} == mtimes
+
+    (pkg / "helper.py").write_text(HELPER_SOURCE.replace("0.5 * x", "0.25 * x"))
+    assert compiled.stale_caches(called, cached)
+    _, caller = fresh_process(check=False)
+    assert caller.quarter(8.0) == 2.0  # numba alone: the old helper, silently
+    dropped, caller = fresh_process(check=True)
+    assert dropped is True and caller.quarter(8.0) == 0.5  # the new one
+    assert not caller.quarter.stats.cache_hits
+    assert not compiled.stale_caches(called, cached)
+    dropped, caller = fresh_process(check=True)
+    assert dropped is False and caller.quarter(8.0) == 0.5 and caller.quarter.stats.cache_hits
+
+
+def test_a_cache_without_a_record_of_its_sources_is_stale(tmp_path, monkeypatch):
+    """Kernels cached before the digest was recorded (an older checkout) may hold any
+    version of the modules they call: stale, and cold to the default run limit."""
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    monkeypatch.delenv("MTTBENCH_NO_NUMBA", raising=False)
+    ours = compiled.MODULES + compiled.HELPERS
+    assert not compiled.stale_caches() and compiled.cold_modules() == list(ours)
+    origin = Path(importlib.util.find_spec(compiled.MODULES[0]).origin)
+    folder = compiled._cache_folder(origin)
+    folder.mkdir(parents=True)
+    (folder / f"{origin.stem}.f-3.py311.nbi").write_bytes(b"")
+    assert compiled.stale_caches() and compiled.cold_modules() == list(ours)
+    (folder / compiled.STAMP_NAME).write_text(compiled.called_digest())
+    assert not compiled.stale_caches()
+    assert compiled.cold_modules() == [m for m in ours if m != compiled.MODULES[0]]
+    (folder / compiled.STAMP_NAME).write_text(compiled.called_digest()[::-1])
+    assert compiled.stale_caches()
+
+
+def _imported_modules(path: Path, name: str) -> set[str]:
+    """The absolute names of the modules ``from ... import`` names in the file ``path`` of
+    the module ``name``, with ``from .pkg import mod`` counting ``pkg.mod`` too."""
+    import ast
+
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom):
+            module = node.module
+            if node.level:  # relative to the module's package, ``level - 1`` levels up
+                base = ".".join(name.split(".")[:-node.level])
+                module = f"{base}.{node.module}" if node.module else base
+            found.add(module)
+            found.update(f"{module}.{alias.name}" for alias in node.names)
+    return found
+
+
+def test_called_holds_every_kernel_module_another_kernel_module_imports():
+    ours = compiled.MODULES + compiled.HELPERS
+    called = set()
+    for name in ours:
+        origin = Path(importlib.util.find_spec(name).origin)
+        called |= (_imported_modules(origin, name) & set(ours)) - {name}
+    assert called == set(compiled.CALLED)
+
+
+def test_every_kernel_module_drops_stale_caches_on_import():
+    """Each kernel module asks before any of its kernels can load (a fresh process, the
+    check replaced by one that records who asked)."""
+    code = (
+        "import sys\n"
+        "from mttbench.trackers import compiled\n"
+        "asked = set()\n"
+        "compiled.drop_stale_caches = lambda: asked.add(sys._getframe(1).f_globals['__name__'])\n"
+        f"for name in {compiled.MODULES + compiled.HELPERS!r}:\n"
+        "    __import__(name)\n"
+        "print(sorted(asked))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == repr(sorted(compiled.MODULES + compiled.HELPERS))
 
 
 def test_loads_without_compiling_is_false_without_numba(tmp_path, monkeypatch):

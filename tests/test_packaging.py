@@ -116,6 +116,8 @@ def _copy_numba_cache(package: Path) -> int:
     (bytecode hash, signature, CPU) match, else it compiles; so the install's kernels are
     the checkout's compiled code for the same source, and a module left uncopied (or a
     checkout never warmed by ``make``) compiles cold into the install as for a user."""
+    from mttbench.trackers.compiled import STAMP_NAME
+
     if os.environ.get("NUMBA_CACHE_DIR"):
         return 0  # the cache lives outside both trees: nothing next to the sources
     roots = {REPO / "mttbench": package, **{REPO / layer: package / layer for layer in LAYERS}}
@@ -131,6 +133,10 @@ def _copy_numba_cache(package: Path) -> int:
                 (target / "__pycache__").mkdir(exist_ok=True)
                 shutil.copy2(file, target / "__pycache__" / file.name)
                 copied += 1
+            # the digest of the sources the cached kernels call: the install compares it
+            # with its own sources' (else it would drop the copied cache and compile)
+            if (cache / STAMP_NAME).is_file() and (target / "__pycache__").is_dir():
+                shutil.copy2(cache / STAMP_NAME, target / "__pycache__")
     return copied
 
 

@@ -13,11 +13,18 @@ the cache is cold (``mttbench.benchmarks.app.resources``).
 
 :func:`cold_modules` looks for the index files only: it imports neither numba nor the
 modules, so asking costs a few file-system lookups.
+
+Numba checks a cached kernel against its own source file only, so a kernel that calls
+another module's keeps that module's code as it was when it was compiled. Every kernel
+module therefore calls :func:`drop_stale_caches` on import: when the sources of the
+modules others call (:data:`CALLED`) differ from those the cache was compiled with, it
+deletes every cached kernel, which then compile again (once, a few minutes of CPU).
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import importlib
 import importlib.util
 import os
@@ -37,38 +44,141 @@ MODULES = (
     "mttbench.trackers.jmpd.kernels",
     "mttbench.trackers.pmb.update_kernels",
 )
-#: disk-cached kernels that only the modules above call (compiled through their warm-up).
-#: Numba checks a cached kernel against its own file only: after editing one of these,
-#: delete the callers' caches too (``find trackers -name '*.nb[ic]' -delete``), or a
-#: caller keeps the old helper compiled into it. The same holds for ``grid_kernels``,
-#: whose kernels the GPF's and pmb's call too
+#: disk-cached kernels that only the modules above call (compiled through their warm-up)
 HELPERS = ("mttbench.trackers.gpf.cluster_kernels", "mttbench.trackers.gpf.step_kernels",
            "mttbench.trackers.numba_exact")
+#: the modules of :data:`MODULES` and :data:`HELPERS` whose kernels another module's
+#: kernels call. Numba checks a cached kernel against its own file only, so a caller
+#: loaded from the cache runs these as they were when it was compiled: an edit (or a
+#: ``git pull``) that changes one of them and not its callers would run the old code,
+#: silently. :func:`drop_stale_caches` drops every cached kernel when their sources change
+CALLED = ("mttbench.trackers.grid_kernels", "mttbench.trackers.gpf.update_kernels",
+          "mttbench.trackers.jmpd.kernels", "mttbench.trackers.gpf.cluster_kernels",
+          "mttbench.trackers.gpf.step_kernels", "mttbench.trackers.numba_exact")
+#: the file, in the cache folder of :data:`CALLED`'s first module, holding the digest of
+#: their sources when the cached kernels were compiled
+STAMP_NAME = "mttbench-called-kernels.sha256"
 
 
-def _has_index(origin: Path, cache_dir: str | None) -> bool:
+def _has_index(origin: Path) -> bool:
     """Whether numba's disk cache holds an index for a kernel of the module at ``origin``."""
-    pattern = f"{origin.stem}.*.nbi"
-    if any((origin.parent / "__pycache__").glob(pattern)):
-        return True
-    # a cache directory of the user's: numba keeps a sub-folder per source folder there
-    return bool(cache_dir) and any(Path(cache_dir).rglob(pattern))
+    return any(_cache_folder(origin).glob(f"{origin.stem}.*.nbi"))
 
 
 def cold_modules(modules: tuple[str, ...] = MODULES + HELPERS) -> list[str]:
     """The modules of ``modules`` with no kernel in numba's disk cache yet (their first use
-    in a process compiles them). None with ``MTTBENCH_NO_NUMBA=1`` (nothing compiles)."""
+    in a process compiles them); every one of ours when the cache is stale (:func:
+    `stale_caches`: the next import drops it). None with ``MTTBENCH_NO_NUMBA=1`` (nothing
+    compiles)."""
     if os.environ.get("MTTBENCH_NO_NUMBA"):
         return []
-    cache_dir = os.environ.get("NUMBA_CACHE_DIR")
+    stale = stale_caches()  # every cached kernel of ours is dropped at the next import
     cold = []
     for name in modules:
         spec = importlib.util.find_spec(name)
         if spec is None or spec.origin is None:
             raise ModuleNotFoundError(f"no module named {name!r}")
-        if not _has_index(Path(spec.origin), cache_dir):
+        if (stale and name in MODULES + HELPERS) or not _has_index(Path(spec.origin)):
             cold.append(name)
     return cold
+
+
+def _origin(name: str) -> Path:
+    spec = importlib.util.find_spec(name)
+    if spec is None or spec.origin is None:
+        raise ModuleNotFoundError(f"no module named {name!r}")
+    return Path(spec.origin)
+
+
+def _cache_folder(origin: Path) -> Path:
+    """Where numba keeps the disk cache of the module at ``origin``: ``__pycache__``
+    beside it, or under ``NUMBA_CACHE_DIR`` a folder named for the source folder (numba's
+    ``_CacheLocator.get_suitable_cache_subpath``). Numba's last resort, a user-wide folder
+    when neither can be written, is not looked at."""
+    cache_dir = os.environ.get("NUMBA_CACHE_DIR")
+    if not cache_dir:
+        return origin.parent / "__pycache__"
+    folder = os.path.dirname(os.path.abspath(origin))
+    hashed = hashlib.sha1(folder.encode()).hexdigest()
+    return Path(cache_dir) / f"{os.path.basename(folder)}_{hashed}"
+
+
+def _cached_files(modules: tuple[str, ...]) -> list[Path]:
+    """The index (``.nbi``) and data (``.nbc``) files of ``modules``' cached kernels."""
+    files = []
+    for name in modules:
+        origin = _origin(name)
+        files += sorted(_cache_folder(origin).glob(f"{origin.stem}.*.nb[ic]"))
+    return files
+
+
+def called_digest(called: tuple[str, ...] = CALLED) -> str:
+    """SHA-256 over the names and sources of ``called``."""
+    digest = hashlib.sha256()
+    for name in called:
+        digest.update(name.encode() + b"\0" + _origin(name).read_bytes() + b"\0")
+    return digest.hexdigest()
+
+
+def _stamp(called: tuple[str, ...]) -> Path:
+    return _cache_folder(_origin(called[0])) / STAMP_NAME
+
+
+def stale_caches(called: tuple[str, ...] = CALLED,
+                 cached: tuple[str, ...] = MODULES + HELPERS) -> bool:
+    """Whether numba's disk cache holds kernels of ``cached`` compiled when the sources of
+    ``called`` were other than now (or with no record of them). Reads a few files."""
+    try:
+        if _stamp(called).read_text() == called_digest(called):
+            return False
+    except OSError:
+        pass
+    return bool(_cached_files(cached))
+
+
+_CHECKED: set[tuple[tuple[str, ...], tuple[str, ...]]] = set()
+
+
+def drop_stale_caches(called: tuple[str, ...] = CALLED,
+                      cached: tuple[str, ...] = MODULES + HELPERS) -> bool:
+    """Delete every cached kernel of ``cached`` when the sources of ``called`` changed
+    since they were compiled (:func:`stale_caches`), and record the sources' digest; the
+    next use of a kernel compiles it (a few minutes of CPU for all of them, once). Every
+    kernel module calls it on import, before any kernel runs; once per process (a
+    forked worker inherits its parent's check), under an exclusive ``flock`` so that two
+    processes starting together drop and record once. True when it deleted files. A cache
+    folder this process cannot write is left alone (numba caches elsewhere then)."""
+    key = (called, cached)
+    if key in _CHECKED:
+        return False
+    stamp, digest = _stamp(called), called_digest(called)
+    dropped: list[Path] = []
+    try:
+        if stamp.is_file() and stamp.read_text() == digest:
+            _CHECKED.add(key)
+            return False
+        stamp.parent.mkdir(parents=True, exist_ok=True)
+        with open(stamp.with_name(STAMP_NAME + ".lock"), "a") as lock:
+            _lock(lock)  # released when the file closes
+            if not (stamp.is_file() and stamp.read_text() == digest):
+                dropped = _cached_files(cached)
+                for file in dropped:
+                    file.unlink(missing_ok=True)
+                partial = stamp.with_name(f".{STAMP_NAME}.{os.getpid()}")
+                partial.write_text(digest)
+                os.replace(partial, stamp)
+    except OSError:
+        return False
+    _CHECKED.add(key)
+    return bool(dropped)
+
+
+def _lock(file) -> None:
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: two processes starting together may both drop
+        return
+    fcntl.flock(file, fcntl.LOCK_EX)
 
 
 def loads_without_compiling(name: str, also: tuple[str, ...] = MODULES) -> bool:

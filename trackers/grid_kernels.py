@@ -25,12 +25,15 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .compiled import drop_stale_caches
 from .numba_exact import nan_max as _nan_max
 from .numba_exact import nan_min as _nan_min
 from .numba_exact import ndtr as _ndtr
 from .numba_exact import np_sum
 from .numba_exact import search_left as _search
 from .numba_exact import unique_inverse as _unique_inverse
+
+drop_stale_caches()  # before any kernel loads: a caller's cache may hold an old callee
 
 _INV_SQRT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
 

@@ -18,6 +18,10 @@ import numpy as np
 from numba import njit, types
 from numba.extending import get_cython_function_address
 
+from .compiled import drop_stale_caches
+
+drop_stale_caches()  # before any kernel loads: a caller's cache may hold an old callee
+
 
 def scipy_function(symbol: str, name: str) -> types.ExternalFunction:
     """scipy's C function ``name`` of ``cython_special`` (``double (double, int

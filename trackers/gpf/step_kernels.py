@@ -25,11 +25,14 @@ import math
 import numpy as np
 from numba import njit
 
+from ..compiled import drop_stale_caches
 from ..numba_exact import nan_max as _nan_max
 from ..numba_exact import nan_min as _nan_min
 from ..numba_exact import np_sum
 from ..numba_exact import unique_inverse as _unique_inverse
 from .cluster_kernels import _better
+
+drop_stale_caches()  # before any kernel loads: a caller's cache may hold an old callee
 
 #: field_predict's modes: the floor (a model with arrivals), the count bound's respread
 #: (without), or neither (no births)

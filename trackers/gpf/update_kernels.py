@@ -27,6 +27,7 @@ import math
 import numpy as np
 from numba import njit
 
+from ..compiled import drop_stale_caches
 from ..grid_kernels import looked_in_boxes, rect_position_moments
 from ..numba_exact import find_root as _find
 from ..numba_exact import nan_max as _nan_max
@@ -61,6 +62,8 @@ from .step_kernels import (  # noqa: F401
     heaviest,
     pair_distances,
 )
+
+drop_stale_caches()  # before any kernel loads: a caller's cache may hold an old callee
 
 _LOGE2 = math.log(2.0)
 

@@ -28,10 +28,13 @@ from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from ..compiled import drop_stale_caches
 from ..numba_exact import ndtr as _ndtr
 from ..numba_exact import ndtri as _ndtri
 from ..numba_exact import np_sum
 from .kernels import _outside
+
+drop_stale_caches()  # before any kernel loads: a caller's cache may hold an old callee
 
 
 @intrinsic

@@ -25,6 +25,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..compiled import drop_stale_caches
+
+drop_stale_caches()  # before any kernel loads: a caller's cache may hold an old callee
+
 
 @njit(cache=True)
 def _outside(p: float, v: float, length: float, cap: float,

@@ -30,6 +30,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..compiled import drop_stale_caches
 from ..gpf import step_kernels
 from ..gpf.step_kernels import above_floor, cap_and_normalise
 from ..gpf.step_kernels import by_track_heaviest_first as _by_track_heaviest_first
@@ -39,6 +40,8 @@ from ..grid_kernels import field_apply, looked_in_boxes
 from ..numba_exact import find_root as _find
 from ..numba_exact import search_left as _search
 from ..numba_exact import unique_inverse as _unique_inverse
+
+drop_stale_caches()  # before any kernel loads: a caller's cache may hold an old callee
 
 
 @njit(cache=True, error_model="numpy")
