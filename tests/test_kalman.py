@@ -16,3 +16,12 @@ def test_gate_d2_is_the_chi_square_quantile(p):
 
     assert kalman.gate_d2(p) == pytest.approx(-2.0 * np.log1p(-p), rel=1e-12)
     assert kalman.gate_d2(p, 1) == pytest.approx(ndtri((1.0 + p) / 2.0) ** 2, rel=1e-10)
+
+
+def test_gate_d2_equals_scipy_stats_chi2_ppf_bit_for_bit():
+    """The same numbers as ``scipy.stats.chi2.ppf`` (what the gate was), so no run moves."""
+    from scipy.stats import chi2
+
+    for dim in range(1, 7):
+        for p in np.r_[np.linspace(0.0, 1.0, 2001), 0.95, 0.99, 0.999, 0.9999, 1e-300]:
+            assert kalman.gate_d2(p, dim) == float(chi2.ppf(p, dim)), (p, dim)
