@@ -230,11 +230,12 @@ def test_a_callers_cache_is_dropped_when_a_module_it_calls_changes(tmp_path, mon
     (the first half shows it, so the second can fail); :func:`compiled.drop_stale_caches`
     deletes the cache then, and only then, and the caller runs the new helper."""
     pkg, name = _kernel_module(tmp_path, monkeypatch)
-    if cache_dir:  # numba read the environment on import: its config too
-        from numba.core import config
+    from numba.core import config
 
-        monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba-cache"))
-        monkeypatch.setattr(config, "CACHE_DIR", str(tmp_path / "numba-cache"))
+    folder = str(tmp_path / "numba-cache") if cache_dir else ""
+    if cache_dir:
+        monkeypatch.setenv("NUMBA_CACHE_DIR", folder)
+    monkeypatch.setattr(config, "CACHE_DIR", folder)  # numba read the environment on import
     helper_name, caller_name = _helper_and_caller(pkg, name)
     called, cached = (helper_name,), (helper_name, caller_name)
 
