@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
+from test_packaging import import_edges
 
 from mttbench.trackers import compiled
 
@@ -288,29 +289,12 @@ def test_a_cache_without_a_record_of_its_sources_is_stale(tmp_path, monkeypatch)
     assert compiled.stale_caches()
 
 
-def _imported_modules(path: Path, name: str) -> set[str]:
-    """The absolute names of the modules ``from ... import`` names in the file ``path`` of
-    the module ``name``, with ``from .pkg import mod`` counting ``pkg.mod`` too."""
-    import ast
-
-    found = set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-        if isinstance(node, ast.ImportFrom):
-            module = node.module
-            if node.level:  # relative to the module's package, ``level - 1`` levels up
-                base = ".".join(name.split(".")[:-node.level])
-                module = f"{base}.{node.module}" if node.module else base
-            found.add(module)
-            found.update(f"{module}.{alias.name}" for alias in node.names)
-    return found
-
-
 def test_called_holds_every_kernel_module_another_kernel_module_imports():
-    ours = compiled.MODULES + compiled.HELPERS
+    ours = set(compiled.MODULES + compiled.HELPERS)
     called = set()
     for name in ours:
         origin = Path(importlib.util.find_spec(name).origin)
-        called |= (_imported_modules(origin, name) & set(ours)) - {name}
+        called |= (import_edges(name, origin, ours) & ours) - {name}
     assert called == set(compiled.CALLED)
 
 

@@ -73,14 +73,8 @@ def cold_modules(modules: tuple[str, ...] = MODULES + HELPERS) -> list[str]:
     if os.environ.get("MTTBENCH_NO_NUMBA"):
         return []
     stale = stale_caches()  # every cached kernel of ours is dropped at the next import
-    cold = []
-    for name in modules:
-        spec = importlib.util.find_spec(name)
-        if spec is None or spec.origin is None:
-            raise ModuleNotFoundError(f"no module named {name!r}")
-        if (stale and name in MODULES + HELPERS) or not _has_index(Path(spec.origin)):
-            cold.append(name)
-    return cold
+    return [name for name in modules
+            if (stale and name in MODULES + HELPERS) or not _has_index(_origin(name))]
 
 
 def _origin(name: str) -> Path:
@@ -124,16 +118,19 @@ def _stamp(called: tuple[str, ...]) -> Path:
     return _cache_folder(_origin(called[0])) / STAMP_NAME
 
 
+def _recorded(stamp: Path, digest: str) -> bool:
+    """Whether ``stamp`` holds ``digest``."""
+    try:
+        return stamp.read_text() == digest
+    except OSError:
+        return False
+
+
 def stale_caches(called: tuple[str, ...] = CALLED,
                  cached: tuple[str, ...] = MODULES + HELPERS) -> bool:
     """Whether numba's disk cache holds kernels of ``cached`` compiled when the sources of
     ``called`` were other than now (or with no record of them). Reads a few files."""
-    try:
-        if _stamp(called).read_text() == called_digest(called):
-            return False
-    except OSError:
-        pass
-    return bool(_cached_files(cached))
+    return not _recorded(_stamp(called), called_digest(called)) and bool(_cached_files(cached))
 
 
 _CHECKED: set[tuple[tuple[str, ...], tuple[str, ...]]] = set()
@@ -154,13 +151,13 @@ def drop_stale_caches(called: tuple[str, ...] = CALLED,
     stamp, digest = _stamp(called), called_digest(called)
     dropped: list[Path] = []
     try:
-        if stamp.is_file() and stamp.read_text() == digest:
+        if _recorded(stamp, digest):
             _CHECKED.add(key)
             return False
         stamp.parent.mkdir(parents=True, exist_ok=True)
         with open(stamp.with_name(STAMP_NAME + ".lock"), "a") as lock:
             _lock(lock)  # released when the file closes
-            if not (stamp.is_file() and stamp.read_text() == digest):
+            if not _recorded(stamp, digest):  # another process may have dropped meanwhile
                 dropped = _cached_files(cached)
                 for file in dropped:
                     file.unlink(missing_ok=True)
