@@ -210,8 +210,8 @@ def test_slot_log_likelihood_equals_the_numpy_form():
 
 
 def test_sort_and_sums_equal_the_numpy_forms():
-    """One K-means sweep over a cluster of 4 slots, and the per-slot sums, holders and
-    extents, against :func:`.partitions.sort_slots` and numpy's reductions."""
+    """One K-means sweep over a cluster of 4 slots, and the per-slot sums and holders,
+    against :func:`.partitions.sort_slots` and numpy's reductions."""
     from mttbench.trackers.jmpd.partitions import sort_slots
     rng = np.random.default_rng(9)
     N, T = 800, 6
@@ -222,13 +222,11 @@ def test_sort_and_sums_equal_the_numpy_forms():
     arrays = [a.copy() for a in (pos, vel, vvar, valid)]
     sort_slots(arrays[0], arrays[3], [slots], arrays, iterations=1)
     held, sums = np.empty(T, np.int64), np.empty((T, 2))
-    vel_sums, boxes = np.empty((T, 2)), np.empty((T, 4))
-    ap_kernels.slot_sums(pos, vel, valid, True, held, sums, vel_sums, boxes)
+    vel_sums = np.empty((T, 2))
+    ap_kernels.slot_sums(pos, vel, valid, True, held, sums, vel_sums)
     assert np.array_equal(held, valid.sum(axis=0))
     assert np.array_equal(sums, (pos * valid[..., None]).sum(axis=0))
     assert np.array_equal(vel_sums, (vel * valid[..., None]).sum(axis=0))
-    from mttbench.trackers.jmpd.ap import _boxes
-    assert np.array_equal(boxes, _boxes(pos, valid))
     means = sums[slots] / np.maximum(held[slots], 1)[:, None]
     got = [a.copy() for a in (pos, vel, vvar, valid)]
     new_held, new_sums = np.empty(len(slots), np.int64), np.empty((len(slots), 2))
@@ -236,7 +234,7 @@ def test_sort_and_sums_equal_the_numpy_forms():
     assert moved > 0
     for a, b in zip(got, arrays, strict=True):
         assert np.array_equal(a, b)
-    ap_kernels.slot_sums(got[0], got[1], got[3], False, held, sums, vel_sums, boxes)
+    ap_kernels.slot_sums(got[0], got[1], got[3], False, held, sums, vel_sums)
     assert np.array_equal(new_held, held[slots]) and np.array_equal(new_sums, sums[slots])
 
 
@@ -259,8 +257,7 @@ def test_sort_sweeps_equal_the_numpy_form_with_ties(h, sweeps):
     sort_slots(arrays[0], arrays[3], [slots], arrays, iterations=sweeps)
     got = [a.copy() for a in (pos, vel, vvar, valid)]
     held, sums = np.empty(T, np.int64), np.empty((T, 2))
-    ap_kernels.slot_sums(got[0], got[1], got[3], False, held, sums, np.empty((T, 2)),
-                         np.empty((T, 4)))
+    ap_kernels.slot_sums(got[0], got[1], got[3], False, held, sums, np.empty((T, 2)))
     new_held, new_sums = np.empty(h, np.int64), np.empty((h, 2))
     for _ in range(sweeps):
         means = sums[slots] / np.maximum(held[slots], 1)[:, None]

@@ -18,11 +18,10 @@ One update (every step; ``Lambda_c(n)`` is the product over this step's looks at
 
 1. **Partitions** (AP, TAES Table V with Morelande's closure): slot centres are the
    predicted positions averaged over the particles holding the slot; slots closer than
-   ``cluster_distance`` cells, or whose particles' positions overlap, or whose holdings
-   depend on each other (two slots holding one target in different particles:
-   :func:`.partitions.coupled_slots`), are one cluster
-   (:func:`.partitions.cluster_slots`). A cluster of one slot is sampled alone (IP), a
-   larger one jointly.
+   ``cluster_distance`` cells, or whose holdings depend on each other (two slots
+   holding one target in different particles: :func:`.partitions.coupled_slots`), are
+   one cluster (:func:`.partitions.cluster_slots`). A cluster of one slot is sampled
+   alone (IP), a larger one jointly.
 2. **Persistent targets**: every particle draws its clusters' targets one after another
    from the locally optimal proposal given those already placed: slot ``t`` dies with
    weight ``beta + (1 - beta) m_out`` (removal, or leaving the workspace under ``die``)
@@ -139,16 +138,6 @@ KREUCHER_REMOVAL = 0.005
 AP_SLOT_BYTES = 384
 #: per jmpd-ap slot and step: 0.35 s for 1e6 slots (``scale``), ~25 ms for 27,000
 AP_SLOT_S = 1e-6
-
-
-def _boxes(pos: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Extent ``(T, 4)`` (``x0, x1, y0, y1``) of the positions ``(N, T, 2)`` held in
-    each slot (empty boxes, ``+inf, -inf``, for slots held nowhere)."""
-    inf = np.inf
-    x, y = pos[..., 0], pos[..., 1]
-    return np.stack([np.where(valid, x, inf).min(axis=0), np.where(valid, x, -inf).max(axis=0),
-                     np.where(valid, y, inf).min(axis=0), np.where(valid, y, -inf).max(axis=0)],
-                    axis=1)
 
 
 def _with_undetected(P: np.ndarray, pis: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
@@ -503,10 +492,10 @@ class JMPDAPTracker(Tracker):
         beta = self._beta if self._k > 0 else 0.0  # step 0 is the prior: nobody dies
 
         # 1. partitions from the predicted centres
-        held, centres, boxes = self._slot_means(rhohat)
+        held, centres = self._slot_means(rhohat)
         active = held > 0
         clusters = cluster_slots(centres, active, self.cluster_distance * grid.cell_size,
-                                 boxes, coupled_slots(self.valid))
+                                 coupled_slots(self.valid))
         self.n_clusters = len(clusters)
         self.largest_cluster = max((len(c) for c in clusters), default=0)
 
@@ -573,12 +562,11 @@ class JMPDAPTracker(Tracker):
         # K-means partition sorting within clusters (after resampling, before estimation)
         if self.sort_iterations > 0:
             if self._kernels is None:
-                held, mean_pos, boxes = self._slot_means(self.pos)
+                held, mean_pos = self._slot_means(self.pos)
             else:
-                held, sums, _, boxes = self._slot_sums(self.pos)
+                held, sums, _ = self._slot_sums(self.pos)
                 mean_pos = sums / np.maximum(held, 1)[:, None]
-            now = cluster_slots(mean_pos, held > 0, self.cluster_distance * grid.cell_size,
-                                boxes)
+            now = cluster_slots(mean_pos, held > 0, self.cluster_distance * grid.cell_size)
             arrays = [self.pos, self.vel, self.vvar, self.valid]
             if self._kernels is None:
                 sort_slots(self.pos, self.valid, now, arrays, self.sort_iterations)
@@ -623,26 +611,24 @@ class JMPDAPTracker(Tracker):
         setattr(self, name, new)
 
     def _slot_sums(self, pos: np.ndarray, with_vel: bool = False
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Compiled: per slot the holders ``(T,)``, the sums of ``pos`` and of the
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Compiled: per slot the holders ``(T,)`` and the sums of ``pos`` and of the
         velocity means over them ``(T, 2)`` (in particle order, as numpy's
-        ``sum(axis=0)``; velocities only ``with_vel``) and the extents ``(T, 4)``."""
+        ``sum(axis=0)``; velocities only ``with_vel``)."""
         T = self._T
         held, sums, vel_sums = np.empty(T, np.int64), np.empty((T, 2)), np.empty((T, 2))
-        boxes = np.empty((T, 4))
-        self._kernels.slot_sums(pos, self.vel, self.valid, with_vel, held, sums, vel_sums,
-                                boxes)
-        return held, sums, vel_sums, boxes
+        self._kernels.slot_sums(pos, self.vel, self.valid, with_vel, held, sums, vel_sums)
+        return held, sums, vel_sums
 
-    def _slot_means(self, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per slot: the holders ``(T,)``, the mean of ``pos (N, T, 2)`` over them
-        (0 for a slot held nowhere) and the extent :func:`_boxes`."""
+    def _slot_means(self, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per slot: the holders ``(T,)`` and the mean of ``pos (N, T, 2)`` over them (0
+        for a slot held nowhere)."""
         if self._kernels is not None:
-            held, sums, _, boxes = self._slot_sums(pos)
-            return held, sums / np.maximum(held, 1)[:, None], boxes
+            held, sums, _ = self._slot_sums(pos)
+            return held, sums / np.maximum(held, 1)[:, None]
         held = self.valid.sum(axis=0)
         means = (pos * self.valid[..., None]).sum(axis=0) / np.maximum(held, 1)[:, None]
-        return held, means, _boxes(pos, self.valid)
+        return held, means
 
     def _sort_compiled(self, clusters: list[np.ndarray], held: np.ndarray,
                        sums: np.ndarray) -> None:
@@ -926,7 +912,7 @@ class JMPDAPTracker(Tracker):
         slot; a slot freed by a death (or emptied in every particle) may later be reused
         by another target, which then inherits the label (read as an identity switch)."""
         if self._kernels is not None:
-            held, pos_sums, vel_sums, _ = self._slot_sums(self.pos, with_vel=True)
+            held, pos_sums, vel_sums = self._slot_sums(self.pos, with_vel=True)
         else:
             held = self.valid.sum(axis=0)
         held_mean = float(held.sum() / self._N)

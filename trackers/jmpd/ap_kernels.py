@@ -157,41 +157,25 @@ def occupied(pos: np.ndarray, valid: np.ndarray, det: np.ndarray, nx: int, ny: i
 # ------------------------------------------------------------ slot summaries
 @njit(cache=True)
 def slot_sums(pos: np.ndarray, vel: np.ndarray, valid: np.ndarray, with_vel: bool,
-              held: np.ndarray, sum_pos: np.ndarray, sum_vel: np.ndarray,
-              boxes: np.ndarray) -> None:
+              held: np.ndarray, sum_pos: np.ndarray, sum_vel: np.ndarray) -> None:
     """Per slot over the particles: ``held (T,)`` the holders, ``sum_pos``, ``sum_vel``
     ``(T, 2)`` the sums of ``pos * valid`` (``vel``: only when ``with_vel``) in
-    particle order (numpy's ``(x * valid[..., None]).sum(axis=0)``) and ``boxes (T,
-    4)`` the extent ``x0, x1, y0, y1`` of the held positions (:func:`.ap._boxes`)."""
+    particle order (numpy's ``(x * valid[..., None]).sum(axis=0)``)."""
     N, T = valid.shape
     held[:] = 0
     sum_pos[:] = 0.0
     sum_vel[:] = 0.0
-    for t in range(T):
-        boxes[t, 0] = np.inf
-        boxes[t, 1] = -np.inf
-        boxes[t, 2] = np.inf
-        boxes[t, 3] = -np.inf
     for p in range(N):
         for t in range(T):
             v = valid[p, t]
             f = 1.0 if v else 0.0
-            x, y = pos[p, t, 0], pos[p, t, 1]
-            sum_pos[t, 0] += x * f
-            sum_pos[t, 1] += y * f
+            sum_pos[t, 0] += pos[p, t, 0] * f
+            sum_pos[t, 1] += pos[p, t, 1] * f
             if with_vel:
                 sum_vel[t, 0] += vel[p, t, 0] * f
                 sum_vel[t, 1] += vel[p, t, 1] * f
             if v:
                 held[t] += 1
-                if x < boxes[t, 0]:
-                    boxes[t, 0] = x
-                if x > boxes[t, 1]:
-                    boxes[t, 1] = x
-                if y < boxes[t, 2]:
-                    boxes[t, 2] = y
-                if y > boxes[t, 3]:
-                    boxes[t, 3] = y
 
 
 @njit(cache=True)
@@ -693,8 +677,8 @@ def warm_up() -> None:
             np.empty_like(pos))
     gather(pos, np.zeros(N, np.int64), np.empty_like(pos))
     gather(valid, np.zeros(N, np.int64), np.empty_like(valid))
-    held, sums, boxes = np.empty(T, np.int64), np.empty((T, 2)), np.empty((T, 4))
-    slot_sums(pos, pos, valid, True, held, sums, sums.copy(), boxes)
+    held, sums = np.empty(T, np.int64), np.empty((T, 2))
+    slot_sums(pos, pos, valid, True, held, sums, sums.copy())
     slots = np.arange(T, dtype=np.int64)
     max_held_sd(ps, valid, slots)
     members = slots[None, :].copy()

@@ -55,18 +55,18 @@ def coupled_slots(valid: np.ndarray) -> np.ndarray:
 
 
 def cluster_slots(centres: np.ndarray, active: np.ndarray, gamma: float,
-                  boxes: np.ndarray | None = None,
                   coupled: np.ndarray | None = None) -> list[np.ndarray]:
     """Clusters of the active slots: ``centres (T, 2)``, ``active (T,)`` bool; slots
     ``i, j`` are linked when ``|centre_i - centre_j| < gamma`` (Euclidean, positions
-    only), or when their ``boxes (T, 4)`` (``x0, x1, y0, y1``: the extent of the
-    particles' positions in the slot) intersect, and a cluster is a connected component
-    of the links. The boxes catch a slot whose particles disagree (half of them on a
-    target, half on a track that wandered off): its mean may be far from both, but it
-    must be sampled with the slot that holds the same target elsewhere, or
-    recombination would give particles both; ``coupled (T, T)`` (:func:`coupled_slots`)
-    links slots whose holdings depend on each other wherever they are. Returns the
-    clusters as arrays of slot indices, each sorted, ordered by their first slot."""
+    only) or when ``coupled (T, T)`` (:func:`coupled_slots`) says their holdings depend
+    on each other wherever they are, and a cluster is a connected component of the
+    links. Returns the clusters as arrays of slot indices, each sorted, ordered by their
+    first slot.
+
+    The particles' extents are no link (as in the papers): the extent of ``N`` draws
+    grows with ``N``, so wide posteriors would put every target in one cluster at large
+    ``N`` and undo the independent partitions exactly where a converged filter needs
+    them."""
     slots = np.flatnonzero(active)
     parent = {int(s): int(s) for s in slots}
 
@@ -79,10 +79,6 @@ def cluster_slots(centres: np.ndarray, active: np.ndarray, gamma: float,
     if len(slots) > 1:
         d = np.linalg.norm(centres[slots, None, :] - centres[None, slots, :], axis=-1)
         link = d < gamma
-        if boxes is not None:
-            b = boxes[slots]
-            link |= ((b[:, None, 0] <= b[None, :, 1]) & (b[None, :, 0] <= b[:, None, 1])
-                     & (b[:, None, 2] <= b[None, :, 3]) & (b[None, :, 2] <= b[:, None, 3]))
         if coupled is not None:
             link |= coupled[np.ix_(slots, slots)]
         for i, j in zip(*np.nonzero(np.triu(link, k=1)), strict=True):
