@@ -24,10 +24,27 @@ groups ``mttbench.trackers`` and ``mttbench.policies``.
 
 from __future__ import annotations
 
+import os
+import sys
 from importlib import import_module
 from typing import Any
 
 __version__ = "0.1.0"
+
+#: numpy's dispatch targets above AVX2, by every name numpy has given them (to 2.3:
+#: AVX512F ... AVX512_SPR; from 2.4: X86_V4, AVX512_ICL, AVX512_SPR). On an AVX-512 CPU
+#: numpy runs ``exp``, ``log`` and other ufuncs in its own AVX-512 code, which rounds
+#: differently from the C library that the compiled kernels and an AVX2 machine's numpy
+#: use; a particle filter's resampling turns such a last bit into another run. Turned off
+#: when ``mttbench`` is imported before numpy (the command line, its workers, the tests),
+#: so a seed gives the same numbers on AVX2 and AVX-512 machines and the compiled kernels
+#: equal their numpy forms bit for bit on both. A name the installed numpy does not
+#: dispatch draws an ImportWarning (ignored by default). ``NPY_DISABLE_CPU_FEATURES=``
+#: (set, empty) keeps numpy's AVX-512 code.
+NUMPY_TARGETS_ABOVE_AVX2 = ("AVX512F AVX512CD AVX512_KNL AVX512_KNM AVX512_SKX AVX512_CLX "
+                            "AVX512_CNL AVX512_ICL AVX512_SPR X86_V4")
+if "numpy" not in sys.modules:
+    os.environ.setdefault("NPY_DISABLE_CPU_FEATURES", NUMPY_TARGETS_ABOVE_AVX2)
 
 #: public name -> (module, attribute)
 _API = {

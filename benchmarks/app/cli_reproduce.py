@@ -176,12 +176,14 @@ def add_parser(sub: argparse._SubParsersAction, fmt: type[argparse.HelpFormatter
                     "(.cache/reproduce); figures only plot. --check compares the curves "
                     "with the checked-in reference within their Monte Carlo error, so it "
                     "holds on any CPU; --check --exact compares every number bit for bit "
-                    "(same machine). Either exits 1 naming every number that moved.",
+                    "(the same package versions; mttbench turns numpy's AVX-512 code off, so "
+                    "x86 machines with AVX2 and with AVX-512 agree). Either exits 1 naming "
+                    "every number that moved.",
         epilog=textwrap.dedent("""\
             examples:
               mttbench reproduce paper                    # full setting
               mttbench reproduce paper --reduced --check  # what CI runs
-              mttbench reproduce paper --reduced --check --exact  # same machine, bit for bit
+              mttbench reproduce paper --reduced --check --exact  # same versions, bit for bit
               mttbench reproduce paper --reduced --update-reference  # after a change
               mttbench reproduce kreucher --reduced --check  # managed against periodic
               mttbench reproduce cdc2004 --reduced --check   # non-myopic under occlusion"""))
@@ -197,8 +199,8 @@ def add_parser(sub: argparse._SubParsersAction, fmt: type[argparse.HelpFormatter
                         "+ floor) over its steps <= 1 and every step <= 4; truth and seed "
                         "counts exact; exit 1 naming every number that moved")
     p.add_argument("--exact", action="store_true",
-                   help="with --check: bit-for-bit mode for the same machine (every number "
-                        "within rtol 1e-9, intervals and snapshot included)")
+                   help="with --check: bit-for-bit mode for the same package versions "
+                        "(every number within rtol 1e-9, intervals and snapshot included)")
     p.add_argument("--update-reference", action="store_true",
                    help="write the numbers as the new reference with its versions file "
                         "(after a deliberate change of a tracker or of the setting; commit "

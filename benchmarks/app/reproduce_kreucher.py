@@ -73,7 +73,7 @@ hold the true positions of seed 0 at the crossing steps and the last step (exact
 simulated world).
 The medians, lost fractions, matched looks and crossing numbers (``figure`` =
 ``summary``, ``matched``, ``crossing``) are compared by ``--check --exact`` only
-(bit for bit, same machine). References: ``reports/reference/kreucher_<setting>.csv``
+(bit for bit, same package versions). References: ``reports/reference/kreucher_<setting>.csv``
 with its ``.versions.json`` (``--update-reference``).
 """
 

@@ -1,0 +1,42 @@
+"""Loaded by pytest before ``tests/`` and ``benchmarks/bench/``: numpy's elementary
+functions pinned to the same code on every x86 machine the suite runs on.
+
+Importing :mod:`mttbench` before numpy turns numpy's AVX-512 targets off
+(:data:`mttbench.NUMPY_TARGETS_ABOVE_AVX2`; the xdist and Dask workers inherit the
+variable). The tests that hold a compiled kernel to its numpy form bit for bit, and whole
+runs to their digests, would otherwise compare numpy's AVX-512 ``exp`` and ``log`` with
+the C library's on an AVX-512 machine, not two implementations of one computation
+(docs/suite_time.md, "AVX-512"). If numpy was loaded first, pytest stops with the
+variable to set.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import pytest
+
+with warnings.catch_warnings():  # a target name this numpy does not dispatch
+    warnings.simplefilter("ignore", ImportWarning)
+    import mttbench  # before numpy: it sets the variable numpy reads once
+
+
+def _avx512_dispatched() -> list[str]:
+    """numpy's dispatch targets above AVX2 that are active in this process."""
+    try:
+        from numpy._core import _multiarray_umath as umath
+    except ImportError:  # numpy 1.x
+        from numpy.core import _multiarray_umath as umath
+    return [name for name in umath.__cpu_dispatch__
+            if umath.__cpu_features__.get(name) and ("AVX512" in name or name == "X86_V4")]
+
+
+def pytest_configure(config) -> None:
+    active = _avx512_dispatched()
+    if active:
+        raise pytest.UsageError(
+            f"numpy dispatches to {' '.join(active)} in this process, so "
+            f"the compiled kernels' bit-for-bit tests would compare different exp/log code; "
+            f"start pytest with NPY_DISABLE_CPU_FEATURES="
+            f"\"{mttbench.NUMPY_TARGETS_ABOVE_AVX2}\" (numpy was imported before mttbench, "
+            f"or the variable names other targets)")
