@@ -14,9 +14,8 @@ import cProfile
 import pstats
 import time
 
-from mttbench import scenarios
 from mttbench.benchmarks.bench.conftest import warm_up
-from mttbench.benchmarks.engine.specs import TrackerSpec
+from mttbench.benchmarks.engine.specs import TrackerSpec, resolve_scenarios
 
 
 def main() -> None:
@@ -27,7 +26,7 @@ def main() -> None:
     ap.add_argument("--sort", default="cumulative", help="pstats order (default cumulative)")
     ap.add_argument("--lines", type=int, default=40, help="profile lines shown (default 40)")
     args = ap.parse_args()
-    warm = warm_up(scenarios.get(args.scenario), TrackerSpec.parse(args.tracker).make(),
+    warm = warm_up(resolve_scenarios([args.scenario])[0], TrackerSpec.parse(args.tracker).make(),
                    args.warm)
     setup, step, est = warm.repeat_step()
     best = float("inf")
