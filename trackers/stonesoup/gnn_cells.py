@@ -24,25 +24,37 @@ import numpy as np
 
 def cell_mahalanobis(mu: np.ndarray, P: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
     """``min_{x in [lo, hi]} sqrt((x - mu)^T P^-1 (x - mu))`` for ``mu (2,)``, ``P (2, 2)``
-    positive definite and the box ``lo (2,) <= x <= hi (2,)``.
+    positive definite and the box ``lo (2,) <= x <= hi (2,)`` (:func:`cell_distance` on
+    the arrays' entries)."""
+    mu, lo, hi = (np.asarray(a, dtype=float).reshape(2) for a in (mu, lo, hi))
+    P = np.asarray(P, dtype=float).reshape(2, 2)
+    return cell_distance(float(mu[0]), float(mu[1]), float(P[0, 0]), float(P[0, 1]),
+                         float(P[1, 0]), float(P[1, 1]), float(lo[0]), float(lo[1]),
+                         float(hi[0]), float(hi[1]))
+
+
+def cell_distance(mx: float, my: float, p00: float, p01: float, p10: float, p11: float,
+                  lox: float, loy: float, hix: float, hiy: float) -> float:
+    """:func:`cell_mahalanobis` on Python floats (the gate calls it once per track and
+    detection, so no small numpy arrays).
 
     Exact: 0 inside the box; outside, the minimum of a convex quadratic over a box lies on
     its boundary, and on each of the four edges (one coordinate fixed) the minimiser of the
     one-dimensional quadratic in the other is ``mu_o - A_fo d_f / A_oo`` (``A = P^-1``,
     ``d_f`` the fixed coordinate's offset), clipped to the edge."""
-    mu, lo, hi = (np.asarray(a, dtype=float).reshape(2) for a in (mu, lo, hi))
-    if np.all(mu >= lo) and np.all(mu <= hi):
+    if lox <= mx <= hix and loy <= my <= hiy:
         return 0.0
-    A = np.linalg.inv(np.asarray(P, dtype=float).reshape(2, 2))
+    det = p00 * p11 - p01 * p10
+    a00, a01, a10, a11 = p11 / det, -p01 / det, -p10 / det, p00 / det
     best = math.inf
-    for fixed in (0, 1):
-        free = 1 - fixed
-        for edge in (lo[fixed], hi[fixed]):
-            d = np.zeros(2)
-            d[fixed] = edge - mu[fixed]
-            x = mu[free] - A[fixed, free] * d[fixed] / A[free, free]
-            d[free] = min(max(x, lo[free]), hi[free]) - mu[free]
-            best = min(best, float(d @ A @ d))
+    for ex in (lox, hix):  # x fixed on a vertical edge, y free
+        dx = ex - mx
+        dy = min(max(my - a01 * dx / a11, loy), hiy) - my
+        best = min(best, (dx * a00 + dy * a10) * dx + (dx * a01 + dy * a11) * dy)
+    for ey in (loy, hiy):  # y fixed on a horizontal edge, x free
+        dy = ey - my
+        dx = min(max(mx - a10 * dy / a00, lox), hix) - mx
+        best = min(best, (dx * a00 + dy * a10) * dx + (dx * a01 + dy * a11) * dy)
     return math.sqrt(max(best, 0.0))
 
 

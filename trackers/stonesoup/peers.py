@@ -225,7 +225,7 @@ from ..cells import (
 from ..params import Budget, Param, Search
 from ..pmb.ppp import recycle
 from . import gnn_existence as ge
-from .gnn_cells import LabelKeeper, cell_mahalanobis
+from .gnn_cells import LabelKeeper, cell_distance
 
 #: the one-line reason when Stone Soup is missing (run rows, ``mttbench trackers``)
 EXTRA_HINT = "needs the stonesoup extra: pip install 'mttbench[stonesoup]'"
@@ -315,11 +315,12 @@ def _import_stonesoup() -> SimpleNamespace:
         noise_var: float = Property(doc="R's diagonal, cell_size^2 / 12")
 
         def __call__(self, state1, state2):
-            mu = np.asarray(state1.state_vector, dtype=float).reshape(2)
-            P = np.asarray(state1.covar, dtype=float) - self.noise_var * np.eye(2)
-            z = np.asarray(state2.state_vector, dtype=float).reshape(2)
-            half = 0.5 * self.cell_size
-            return cell_mahalanobis(mu, P, z - half, z + half)
+            (mx,), (my,) = state1.state_vector.tolist()
+            (p00, p01), (p10, p11) = state1.covar.tolist()
+            (zx,), (zy,) = state2.state_vector.tolist()
+            r, half = self.noise_var, 0.5 * self.cell_size
+            return cell_distance(mx, my, p00 - r, p01, p10, p11 - r, zx - half, zy - half,
+                                 zx + half, zy + half)
 
     class ExistenceHypothesiser(Hypothesiser):
         """Per track, a missed-detection hypothesis and one per detection within the gate
