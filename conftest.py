@@ -2,7 +2,7 @@
 functions pinned to the same code on every x86 machine the suite runs on.
 
 Importing :mod:`mttbench` before numpy turns numpy's AVX-512 targets off
-(:data:`mttbench.NUMPY_TARGETS_ABOVE_AVX2`; the xdist and Dask workers inherit the
+(:func:`mttbench.numpy_targets_above_avx2`; the xdist and Dask workers inherit the
 variable). The tests that hold a compiled kernel to its numpy form bit for bit, and whole
 runs to their digests, would otherwise compare numpy's AVX-512 ``exp`` and ``log`` with
 the C library's on an AVX-512 machine, not two implementations of one computation
@@ -12,13 +12,9 @@ variable to set.
 
 from __future__ import annotations
 
-import warnings
-
 import pytest
 
-with warnings.catch_warnings():  # a target name this numpy does not dispatch
-    warnings.simplefilter("ignore", ImportWarning)
-    import mttbench  # before numpy: it sets the variable numpy reads once
+import mttbench  # before numpy: it sets the variable numpy reads once
 
 
 def _avx512_dispatched() -> list[str]:
@@ -38,5 +34,5 @@ def pytest_configure(config) -> None:
             f"numpy dispatches to {' '.join(active)} in this process, so "
             f"the compiled kernels' bit-for-bit tests would compare different exp/log code; "
             f"start pytest with NPY_DISABLE_CPU_FEATURES="
-            f"\"{mttbench.NUMPY_TARGETS_ABOVE_AVX2}\" (numpy was imported before mttbench, "
+            f"\"{mttbench.numpy_targets_above_avx2()}\" (numpy was imported before mttbench, "
             f"or the variable names other targets)")

@@ -31,20 +31,32 @@ from typing import Any
 
 __version__ = "0.1.0"
 
-#: numpy's dispatch targets above AVX2, by every name numpy has given them (to 2.3:
-#: AVX512F ... AVX512_SPR; from 2.4: X86_V4, AVX512_ICL, AVX512_SPR). On an AVX-512 CPU
-#: numpy runs ``exp``, ``log`` and other ufuncs in its own AVX-512 code, which rounds
-#: differently from the C library that the compiled kernels and an AVX2 machine's numpy
-#: use; a particle filter's resampling turns such a last bit into another run. Turned off
-#: when ``mttbench`` is imported before numpy (the command line, its workers, the tests),
-#: so a seed gives the same numbers on AVX2 and AVX-512 machines and the compiled kernels
-#: equal their numpy forms bit for bit on both. A name the installed numpy does not
-#: dispatch draws an ImportWarning (ignored by default). ``NPY_DISABLE_CPU_FEATURES=``
-#: (set, empty) keeps numpy's AVX-512 code.
-NUMPY_TARGETS_ABOVE_AVX2 = ("AVX512F AVX512CD AVX512_KNL AVX512_KNM AVX512_SKX AVX512_CLX "
-                            "AVX512_CNL AVX512_ICL AVX512_SPR X86_V4")
-if "numpy" not in sys.modules:
-    os.environ.setdefault("NPY_DISABLE_CPU_FEATURES", NUMPY_TARGETS_ABOVE_AVX2)
+def numpy_targets_above_avx2() -> str:
+    """numpy's dispatch targets above AVX2, by the names of the installed numpy (from 2.4:
+    X86_V4, AVX512_ICL, AVX512_SPR; before: AVX512F ... AVX512_SPR), read from its
+    metadata without importing it.
+
+    On an AVX-512 CPU numpy runs ``exp``, ``log`` and other ufuncs in its own AVX-512 code,
+    which rounds differently from the C library that the compiled kernels and an AVX2
+    machine's numpy use; a particle filter's resampling turns such a last bit into another
+    run. So importing ``mttbench`` before numpy (the command line, its workers, the tests)
+    turns them off: a seed gives the same numbers on AVX2 and AVX-512 machines, and the
+    compiled kernels equal their numpy forms bit for bit on both.
+    ``NPY_DISABLE_CPU_FEATURES=`` (set, empty) keeps numpy's AVX-512 code."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        major, minor = (int(x) for x in version("numpy").split(".")[:2])
+    except (PackageNotFoundError, ValueError):
+        major, minor = 0, 0
+    if (major, minor) >= (2, 4):
+        return "X86_V4 AVX512_ICL AVX512_SPR"
+    return ("AVX512F AVX512CD AVX512_KNL AVX512_KNM AVX512_SKX AVX512_CLX AVX512_CNL "
+            "AVX512_ICL AVX512_SPR")
+
+
+if "numpy" not in sys.modules and "NPY_DISABLE_CPU_FEATURES" not in os.environ:
+    os.environ["NPY_DISABLE_CPU_FEATURES"] = numpy_targets_above_avx2()
 
 #: public name -> (module, attribute)
 _API = {

@@ -45,3 +45,11 @@ def test_the_variable_set_by_the_user_is_kept():
         pytest.skip("this CPU has no AVX-512: numpy dispatches at most AVX2 either way")
     assert _above_avx2(_dispatch("import mttbench", NPY_DISABLE_CPU_FEATURES="")["dispatch"])
     assert _above_avx2(_dispatch("import numpy\nimport mttbench")["dispatch"])
+
+
+def test_only_targets_the_installed_numpy_knows_are_named():
+    """numpy warns (ImportWarning) about a name it does not dispatch; under ``-W error``
+    that warning would stop numpy from loading."""
+    environ = {k: v for k, v in os.environ.items() if k != "NPY_DISABLE_CPU_FEATURES"}
+    subprocess.run([sys.executable, "-W", "error::ImportWarning", "-c",
+                    "import mttbench, numpy"], env=environ, check=True)
