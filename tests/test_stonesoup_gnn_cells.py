@@ -1,7 +1,7 @@
 """ss-gnn's gate to the detection's cell and its labels that follow a target
 (trackers/stonesoup/gnn_cells.py).
 
-* ``cell_mahalanobis`` against a second method: scipy's bounded minimiser (L-BFGS-B) of
+* ``cell_distance`` against a second method: scipy's bounded minimiser (L-BFGS-B) of
   the quadratic over the box, on random Gaussians and boxes.
 * The adapter's Stone Soup measure is that distance under ``S - R``, and a track whose
   target crossed into the next cell takes the detection there, which Stone Soup's
@@ -19,7 +19,7 @@ from scipy.optimize import minimize
 from mttbench import trackers
 from mttbench.scenarios.model import Looks
 from mttbench.scenarios.spec import get as get_scenario
-from mttbench.trackers.stonesoup.gnn_cells import LabelKeeper, cell_mahalanobis
+from mttbench.trackers.stonesoup.gnn_cells import LabelKeeper, cell_distance
 
 #: scipy's minimiser stops at its own tolerance; the closed form is exact
 TOL = 1e-6
@@ -51,7 +51,7 @@ def test_cell_distance_is_the_bounded_minimum_of_the_quadratic():
         mu = rng.normal(0.0, 1.5, 2)
         lo = rng.normal(0.0, 1.0, 2)
         hi = lo + rng.uniform(0.2, 2.0, 2)
-        got = cell_mahalanobis(mu, P, lo, hi)
+        got = cell_distance(*mu, *P.ravel(), *lo, *hi)
         assert got == pytest.approx(_reference(mu, P, lo, hi), abs=TOL)
         inside += got == 0.0
     assert 0 < inside < 200  # both branches ran

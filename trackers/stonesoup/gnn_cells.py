@@ -22,21 +22,12 @@ import math
 import numpy as np
 
 
-def cell_mahalanobis(mu: np.ndarray, P: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
-    """``min_{x in [lo, hi]} sqrt((x - mu)^T P^-1 (x - mu))`` for ``mu (2,)``, ``P (2, 2)``
-    positive definite and the box ``lo (2,) <= x <= hi (2,)`` (:func:`cell_distance` on
-    the arrays' entries)."""
-    mu, lo, hi = (np.asarray(a, dtype=float).reshape(2) for a in (mu, lo, hi))
-    P = np.asarray(P, dtype=float).reshape(2, 2)
-    return cell_distance(float(mu[0]), float(mu[1]), float(P[0, 0]), float(P[0, 1]),
-                         float(P[1, 0]), float(P[1, 1]), float(lo[0]), float(lo[1]),
-                         float(hi[0]), float(hi[1]))
-
-
 def cell_distance(mx: float, my: float, p00: float, p01: float, p10: float, p11: float,
                   lox: float, loy: float, hix: float, hiy: float) -> float:
-    """:func:`cell_mahalanobis` on Python floats (the gate calls it once per track and
-    detection, so no small numpy arrays).
+    """``min_{x in [lo, hi]} sqrt((x - mu)^T P^-1 (x - mu))`` for ``mu = (mx, my)``, ``P =
+    [[p00, p01], [p10, p11]]`` positive definite and the box ``lox <= x <= hix``, ``loy <=
+    y <= hiy``, on Python floats (the gate calls it once per track and detection, where
+    numpy arrays of two entries cost more than the arithmetic).
 
     Exact: 0 inside the box; outside, the minimum of a convex quadratic over a box lies on
     its boundary, and on each of the four edges (one coordinate fixed) the minimiser of the

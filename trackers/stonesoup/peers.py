@@ -60,7 +60,7 @@ Determinism
     ``GNNWith2DAssignment`` over a ``DistanceHypothesiser`` (``missed_distance = gate``)
     whose measure is the Mahalanobis distance from the predicted position to the nearest
     point of the detection's cell under the predicted position covariance ``S - R``
-    (``gate_to="cell"``, :func:`~mttbench.trackers.stonesoup.gnn_cells.cell_mahalanobis`:
+    (``gate_to="cell"``, :func:`~mttbench.trackers.stonesoup.gnn_cells.cell_distance`:
     a positive look puts the target anywhere in the cell, so a target crossing into the
     next cell stays in its track's gate; ``"centre"``: Stone Soup's ``Mahalanobis`` to the
     cell centre under ``S``), ``KalmanPredictor``/``KalmanUpdater``, a
@@ -308,7 +308,7 @@ def _import_stonesoup() -> SimpleNamespace:
     class CellMahalanobis(Measure):
         """The Mahalanobis distance from a track's predicted position to the nearest point
         of the detection's cell, under the predicted position covariance ``S - R``
-        (:func:`~mttbench.trackers.stonesoup.gnn_cells.cell_mahalanobis`): the detection
+        (:func:`~mttbench.trackers.stonesoup.gnn_cells.cell_distance`): the detection
         stands for the whole cell, whose quantisation ``R`` is then not added again."""
 
         cell_size: float = Property(doc="the grid's cell side")
