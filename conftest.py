@@ -17,18 +17,8 @@ import pytest
 import mttbench  # before numpy: it sets the variable numpy reads once
 
 
-def _avx512_dispatched() -> list[str]:
-    """numpy's dispatch targets above AVX2 that are active in this process."""
-    try:
-        from numpy._core import _multiarray_umath as umath
-    except ImportError:  # numpy 1.x
-        from numpy.core import _multiarray_umath as umath
-    return [name for name in umath.__cpu_dispatch__
-            if umath.__cpu_features__.get(name) and ("AVX512" in name or name == "X86_V4")]
-
-
 def pytest_configure(config) -> None:
-    active = _avx512_dispatched()
+    active = mttbench.numpy_dispatch_above_avx2()
     if active:
         raise pytest.UsageError(
             f"numpy dispatches to {' '.join(active)} in this process, so "

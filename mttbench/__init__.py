@@ -55,6 +55,18 @@ def numpy_targets_above_avx2() -> str:
             "AVX512_ICL AVX512_SPR")
 
 
+def numpy_dispatch_above_avx2() -> list[str]:
+    """numpy's dispatch targets above AVX2 that are active in this process (imports
+    numpy): empty once :func:`numpy_targets_above_avx2` took effect, or on a CPU without
+    AVX-512."""
+    try:
+        from numpy._core import _multiarray_umath as umath
+    except ImportError:  # numpy 1.x
+        from numpy.core import _multiarray_umath as umath
+    return [name for name in umath.__cpu_dispatch__
+            if umath.__cpu_features__.get(name) and ("AVX512" in name or name == "X86_V4")]
+
+
 if "numpy" not in sys.modules and "NPY_DISABLE_CPU_FEATURES" not in os.environ:
     os.environ["NPY_DISABLE_CPU_FEATURES"] = numpy_targets_above_avx2()
 
