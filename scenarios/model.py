@@ -51,9 +51,10 @@ class Grid:
     def cell_centers(self, cells: np.ndarray | None = None) -> np.ndarray:
         """Centres ``(n, 2)`` as ``(px, py)`` of the given flat cells (all if None)."""
         cells = np.arange(self.n_cells) if cells is None else np.asarray(cells, dtype=np.int64)
-        ix = cells % self.nx
-        iy = cells // self.nx
-        return np.stack([(ix + 0.5) * self.cell_size, (iy + 0.5) * self.cell_size], axis=-1)
+        out = np.empty(cells.shape + (2,))
+        out[..., 0] = (cells % self.nx + 0.5) * self.cell_size
+        out[..., 1] = (cells // self.nx + 0.5) * self.cell_size
+        return out
 
     def cell_bounds(self, cells: np.ndarray) -> tuple[np.ndarray, ...]:
         """Lower and upper edges ``(x0, x1, y0, y1)``, each of shape ``cells.shape``."""

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import itertools
+
 import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
@@ -126,6 +128,28 @@ def test_associate_global_and_greedy_differ_on_total_cost() -> None:
     assert list(zip(r, c, strict=True)) == [(0, 0), (1, 1)]  # total 9
     r, c = associate(cost, gate=9.21, method="global")
     assert list(zip(r, c, strict=True)) == [(0, 1), (1, 0)]  # total 4, the minimum
+
+
+@pytest.mark.parametrize("shape", [(5, 3), (3, 5), (4, 4)])
+def test_associate_global_is_the_brute_force_optimum_sorted_by_row(shape) -> None:
+    """On random tall, wide and square costs with pairs outside the gate: the most gated
+    pairs, then the least total cost, as enumerating every partial matching finds them;
+    rows strictly increasing, int64 (scipy's ``linear_sum_assignment`` returns its rows
+    sorted, which ``associate`` relies on)."""
+    rng = np.random.default_rng(11)
+    K, D = shape
+    for _ in range(40):
+        cost = rng.uniform(0.0, 14.0, shape)
+        best = (0, 0.0)
+        for perm in itertools.permutations(range(max(K, D)), min(K, D)):
+            pairs = [(i, j) if K <= D else (j, i) for i, j in enumerate(perm)]
+            ok = [cost[r, c] for r, c in pairs if cost[r, c] < 9.21]
+            best = max(best, (len(ok), -sum(ok)))
+        r, c = associate(cost, gate=9.21, method="global")
+        assert r.dtype == c.dtype == np.int64
+        assert np.all(np.diff(r) > 0)
+        assert len(r) == best[0]
+        assert cost[r, c].sum() == pytest.approx(-best[1], abs=1e-9)
 
 
 def test_associate_gate_empty_and_unknown_method() -> None:

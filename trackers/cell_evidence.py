@@ -107,18 +107,18 @@ def cell_evidence(grid: Grid, mean_xy: np.ndarray, cov_xy: np.ndarray, looked: n
     compiled backend (:mod:`.grid_backend`) :func:`.grid_kernels.cell_evidence` computes
     the same numbers, bit for bit."""
     s = grid.cell_size
-    sx = np.maximum(np.sqrt(np.maximum(cov_xy[:, 0, 0], 0.0)), 1e-12 * s)
-    sy = np.maximum(np.sqrt(np.maximum(cov_xy[:, 1, 1], 0.0)), 1e-12 * s)
-    mx, my = mean_xy[:, 0], mean_xy[:, 1]
-    negative = looked[~_member(looked, det_cells)]
     kernels = compiled_grid_kernels()
     if kernels is not None:  # the same arithmetic in one pass (bit for bit)
         c = np.ascontiguousarray
         return kernels.cell_evidence(
-            float(s), grid.nx, grid.ny, c(mx, dtype=float), c(my, dtype=float), sx, sy,
+            float(s), grid.nx, grid.ny, c(mean_xy, dtype=float), c(cov_xy, dtype=float),
             float(BOX_SD), c(looked, dtype=np.int64), c(log_r, dtype=float),
-            c(negative, dtype=np.int64), c(rows, dtype=np.int64),
+            c(det_cells, dtype=np.int64), c(rows, dtype=np.int64),
             c(hit_cells, dtype=np.int64))
+    sx = np.maximum(np.sqrt(np.maximum(cov_xy[:, 0, 0], 0.0)), 1e-12 * s)
+    sy = np.maximum(np.sqrt(np.maximum(cov_xy[:, 1, 1], 0.0)), 1e-12 * s)
+    mx, my = mean_xy[:, 0], mean_xy[:, 1]
+    negative = looked[~_member(looked, det_cells)]
     with np.errstate(invalid="ignore", over="ignore"):
         box, i = looked_in_boxes(
             np.floor((mx - BOX_SD * sx) / s), np.floor((mx + BOX_SD * sx) / s),

@@ -253,15 +253,32 @@ def looked_in_boxes(ix_lo: np.ndarray, ix_hi: np.ndarray, iy_lo: np.ndarray,
 
 
 @njit(cache=True)
-def cell_evidence(s: float, nx: int, ny: int, mx: np.ndarray, my: np.ndarray,
-                  sx: np.ndarray, sy: np.ndarray, box_sd: float, looked: np.ndarray,
-                  log_r: np.ndarray, negative: np.ndarray, rows: np.ndarray,
+def cell_evidence(s: float, nx: int, ny: int, mean_xy: np.ndarray, cov_xy: np.ndarray,
+                  box_sd: float, looked: np.ndarray, log_r: np.ndarray,
+                  det_cells: np.ndarray, rows: np.ndarray,
                   hit_cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`.cell_evidence.cell_evidence` after its standard deviations and negative
-    cells: per track, ``log1p(sum_c m_kc expm1(log r_c))`` and ``min(1, sum_c m_kc)``
-    over the negative looked cells in its box, then its associated detection's cell,
-    each sum sequential in that order (``bincount``'s)."""
-    K = len(mx)
+    """:func:`.cell_evidence.cell_evidence`: its standard deviations (floored at ``1e-12
+    s``) and negative cells (``looked`` not in the sorted ``det_cells``), then per track
+    ``log1p(sum_c m_kc expm1(log r_c))`` and ``min(1, sum_c m_kc)`` over the negative
+    looked cells in its box, then its associated detection's cell, each sum sequential
+    in that order (``bincount``'s)."""
+    K = len(mean_xy)
+    mx = np.empty(K)
+    my = np.empty(K)
+    sx = np.empty(K)
+    sy = np.empty(K)
+    for k in range(K):
+        mx[k], my[k] = mean_xy[k, 0], mean_xy[k, 1]
+        sx[k] = _nan_max(np.sqrt(_nan_max(cov_xy[k, 0, 0], 0.0)), 1e-12 * s)
+        sy[k] = _nan_max(np.sqrt(_nan_max(cov_xy[k, 1, 1], 0.0)), 1e-12 * s)
+    n_neg = 0
+    negative = np.empty(len(looked), np.int64)
+    for j in range(len(looked)):  # both sorted: a merge
+        d = _search(det_cells, looked[j])
+        if d == len(det_cells) or det_cells[d] != looked[j]:
+            negative[n_neg] = looked[j]
+            n_neg += 1
+    negative = negative[:n_neg]
     lo_x = np.floor((mx - box_sd * sx) / s)
     hi_x = np.floor((mx + box_sd * sx) / s)
     lo_y = np.floor((my - box_sd * sy) / s)
@@ -361,6 +378,26 @@ def recycled_intensity(s: float, nx: int, ny: int, mean_xy: np.ndarray, cov_xy: 
                 amounts[e] = r[k] * (mass_y[ly] * mass_x[lx])
                 e += 1
     return cells, amounts
+
+
+@njit(cache=True)
+def recycle_into_field(f_default: float, f_cells: np.ndarray, f_values: np.ndarray, s: float,
+                       nx: int, ny: int, m: np.ndarray, P: np.ndarray, sd_floor: float,
+                       n_sd: float, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`.pmb.ppp.recycle` in one call: the states' position marginals (``m (K,
+    4)``, ``P (K, 4, 4)``), :func:`recycled_intensity`, :func:`cell_sums` and
+    :func:`field_apply`'s sum; the field's new ``cells`` and ``values``."""
+    K = m.shape[0]
+    mean_xy = np.empty((K, 2))
+    cov_xy = np.empty((K, 2, 2))
+    for k in range(K):
+        for a in range(2):
+            mean_xy[k, a] = m[k, 2 * a]
+            for b in range(2):
+                cov_xy[k, a, b] = P[k, 2 * a, 2 * b]
+    cells, amounts = recycled_intensity(s, nx, ny, mean_xy, cov_xy, sd_floor, n_sd, r)
+    uniq, sums = cell_sums(cells, amounts)
+    return field_apply(f_default, f_cells, f_values, uniq, sums, True)
 
 
 @njit(cache=True)
@@ -472,9 +509,9 @@ def warm_up() -> None:
     rect_position_moments(np.zeros((1, 2)), cov, f, f + 1.0, f, f + 1.0, np.array([np.inf]),
                           np.array([2], np.int64), i, np.zeros(2), np.ones(2))
     looked_in_boxes(f, f, f, f, i, 1, 1)
-    cell_evidence(1.0, 1, 1, f, f, f + 1.0, f + 1.0, 6.0, i, f, i, i, i)
-    recycled_intensity(1.0, 1, 1, np.zeros((1, 2)), cov, 1e-12, 6.0, f)
+    cell_evidence(1.0, 1, 1, np.zeros((1, 2)), np.ones((1, 2, 2)), 6.0, i, f, i, i, i)
     cell_sums(i, f)
+    recycle_into_field(0.0, i, f, 1.0, 1, 1, np.zeros((1, 4)), np.ones((1, 4, 4)), 1e-12, 6.0, f)
     field_apply(0.0, i, f, i, f, True)
     looked_log_ratios(i, np.zeros(1, np.bool_), 1.0, -1.0, 700.0)
     ro = np.zeros(1)

@@ -16,7 +16,8 @@ POSITION.flags.writeable = False
 
 def position_marginal(m: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The position part of each state: means ``(K, 2)`` and covariances ``(K, 2, 2)`` (copies)."""
-    return m[:, POSITION], P[:, POSITION[:, None], POSITION[None, :]]
+    # POSITION (0, 2) as slices: a copy by slicing costs half of one by fancy indexing
+    return m[:, 0:3:2].copy(), P[:, 0:3:2, 0:3:2].copy()
 
 
 def at_rest(positions: np.ndarray) -> np.ndarray:

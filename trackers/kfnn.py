@@ -223,9 +223,9 @@ def associate(cost: np.ndarray, gate: float, method: str = "global"
     if method == "global":
         big = gate * (min(cost.shape) + 1.0)
         priced = np.where(admissible, cost, big)
-        rows, cols = linear_sum_assignment(priced)
+        rows, cols = linear_sum_assignment(priced)  # rows sorted (scipy's contract)
         keep = admissible[rows, cols]
-        rows, cols = rows[keep], cols[keep]
+        return rows[keep].astype(np.int64), cols[keep].astype(np.int64)
     elif method == "greedy":
         cand_r, cand_c = np.nonzero(admissible)  # row-major order
         order = np.argsort(cost[cand_r, cand_c], kind="stable")
@@ -239,10 +239,9 @@ def associate(cost: np.ndarray, gate: float, method: str = "global"
                 rows_l.append(r)
                 cols_l.append(c)
         rows, cols = np.array(rows_l, dtype=np.int64), np.array(cols_l, dtype=np.int64)
-    else:
-        raise ValueError(f"association must be 'global' or 'greedy', got {method!r}")
-    by_row = np.argsort(rows, kind="stable")
-    return rows[by_row].astype(np.int64), cols[by_row].astype(np.int64)
+        by_row = np.argsort(rows, kind="stable")
+        return rows[by_row], cols[by_row]
+    raise ValueError(f"association must be 'global' or 'greedy', got {method!r}")
 
 
 def gated_pairs(pred_z: np.ndarray, S: np.ndarray, z: np.ndarray, gate: float
@@ -546,13 +545,13 @@ class KFNNTracker(Tracker):
 
         # a new track's prior: the untracked targets in its cell before this step's looks
         new_cells = det_cells[~det_used]
-        prior_new = self._birth_prior_logodds(new_cells)
+        n_new = len(new_cells)
+        prior_new = self._birth_prior_logodds(new_cells) if n_new else None
         # untracked targets (for P_c): each look scales them by the miss ratio, positive or
         # not; a deleted track's existence returns to them (recycling, as pmb)
         self._undetected.multiply(looked, self._miss ** n_looks)
         recycle(self._undetected, grid, *dropped)
 
-        n_new = len(new_cells)
         if n_new:
             ones = np.ones(n_new, dtype=np.int64)
             score_new = log_r[np.searchsorted(looked, new_cells)]

@@ -55,17 +55,15 @@ def recycle(field: CellField, grid: Grid, r: np.ndarray, m: np.ndarray, P: np.nd
             ) -> None:
     """Bernoullis ``r (K,)``, ``m (K, 4)``, ``P (K, 4, 4)`` into the PPP: ``lambda_c +=
     r m_c`` over each Gaussian's 6-sd box (in place; the masses by
-    :func:`..grid_kernels.recycled_intensity` with the compiled backend, bit for bit)."""
+    :func:`..grid_kernels.recycle_into_field` with the compiled backend, bit for bit)."""
     if not len(r):
         return
     kernels = compiled_grid_kernels()
-    if kernels is not None:  # the same sums in one pass (bit for bit)
-        mean_xy, cov_xy = kalman.position_marginal(m, P)
-        cells, amounts = kernels.recycled_intensity(
-            float(grid.cell_size), grid.nx, grid.ny, np.ascontiguousarray(mean_xy, float),
-            np.ascontiguousarray(cov_xy, float), _MIN_STD_CELLS * grid.cell_size,
-            float(BOX_SD), np.ascontiguousarray(r, float))
-        add_intensity(field, cells, amounts)
+    if kernels is not None:  # the same sums in one call (bit for bit)
+        field.cells, field.values = kernels.recycle_into_field(
+            field.default, field.cells, field.values, float(grid.cell_size), grid.nx, grid.ny,
+            np.ascontiguousarray(m, float), np.ascontiguousarray(P, float),
+            _MIN_STD_CELLS * grid.cell_size, float(BOX_SD), np.ascontiguousarray(r, float))
         return
     comp, cells, mass = gaussian_cell_mass_sparse(grid, *kalman.position_marginal(m, P))
     add_intensity(field, cells, r[comp] * mass)
