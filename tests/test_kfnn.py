@@ -4,7 +4,6 @@ accuracy."""
 from __future__ import annotations
 
 import dataclasses
-
 import itertools
 
 import numpy as np

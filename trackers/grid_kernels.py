@@ -263,12 +263,9 @@ def cell_evidence(s: float, nx: int, ny: int, mean_xy: np.ndarray, cov_xy: np.nd
     looked cells in its box, then its associated detection's cell, each sum sequential
     in that order (``bincount``'s)."""
     K = len(mean_xy)
-    mx = np.empty(K)
-    my = np.empty(K)
-    sx = np.empty(K)
-    sy = np.empty(K)
+    mx, my = mean_xy[:, 0].copy(), mean_xy[:, 1].copy()
+    sx, sy = np.empty(K), np.empty(K)
     for k in range(K):
-        mx[k], my[k] = mean_xy[k, 0], mean_xy[k, 1]
         sx[k] = _nan_max(np.sqrt(_nan_max(cov_xy[k, 0, 0], 0.0)), 1e-12 * s)
         sy[k] = _nan_max(np.sqrt(_nan_max(cov_xy[k, 1, 1], 0.0)), 1e-12 * s)
     n_neg = 0
