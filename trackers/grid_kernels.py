@@ -270,7 +270,7 @@ def cell_evidence(s: float, nx: int, ny: int, mean_xy: np.ndarray, cov_xy: np.nd
         sy[k] = _nan_max(np.sqrt(_nan_max(cov_xy[k, 1, 1], 0.0)), 1e-12 * s)
     n_neg = 0
     negative = np.empty(len(looked), np.int64)
-    for j in range(len(looked)):  # both sorted: a merge
+    for j in range(len(looked)):  # a binary search of the sorted det_cells per looked cell
         d = _search(det_cells, looked[j])
         if d == len(det_cells) or det_cells[d] != looked[j]:
             negative[n_neg] = looked[j]
