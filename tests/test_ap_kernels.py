@@ -335,3 +335,100 @@ def test_ndtr_shortcuts_equal_scipy():
         assert ap_kernels._ndtr_lower(x) == ndtr(x)
     for x in np.r_[above[:40000], rng.uniform(0.0, 1.0, 5000), 5e-324]:
         assert ap_kernels._ndtr_upper(x, ndtr(-x)) == ndtr(x)
+
+
+def test_permuting_an_array_is_indexing_it_by_a_permutation():
+    """The compiled step draws ``rng.permutation(N)`` and indexes the resampled
+    ancestors by it where the numpy form calls ``rng.permutation(ancestors)``: the same
+    array and the same stream after it (numpy's shuffle swaps by position only)."""
+    for n in (1, 2, 3, 17, 300, 4001):
+        for seed in range(4):
+            ancestors = np.sort(np.random.default_rng(seed + 50).integers(0, n, n))
+            direct, indexed = np.random.default_rng(seed), np.random.default_rng(seed)
+            expected = direct.permutation(ancestors)
+            assert np.array_equal(ancestors[indexed.permutation(n)], expected)
+            assert np.array_equal(direct.random(3), indexed.random(3))
+
+
+def test_place_gives_the_same_values_in_any_order_of_the_receivers(monkeypatch):
+    """``place`` on the arguments of real steps (``crossing``: two clusters at times),
+    its receivers in the caller's order, in particle order and in a random order."""
+    from mttbench.trackers.jmpd import backend
+    kernels = backend.compiled_ap_kernels()
+    calls = []
+    real = kernels.place
+
+    def record(*args):
+        calls.append([np.array(a, copy=True) if isinstance(a, np.ndarray) else a
+                      for a in args])
+        return real(*args)
+
+    monkeypatch.setattr(kernels, "place", record)
+    with use_backend("compiled"):
+        list(play(scenarios.get("crossing"), JMPDAPTracker(n_particles=200), 0, n_steps=12))
+    assert max(c[0].shape[1] for c in calls) >= 2
+    rng = np.random.default_rng(13)
+    for args in calls:
+        anc, order = args[0], args[1]
+        assert all(np.all(np.diff(anc[order[c], c]) >= 0) for c in range(anc.shape[1]))
+        results = []
+        for new_order in (order, np.tile(np.arange(anc.shape[0]), (anc.shape[1], 1)),
+                          np.array([rng.permutation(anc.shape[0]) for _ in order])):
+            out = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
+            out[1] = new_order
+            real(*out)
+            results.append(out[-4:])
+        for other in results[1:]:
+            for a, b in zip(results[0], other, strict=True):
+                assert np.array_equal(a, b, equal_nan=True)
+
+
+def test_gathered_slots_and_held_counts_equal_numpy():
+    rng = np.random.default_rng(14)
+    N, T = 301, 7
+    pos, vel, vvar = (rng.normal(size=(N, T, 2)) for _ in range(3))
+    valid = rng.random((N, T)) < 0.4
+    idx = np.sort(rng.integers(0, N, N))
+    out = [np.empty_like(a) for a in (pos, vel, vvar, valid)]
+    ap_kernels.gather_slots(pos, vel, vvar, valid, idx, *out)
+    for a, b in zip((pos, vel, vvar, valid), out, strict=True):
+        assert np.array_equal(a[idx], b)
+    assert np.array_equal(ap_kernels.held_per_particle(valid), valid.sum(axis=1))
+
+
+def test_birth_decisions_equal_the_numpy_form():
+    """The births' loop over the detected cells (``ap.JMPDAPTracker._births``, numpy
+    form, restated here from its per-cell values) against the kernel: particles with and
+    without a free slot, cells they occupy, no undetected target left (``pi = 0``),
+    certain arrivals, and the numpy form's ``log1p`` where no slot is free."""
+    rng = np.random.default_rng(15)
+    N, D = 600, 7
+    remaining = np.where(rng.random(N) < 0.2, 0.0, rng.uniform(0.0, 3.0, N))
+    share = np.r_[0.0, 1.0, rng.random(D - 2) * 0.2]
+    log_keep = np.log1p(-np.minimum(share, 1.0 - 1e-12))
+    pi_arrival = np.r_[0.0, 0.3, 0.0, 1.0, rng.random(D - 4) * 0.1]
+    lam = np.r_[1e-3, rng.lognormal(1.0, 1.5, D - 1)]
+    has_slot, occupied = rng.random((N, D)) < 0.6, rng.random((N, D)) < 0.2
+    uniforms = rng.random((N, D))
+
+    left, born, log_ratio = remaining.copy(), np.zeros((N, D), bool), np.zeros(N)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for k in range(D):
+            pi_init = -np.expm1(left * log_keep[k])
+            pi = 1.0 - (1.0 - pi_init) * (1.0 - pi_arrival[k])
+            z = 1.0 - pi + pi * lam[k]
+            b = np.where(has_slot[:, k], pi * lam[k] / z, 0.0)
+            born[:, k] = (uniforms[:, k] < b) & ~occupied[:, k]
+            kept = np.log(z) - np.where(born[:, k], np.log(lam[k]), 0.0)
+            log_ratio += np.where(occupied[:, k], 0.0, np.where(has_slot[:, k], kept,
+                                                                  np.log1p(-pi)))
+            initial = np.where(pi > 0.0, pi_init / pi, 0.0)
+            left = np.maximum(left - np.where(born[:, k], initial, 0.0), 0.0)
+    assert born.any() and (~has_slot & ~occupied).any()
+
+    got_left, got_born, got_ratio = remaining.copy(), np.empty((N, D), bool), np.zeros(N)
+    ap_kernels.birth_decisions(got_left, log_keep, pi_arrival, lam, np.log(lam), has_slot,
+                               occupied, uniforms, got_born, got_ratio)
+    assert np.array_equal(got_born, born)
+    assert np.array_equal(got_ratio, log_ratio)
+    assert np.array_equal(got_left, left)

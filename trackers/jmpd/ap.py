@@ -348,8 +348,14 @@ class JMPDAPTracker(Tracker):
         each of its births was an initial target): a target the particle let die stays
         dead, as in the model."""
         if not self._can_die:
-            return np.maximum(self._n0 - self.valid.sum(axis=1), 0.0)
+            return np.maximum(self._n0 - self._held(), 0.0)
         return np.maximum(self._r, 0.0)
+
+    def _held(self) -> np.ndarray:
+        """The slots each particle holds, ``(N,)`` int64."""
+        if self._kernels is not None:
+            return self._kernels.held_per_particle(self.valid)
+        return self.valid.sum(axis=1)
 
     def _undetected_probability(self, cells: np.ndarray | None, remaining: np.ndarray
                                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -529,7 +535,7 @@ class JMPDAPTracker(Tracker):
         if self._fixed_count is not None:
             # recombining clusters from different ancestors can give a particle more
             # targets than the model allows; their prior probability is 0
-            over = self.valid.sum(axis=1) > self._fixed_count
+            over = self._held() > self._fixed_count
             if over.any() and not over.all():
                 log_w[over] = -np.inf
         log_w -= log_w.max()
@@ -538,12 +544,14 @@ class JMPDAPTracker(Tracker):
         self.ess = float(effective_sample_size(w))
         idx = systematic_resample(w, rng.random())
         self._r = self._r[idx]
-        for name in ("pos", "vel", "vvar", "valid"):
-            if self._kernels is None:
+        names = ("pos", "vel", "vvar", "valid")
+        if self._kernels is None:
+            for name in names:
                 setattr(self, name, getattr(self, name)[idx])
-            else:
-                spare = self._spare(name)
-                self._kernels.gather(getattr(self, name), idx, spare)
+        else:
+            spares = [self._spare(name) for name in names]
+            self._kernels.gather_slots(self.pos, self.vel, self.vvar, self.valid, idx, *spares)
+            for name, spare in zip(names, spares, strict=True):
                 self._install(name, spare)
 
         # undetected targets after this step's looks: u, v <- (u, v) l(0)^(looks)
@@ -817,17 +825,25 @@ class JMPDAPTracker(Tracker):
                   direct is not None, np.zeros(1, np.int32) if direct is None else direct,
                   index.keys, table, log_z, log_pi, new_cell, new_valid, starts, masses,
                   sides)
+        # the numpy form's rng.permutation(idx) is idx[rng.permutation(N)] (a shuffle's
+        # swaps do not depend on the values; a test checks it): the receivers in the
+        # order of their ancestors are the inverse permutation, for place's reads
         anc = np.empty((N, C), dtype=np.int64)
+        order = np.empty((C, N), dtype=np.int64)
+        receivers = np.arange(N)
         for c in range(C):
             p = np.exp(log_z[:, c] - log_z[:, c].max())
-            anc[:, c] = rng.permutation(systematic_resample(p / p.sum(), rng.random()))
+            idx = systematic_resample(p / p.sum(), rng.random())
+            perm = rng.permutation(N)
+            anc[:, c] = idx[perm]
+            order[c, perm] = receivers
         uu = rng.random(out=self._scratch("uu", (N, S, 2)))
         # the velocity posteriors go to the spares (the sources are the ancestors'); the
         # slots not in a cluster keep theirs (copied by the kernel)
         vel, vvar = self._spare("vel"), self._spare("vvar")
-        K.place(anc, cluster_of, slots, new_cell, new_valid, starts, masses, sides, rhohat,
-                sd, psi, uu, grid.nx, float(grid.cell_size), self._tau, self._q12, self._q22,
-                self.vel, self.vvar, np.flatnonzero(col < 0), self.pos, vel, vvar,
+        K.place(anc, order, cluster_of, slots, new_cell, new_valid, starts, masses, sides,
+                rhohat, sd, psi, uu, grid.nx, float(grid.cell_size), self._tau, self._q12,
+                self._q22, self.vel, self.vvar, np.flatnonzero(col < 0), self.pos, vel, vvar,
                 self.valid)
         self._install("vel", vel)
         self._install("vvar", vvar)
@@ -874,21 +890,28 @@ class JMPDAPTracker(Tracker):
         # lowers those left for the next cells (one undetected target is born once): a
         # newborn is an initial target with probability pi_init / pi, else an arrival
         remaining = self._remaining()
-        for k in range(det.size):
-            pi_init, pi_arr = self._undetected_probability(det[k:k + 1], remaining)
-            pi_init, pi = pi_init[:, 0], 1.0 - (1.0 - pi_init[:, 0]) * (1.0 - pi_arr[:, 0])
-            z = 1.0 - pi + pi * lam[k]  # the cell's normaliser
-            b = np.where(has_slot[:, k], pi * lam[k] / z, 0.0)
-            born[:, k] = (uniforms[:, k] < b) & ~occupied[:, k]
-            # prior / proposal: pi / b = z / lam if born, (1 - pi) / (1 - b) = z if not
-            # (the newborn's lam is in the full likelihood); without a free slot b = 0:
-            # 1 - pi
-            ratio = np.where(has_slot[:, k], np.log(z) - np.where(born[:, k], np.log(lam[k]),
-                                                                    0.0), np.log1p(-pi))
-            log_ratio += np.where(occupied[:, k], 0.0, ratio)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                initial = np.where(pi > 0.0, pi_init / pi, 0.0)
-            remaining = np.maximum(remaining - np.where(born[:, k], initial, 0.0), 0.0)
+        if self._kernels is not None:  # the same decisions in one compiled pass
+            u, u_step, v = self._undetected_values(det)
+            log_keep = np.log1p(-np.minimum(v / self._v_total, 1.0 - 1e-12))
+            pi_arrival = -np.expm1(-self._arrival_intensity(u, u_step))
+            self._kernels.birth_decisions(remaining, log_keep, pi_arrival, lam, np.log(lam),
+                                          has_slot, occupied, uniforms, born, log_ratio)
+        else:
+            for k in range(det.size):
+                pi_init, pi_arr = self._undetected_probability(det[k:k + 1], remaining)
+                pi_init, pi = pi_init[:, 0], 1.0 - (1.0 - pi_init[:, 0]) * (1.0 - pi_arr[:, 0])
+                z = 1.0 - pi + pi * lam[k]  # the cell's normaliser
+                b = np.where(has_slot[:, k], pi * lam[k] / z, 0.0)
+                born[:, k] = (uniforms[:, k] < b) & ~occupied[:, k]
+                # prior / proposal: pi / b = z / lam if born, (1 - pi) / (1 - b) = z if not
+                # (the newborn's lam is in the full likelihood); without a free slot b = 0:
+                # 1 - pi
+                kept = np.log(z) - np.where(born[:, k], np.log(lam[k]), 0.0)
+                ratio = np.where(has_slot[:, k], kept, np.log1p(-pi))
+                log_ratio += np.where(occupied[:, k], 0.0, ratio)
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    initial = np.where(pi > 0.0, pi_init / pi, 0.0)
+                remaining = np.maximum(remaining - np.where(born[:, k], initial, 0.0), 0.0)
         if self._can_die:
             self._r = remaining
         p_idx, k_idx = np.nonzero(born)

@@ -23,10 +23,7 @@ first use only. Kernels compile on first call and are cached on disk (``cache=Tr
 from __future__ import annotations
 
 import numpy as np
-from llvmlite import ir as llir
-from numba import njit, types
-from numba.core import cgutils
-from numba.extending import intrinsic
+from numba import njit
 
 from ..compiled import drop_stale_caches
 from ..numba_exact import ndtr as _ndtr
@@ -35,32 +32,6 @@ from ..numba_exact import np_sum
 from .kernels import _outside
 
 drop_stale_caches()  # before any kernel loads: a caller's cache may hold an old callee
-
-
-@intrinsic
-def _prefetch(typingctx, arr, i, j):
-    """A hint to the processor: fetch the cache line of ``arr[i, j, 0, ...]`` (LLVM's
-    ``prefetch``, read, high locality). Changes no value; :func:`place` issues it a few
-    receivers ahead, as its reads of the ancestors' rows are in random order."""
-    sig = types.void(arr, i, j)
-
-    def codegen(context, builder, signature, args):
-        aryty = signature.args[0]
-        ary = context.make_array(aryty)(context, builder, args[0])
-        zero = context.get_constant(types.intp, 0)
-        ptr = cgutils.get_item_pointer2(
-            context, builder, data=ary.data, shape=cgutils.unpack_tuple(builder, ary.shape),
-            strides=cgutils.unpack_tuple(builder, ary.strides), layout=aryty.layout,
-            inds=[args[1], args[2]] + [zero] * (aryty.ndim - 2))
-        i8p = llir.IntType(8).as_pointer()
-        i32 = llir.IntType(32)
-        # declare_intrinsic mangles the name for the pointer type (LLVM upgrades the
-        # typed-pointer name where pointers are opaque)
-        fn = builder.module.declare_intrinsic(
-            "llvm.prefetch", [i8p], llir.FunctionType(llir.VoidType(), [i8p, i32, i32, i32]))
-        builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
-        return context.get_dummy_value()
-    return sig, codegen
 
 
 # ------------------------------------------------------------------ predict
@@ -89,10 +60,35 @@ def predict(pos: np.ndarray, vel: np.ndarray, vvar: np.ndarray, tau: float, tau2
 
 
 @njit(cache=True)
-def gather(src: np.ndarray, idx: np.ndarray, out: np.ndarray) -> None:
-    """``out[k] = src[idx[k]]`` along the first axis (numpy's ``src[idx]``)."""
+def gather_slots(pos: np.ndarray, vel: np.ndarray, vvar: np.ndarray, valid: np.ndarray,
+                 idx: np.ndarray, pos_out: np.ndarray, vel_out: np.ndarray,
+                 vvar_out: np.ndarray, valid_out: np.ndarray) -> None:
+    """The resampled slot arrays: ``x_out[k] = x[idx[k]]`` along the first axis for
+    ``pos``, ``vel``, ``vvar`` ``(N, T, 2)`` and ``valid (N, T)`` (numpy's ``x[idx]``),
+    element by element in one pass (a row assignment per array costs a view each)."""
+    T = valid.shape[1]
     for k in range(idx.shape[0]):
-        out[k] = src[idx[k]]
+        i = idx[k]
+        for t in range(T):
+            valid_out[k, t] = valid[i, t]
+            for a in range(2):
+                pos_out[k, t, a] = pos[i, t, a]
+                vel_out[k, t, a] = vel[i, t, a]
+                vvar_out[k, t, a] = vvar[i, t, a]
+
+
+@njit(cache=True)
+def held_per_particle(valid: np.ndarray) -> np.ndarray:
+    """``valid.sum(axis=1)`` of ``valid (N, T)`` bool: the slots each particle holds
+    (int64; numpy's reduction along a short last axis costs 15 ns an element)."""
+    N, T = valid.shape
+    out = np.zeros(N, np.int64)
+    for p in range(N):
+        n = 0
+        for t in range(T):
+            n += valid[p, t]
+        out[p] = n
+    return out
 
 
 @njit(cache=True)
@@ -113,23 +109,33 @@ def slot_log_likelihood(pos: np.ndarray, valid: np.ndarray, nx: int, ny: int,
     slots' cells, an empty slot or one outside the grid at ``n_cells``): slot ``t`` adds
     ``table[r, k] - table[r, k - 1]``, ``r`` its cell's row and ``k - 1`` the earlier
     slots in that row, the terms summed in slot order (as the dense path's kernel)
-    before they are added to ``out``."""
+    before they are added to ``out``.
+
+    A slot in the zero row (empty, outside the grid or in a cell not looked at: the
+    table's last row) adds ``0.0 - 0.0 = +0.0`` and shares its row with no looked slot,
+    so it is neither looked up nor counted: the sum gains ``+ 0.0`` (which only turns a
+    ``-0.0`` into ``+0.0``, as the term did)."""
     N, T = valid.shape
     n_counts = table.shape[1]
+    zero_row = table.shape[0] - 1
     rows = np.empty(T, np.int64)
     for p in range(N):
         total = 0.0
+        n_rows = 0  # the looked slots so far, by row
         for t in range(T):
-            cell = n_cells
+            r = zero_row
             if valid[p, t]:
                 c = _cell_of(pos[p, t, 0], pos[p, t, 1], nx, ny, cell_size)
                 if c >= 0:
-                    cell = c
-            r = _row(cell, direct, row_table, keys)
-            rows[t] = r
+                    r = _row(c, direct, row_table, keys)
+            if r == zero_row:
+                total = total + 0.0  # at t = 0: 0.0, the term itself
+                continue
             k = 1
-            for q in range(t):
+            for q in range(n_rows):
                 k += rows[q] == r
+            rows[n_rows] = r
+            n_rows += 1
             k = min(k, n_counts - 1)
             inc = table[r, k] - table[r, k - 1]
             total = inc if t == 0 else total + inc
@@ -152,6 +158,43 @@ def occupied(pos: np.ndarray, valid: np.ndarray, det: np.ndarray, nx: int, ny: i
                 d = np.searchsorted(det, c)
                 if d < D and det[d] == c:
                     out[p, d] = True
+
+
+@njit(cache=True)
+def birth_decisions(remaining: np.ndarray, log_keep: np.ndarray, pi_arrival: np.ndarray,
+                    lam: np.ndarray, log_lam: np.ndarray, has_slot: np.ndarray,
+                    occupied: np.ndarray, uniforms: np.ndarray, born: np.ndarray,
+                    log_ratio: np.ndarray) -> None:
+    """The birth decisions at the ``D`` detected cells, cell after cell per particle
+    (the loop of :meth:`.ap.JMPDAPTracker._births`, numpy form, with its per-cell values
+    given: ``log_keep = log1p(-min(share, 1 - 1e-12))``, ``pi_arrival``, ``lam`` and
+    ``log(lam)``, all ``(D,)``). In place: ``remaining (N,)`` the undetected initial
+    targets left, ``born (N, D)``, ``log_ratio (N,)`` (from its values). The numpy form
+    computes both sides of each ``where``; a particle here computes the side it keeps."""
+    N, D = born.shape
+    for p in range(N):
+        r = remaining[p]
+        acc = log_ratio[p]
+        for k in range(D):
+            pi_init = -np.expm1(r * log_keep[k])
+            pi = 1.0 - (1.0 - pi_init) * (1.0 - pi_arrival[k])
+            z = 1.0 - pi + pi * lam[k]
+            b = pi * lam[k] / z if has_slot[p, k] else 0.0
+            new = uniforms[p, k] < b and not occupied[p, k]
+            born[p, k] = new
+            if occupied[p, k]:
+                acc = acc + 0.0
+            elif has_slot[p, k]:
+                acc = acc + (np.log(z) - (log_lam[k] if new else 0.0))
+            else:
+                acc = acc + np.log1p(-pi)
+            if new:
+                x = r - (pi_init / pi if pi > 0.0 else 0.0)
+            else:
+                x = r - 0.0
+            r = x if x >= 0.0 or np.isnan(x) else 0.0  # np.maximum(x, 0.0)
+        remaining[p] = r
+        log_ratio[p] = acc
 
 
 # ------------------------------------------------------------ slot summaries
@@ -460,13 +503,8 @@ def _draw_in_cell(mean: float, sd: float, lo: float, hi: float, u: float, pa: fl
     return x
 
 
-#: how many receivers ahead :func:`place` prefetches (3-6 measured alike at 16,000
-#: particles; docs/speed.md)
-AHEAD = 4
-
-
 @njit(cache=True)
-def place(anc: np.ndarray, cluster_of: np.ndarray, slots: np.ndarray,
+def place(anc: np.ndarray, order: np.ndarray, cluster_of: np.ndarray, slots: np.ndarray,
           new_cell: np.ndarray, new_valid: np.ndarray, cdf_start: np.ndarray,
           cdf_mass: np.ndarray, cdf_upper: np.ndarray, rhohat: np.ndarray, sd: np.ndarray,
           psi: np.ndarray, uniforms: np.ndarray, nx: int, cell_size: float, tau: float,
@@ -483,48 +521,45 @@ def place(anc: np.ndarray, cluster_of: np.ndarray, slots: np.ndarray,
     position in cell 0 (the numpy form draws the ancestor's predictive truncated to
     cell 0): no computation reads an empty slot's position or velocity mean (every one
     masks them by ``valid``, or multiplies them by 0, which a finite value survives),
-    and every slot that becomes valid gets all of its values anew."""
+    and every slot that becomes valid gets all of its values anew.
+
+    Cluster by cluster, the receivers go in ``order[c] (N,)``: any order gives the same
+    values (a receiver's reads are the ancestors' and its own uniforms, its writes its
+    own), and the caller's, by ancestor, reads the ancestors' rows in memory order
+    rather than at random (at 16,000 particles a third of the time went to waiting for
+    those rows)."""
     N, S = new_cell.shape
-    for p in range(N):
-        # the reads below go to the ancestors' rows in random order: ask for those of
-        # the receiver AHEAD places on (the first and last slot of each cluster)
-        if p + AHEAD < N:
+    C = order.shape[0]
+    for c in range(C):
+        for q in range(N):
+            p = order[c, q]
+            a = anc[p, c]
             for j in range(S):
-                if j == 0 or j == S - 1 or cluster_of[j] != cluster_of[j - 1]:
-                    a, t = anc[p + AHEAD, cluster_of[j]], slots[j]
-                    _prefetch(rhohat, a, t)
-                    _prefetch(sd, a, t)
-                    _prefetch(psi, a, t)
-                    _prefetch(vel_src, a, t)
-                    _prefetch(vvar_src, a, t)
-                    _prefetch(cdf_start, a, j)
-                    _prefetch(cdf_mass, a, j)
-                    _prefetch(cdf_upper, a, j)
-                    _prefetch(new_cell, a, j)
-                    _prefetch(new_valid, a, j)
-        for j in range(S):
-            a = anc[p, cluster_of[j]]
-            t = slots[j]
-            alive = new_valid[a, j]
-            c = new_cell[a, j] if alive else 0
-            for ax in range(2):
-                k = c % nx if ax == 0 else c // nx  # cell_bounds
-                lo, hi = k * cell_size, (k + 1) * cell_size
-                mu, s = rhohat[a, t, ax], sd[a, t, ax]
-                if not alive:  # an empty slot's values are never read
-                    x = lo + uniforms[p, j, ax] * (hi - lo)
-                elif cdf_upper[a, j, ax] >= 0:
-                    x = _draw_in_cell(mu, s, lo, hi, uniforms[p, j, ax], cdf_start[a, j, ax],
-                                      cdf_mass[a, j, ax], cdf_upper[a, j, ax] == 1)
-                else:
-                    x = _truncated_normal(mu, s, lo, hi, uniforms[p, j, ax])
-                vv = vvar_src[a, t, ax]
-                cross = tau * vv + q12[ax]
-                gain = cross / psi[a, t, ax]
-                pos[p, t, ax] = x
-                vel[p, t, ax] = vel_src[a, t, ax] + gain * (x - mu)
-                vvar[p, t, ax] = vv + q22[ax] - cross * gain
-            valid[p, t] = alive
+                if cluster_of[j] != c:
+                    continue
+                t = slots[j]
+                alive = new_valid[a, j]
+                cell = new_cell[a, j] if alive else 0
+                for ax in range(2):
+                    k = cell % nx if ax == 0 else cell // nx  # cell_bounds
+                    lo, hi = k * cell_size, (k + 1) * cell_size
+                    mu, s = rhohat[a, t, ax], sd[a, t, ax]
+                    if not alive:  # an empty slot's values are never read
+                        x = lo + uniforms[p, j, ax] * (hi - lo)
+                    elif cdf_upper[a, j, ax] >= 0:
+                        x = _draw_in_cell(mu, s, lo, hi, uniforms[p, j, ax],
+                                          cdf_start[a, j, ax], cdf_mass[a, j, ax],
+                                          cdf_upper[a, j, ax] == 1)
+                    else:
+                        x = _truncated_normal(mu, s, lo, hi, uniforms[p, j, ax])
+                    vv = vvar_src[a, t, ax]
+                    cross = tau * vv + q12[ax]
+                    gain = cross / psi[a, t, ax]
+                    pos[p, t, ax] = x
+                    vel[p, t, ax] = vel_src[a, t, ax] + gain * (x - mu)
+                    vvar[p, t, ax] = vv + q22[ax] - cross * gain
+                valid[p, t] = alive
+    for p in range(N):
         for t in others:
             for ax in range(2):
                 vel[p, t, ax] = vel_src[p, t, ax]
@@ -675,8 +710,9 @@ def warm_up() -> None:
     rh, ps = np.empty_like(pos), np.empty_like(pos)
     predict(pos, pos.copy(), np.ones_like(pos), 1.0, 1.0, np.full(2, 0.1), np.ones(2), True, rh, ps,
             np.empty_like(pos))
-    gather(pos, np.zeros(N, np.int64), np.empty_like(pos))
-    gather(valid, np.zeros(N, np.int64), np.empty_like(valid))
+    gather_slots(pos, pos, pos, valid, np.zeros(N, np.int64), np.empty_like(pos),
+                 np.empty_like(pos), np.empty_like(pos), np.empty_like(valid))
+    held_per_particle(valid)
     held, sums = np.empty(T, np.int64), np.empty((T, 2))
     slot_sums(pos, pos, valid, True, held, sums, sums.copy())
     slots = np.arange(T, dtype=np.int64)
@@ -694,7 +730,8 @@ def warm_up() -> None:
                     1, 1, 1.0, 1, 1, 1, reflect, 0.1, direct, np.zeros(2, np.int32),
                     np.zeros(1, np.int64), table, log_z, log_pi, cell, alive, starts,
                     masses, sides)
-    place(np.zeros((N, 1), np.int64), np.zeros(T, np.int64), slots, cell, alive, starts,
+    place(np.zeros((N, 1), np.int64), np.arange(N, dtype=np.int64)[None, :].copy(),
+          np.zeros(T, np.int64), slots, cell, alive, starts,
           masses, sides, rh, ps, ps,
           np.full((N, T, 2), 0.5), 1, 1.0, 1.0, np.zeros(2), np.zeros(2), pos.copy(),
           pos.copy(), np.zeros(0, np.int64), pos.copy(), pos.copy(), pos.copy(), valid.copy())
@@ -704,4 +741,7 @@ def warm_up() -> None:
         slot_log_likelihood(pos, valid, 1, 1, 1.0, 1, direct, np.zeros(2, np.int32),
                             np.zeros(1, np.int64), table, np.zeros(N))
     occupied(pos, valid, np.zeros(1, np.int64), 1, 1, 1.0, np.empty((N, 1), bool))
+    one = np.full(1, 0.5)
+    birth_decisions(np.ones(N), one, one, one, one, valid[:, :1].copy(), valid[:, :1].copy(),
+                    np.full((N, 1), 0.5), np.empty((N, 1), bool), np.zeros(N))
     warm_up.done = True
