@@ -351,8 +351,9 @@ def test_permuting_an_array_is_indexing_it_by_a_permutation():
 
 
 def test_place_gives_the_same_values_in_any_order_of_the_receivers(monkeypatch):
-    """``place`` on the arguments of real steps (``crossing``: two clusters at times),
-    its receivers in the caller's order, in particle order and in a random order."""
+    """``place`` on the arguments of real steps (``default``: one cluster, two at
+    times), its receivers in the caller's order (by ancestor for one cluster, else the
+    particles' with prefetches), in particle order and in a random order."""
     from mttbench.trackers.jmpd import backend
     kernels = backend.compiled_ap_kernels()
     calls = []
@@ -365,17 +366,22 @@ def test_place_gives_the_same_values_in_any_order_of_the_receivers(monkeypatch):
 
     monkeypatch.setattr(kernels, "place", record)
     with use_backend("compiled"):
-        list(play(scenarios.get("crossing"), JMPDAPTracker(n_particles=200), 0, n_steps=12))
-    assert max(c[0].shape[1] for c in calls) >= 2
+        list(play(scenarios.get("default"), JMPDAPTracker(n_particles=200), 0, n_steps=16))
+    calls = [c for c in calls if c[0].shape[0] == 200]  # not the kernels' warm-up
+    assert {c[0].shape[1] for c in calls} >= {1, 2}
     rng = np.random.default_rng(13)
     for args in calls:
-        anc, order = args[0], args[1]
-        assert all(np.all(np.diff(anc[order[c], c]) >= 0) for c in range(anc.shape[1]))
+        anc, order, prefetch = args[:3]
+        n, n_clusters = anc.shape
+        if n_clusters == 1:
+            assert not prefetch and np.all(np.diff(anc[order, 0]) >= 0)
+        else:
+            assert prefetch and np.array_equal(order, np.arange(n))
         results = []
-        for new_order in (order, np.tile(np.arange(anc.shape[0]), (anc.shape[1], 1)),
-                          np.array([rng.permutation(anc.shape[0]) for _ in order])):
+        for new_order, new_prefetch in ((order, prefetch), (np.arange(n), True),
+                                        (rng.permutation(n), False)):
             out = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
-            out[1] = new_order
+            out[1], out[2] = new_order, new_prefetch
             real(*out)
             results.append(out[-4:])
         for other in results[1:]:

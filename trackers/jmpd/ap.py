@@ -826,25 +826,28 @@ class JMPDAPTracker(Tracker):
                   index.keys, table, log_z, log_pi, new_cell, new_valid, starts, masses,
                   sides)
         # the numpy form's rng.permutation(idx) is idx[rng.permutation(N)] (a shuffle's
-        # swaps do not depend on the values; a test checks it): the receivers in the
-        # order of their ancestors are the inverse permutation, for place's reads
+        # swaps do not depend on the values; a test checks it). With one cluster, place
+        # takes the receivers in the order of their ancestors (the inverse permutation:
+        # the ancestors' rows are read in memory order); with more, in particle order
+        # with its prefetches (docs/speed.md)
         anc = np.empty((N, C), dtype=np.int64)
-        order = np.empty((C, N), dtype=np.int64)
-        receivers = np.arange(N)
+        order = np.arange(N)
         for c in range(C):
             p = np.exp(log_z[:, c] - log_z[:, c].max())
             idx = systematic_resample(p / p.sum(), rng.random())
             perm = rng.permutation(N)
             anc[:, c] = idx[perm]
-            order[c, perm] = receivers
+            if C == 1:
+                order = np.empty(N, dtype=np.int64)
+                order[perm] = np.arange(N)
         uu = rng.random(out=self._scratch("uu", (N, S, 2)))
         # the velocity posteriors go to the spares (the sources are the ancestors'); the
         # slots not in a cluster keep theirs (copied by the kernel)
         vel, vvar = self._spare("vel"), self._spare("vvar")
-        K.place(anc, order, cluster_of, slots, new_cell, new_valid, starts, masses, sides,
-                rhohat, sd, psi, uu, grid.nx, float(grid.cell_size), self._tau, self._q12,
-                self._q22, self.vel, self.vvar, np.flatnonzero(col < 0), self.pos, vel, vvar,
-                self.valid)
+        K.place(anc, order, C > 1, cluster_of, slots, new_cell, new_valid, starts, masses,
+                sides, rhohat, sd, psi, uu, grid.nx, float(grid.cell_size), self._tau,
+                self._q12, self._q22, self.vel, self.vvar, np.flatnonzero(col < 0), self.pos,
+                vel, vvar, self.valid)
         self._install("vel", vel)
         self._install("vvar", vvar)
         return -log_pi[anc, np.arange(C)[None, :]].sum(axis=1), anc

@@ -23,7 +23,10 @@ first use only. Kernels compile on first call and are cached on disk (``cache=Tr
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from llvmlite import ir as llir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from ..compiled import drop_stale_caches
 from ..numba_exact import ndtr as _ndtr
@@ -32,6 +35,33 @@ from ..numba_exact import np_sum
 from .kernels import _outside
 
 drop_stale_caches()  # before any kernel loads: a caller's cache may hold an old callee
+
+
+@intrinsic
+def _prefetch(typingctx, arr, i, j):
+    """A hint to the processor: fetch the cache line of ``arr[i, j, 0, ...]`` (LLVM's
+    ``prefetch``, read, high locality). Changes no value; :func:`place` issues it a few
+    receivers ahead, as its reads of the ancestors' rows are in random order."""
+    sig = types.void(arr, i, j)
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        zero = context.get_constant(types.intp, 0)
+        ptr = cgutils.get_item_pointer2(
+            context, builder, data=ary.data, shape=cgutils.unpack_tuple(builder, ary.shape),
+            strides=cgutils.unpack_tuple(builder, ary.strides), layout=aryty.layout,
+            inds=[args[1], args[2]] + [zero] * (aryty.ndim - 2))
+        i8p = llir.IntType(8).as_pointer()
+        i32 = llir.IntType(32)
+        # declare_intrinsic mangles the name for the pointer type (LLVM upgrades the
+        # typed-pointer name where pointers are opaque)
+        fn = builder.module.declare_intrinsic(
+            "llvm.prefetch", [i8p], llir.FunctionType(llir.VoidType(), [i8p, i32, i32, i32]))
+        builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
+        return context.get_dummy_value()
+    return sig, codegen
+
 
 
 # ------------------------------------------------------------------ predict
@@ -503,14 +533,19 @@ def _draw_in_cell(mean: float, sd: float, lo: float, hi: float, u: float, pa: fl
     return x
 
 
+#: how many receivers ahead :func:`place` prefetches the ancestors' rows (3-6 measured
+#: alike at 16,000 particles; docs/speed.md)
+AHEAD = 4
+
+
 @njit(cache=True)
-def place(anc: np.ndarray, order: np.ndarray, cluster_of: np.ndarray, slots: np.ndarray,
-          new_cell: np.ndarray, new_valid: np.ndarray, cdf_start: np.ndarray,
-          cdf_mass: np.ndarray, cdf_upper: np.ndarray, rhohat: np.ndarray, sd: np.ndarray,
-          psi: np.ndarray, uniforms: np.ndarray, nx: int, cell_size: float, tau: float,
-          q12: np.ndarray, q22: np.ndarray, vel_src: np.ndarray, vvar_src: np.ndarray,
-          others: np.ndarray, pos: np.ndarray, vel: np.ndarray, vvar: np.ndarray,
-          valid: np.ndarray) -> None:
+def place(anc: np.ndarray, order: np.ndarray, prefetch: bool, cluster_of: np.ndarray,
+          slots: np.ndarray, new_cell: np.ndarray, new_valid: np.ndarray,
+          cdf_start: np.ndarray, cdf_mass: np.ndarray, cdf_upper: np.ndarray,
+          rhohat: np.ndarray, sd: np.ndarray, psi: np.ndarray, uniforms: np.ndarray, nx: int,
+          cell_size: float, tau: float, q12: np.ndarray, q22: np.ndarray,
+          vel_src: np.ndarray, vvar_src: np.ndarray, others: np.ndarray, pos: np.ndarray,
+          vel: np.ndarray, vvar: np.ndarray, valid: np.ndarray) -> None:
     """The end of :meth:`.ap.JMPDAPTracker._move_persistent`: receiver ``p`` takes slot
     ``slots[j]``'s cell from ancestor ``anc[p, cluster_of[j]]``, draws its position in
     the cell from the ancestor's predictive truncated to it (``uniforms (N, S, 2)``;
@@ -523,42 +558,55 @@ def place(anc: np.ndarray, order: np.ndarray, cluster_of: np.ndarray, slots: np.
     masks them by ``valid``, or multiplies them by 0, which a finite value survives),
     and every slot that becomes valid gets all of its values anew.
 
-    Cluster by cluster, the receivers go in ``order[c] (N,)``: any order gives the same
-    values (a receiver's reads are the ancestors' and its own uniforms, its writes its
-    own), and the caller's, by ancestor, reads the ancestors' rows in memory order
-    rather than at random (at 16,000 particles a third of the time went to waiting for
-    those rows)."""
+    The receivers go in ``order (N,)``: any order gives the same values (a receiver
+    reads the ancestors' rows and its own uniforms, and writes its own rows). With one
+    cluster the caller orders them by ancestor, so that the ancestors' rows are read in
+    memory order; with more it passes the particles' order and ``prefetch``: the
+    ancestors' rows of the receiver ``AHEAD`` places on are asked for early (the first
+    and last slot of each cluster), as they are read at random (docs/speed.md)."""
     N, S = new_cell.shape
-    C = order.shape[0]
-    for c in range(C):
-        for q in range(N):
-            p = order[c, q]
-            a = anc[p, c]
+    for q in range(N):
+        p = order[q]
+        if prefetch and q + AHEAD < N:
+            r = order[q + AHEAD]
             for j in range(S):
-                if cluster_of[j] != c:
-                    continue
-                t = slots[j]
-                alive = new_valid[a, j]
-                cell = new_cell[a, j] if alive else 0
-                for ax in range(2):
-                    k = cell % nx if ax == 0 else cell // nx  # cell_bounds
-                    lo, hi = k * cell_size, (k + 1) * cell_size
-                    mu, s = rhohat[a, t, ax], sd[a, t, ax]
-                    if not alive:  # an empty slot's values are never read
-                        x = lo + uniforms[p, j, ax] * (hi - lo)
-                    elif cdf_upper[a, j, ax] >= 0:
-                        x = _draw_in_cell(mu, s, lo, hi, uniforms[p, j, ax],
-                                          cdf_start[a, j, ax], cdf_mass[a, j, ax],
-                                          cdf_upper[a, j, ax] == 1)
-                    else:
-                        x = _truncated_normal(mu, s, lo, hi, uniforms[p, j, ax])
-                    vv = vvar_src[a, t, ax]
-                    cross = tau * vv + q12[ax]
-                    gain = cross / psi[a, t, ax]
-                    pos[p, t, ax] = x
-                    vel[p, t, ax] = vel_src[a, t, ax] + gain * (x - mu)
-                    vvar[p, t, ax] = vv + q22[ax] - cross * gain
-                valid[p, t] = alive
+                if j == 0 or j == S - 1 or cluster_of[j] != cluster_of[j - 1]:
+                    a, t = anc[r, cluster_of[j]], slots[j]
+                    _prefetch(rhohat, a, t)
+                    _prefetch(sd, a, t)
+                    _prefetch(psi, a, t)
+                    _prefetch(vel_src, a, t)
+                    _prefetch(vvar_src, a, t)
+                    _prefetch(cdf_start, a, j)
+                    _prefetch(cdf_mass, a, j)
+                    _prefetch(cdf_upper, a, j)
+                    _prefetch(new_cell, a, j)
+                    _prefetch(new_valid, a, j)
+        for j in range(S):
+            a = anc[p, cluster_of[j]]
+            t = slots[j]
+            alive = new_valid[a, j]
+            cell = new_cell[a, j] if alive else 0
+            for ax in range(2):
+                k = cell % nx if ax == 0 else cell // nx  # cell_bounds
+                lo, hi = k * cell_size, (k + 1) * cell_size
+                mu, s = rhohat[a, t, ax], sd[a, t, ax]
+                if not alive:  # an empty slot's values are never read
+                    x = lo + uniforms[p, j, ax] * (hi - lo)
+                elif cdf_upper[a, j, ax] >= 0:
+                    x = _draw_in_cell(mu, s, lo, hi, uniforms[p, j, ax], cdf_start[a, j, ax],
+                                      cdf_mass[a, j, ax], cdf_upper[a, j, ax] == 1)
+                else:
+                    x = _truncated_normal(mu, s, lo, hi, uniforms[p, j, ax])
+                vv = vvar_src[a, t, ax]
+                cross = tau * vv + q12[ax]
+                gain = cross / psi[a, t, ax]
+                pos[p, t, ax] = x
+                vel[p, t, ax] = vel_src[a, t, ax] + gain * (x - mu)
+                vvar[p, t, ax] = vv + q22[ax] - cross * gain
+            valid[p, t] = alive
+    # the slots in no cluster, in a pass of their own (interleaved with the loop above,
+    # a 64,000-particle step of three one-slot clusters took 1.5x as long)
     for p in range(N):
         for t in others:
             for ax in range(2):
@@ -730,7 +778,7 @@ def warm_up() -> None:
                     1, 1, 1.0, 1, 1, 1, reflect, 0.1, direct, np.zeros(2, np.int32),
                     np.zeros(1, np.int64), table, log_z, log_pi, cell, alive, starts,
                     masses, sides)
-    place(np.zeros((N, 1), np.int64), np.arange(N, dtype=np.int64)[None, :].copy(),
+    place(np.zeros((N, 1), np.int64), np.arange(N, dtype=np.int64), True,
           np.zeros(T, np.int64), slots, cell, alive, starts,
           masses, sides, rh, ps, ps,
           np.full((N, T, 2), 0.5), 1, 1.0, 1.0, np.zeros(2), np.zeros(2), pos.copy(),
