@@ -438,3 +438,17 @@ def test_birth_decisions_equal_the_numpy_form():
     assert np.array_equal(got_born, born)
     assert np.array_equal(got_ratio, log_ratio)
     assert np.array_equal(got_left, left)
+
+
+@pytest.mark.parametrize("n_clusters", [1, 3, 7, 8, 10])
+def test_recombined_log_pi_equals_numpy(n_clusters):
+    rng = np.random.default_rng(16)
+    N = 257
+    log_pi = rng.normal(size=(N, n_clusters)) * 10.0 ** rng.integers(-6, 6, (N, n_clusters))
+    log_pi[rng.random((N, n_clusters)) < 0.2] = 0.0
+    anc = rng.integers(0, N, (N, n_clusters))
+    got = np.empty(N)
+    ap_kernels.recombined_log_pi(log_pi, anc, got)
+    expected = -log_pi[anc, np.arange(n_clusters)[None, :]].sum(axis=1)
+    assert np.array_equal(got, expected)
+    assert np.array_equal(np.signbit(got), np.signbit(expected))

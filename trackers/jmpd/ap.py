@@ -850,7 +850,9 @@ class JMPDAPTracker(Tracker):
                 vel, vvar, self.valid)
         self._install("vel", vel)
         self._install("vvar", vvar)
-        return -log_pi[anc, np.arange(C)[None, :]].sum(axis=1), anc
+        moved = np.empty(N)
+        K.recombined_log_pi(log_pi, anc, moved)
+        return moved, anc
 
     def _births(self, centres, active, index, table) -> np.ndarray:
         """Step 4 of the module docstring; returns the per-particle prior/proposal log

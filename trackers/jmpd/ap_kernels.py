@@ -614,6 +614,26 @@ def place(anc: np.ndarray, order: np.ndarray, prefetch: bool, cluster_of: np.nda
                 vvar[p, t, ax] = vvar_src[p, t, ax]
 
 
+@njit(cache=True)
+def recombined_log_pi(log_pi: np.ndarray, anc: np.ndarray, out: np.ndarray) -> None:
+    """``out = -log_pi[anc, arange(C)].sum(axis=1)``: per receiver, minus the sum over
+    the clusters of its ancestors' proposal log-probabilities (``log_pi``, ``anc (N,
+    C)``), as numpy sums a row (:func:`..numba_exact.np_sum`)."""
+    N, C = anc.shape
+    row = np.empty(C)
+    for p in range(N):
+        if C < 8:  # np_sum's arithmetic, without a call taking a view
+            total = -0.0
+            for c in range(C):
+                total += log_pi[anc[p, c], c]
+            total = 0.0 + total
+        else:
+            for c in range(C):
+                row[c] = log_pi[anc[p, c], c]
+            total = np_sum(row, C)
+        out[p] = -total
+
+
 # ------------------------------------------------------------------ sorting
 @njit(cache=True)
 def _least_permutation(D: np.ndarray, h: int, best: np.ndarray, path: np.ndarray,
@@ -761,6 +781,7 @@ def warm_up() -> None:
     gather_slots(pos, pos, pos, valid, np.zeros(N, np.int64), np.empty_like(pos),
                  np.empty_like(pos), np.empty_like(pos), np.empty_like(valid))
     held_per_particle(valid)
+    recombined_log_pi(np.zeros((N, 1)), np.zeros((N, 1), np.int64), np.empty(N))
     held, sums = np.empty(T, np.int64), np.empty((T, 2))
     slot_sums(pos, pos, valid, True, held, sums, sums.copy())
     slots = np.arange(T, dtype=np.int64)
