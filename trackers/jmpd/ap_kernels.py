@@ -63,7 +63,6 @@ def _prefetch(typingctx, arr, i, j):
     return sig, codegen
 
 
-
 # ------------------------------------------------------------------ predict
 @njit(cache=True)
 def predict(pos: np.ndarray, vel: np.ndarray, vvar: np.ndarray, tau: float, tau2: float,
