@@ -31,8 +31,8 @@ from mttbench.trackers.jmpd import JMPDAPTracker, ap, backend  # noqa: E402
 
 KERNELS = ["propose", "place", "slot_log_likelihood", "gather_slots", "predict",
            "slot_sums", "sort_cluster", "max_held_sd", "held_per_particle",
-           "birth_decisions", "recombined_log_pi", "occupied"]
-METHODS = ["predict", "update", "estimate", "_move_persistent_compiled", "_births",
+           "birth_decisions", "recombined_log_pi", "occupied", "cluster_slots"]
+METHODS = ["predict", "update", "estimate", "_move_persistent_compiled", "_births", "_clusters",
            "_undetected_misses", "_slot_means", "_sort_compiled", "_remaining"]
 FUNCTIONS = ["grid_log_likelihood_tables", "systematic_resample", "cluster_slots",
              "coupled_slots", "merge_slots"]

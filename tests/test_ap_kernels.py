@@ -452,3 +452,37 @@ def test_recombined_log_pi_equals_numpy(n_clusters):
     expected = -log_pi[anc, np.arange(n_clusters)[None, :]].sum(axis=1)
     assert np.array_equal(got, expected)
     assert np.array_equal(np.signbit(got), np.signbit(expected))
+
+
+def test_clusters_equal_the_numpy_form():
+    """``cluster_slots`` on random centres (a pair exactly at the distance included),
+    with the links of holdings with exclusive, dependent, independent, empty and
+    always-held slots, and without links, against :mod:`.partitions`."""
+    from mttbench.trackers.jmpd import partitions
+    rng = np.random.default_rng(17)
+    for _ in range(60):
+        N, T = int(rng.integers(1, 400)), int(rng.integers(1, 12))
+        valid = rng.random((N, T)) < rng.random(T)
+        if T >= 4:
+            half = rng.random(N) < 0.5
+            valid[:, 0], valid[:, 1] = half, ~half  # one target, two slots
+            valid[:, 2] = valid[:, 3] & (rng.random(N) < 0.9)  # dependent
+        if T >= 6:
+            valid[:, 4], valid[:, 5] = False, True
+        links = partitions.coupled_slots(valid)
+        gamma = 2.5
+        centres = rng.uniform(0.0, 8.0, (T, 2))
+        if T >= 3:
+            centres[2] = centres[1] + [gamma, 0.0]  # exactly at the distance: no link
+        active = rng.random(T) < 0.8
+        for given in (links, None):
+            expected = partitions.cluster_slots(centres, active, gamma, given)
+            members, sizes = np.empty(T, np.int64), np.empty(T, np.int64)
+            n = ap_kernels.cluster_slots(centres, active, gamma,
+                                         np.zeros((0, 0), bool) if given is None else given,
+                                         members, sizes)
+            starts = np.cumsum(sizes[:n]) - sizes[:n]
+            got = [members[a:a + size] for a, size in zip(starts, sizes[:n], strict=True)]
+            assert len(got) == len(expected)
+            for a, b in zip(got, expected, strict=True):
+                assert np.array_equal(a, b)

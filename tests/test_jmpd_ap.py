@@ -784,7 +784,7 @@ def test_fixed_count_rule(monkeypatch):
         return real(w, u)
 
     monkeypatch.setattr(ap_module, "systematic_resample", spy)
-    monkeypatch.setattr(ap_module, "coupled_slots", lambda valid: None)
+    monkeypatch.setattr(ap_module.JMPDAPTracker, "_coupled_links", lambda self: None)
     t.predict()
     t.update(_looks([1, 8, 5], [True, True, True]))
     assert t.n_clusters == 2

@@ -500,8 +500,7 @@ class JMPDAPTracker(Tracker):
         # 1. partitions from the predicted centres
         held, centres = self._slot_means(rhohat)
         active = held > 0
-        clusters = cluster_slots(centres, active, self.cluster_distance * grid.cell_size,
-                                 coupled_slots(self.valid))
+        clusters = self._clusters(centres, active, self._coupled_links())
         self.n_clusters = len(clusters)
         self.largest_cluster = max((len(c) for c in clusters), default=0)
 
@@ -574,7 +573,7 @@ class JMPDAPTracker(Tracker):
             else:
                 held, sums, _ = self._slot_sums(self.pos)
                 mean_pos = sums / np.maximum(held, 1)[:, None]
-            now = cluster_slots(mean_pos, held > 0, self.cluster_distance * grid.cell_size)
+            now = self._clusters(mean_pos, held > 0, None)
             arrays = [self.pos, self.vel, self.vvar, self.valid]
             if self._kernels is None:
                 sort_slots(self.pos, self.valid, now, arrays, self.sort_iterations)
@@ -627,6 +626,28 @@ class JMPDAPTracker(Tracker):
         held, sums, vel_sums = np.empty(T, np.int64), np.empty((T, 2)), np.empty((T, 2))
         self._kernels.slot_sums(pos, self.vel, self.valid, with_vel, held, sums, vel_sums)
         return held, sums, vel_sums
+
+    def _coupled_links(self) -> np.ndarray | None:
+        """:func:`.partitions.coupled_slots` of the particles' holdings (a float32 BLAS
+        product: a compiled count over the held slots took longer)."""
+        return coupled_slots(self.valid)
+
+    def _clusters(self, centres: np.ndarray, active: np.ndarray,
+                  links: np.ndarray | None) -> list[np.ndarray]:
+        """:func:`.partitions.cluster_slots` of the slots' ``centres (T, 2)`` at
+        ``cluster_distance`` cells and the ``links`` of :meth:`_coupled_links` (None:
+        none; compiled: the same clusters)."""
+        gamma = self.cluster_distance * self._model.grid.cell_size
+        K = self._kernels
+        if K is None:
+            return cluster_slots(centres, active, gamma, links)
+        T = len(active)
+        members, sizes = np.empty(T, np.int64), np.empty(T, np.int64)
+        n = K.cluster_slots(np.ascontiguousarray(centres, dtype=float), active, gamma,
+                            np.zeros((0, 0), np.bool_) if links is None else links,
+                            members, sizes)
+        ends = np.cumsum(sizes[:n])
+        return [members[end - size:end] for end, size in zip(ends, sizes[:n], strict=True)]
 
     def _slot_means(self, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per slot: the holders ``(T,)`` and the mean of ``pos (N, T, 2)`` over them (0

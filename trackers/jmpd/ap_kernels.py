@@ -633,6 +633,55 @@ def recombined_log_pi(log_pi: np.ndarray, anc: np.ndarray, out: np.ndarray) -> N
         out[p] = -total
 
 
+# ------------------------------------------------------------------ partitions
+@njit(cache=True)
+def cluster_slots(centres: np.ndarray, active: np.ndarray, gamma: float,
+                  coupled: np.ndarray, members: np.ndarray, sizes: np.ndarray) -> int:
+    """:func:`.partitions.cluster_slots`: the connected components of the active slots
+    linked by ``|centre_i - centre_j| < gamma`` (numpy's ``norm``: the square root of
+    ``dx^2 + dy^2``) or ``coupled[i, j]`` (an empty ``(0, 0)`` array: no coupling), each
+    labelled by its smallest slot (the union keeps the smaller root, as the numpy form).
+    Writes the clusters' slots, ascending, cluster after cluster by their first slot,
+    into ``members (T,)`` and their sizes into ``sizes (T,)``; returns how many."""
+    T = active.shape[0]
+    parent = np.arange(T)
+    use_coupled = coupled.shape[0] > 0
+    for i in range(T):
+        if not active[i]:
+            continue
+        for j in range(i + 1, T):
+            if not active[j]:
+                continue
+            dx = centres[i, 0] - centres[j, 0]
+            dy = centres[i, 1] - centres[j, 1]
+            if np.sqrt(dx * dx + dy * dy) < gamma or (use_coupled and coupled[i, j]):
+                ri, rj = i, j
+                while parent[ri] != ri:
+                    ri = parent[ri]
+                while parent[rj] != rj:
+                    rj = parent[rj]
+                if ri != rj:
+                    parent[max(ri, rj)] = min(ri, rj)
+    n, k = 0, 0
+    for r in range(T):
+        if not active[r] or parent[r] != r:
+            continue
+        size = 0
+        for t in range(r, T):
+            if not active[t]:
+                continue
+            root = t
+            while parent[root] != root:
+                root = parent[root]
+            if root == r:
+                members[k] = t
+                k += 1
+                size += 1
+        sizes[n] = size
+        n += 1
+    return n
+
+
 # ------------------------------------------------------------------ sorting
 @njit(cache=True)
 def _least_permutation(D: np.ndarray, h: int, best: np.ndarray, path: np.ndarray,
@@ -781,6 +830,9 @@ def warm_up() -> None:
                  np.empty_like(pos), np.empty_like(pos), np.empty_like(valid))
     held_per_particle(valid)
     recombined_log_pi(np.zeros((N, 1)), np.zeros((N, 1), np.int64), np.empty(N))
+    for links in (np.ones((T, T), np.bool_), np.zeros((0, 0), np.bool_)):
+        cluster_slots(pos[0], valid[0], 1.0, links, np.empty(T, np.int64),
+                      np.empty(T, np.int64))
     held, sums = np.empty(T, np.int64), np.empty((T, 2))
     slot_sums(pos, pos, valid, True, held, sums, sums.copy())
     slots = np.arange(T, dtype=np.int64)
