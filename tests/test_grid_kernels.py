@@ -276,6 +276,27 @@ def test_adding_intensity_equals_the_numpy_form():
         ppp.add_intensity(CellField(5, 0.0), np.array([0, 1, 1]), np.array([1.0, 2.0]))
 
 
+def test_field_affine_equals_the_numpy_form():
+    """``x <- a x + b`` on sparse fields: cells that round onto the new default (they
+    rejoin it), ``a = 0`` (every cell rejoins), a NaN cell, an empty field."""
+    rng = np.random.default_rng(7)
+    for trial in range(300):
+        a = float(rng.choice([0.0, 1.0, 0.999, 1e-300, rng.uniform(0.5, 1.0)]))
+        b = float(rng.choice([0.0, 1e-4, 1e-20, rng.uniform(0.0, 0.1)]))
+        own = np.unique(rng.integers(0, 60, int(rng.integers(0, 25))))
+        values = 0.25 + rng.choice([1e-17, 5e-17, 1e-3, 0.5, -0.25], len(own))
+        if trial % 10 == 0 and len(own):
+            values[0] = np.nan
+
+        def field(own=own, values=values, a=a, b=b):
+            f = CellField(60, 0.25)
+            f.set(own, values)
+            f.affine(a, b)
+            return np.array([f.default]), f.cells, f.values
+
+        assert _equal(*_both(field))
+
+
 def _observed(tracker) -> list[np.ndarray]:
     """The arrays a tracker's next step reads (its private state, by name)."""
     out = []

@@ -495,6 +495,24 @@ def field_apply(f_default, f_cells, f_values, cells, operands, add):
     return out_c[:n], out_v[:n]
 
 
+@njit(cache=True, error_model="numpy")
+def field_affine(f_default, f_cells, f_values, a, b):
+    """:meth:`.cells.CellField.affine`: ``x <- a x + b`` in every cell (two roundings, as
+    numpy's ``a * values + b``), a cell whose value becomes the default rejoining it.
+    Returns the new default, cells and values (new arrays)."""
+    d = a * f_default + b
+    n = len(f_cells)
+    out_c = np.empty(n, np.int64)
+    out_v = np.empty(n)
+    k = 0
+    for j in range(n):
+        v = a * f_values[j] + b
+        if not v == d:
+            out_c[k], out_v[k] = f_cells[j], v
+            k += 1
+    return d, out_c[:k], out_v[:k]
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) every kernel on tiny inputs, for the argument
     types the callers pass, so that a tracker's ``reset`` pays for it and no timed step
@@ -510,6 +528,7 @@ def warm_up() -> None:
     cell_sums(i, f)
     recycle_into_field(0.0, i, f, 1.0, 1, 1, np.zeros((1, 4)), np.ones((1, 4, 4)), 1e-12, 6.0, f)
     field_apply(0.0, i, f, i, f, True)
+    field_affine(0.0, i, f, 1.0, 0.0)
     looked_log_ratios(i, np.zeros(1, np.bool_), 1.0, -1.0, 700.0)
     ro = np.zeros(1)
     ro.flags.writeable = False  # cells' rows are read-only
