@@ -10,11 +10,9 @@ the fastest step and, per part, its mean over the fastest tenth of the steps (do
 from __future__ import annotations
 
 import argparse
-import collections
-import functools
-import time
 
 import numpy as np
+from part_clocks import PartClocks, print_parts
 
 from mttbench import scenarios
 from mttbench.benchmarks.bench.conftest import warm_up
@@ -37,44 +35,22 @@ def main() -> None:
     ap.add_argument("scenario", nargs="?", default="large")
     ap.add_argument("--steps", type=int, default=300)
     args = ap.parse_args()
-    spent: collections.Counter = collections.Counter()
-
-    def wrap(owner, name, label):
-        f = getattr(owner, name)
-
-        @functools.wraps(f)
-        def timed(*a, **k):
-            t0 = time.process_time()
-            try:
-                return f(*a, **k)
-            finally:
-                spent[label] += time.process_time() - t0
-        setattr(owner, name, timed)
-
+    clocks = PartClocks()
     warm = warm_up(scenarios.get(args.scenario), TrackerSpec.parse("gpf").make(), 60)
     kernels = grid_backend.compiled_gpf_kernels(wait=None)
     for name in KERNELS:
         if kernels is not None and hasattr(kernels, name):
-            wrap(kernels, name, f"kernel {name}")
+            clocks.wrap(kernels, name, f"kernel {name}")
     for owner, names in ((grid, GRID), (tracker, TRACKER),
                          (tracker.GaussianParticleFilter, METHODS)):
         for name in names:
-            wrap(owner, name, f"{owner.__name__.split('.')[-1]}.{name}")
+            clocks.wrap(owner, name, f"{owner.__name__.split('.')[-1]}.{name}")
     setup, step, _ = warm.repeat_step()
-    rows = []
-    for _ in range(args.steps):
-        setup()
-        spent.clear()
-        t0 = time.process_time()
-        step()
-        rows.append((time.process_time() - t0, dict(spent)))
-    rows.sort(key=lambda r: r[0])
+    rows = clocks.time_steps(step, args.steps, setup)
     best = rows[: max(len(rows) // 10, 1)]
     print(f"gpf on {args.scenario}: fastest step {best[0][0] * 1e3:.3f} ms CPU, mean of the "
           f"fastest tenth {np.mean([r[0] for r in best]) * 1e3:.3f} ms")
-    parts = {k: np.mean([r[1].get(k, 0.0) for r in best]) for r in best for k in r[1]}
-    for label, t in sorted(parts.items(), key=lambda kv: -kv[1]):
-        print(f"{t * 1e3:8.3f} ms  {label}")
+    print_parts(best)
 
 
 if __name__ == "__main__":

@@ -19,11 +19,9 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy loads
 
 import argparse  # noqa: E402
-import collections  # noqa: E402
-import functools  # noqa: E402
-import time  # noqa: E402
 
 import numpy as np  # noqa: E402
+from part_clocks import PartClocks, print_parts  # noqa: E402
 
 from mttbench.benchmarks.bench.conftest import warm_up  # noqa: E402
 from mttbench.benchmarks.engine.specs import resolve_scenarios  # noqa: E402
@@ -46,20 +44,7 @@ def main() -> None:
     parser.add_argument("--warm", type=int, default=28)
     parser.add_argument("--init-fraction", type=float, default=None)
     args = parser.parse_args()
-    spent: collections.Counter = collections.Counter()
-
-    def wrap(owner, name, label):
-        f = getattr(owner, name)
-
-        @functools.wraps(f)
-        def timed(*a, **k):
-            t0 = time.process_time()
-            try:
-                return f(*a, **k)
-            finally:
-                spent[label] += time.process_time() - t0
-        setattr(owner, name, timed)
-
+    clocks = PartClocks()
     params = {} if args.init_fraction is None else {"init_fraction": args.init_fraction}
     scenario = resolve_scenarios([args.scenario])[0]
     warm = warm_up(scenario, JMPDAPTracker(n_particles=args.n_particles, **params), args.warm)
@@ -69,23 +54,14 @@ def main() -> None:
                                                                "ap."), (ap, FUNCTIONS, "ap.")):
         for name in names:
             if hasattr(owner, name):
-                wrap(owner, name, prefix + name)
+                clocks.wrap(owner, name, prefix + name)
     step, _ = warm.advance(args.steps)
-    rows = []
-    for _ in range(args.steps):
-        spent.clear()
-        t0 = time.process_time()
-        step()
-        rows.append((time.process_time() - t0, dict(spent)))
-    rows.sort(key=lambda r: r[0])
-    best = rows[: max(len(rows) // 2, 1)]
+    best = clocks.time_steps(step, args.steps)[: max(args.steps // 2, 1)]
     mean = float(np.mean([r[0] for r in best]))
     print(f"jmpd-ap, {args.n_particles} particles, on {args.scenario}: fastest step "
           f"{best[0][0] * 1e3:.3f} ms CPU, mean of the fastest half {mean * 1e3:.3f} ms "
           f"= {mean / args.n_particles * 1e6:.3f} us per particle")
-    parts = {k: np.mean([r[1].get(k, 0.0) for r in best]) for r in best for k in r[1]}
-    for label, t in sorted(parts.items(), key=lambda kv: -kv[1]):
-        print(f"{t * 1e3:9.3f} ms  {label}")
+    print_parts(best)
 
 
 if __name__ == "__main__":
