@@ -70,6 +70,37 @@ def numpy_dispatch_above_avx2() -> list[str]:
 if "numpy" not in sys.modules and "NPY_DISABLE_CPU_FEATURES" not in os.environ:
     os.environ["NPY_DISABLE_CPU_FEATURES"] = numpy_targets_above_avx2()
 
+#: glibc's heap as :func:`steady_heap` sets it: blocks up to 32 MiB (glibc's own ceiling
+#: for its moving threshold) from the heap, whose free top goes back to the system only
+#: beyond 256 MiB
+HEAP_MMAP_THRESHOLD = 32 * 2**20
+HEAP_TRIM_THRESHOLD = 256 * 2**20
+
+
+def steady_heap() -> bool:
+    """Fix glibc's allocation thresholds (``mallopt``), so that a step's temporaries
+    reuse the heap instead of being mapped, unmapped or trimmed and page-faulted back every
+    step. By default glibc's thresholds move with what the process freed before, so the
+    same step cost up to 1.4x more CPU in a fresh process than after others, and the large
+    JMPDs paid 10-45% of their CPU in page faults (docs/bench_gates.md). Returns whether it
+    took effect: not outside glibc, nor when ``MALLOC_MMAP_THRESHOLD_`` or
+    ``MALLOC_TRIM_THRESHOLD_`` is set (those settings are kept)."""
+    if not sys.platform.startswith("linux") or any(
+            name in os.environ for name in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")):
+        return False
+    import ctypes
+
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return False
+    m_trim_threshold, m_mmap_threshold = -1, -3  # malloc.h
+    return bool(mallopt(m_mmap_threshold, HEAP_MMAP_THRESHOLD)) and bool(
+        mallopt(m_trim_threshold, HEAP_TRIM_THRESHOLD))
+
+
+steady_heap()
+
 #: public name -> (module, attribute)
 _API = {
     "Tracker": ("mttbench.trackers.base", "Tracker"),
