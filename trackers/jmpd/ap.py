@@ -362,11 +362,19 @@ class JMPDAPTracker(Tracker):
         """``(pi_initial, pi_arrival)`` of an undetected target in each cell (``None``: a
         cell never looked at, as one cell), for particles with ``remaining`` initial
         targets not found; shapes ``remaining.shape + cells.shape``."""
-        u, u_step, v = self._undetected_values(cells)
-        share = v / self._v_total
-        pi_init = -np.expm1(remaining[..., None] * np.log1p(-np.minimum(share, 1.0 - 1e-12)))
-        pi_arr = -np.expm1(-self._arrival_intensity(u, u_step))
+        log_keep, pi_arr = self._undetected_cell_terms(cells)
+        pi_init = -np.expm1(remaining[..., None] * log_keep)
         return pi_init, np.broadcast_to(pi_arr, pi_init.shape)
+
+    def _undetected_cell_terms(self, cells: np.ndarray | None
+                               ) -> tuple[np.ndarray, np.ndarray]:
+        """Per cell (``None``: a cell never looked at), the parts of
+        :meth:`_undetected_probability` that no particle changes: ``log(1 - share)``
+        (an initial target's chance to be elsewhere, ``share`` below 1) and the arrivals'
+        ``pi_arrival``."""
+        u, u_step, v = self._undetected_values(cells)
+        log_keep = np.log1p(-np.minimum(v / self._v_total, 1.0 - 1e-12))
+        return log_keep, -np.expm1(-self._arrival_intensity(u, u_step))
 
     def _miss_factor(self, n_looks: np.ndarray) -> np.ndarray:
         """``l(0)^n = ((1 - p_d) / (1 - p_f))^n`` (the sensor's likelihood ratio of a miss,
@@ -917,9 +925,7 @@ class JMPDAPTracker(Tracker):
         # newborn is an initial target with probability pi_init / pi, else an arrival
         remaining = self._remaining()
         if self._kernels is not None:  # the same decisions in one compiled pass
-            u, u_step, v = self._undetected_values(det)
-            log_keep = np.log1p(-np.minimum(v / self._v_total, 1.0 - 1e-12))
-            pi_arrival = -np.expm1(-self._arrival_intensity(u, u_step))
+            log_keep, pi_arrival = self._undetected_cell_terms(det)
             self._kernels.birth_decisions(remaining, log_keep, pi_arrival, lam, np.log(lam),
                                           has_slot, occupied, uniforms, born, log_ratio)
         else:
