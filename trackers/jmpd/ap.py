@@ -636,8 +636,9 @@ class JMPDAPTracker(Tracker):
         return held, sums, vel_sums
 
     def _coupled_links(self) -> np.ndarray | None:
-        """:func:`.partitions.coupled_slots` of the particles' holdings (a float32 BLAS
-        product: a compiled count over the held slots took longer)."""
+        """:func:`.partitions.coupled_slots` of the particles' holdings, for both backends
+        (numpy's float32 BLAS product beats a compiled count; one place where a test can
+        switch the coupling off)."""
         return coupled_slots(self.valid)
 
     def _clusters(self, centres: np.ndarray, active: np.ndarray,
