@@ -496,7 +496,7 @@ def _bad_csv(path: Path) -> Path:
     return path
 
 
-def issue24_cases(tmp: Path) -> list[tuple[str, list[str], str]]:
+def late_failure_cases(tmp: Path) -> list[tuple[str, list[str], str]]:
     """``(id, argv, regex the one line must match)``: values that passed validation and
     then overflowed, hung or failed after the work; ``{out}`` is the output
     folder, which must not be created."""
@@ -567,14 +567,14 @@ def issue24_cases(tmp: Path) -> list[tuple[str, list[str], str]]:
     ]
 
 
-def _issue24_ids() -> list[str]:
+def _late_failure_ids() -> list[str]:
     with tempfile.TemporaryDirectory() as d:
-        return [c[0] for c in issue24_cases(Path(d))]
+        return [c[0] for c in late_failure_cases(Path(d))]
 
 
-@pytest.mark.parametrize("case_id", _issue24_ids())
-def test_issue24_refused_before_any_run_in_one_line(case_id, tmp_path, capsys):
-    cases = {c[0]: c for c in issue24_cases(tmp_path)}
+@pytest.mark.parametrize("case_id", _late_failure_ids())
+def test_late_failing_value_refused_before_any_run_in_one_line(case_id, tmp_path, capsys):
+    cases = {c[0]: c for c in late_failure_cases(tmp_path)}
     _, argv, pattern = cases[case_id]
     out = tmp_path / "never"
     capsys.readouterr()

@@ -1,4 +1,4 @@
-"""Issue 16, nothing per step costs ``O(cells)``: the sparse ``P_c(t)`` kernels against the
+"""Nothing per step costs ``O(cells)``: the sparse ``P_c(t)`` kernels against the
 dense ones they replace, each tracker's ``P_c(t)`` against the dense computation it
 replaced, the policies' choices against the dense rule, the simulator's jumped stream
 against numpy's generator, and whole runs on a 1e5 x 1e5 grid (1e10 cells: one dense

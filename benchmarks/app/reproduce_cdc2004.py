@@ -68,7 +68,7 @@ MYOPIC, NONMYOPIC = "renyi", "lookahead"
 CDC_PRESET = "occlusion"
 #: steps before this are left out of each run's mean OSPA
 BURN_IN = 10
-#: the paper's Table I medians as the issue reads them (its own RMS error, not OSPA)
+#: the paper's Table I medians as we read them (its own RMS error, not OSPA)
 PAPER_MEDIANS = {"myopic": 2.054, "non-myopic": 0.932}
 PAPER_RATIO = PAPER_MEDIANS["non-myopic"] / PAPER_MEDIANS["myopic"]
 

@@ -1,6 +1,6 @@
 """Runtime of the literature-strength JMPD (``jmpd-ap``) step the harness times.
 
-Issue 13's speed goal: ``kreucher-50`` (50x50 cells, 10 targets with births and deaths,
+The speed goal: ``kreucher-50`` (50x50 cells, 10 targets with births and deaths,
 every cell looked every step) at ``N = 250`` in at most 10 ms per step. Also
 ``kreucher`` (12x12, 3 targets, every cell looked) at ``N = 1000`` and ``N = 250``.
 

@@ -7,7 +7,7 @@
   fourth track's existence still wavers, OSPA 1.01 on world 0), then one step at the
   scenario's budget is timed from a copy of that state each round (conftest
   ``Warm.repeat_step``), as ``bench_trackers.py`` does for every tracker.
-* ``test_pmb_against_gpf_on_large``: the issue's goal, step time on ``large`` at most
+* ``test_pmb_against_gpf_on_large``: the speed goal, step time on ``large`` at most
   ``MAX_RATIO_TO_GPF`` times the GPF's. Both trackers are warmed up the same way; their
   timed steps alternate round by round (CPU time, ``time.process_time``, so that other
   processes' load falls on both alike), and the ratio of the fastest rounds goes into
@@ -39,7 +39,7 @@ ROUNDS = 30
 PAIRED_ROUNDS = 15
 #: OSPA (c = 2) the timed step must stay below (null scores 2)
 OSPA_BOUND = 1.0
-#: the issue's goal: a PMB step on ``large`` costs at most this many GPF steps
+#: the speed goal: a PMB step on ``large`` costs at most this many GPF steps
 MAX_RATIO_TO_GPF = 2.0
 
 
