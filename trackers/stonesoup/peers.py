@@ -565,6 +565,19 @@ def _mean_cov(state: Any) -> tuple[np.ndarray, np.ndarray]:
             np.asarray(state.covar, dtype=float).reshape(4, 4))
 
 
+def _sorted(comps: list[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Weights ``(K,)``, means ``(K, 4)`` and covariances ``(K, 4, 4)`` of Stone Soup's
+    weighted Gaussians, and the order of (weight descending, mean, covariance): a fixed
+    order whatever the order they came in."""
+    K = len(comps)
+    w = np.array([float(c.weight) for c in comps]).reshape(K)
+    m, P = np.zeros((K, 4)), np.zeros((K, 4, 4))
+    for i, c in enumerate(comps):
+        m[i], P[i] = _mean_cov(c)
+    keys = np.column_stack([-w, m, P.reshape(K, 16)])
+    return w, m, P, np.lexsort(keys.T[::-1])
+
+
 # ======================================================================== GNN
 @register
 class StoneSoupGNN(_StoneSoupPeer):
@@ -1089,25 +1102,37 @@ class StoneSoupGMPHD(_StoneSoupPeer):
             hyps = self._hypothesiser.hypothesise(active, dets, t)
             out += list(updater.update(hyps).components)
         if out:
-            out = self._reducer.reduce(out)
+            out = self._reduce(out)
         self._set_sorted(out)
         self._undetected.multiply(looked_cells, self._miss ** n_looked)
 
+    def _reduce(self, comps: list[Any]) -> list[Any]:
+        """Stone Soup's ``GaussianMixtureReducer.reduce`` (prune, merge, then truncate to
+        ``max_components``), its own steps in its order, with the merged mixture put in the
+        order of :func:`_sorted` before the truncation. Stone Soup's merge emits the
+        components that share a tag in the order of a set of tags (salted string hashes),
+        and its truncation keeps the first of equal weights: in clutter, births at
+        isolated detections tie exactly, so a binding cap kept different components in
+        processes with different hash seeds."""
+        reducer = self._reducer
+        if reducer.pruning:
+            comps = reducer.prune(comps)
+        if len(comps) > 1 and reducer.merging:
+            comps = reducer.merge(comps)
+        if len(comps) > reducer.max_number_components and reducer.truncating:
+            order = _sorted(comps)[3]
+            comps = reducer.truncate([comps[i] for i in order])
+        return comps
+
     def _set_sorted(self, comps: list[Any]) -> None:
         """The mixture as arrays, sorted by (weight descending, mean, covariance)."""
-        K = len(comps)
-        w = np.array([float(c.weight) for c in comps]).reshape(K)
-        m, P = np.zeros((K, 4)), np.zeros((K, 4, 4))
-        for i, c in enumerate(comps):
-            m[i], P[i] = _mean_cov(c)
-        keys = np.column_stack([-w, m, P.reshape(K, 16)])
-        order = np.lexsort(keys.T[::-1])
+        w, m, P, order = _sorted(comps)
         self._w, self._m, self._P = w[order], m[order], P[order]
         # labels: Stone Soup's reducer gives a merged component the tag of its heaviest
         # member and fresh random tags to lighter ones that shared a tag; heaviest first, a
         # label tag seen for the first time is kept, any other tag (a birth, a fresh one, a
         # repeat) gets the next new label
-        label, seen = np.zeros(K, dtype=np.int64), set()
+        label, seen = np.zeros(len(comps), dtype=np.int64), set()
         for j, i in enumerate(order):
             tag = str(comps[i].tag)
             if tag.isdigit() and int(tag) not in seen:
